@@ -1,0 +1,417 @@
+"""Batched multi-agent target localization: one object steps B environments as arrays.
+
+Thesis Ch. 3.2/3.7.1 (Poisson readings, Eq. 6; team rewards Eq. 5/8 and Eq. 9) and Ch. 4.3-4.4
+(walls from the sides, 8 directions + idle, invalid-move masks, the all-idle rule). What is fixed
+within an episode (BFS distance map, expected-reading map, the move table with walls) is computed
+once at reset, so a step is a handful of gathers over (B, N) arrays.
+
+Walls (ours where the thesis is silent): a wall starts at one side of the area, at a cell drawn
+away from the corners, and runs perpendicular to that side for a random length of at most
+span - 2 cells. Wall cells cannot be entered; a diagonal move may not cut the corner of a wall
+cell. Walls can wall off pockets: the target is drawn among free cells, and agents start only in
+cells from which the target is reachable (the target of Ch. 3/4 is always reachable).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from .spec import MOVES, EnvSpec
+
+#: BFS distance of cells that cannot reach the target (walls, walled-off pockets).
+UNREACHABLE = 1_000_000
+#: Positions remembered per env for ``past_pos`` (ODMTL windows need (w - 1) / 2 steps back).
+HISTORY = 16
+
+
+@dataclass
+class EpisodeStats:
+    """Episodes that ended in one step: which envs, and how they ended."""
+
+    index: np.ndarray  # (k,) env indices
+    found: np.ndarray  # (k,) bool: an agent stepped on the target
+    length: np.ndarray  # (k,) steps taken (localization time)
+    cost: np.ndarray  # (k,) moving actions taken by the whole team
+
+
+@dataclass
+class StepResult:
+    reward: np.ndarray  # float32 (B,) team reward (shared by all agents)
+    terminated: np.ndarray  # bool (B,) target found in this step
+    truncated: np.ndarray  # bool (B,) step limit reached without finding it
+    episode: EpisodeStats | None
+
+
+class TargetLocalizationEnv:
+    """B target-localization episodes stepped together. See ``docs/mdrl-core.md`` for the state."""
+
+    def __init__(
+        self, spec: EnvSpec, num_envs: int = 1, seed: int | None = None, autoreset: bool = True
+    ) -> None:
+        if num_envs < 1:
+            raise ValueError(f"num_envs must be >= 1, got {num_envs}")
+        self.spec = spec
+        self.num_envs = num_envs
+        self.autoreset = autoreset
+        B, N, C, A = num_envs, spec.agents, spec.num_cells, spec.num_actions
+        m, n = spec.rows, spec.cols
+        self.moves = MOVES[spec.moves]
+
+        # Static geometry, shared by all episodes.
+        self.cell_row = np.repeat(np.arange(m), n)
+        self.cell_col = np.tile(np.arange(n), m)
+        cy, cx = spec.cell_size_m
+        self.centre_m = np.stack([(self.cell_row + 0.5) * cy, (self.cell_col + 0.5) * cx], axis=1)
+        nr = self.cell_row[:, None] + self.moves[None, :, 0]
+        nc = self.cell_col[:, None] + self.moves[None, :, 1]
+        inside = (nr >= 0) & (nr < m) & (nc >= 0) & (nc < n)
+        self._free_next = np.where(inside, nr * n + nc, -1)  # (C, A) move table without walls
+        diff = np.abs(self.cell_row[:, None] - self.cell_row[None]), np.abs(
+            self.cell_col[:, None] - self.cell_col[None]
+        )
+        # Wall-free BFS distances have a closed form: Manhattan (4 moves) or Chebyshev (8 moves).
+        self._free_dist = (diff[0] + diff[1] if spec.moves == 4 else np.maximum(*diff)).astype(np.int32)
+        d2_cm2 = ((self.centre_m[:, None, :] - self.centre_m[None, :, :]) ** 2).sum(-1) * 1e4
+        d2_cm2 = np.maximum(d2_cm2, (min(cy, cx) * 100 / 2) ** 2)
+        # Expected count per photon/min without walls (Eq. 6): dwell * area / (4 pi d^2).
+        self._free_gain = spec.dwell_min * spec.detector_area_cm2 / (4 * np.pi * d2_cm2)
+
+        # Per-env state (documented in docs/mdrl-core.md).
+        self.pos = np.zeros((B, N), dtype=np.int64)
+        self.target = np.zeros(B, dtype=np.int64)
+        self.walls = np.zeros((B, C), dtype=bool)
+        self.dist = np.zeros((B, C), dtype=np.int32)
+        self.mean_reading = np.zeros((B, C), dtype=np.float64)
+        self.readings = np.zeros((B, C), dtype=np.float32)
+        self.visits = np.zeros((B, C), dtype=np.float32)
+        self.t = np.zeros(B, dtype=np.int64)
+        self.idle_streak = np.zeros(B, dtype=np.int64)
+        self.intensity = np.zeros(B, dtype=np.float64)
+        self.cost = np.zeros(B, dtype=np.int64)
+        self.next_cell = np.zeros((B, C, A), dtype=np.int64)
+        self.active = np.ones(B, dtype=bool)  # False: episode over and frozen (autoreset=False)
+        self.history = np.zeros((B, HISTORY, N), dtype=np.int64)
+        self._mask = np.zeros((B, N, A), dtype=bool)
+        self._rows = np.arange(B)
+        self.seed(seed)
+        self.reset()
+
+    # ------------------------------------------------------------------ seeding and state
+    def seed(self, seed: int | None) -> None:
+        """Two independent streams: layouts (so policies see the same episodes) and reading noise."""
+        layout, noise = np.random.SeedSequence(seed).spawn(2)
+        self.layout_rng = np.random.Generator(np.random.PCG64(layout))
+        self.noise_rng = np.random.Generator(np.random.PCG64(noise))
+
+    _STATE = (
+        "pos target walls dist mean_reading readings visits t idle_streak intensity cost "
+        "next_cell active history _mask"
+    ).split()
+
+    def state_dict(self) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        """(arrays, JSON-able extras) that restore this env exactly, mid-episode included."""
+        arrays = {name.lstrip("_"): getattr(self, name).copy() for name in self._STATE}
+        extras = {
+            "spec": self.spec.to_dict(),
+            "num_envs": self.num_envs,
+            "autoreset": self.autoreset,
+            "layout_rng": self.layout_rng.bit_generator.state,
+            "noise_rng": self.noise_rng.bit_generator.state,
+        }
+        return arrays, extras
+
+    def load_state_dict(self, arrays: dict[str, np.ndarray], extras: dict[str, Any]) -> None:
+        if EnvSpec.from_dict(extras["spec"]) != self.spec or extras["num_envs"] != self.num_envs:
+            raise ValueError("saved environment state is for another spec or number of envs")
+        for name in self._STATE:
+            current = getattr(self, name)
+            value = np.asarray(arrays[name.lstrip("_")])
+            if value.shape != current.shape:
+                raise ValueError(f"saved env array {name} has shape {value.shape}, expected {current.shape}")
+            current[...] = value
+        self.layout_rng.bit_generator.state = extras["layout_rng"]
+        self.noise_rng.bit_generator.state = extras["noise_rng"]
+
+    # ------------------------------------------------------------------ episodes
+    def reset(self, seed: int | None = None) -> None:
+        """Start new episodes in all B environments."""
+        if seed is not None:
+            self.seed(seed)
+        self._reset_rows(self._rows)
+
+    def _reset_rows(self, rows: np.ndarray) -> None:
+        spec, rng = self.spec, self.layout_rng
+        R, C, N = len(rows), spec.num_cells, spec.agents
+        walls = self._draw_walls(R)
+        self.walls[rows] = walls
+        next_cell = self._move_table(walls)
+        self.next_cell[rows] = next_cell
+
+        # Target among free cells; agents at distinct cells that can reach it.
+        keys = rng.random((R, C))
+        keys[walls] = 2.0
+        target = keys.argmin(axis=1)
+        dist = self._bfs(target, walls, next_cell)
+        reachable = dist < UNREACHABLE
+        short = reachable.sum(1) < N + 1
+        if short.any():  # a pocket too small to hold the team: draw those layouts again
+            self._reset_rows(rows[~short]) if (~short).any() else None
+            self._reset_rows(rows[short])
+            return
+        keys = rng.random((R, C))
+        keys[~reachable] = 2.0
+        keys[np.arange(R), target] = 2.0
+        start = np.argsort(keys, axis=1)[:, :N]
+
+        self.target[rows] = target
+        self.dist[rows] = dist
+        self.intensity[rows] = intensity = spec.intensity.sample(rng, R)
+        self.mean_reading[rows] = self.expected_counts(target, walls, intensity)
+        self.pos[rows] = start
+        self.history[rows] = start[:, None, :]
+        self.t[rows] = 0
+        self.idle_streak[rows] = 0
+        self.cost[rows] = 0
+        self.active[rows] = True
+        self.visits[rows] = 0
+        self.readings[rows] = 0
+        self._take_readings(rows, start)
+        self._mask[rows] = self._masks(rows)
+
+    def _draw_walls(self, R: int) -> np.ndarray:
+        """(R, C) wall maps: each wall leaves a side at a non-corner cell, perpendicular to it."""
+        spec, rng = self.spec, self.layout_rng
+        m, n = spec.rows, spec.cols
+        walls = np.zeros((R, m, n), dtype=bool)
+        lo, hi = spec.walls
+        if hi == 0:
+            return walls.reshape(R, -1)
+        count = rng.integers(lo, hi + 1, size=R)
+        for k in range(hi):
+            side = rng.integers(0, 4, size=R)  # 0 top, 1 bottom, 2 left, 3 right
+            vertical = side < 2
+            along = np.where(vertical, n, m)  # cells along the side
+            span = np.where(vertical, m, n)  # how far a wall can reach
+            place = rng.integers(1, along - 1)
+            lmin = np.array([spec.wall_length_range(int(s))[0] for s in span])
+            lmax = np.array([spec.wall_length_range(int(s))[1] for s in span])
+            length = rng.integers(lmin, lmax + 1)
+            on = k < count
+            r = np.arange(m)[None, :, None]
+            c = np.arange(n)[None, None, :]
+            place_, length_ = place[:, None, None], length[:, None, None]
+            side_ = side[:, None, None]
+            cells = (
+                ((side_ == 0) & (c == place_) & (r < length_))
+                | ((side_ == 1) & (c == place_) & (r >= m - length_))
+                | ((side_ == 2) & (r == place_) & (c < length_))
+                | ((side_ == 3) & (r == place_) & (c >= n - length_))
+            )
+            walls |= cells & on[:, None, None]
+        return walls.reshape(R, -1)
+
+    def _move_table(self, walls: np.ndarray) -> np.ndarray:
+        """(R, C, A) destination of every move; -1 where it leaves the grid, hits a wall or cuts a corner."""
+        R = len(walls)
+        table = np.broadcast_to(self._free_next, (R, *self._free_next.shape)).copy()
+        if not walls.any():
+            return table
+        rows = np.arange(R)[:, None, None]
+        blocked = (table >= 0) & walls[rows, np.maximum(table, 0)]
+        if self.spec.moves == 8:
+            n = self.spec.cols
+            for a, (dr, dc) in enumerate(self.moves):
+                if dr == 0 or dc == 0:
+                    continue
+                # Moving diagonally needs both orthogonal neighbours free (no corner cutting).
+                via_r = self.cell_row + dr
+                via_c = self.cell_col + dc
+                ok = table[:, :, a] >= 0
+                side1 = np.where(ok, via_r * n + self.cell_col, 0)
+                side2 = np.where(ok, self.cell_row * n + via_c, 0)
+                rr = np.arange(R)[:, None]
+                blocked[:, :, a] |= ok & (walls[rr, side1] | walls[rr, side2])
+        table[blocked] = -1
+        return table
+
+    def _bfs(self, target: np.ndarray, walls: np.ndarray, next_cell: np.ndarray) -> np.ndarray:
+        """(R, C) BFS steps to the target (moves are symmetric, so search from the target)."""
+        R, C = walls.shape
+        dist = self._free_dist[target].copy()
+        hard = walls.any(axis=1)
+        if not hard.any():
+            return dist
+        idx = np.flatnonzero(hard)
+        sub = np.full((len(idx), C), UNREACHABLE, dtype=np.int32)
+        sub[np.arange(len(idx)), target[idx]] = 0
+        frontier = np.zeros((len(idx), C), dtype=bool)
+        frontier[np.arange(len(idx)), target[idx]] = True
+        table = next_cell[idx]
+        rows = np.arange(len(idx))[:, None]
+        d = 0
+        while frontier.any():
+            d += 1
+            reached = np.zeros_like(frontier)
+            for a in range(1, table.shape[2]):
+                dest = table[:, :, a]
+                ok = frontier & (dest >= 0)
+                reached[np.broadcast_to(rows, dest.shape)[ok], dest[ok]] = True
+            frontier = reached & (sub == UNREACHABLE)
+            sub[frontier] = d
+        dist[idx] = sub
+        return dist
+
+    def expected_counts(self, target: np.ndarray, walls: np.ndarray, intensity: np.ndarray) -> np.ndarray:
+        """(R, C) mean reading at every cell for sources at ``target`` (Eq. 6 x wall transmission).
+
+        Public so model-based baselines can evaluate hypothetical targets with the same physics.
+        """
+        mean = intensity[:, None] * self._free_gain[target]
+        if not walls.any():
+            return mean
+        return mean * self._transmission(target, walls)
+
+    def _transmission(self, target: np.ndarray, walls: np.ndarray) -> np.ndarray:
+        """Beer-Lambert exp(-mu t / cos(theta)) for every wall the straight detector-source line crosses.
+
+        A wall is the run of wall cells that leaves a side; its slab lies on the centre line of
+        those cells, from the side to the far edge of its last cell.
+        """
+        spec = self.spec
+        m, n = spec.rows, spec.cols
+        cy, cx = spec.cell_size_m
+        R = len(target)
+        grid = walls.reshape(R, m, n)
+        py, px = self.centre_m[None, :, 0], self.centre_m[None, :, 1]  # detectors (1, C)
+        qy, qx = self.centre_m[target, 0][:, None], self.centre_m[target, 1][:, None]  # sources (R, 1)
+        length = np.hypot(py - qy, px - qx)
+        top = np.cumprod(grid, axis=1).sum(1)  # (R, n) run down from the top of each column
+        bottom = np.cumprod(grid[:, ::-1], axis=1).sum(1)
+        left = np.cumprod(grid, axis=2).sum(2)  # (R, m) run in from the left of each row
+        right = np.cumprod(grid[:, :, ::-1], axis=2).sum(2)
+        slant = _slab_slant(px, qx, py, qy, length, top, bottom, cx, cy, m)
+        slant += _slab_slant(py, qy, px, qx, length, left, right, cy, cx, n)
+        return np.exp(-spec.wall_mu_per_cm * spec.wall_thickness_cm * slant)
+
+    # ------------------------------------------------------------------ stepping
+    def action_mask(self) -> np.ndarray:
+        """bool (B, N, A): valid actions now (a view; do not modify)."""
+        return self._mask
+
+    def _masks(self, rows: np.ndarray) -> np.ndarray:
+        C = self.spec.num_cells
+        flat = self.next_cell.reshape(-1, self.spec.num_actions)
+        mask = flat[rows[:, None] * C + self.pos[rows]] >= 0
+        mask[:, :, 0] &= (self.idle_streak[rows] < self.spec.idle_limit)[:, None]
+        return mask
+
+    def past_pos(self, k: int) -> np.ndarray:
+        """(B, N) positions k steps ago, clamped to the episode start (ODMTL window centres)."""
+        if not 0 <= k < HISTORY:
+            raise ValueError(f"past_pos keeps {HISTORY} steps, asked for {k}")
+        slot = np.maximum(self.t - k, 0) % HISTORY
+        return self.history[self._rows, slot]
+
+    def _take_readings(self, rows: np.ndarray, cells: np.ndarray) -> None:
+        """Poisson readings (Eq. 6) at ``cells`` (R, N); last reading per cell, visit counts."""
+        C = self.spec.num_cells
+        flat = rows[:, None] * C + cells
+        lam = self.mean_reading.reshape(-1)[flat]
+        self.readings.reshape(-1)[flat] = self.noise_rng.poisson(lam)
+        np.add.at(self.visits.reshape(-1), flat.reshape(-1), 1.0)
+
+    def step(self, actions: np.ndarray) -> StepResult:
+        """Apply one joint action per env; returns team rewards (Eq. 5/8 or Eq. 9) and endings."""
+        spec = self.spec
+        B, N, A = self.num_envs, spec.agents, spec.num_actions
+        actions = np.asarray(actions)
+        if actions.shape != (B, N):
+            raise ValueError(f"actions must have shape (num_envs, agents) = {(B, N)}, got {actions.shape}")
+        if not np.issubdtype(actions.dtype, np.integer):
+            raise ValueError(f"actions must be integers, got {actions.dtype}")
+        actions = actions.astype(np.int64, copy=False)
+        live = self.active
+        out_of_range = (actions < 0) | (actions >= A)
+        valid = np.take_along_axis(self._mask, np.clip(actions, 0, A - 1)[..., None], axis=2)[..., 0]
+        bad = live[:, None] & (out_of_range | ~valid)
+        if bad.any():
+            b, i = np.argwhere(bad)[0]
+            raise ValueError(
+                f"invalid action {actions[b, i]} for agent {i} in env {b} at cell {self.pos[b, i]} "
+                f"(valid: {np.flatnonzero(self._mask[b, i]).tolist()})"
+            )
+
+        rows = self._rows if live.all() else np.flatnonzero(live)
+        act = actions[rows]
+        old = self.pos[rows]
+        C = spec.num_cells
+        new = self.next_cell.reshape(-1)[(rows[:, None] * C + old) * A + act]
+        moved = act != 0
+        b = moved.sum(1)
+        dist_flat = self.dist.reshape(-1)
+        prev_min = dist_flat[rows[:, None] * C + old].min(1)
+        new_min = dist_flat[rows[:, None] * C + new].min(1)
+        found = new_min == 0
+
+        reward = np.zeros(B, dtype=np.float32)
+        if spec.reward == "shaped":  # Eq. 5 / Eq. 8
+            reward[rows] = np.where(new_min < prev_min, 1.0, -1.0) - b
+        else:  # Eq. 9
+            reward[rows] = -b + spec.sparse_bonus * found
+
+        self.pos[rows] = new
+        self.cost[rows] += b
+        self.t[rows] += 1
+        self.idle_streak[rows] = np.where(b == 0, self.idle_streak[rows] + 1, 0)
+        self.history[rows, self.t[rows] % HISTORY] = new
+        self._take_readings(rows, new)
+
+        terminated = np.zeros(B, dtype=bool)
+        truncated = np.zeros(B, dtype=bool)
+        terminated[rows] = found
+        truncated[rows] = ~found & (self.t[rows] >= spec.max_steps)
+        ended = np.flatnonzero(terminated | truncated)
+        episode = None
+        if len(ended):
+            episode = EpisodeStats(
+                index=ended,
+                found=terminated[ended].copy(),
+                length=self.t[ended].copy(),
+                cost=self.cost[ended].copy(),
+            )
+            if self.autoreset:
+                self._reset_rows(ended)
+            else:
+                self.active[ended] = False
+        going = rows if episode is None else np.setdiff1d(rows, ended, assume_unique=True)
+        if len(going):
+            self._mask[going] = self._masks(going)
+        return StepResult(reward, terminated, truncated, episode)
+
+    @property
+    def done(self) -> bool:
+        """All episodes over (only with autoreset=False)."""
+        return not self.active.any()
+
+
+def _slab_slant(a_p, a_q, s_p, s_q, length, near, far, size_a, size_s, span) -> np.ndarray:
+    """Sum of 1/cos(theta) over the slabs at a = (j + 0.5) * size_a that the segment PQ crosses.
+
+    ``a`` is the coordinate across the slabs, ``s`` the one along them; ``near``/``far`` (R, lines)
+    are the run lengths from the two sides (0: no wall there).
+    """
+    total = np.zeros(np.broadcast_shapes(a_p.shape, a_q.shape))
+    for j in np.flatnonzero((near > 0).any(0) | (far > 0).any(0)):
+        aw = (j + 0.5) * size_a
+        dp, dq = a_p - aw, a_q - aw
+        crosses = dp * dq < 0
+        with np.errstate(divide="ignore", invalid="ignore"):
+            s = s_p + dp / (dp - dq) * (s_q - s_p)
+            slant = length / np.abs(a_p - a_q)
+        nj, fj = near[:, j : j + 1], far[:, j : j + 1]
+        hit = crosses & (((nj > 0) & (s <= nj * size_s)) | ((fj > 0) & (s >= (span - fj) * size_s)))
+        total += np.where(hit, slant, 0.0)
+    return total
