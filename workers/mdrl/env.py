@@ -96,6 +96,7 @@ class TargetLocalizationEnv:
         self.history = np.zeros((B, HISTORY, N), dtype=np.int64)
         self._mask = np.zeros((B, N, A), dtype=bool)
         self._rows = np.arange(B)
+        self._agent_offsets = np.arange(B * N).reshape(B, N) * A  # flat (b, i, 0) in (B, N, A)
         self.seed(seed)
         self.reset()
 
@@ -321,7 +322,9 @@ class TargetLocalizationEnv:
         flat = rows[:, None] * C + cells
         lam = self.mean_reading.reshape(-1)[flat]
         self.readings.reshape(-1)[flat] = self.noise_rng.poisson(lam)
-        np.add.at(self.visits.reshape(-1), flat.reshape(-1), 1.0)
+        visits = self.visits.reshape(-1)
+        for i in range(flat.shape[1]):  # one agent at a time: indices unique, so += counts all
+            visits[flat[:, i]] += 1.0
 
     def step(self, actions: np.ndarray) -> StepResult:
         """Apply one joint action per env; returns team rewards (Eq. 5/8 or Eq. 9) and endings."""
@@ -335,7 +338,8 @@ class TargetLocalizationEnv:
         actions = actions.astype(np.int64, copy=False)
         live = self.active
         out_of_range = (actions < 0) | (actions >= A)
-        valid = np.take_along_axis(self._mask, np.clip(actions, 0, A - 1)[..., None], axis=2)[..., 0]
+        flat_action = self._agent_offsets + np.clip(actions, 0, A - 1)
+        valid = self._mask.reshape(-1)[flat_action]
         bad = live[:, None] & (out_of_range | ~valid)
         if bad.any():
             b, i = np.argwhere(bad)[0]
@@ -386,7 +390,12 @@ class TargetLocalizationEnv:
                 self._reset_rows(ended)
             else:
                 self.active[ended] = False
-        going = rows if episode is None else np.setdiff1d(rows, ended, assume_unique=True)
+        if episode is None:
+            going = rows
+        else:
+            keep = np.ones(B, dtype=bool)
+            keep[ended] = False
+            going = rows[keep[rows]]
         if len(going):
             self._mask[going] = self._masks(going)
         return StepResult(reward, terminated, truncated, episode)

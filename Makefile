@@ -1,0 +1,50 @@
+# The two entry points of README.md: `make demo` and `make test`. Both set everything up first.
+PY ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+DEMO_OUT ?= runs/demo
+
+.PHONY: setup demo test lint bench-env bench-train bench-table bench-recruitment clean
+
+$(STAMP): pyproject.toml
+	test -x $(BIN)/python || $(PY) -m venv $(VENV)
+	$(BIN)/pip install --quiet --upgrade pip
+	# torch first, pinned: pip takes the local CPU wheel of this machine kind (see shared/TOOLCHAIN.md)
+	$(BIN)/pip install --quiet torch==2.13.0
+	$(BIN)/pip install --quiet -e '.[dev]'
+	touch $(STAMP)
+
+contracts/node_modules/.installed: contracts/package-lock.json
+	cd contracts && npm ci --no-audit --no-fund --loglevel=error
+	touch $@
+
+setup: $(STAMP) contracts/node_modules/.installed
+
+# Main job (embedded default, nothing else to install): train the default preset briefly, then
+# evaluate the model against the baselines and the oracle on the same seeded episodes.
+demo: setup
+	$(BIN)/drlaas train --preset odmtl-3a-10x10 --minutes 3 --seed 0 --out $(DEMO_OUT)
+	$(BIN)/drlaas eval --policy $(DEMO_OUT)/model --episodes 500 --seed 1
+	$(BIN)/drlaas eval --policy bayes --agents 3 --episodes 500 --seed 1
+
+test: setup
+	$(BIN)/python -m pytest -q
+
+lint: setup
+	$(BIN)/ruff check .
+
+bench-env: setup
+	$(BIN)/python benchmarks/env_throughput.py
+
+bench-train: setup
+	$(BIN)/python benchmarks/train_to_quality.py
+
+bench-table: setup
+	$(BIN)/python benchmarks/policy_table.py
+
+bench-recruitment: setup
+	$(BIN)/python benchmarks/recruitment/run.py
+
+clean:
+	rm -rf $(VENV) runs contracts/node_modules
