@@ -1,0 +1,1 @@
+"""Typer command functions of the MDRL core, registered on `drlaas` by drlaas/cli.py."""

@@ -1,0 +1,400 @@
+"""Observation builders for CMTL, DMTL and ODMTL (thesis sections 3.4.1, 3.5.1, 3.6.1, 4.3).
+
+An observer turns the state of ``B`` environments stepped together into the stacked 2D maps
+the actor and critic CNNs read (Table 3.1). Every builder only READS these attributes of the
+env: ``pos`` int (B, N), ``readings`` float (B, C), ``visits`` float (B, C), ``walls`` bool
+(B, C) (only when wall maps are on), ``past_pos(k) -> (B, N)`` (ODMTL only) — see
+``docs/mdrl-core.md``. ``C = rows * cols`` and ``cell = row * cols + col``.
+
+Channel order (``Observer.actor_channels`` / ``critic_channels`` name them):
+
+* CMTL (3.4.1) actor = critic: N location maps (agent order), readings, visits [, walls].
+* DMTL (3.5.1) actor per agent: own location, other agents' counts (dropped when N == 1,
+  Table 3.4 footnote), readings, visits [, walls]; critic: all-agent counts, readings,
+  visits [, walls].
+* ODMTL (3.6.1) actor per agent, each ``w x w``: windowed own location, windowed readings,
+  downsized own location, downsized other locations (dropped when N == 1), downsized
+  readings, downsized visits [, windowed walls, downsized walls]; critic: downsized
+  all-agent counts, readings, visits [, downsized walls].
+
+Wall maps are included iff ``ObservationSpec.walls`` is True, or it is None and the env can
+have walls (``spec.walls[1] > 0``). Chapter 4 embeds walls with a CAE; here the (windowed /
+downsized) walls map stands in for it, so the actor sees walls without a pretrained encoder.
+
+Choices the thesis leaves open (ours):
+
+* Normalisation (line 712): each FULL ``m x n`` map is divided by its own maximum when that is
+  > 0 (per env, and per agent for per-agent maps), BEFORE windowing or downsizing. So a
+  window or a downsized map is a view of the normalised full map; its own maximum may be < 1.
+* Windows (3.6.1): ``w x w`` centred on the agent's position at step ``t - (w-1)/2``
+  (``env.past_pos((w-1)//2)``); cells outside the grid read 0 (also in the walls window).
+  An agent moves at most one cell per step in each axis, so its current cell is always
+  inside its window.
+* Downsizing (3.6.1): Gaussian filter sigma = 1 with ``scipy.ndimage`` semantics,
+  ``mode="nearest"`` (edge cells are not darkened, so an agent in a corner keeps its weight)
+  and ``truncate=4``; then bilinear resize to ``w x w`` with ALIGN-CORNERS semantics (output
+  corners sample the input corner cells, as ``scipy.ndimage.zoom(order=1,
+  grid_mode=False)``). The chain is linear and separable, so it is one precomputed matrix
+  ``R`` (w*w, C) = kron(Zr Gr, Zc Gc) and a batch of maps is downsized by ``maps @ R.T``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import numpy as np
+from scipy import ndimage
+
+KINDS = ("odmtl", "dmtl", "cmtl")
+GAUSSIAN_SIGMA = 1.0
+
+
+@dataclass(frozen=True)
+class ObservationSpec:
+    """Which observation model to build (Table 3.1 columns) and its hyperparameters."""
+
+    kind: str = "odmtl"
+    """'odmtl' | 'dmtl' | 'cmtl' (sections 3.6, 3.5, 3.4)."""
+    window: int = 3
+    """w: side of the windowed and downsized ODMTL maps; odd, 1 < w < min(rows, cols)."""
+    walls: bool | None = None
+    """Append wall maps; None = iff the env can have walls (``spec.walls[1] > 0``)."""
+
+    def __post_init__(self) -> None:
+        if self.kind not in KINDS:
+            raise ValueError(f"ObservationSpec.kind must be one of {KINDS}, got {self.kind!r}")
+        if isinstance(self.window, bool) or not isinstance(self.window, (int, np.integer)):
+            raise ValueError(f"ObservationSpec.window must be an int, got {self.window!r}")
+        if self.window < 1 or self.window % 2 == 0:
+            raise ValueError(
+                f"ObservationSpec.window must be a positive odd int, got {self.window}"
+            )
+        if self.walls is not None and not isinstance(self.walls, bool):
+            raise ValueError(
+                f"ObservationSpec.walls must be True, False or None, got {self.walls!r}"
+            )
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> ObservationSpec:
+        unknown = set(d) - {"kind", "window", "walls"}
+        if unknown:
+            raise ValueError(f"unknown ObservationSpec fields: {sorted(unknown)}")
+        return cls(**d)
+
+
+# --------------------------------------------------------------------------- linear operators
+
+
+def _bilinear_matrix(size_in: int, size_out: int) -> np.ndarray:
+    """(size_out, size_in) 1D linear interpolation weights, align-corners semantics."""
+    z = np.zeros((size_out, size_in))
+    if size_in == 1:
+        z[:, 0] = 1.0
+        return z
+    src = np.arange(size_out) * ((size_in - 1) / (size_out - 1)) if size_out > 1 else np.zeros(1)
+    i0 = np.minimum(np.floor(src).astype(int), size_in - 2)
+    frac = src - i0
+    rows = np.arange(size_out)
+    np.add.at(z, (rows, i0), 1.0 - frac)
+    np.add.at(z, (rows, i0 + 1), frac)
+    return z
+
+
+def downsize_matrix(rows: int, cols: int, window: int) -> np.ndarray:
+    """R (w*w, rows*cols): Gaussian blur (sigma 1, mode nearest) then bilinear resize to w x w.
+
+    Both steps are separable, so R = kron(Zr @ Gr, Zc @ Gc); the 1D Gaussian matrices are the
+    unit basis pushed through ``scipy.ndimage.gaussian_filter1d``. ``maps (.., C) @ R.T``
+    downsizes flattened maps.
+    """
+    g_r = ndimage.gaussian_filter1d(np.eye(rows), GAUSSIAN_SIGMA, axis=0, mode="nearest")
+    g_c = ndimage.gaussian_filter1d(np.eye(cols), GAUSSIAN_SIGMA, axis=0, mode="nearest")
+    a_r = _bilinear_matrix(rows, window) @ g_r
+    a_c = _bilinear_matrix(cols, window) @ g_c
+    return np.kron(a_r, a_c)
+
+
+def window_index(rows: int, cols: int, window: int) -> np.ndarray:
+    """(C, w*w) int: cell index of each window element around each centre cell; C (one past the
+    last cell) for elements outside the grid, so gathers read a zero pad column there."""
+    p = window // 2
+    r = np.arange(rows)[:, None, None, None] + np.arange(-p, p + 1)[None, None, :, None]
+    c = np.arange(cols)[None, :, None, None] + np.arange(-p, p + 1)[None, None, None, :]
+    r, c = np.broadcast_arrays(r, c)  # (rows, cols, w, w)
+    inside = (r >= 0) & (r < rows) & (c >= 0) & (c < cols)
+    idx = np.where(inside, r * cols + c, rows * cols)
+    return idx.reshape(rows * cols, window * window).astype(np.intp)
+
+
+def _inverse_max(maps: np.ndarray) -> np.ndarray:
+    """1 / max over the last axis (cells), or 1 where the maximum is not > 0 (line 712)."""
+    top = maps.max(axis=-1)
+    return (1.0 / np.where(top > 0, top, 1)).astype(np.float32)
+
+
+def _normalise(maps: np.ndarray) -> np.ndarray:
+    """Divide each map (last axis = cells) by its maximum when that is > 0 (line 712)."""
+    return maps * _inverse_max(maps)[..., None]
+
+
+# --------------------------------------------------------------------------- joint actions (CMTL)
+
+
+def encode_joint(actions: np.ndarray, num_actions: int) -> np.ndarray:
+    """(B, N) per-agent actions -> (B,) joint index; agent 0 is the most significant digit."""
+    actions = np.asarray(actions)
+    n = actions.shape[-1]
+    if actions.size and (actions.min() < 0 or actions.max() >= num_actions):
+        raise ValueError(
+            f"actions must lie in [0, {num_actions}), got range [{actions.min()}, {actions.max()}]"
+        )
+    weights = num_actions ** np.arange(n - 1, -1, -1, dtype=np.int64)
+    return (actions.astype(np.int64) * weights).sum(-1)
+
+
+def decode_joint(joint: np.ndarray, num_actions: int, agents: int) -> np.ndarray:
+    """(B,) joint index -> (B, N) per-agent actions (inverse of ``encode_joint``)."""
+    joint = np.asarray(joint, dtype=np.int64)
+    if joint.size and (joint.min() < 0 or joint.max() >= num_actions**agents):
+        raise ValueError(
+            f"joint actions must lie in [0, {num_actions**agents}), got range "
+            f"[{joint.min()}, {joint.max()}]"
+        )
+    weights = num_actions ** np.arange(agents - 1, -1, -1, dtype=np.int64)
+    return (joint[..., None] // weights) % num_actions
+
+
+def joint_mask(mask: np.ndarray) -> np.ndarray:
+    """bool (B, N, A) -> (B, A**N): a joint action is valid iff every agent's action is."""
+    mask = np.asarray(mask, dtype=bool)
+    out = mask[:, 0]
+    for i in range(1, mask.shape[1]):  # N outer products, each O(B * A**(i+1))
+        out = (out[:, :, None] & mask[:, i, None, :]).reshape(mask.shape[0], -1)
+    return out
+
+
+# --------------------------------------------------------------------------- observer
+
+
+class Observer:
+    """Builds (actor, critic) observations for a batch of envs; see the module docstring."""
+
+    def __init__(self, env_spec: Any, obs_spec: ObservationSpec) -> None:
+        rows, cols, agents = int(env_spec.rows), int(env_spec.cols), int(env_spec.agents)
+        if rows < 1 or cols < 1 or agents < 1:
+            raise ValueError(
+                f"env spec needs rows, cols, agents >= 1, got {rows}, {cols}, {agents}"
+            )
+        w = int(obs_spec.window)
+        if obs_spec.kind == "odmtl" and not (1 < w < min(rows, cols)):
+            raise ValueError(
+                f"ODMTL window must satisfy 1 < w < min(rows, cols) = "
+                f"{min(rows, cols)} (thesis 3.6.1), got w = {w}"
+            )
+        self.env_spec, self.obs_spec = env_spec, obs_spec
+        self.kind, self.window = obs_spec.kind, w
+        self.rows, self.cols, self.agents = rows, cols, agents
+        self.cells = rows * cols
+        self.walls = bool(env_spec.walls[1] > 0) if obs_spec.walls is None else obs_spec.walls
+        self.joint_actions = self.kind == "cmtl"
+        others = ["others"] if agents > 1 else []
+        walls = ["walls"] if self.walls else []
+        if self.kind == "cmtl":
+            actor = [f"location_{i}" for i in range(agents)] + ["readings", "visits"] + walls
+            critic = list(actor)
+        elif self.kind == "dmtl":
+            actor = ["location"] + others + ["readings", "visits"] + walls
+            critic = ["all_locations", "readings", "visits"] + walls
+        else:
+            actor = (
+                ["win_location", "win_readings", "ds_location"]
+                + [f"ds_{o}" for o in others]
+                + ["ds_readings", "ds_visits"]
+                + (["win_walls", "ds_walls"] if self.walls else [])
+            )
+            critic = ["ds_all_locations", "ds_readings", "ds_visits"] + [f"ds_{x}" for x in walls]
+        self.actor_channels, self.critic_channels = tuple(actor), tuple(critic)
+        h, wd = (w, w) if self.kind == "odmtl" else (rows, cols)
+        self.actor_shape = (len(actor), h, wd)
+        self.critic_shape = (len(critic), h, wd)
+        if self.kind == "odmtl":
+            self._rt = downsize_matrix(rows, cols, w).T.astype(np.float32).copy()  # (C, w*w)
+            self._win = window_index(rows, cols, w)
+            self._pad = w // 2  # window centre lags by (w-1)/2 steps (3.6.1)
+        self._not_self = (~np.eye(agents, dtype=bool)).astype(np.int64)
+        self._pair_i, self._pair_j = np.divmod(np.arange(agents * agents), agents)
+        self._arange_ww = np.arange(w * w)
+        self._buffers: dict[tuple, np.ndarray] = {}  # scratch space per batch size
+
+    def num_actor_outputs(self, num_actions_per_agent: int) -> int:
+        """A for the shared CLDE actor (DMTL/ODMTL), A**N for the joint CMTL actor."""
+        a = int(num_actions_per_agent)
+        return a**self.agents if self.joint_actions else a
+
+    # ------------------------------------------------------------------ helpers
+    def _check(self, env: Any) -> tuple[np.ndarray, int]:
+        pos = np.asarray(env.pos)
+        if pos.ndim != 2 or pos.shape[1] != self.agents:
+            raise ValueError(f"env.pos must have shape (B, {self.agents}), got {pos.shape}")
+        if np.shape(env.readings) != (pos.shape[0], self.cells):
+            raise ValueError(
+                f"env.readings must have shape ({pos.shape[0]}, {self.cells}), "
+                f"got {np.shape(env.readings)}"
+            )
+        return pos, pos.shape[0]
+
+    def _gather_windows(self, maps: np.ndarray, centre: np.ndarray, slot: int) -> np.ndarray:
+        """maps (B, C), centre (B, N) cells -> (B, N, w*w) windows (0 off-grid).
+
+        The maps are copied into a cached (B, C + 1) buffer whose last column stays 0, so
+        off-grid window elements (index C) read 0; one flat ``take`` serves the whole batch.
+        """
+        b = maps.shape[0]
+        key = (b, slot)
+        if key not in self._buffers:
+            self._buffers[key] = np.zeros((b, self.cells + 1), dtype=np.float32)
+            self._buffers[(b, "rows")] = (np.arange(b) * (self.cells + 1))[:, None, None]
+        ext = self._buffers[key]
+        ext[:, : self.cells] = maps
+        flat = self._win[centre]
+        flat += self._buffers[(b, "rows")]
+        return np.take(ext.ravel(), flat)
+
+    # ------------------------------------------------------------------ observe
+    def observe(
+        self, env: Any, out: tuple[np.ndarray, np.ndarray] | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """-> actor (B, N, C_a, H, W) (CMTL: (B, 1, ...)), critic (B, C_c, H, W), float32.
+
+        ``out``: optional preallocated (actor, critic) float32 arrays of those shapes (e.g.
+        slices of a rollout buffer) to write into instead of allocating new ones.
+        """
+        pos, b = self._check(env)
+        if out is not None:
+            self._check_out(out, b)
+        readings = np.asarray(env.readings, dtype=np.float32)
+        visits = np.asarray(env.visits, dtype=np.float32)
+        # the walls map is binary, so it is already normalised
+        walls = np.asarray(env.walls, dtype=np.float32) if self.walls else None
+        if self.kind == "odmtl":
+            actor, critic = self._observe_odmtl(env, pos, b, readings, visits, walls, out)
+        else:
+            actor, critic = self._observe_full(
+                pos, b, _normalise(readings), _normalise(visits), walls, out
+            )
+        return (actor.reshape((b, -1) + self.actor_shape), critic.reshape((b,) + self.critic_shape))
+
+    def _check_out(self, out: tuple[np.ndarray, np.ndarray], b: int) -> None:
+        n = 1 if self.joint_actions else self.agents
+        want = ((b, n) + self.actor_shape, (b,) + self.critic_shape)
+        for name, arr, shape in zip(("actor", "critic"), out, want, strict=True):
+            if arr.shape != shape or arr.dtype != np.float32 or not arr.flags.c_contiguous:
+                raise ValueError(
+                    f"out {name} must be a C-contiguous float32 array of shape "
+                    f"{shape}, got {arr.dtype} {arr.shape}"
+                )
+
+    @staticmethod
+    def _outputs(out, actor_shape, critic_shape):
+        """Flat-cell views of the caller's buffers, or new arrays."""
+        if out is None:
+            return np.empty(actor_shape, np.float32), np.empty(critic_shape, np.float32)
+        return out[0].reshape(actor_shape), out[1].reshape(critic_shape)
+
+    def _occupancy(self, pos: np.ndarray, b: int) -> tuple[np.ndarray, np.ndarray]:
+        """-> (B, N) agents on each agent's cell, (B, N) max of each agent's others map.
+
+        Agent i's others map is nonzero only at the cells of agents j != i, where it holds
+        at_cell[j] - [pos_j == pos_i]; so its maximum (the normaliser, line 712) comes from
+        an (N, N) comparison instead of a pass over the full map. It is >= 1 when N > 1.
+        """
+        n = self.agents
+        same = (pos[:, self._pair_i] == pos[:, self._pair_j]).reshape(b, n, n)
+        at_cell = same.sum(-1)
+        top_others = ((at_cell[:, None, :] - same) * self._not_self).max(-1)
+        return at_cell, np.maximum(top_others, 1).astype(np.float32)
+
+    def _observe_full(self, pos, b, readings, visits, walls, out):
+        n, c = self.agents, self.cells
+        tail = [readings, visits] + ([walls] if walls is not None else [])
+        if self.kind == "cmtl":
+            actor, critic = self._outputs(out, (b, 1, n + len(tail), c), (b, n + len(tail), c))
+            own = actor[:, 0, :n]  # (B, N, C) one-hot location maps, max 1
+            own[...] = 0.0
+            np.put_along_axis(own, pos[:, :, None], 1.0, axis=-1)
+            for k, m in enumerate(tail):
+                actor[:, 0, n + k] = m
+            critic[...] = actor[:, 0]
+            return actor, critic
+        actor, critic = self._outputs(
+            out, (b, n, self.actor_shape[0], c), (b, self.critic_shape[0], c)
+        )
+        own = actor[:, :, 0]
+        own[...] = 0.0
+        np.put_along_axis(own, pos[:, :, None], 1.0, axis=-1)
+        counts = own.sum(axis=1)  # (B, C) agents per cell
+        at_cell, top_others = self._occupancy(pos, b)
+        k = 1
+        if n > 1:
+            np.subtract(counts[:, None, :], own, out=actor[:, :, 1])
+            actor[:, :, 1] *= (1.0 / top_others)[:, :, None]
+            k = 2
+        for m in tail:
+            actor[:, :, k] = m[:, None, :]
+            k += 1
+        critic[:, 0] = counts * (1.0 / at_cell.max(1, keepdims=True)).astype(np.float32)
+        for j, m in enumerate(tail):
+            critic[:, 1 + j] = m
+        return actor, critic
+
+    def _observe_odmtl(self, env, pos, b, readings, visits, walls, out):
+        n, w, p, ww, cols = self.agents, self.window, self._pad, self.window**2, self.cols
+        centre = np.asarray(env.past_pos(p))
+        if centre.shape != pos.shape:
+            raise ValueError(f"env.past_pos({p}) must have shape {pos.shape}, got {centre.shape}")
+        actor, critic = self._outputs(
+            out, (b, n, self.actor_shape[0], ww), (b, self.critic_shape[0], ww)
+        )
+        # Normalising then windowing/downsizing equals windowing/downsizing then scaling by
+        # 1 / max (both are linear), which avoids writing normalised copies of the full maps.
+        inv_r = _inverse_max(readings)
+        inv_v = _inverse_max(visits)
+        # windowed own location: the current cell relative to the window centre
+        dr = pos // cols - centre // cols + p
+        dc = pos % cols - centre % cols + p
+        inside = (dr >= 0) & (dr < w) & (dc >= 0) & (dc < w)
+        actor[:, :, 0] = (self._arange_ww == (dr * w + dc)[:, :, None]) & inside[:, :, None]
+        actor[:, :, 1] = self._gather_windows(readings, centre, 0) * inv_r[:, None, None]
+        ds_loc = self._rt[pos]  # one-hot location maps downsize to columns of R: a gather
+        actor[:, :, 2] = ds_loc
+        ds_all = ds_loc.sum(axis=1)  # (B, w*w) downsized agent counts, not yet normalised
+        at_cell, top_others = self._occupancy(pos, b)
+        k = 3
+        if n > 1:
+            others = np.maximum(ds_all[:, None, :] - ds_loc, 0.0)  # clip float round-off
+            actor[:, :, k] = others / top_others[:, :, None]
+            k += 1
+        ds_r = (readings @ self._rt) * inv_r[:, None]
+        ds_v = (visits @ self._rt) * inv_v[:, None]
+        actor[:, :, k] = ds_r[:, None]
+        actor[:, :, k + 1] = ds_v[:, None]
+        critic[:, 0] = ds_all / at_cell.max(1, keepdims=True).astype(np.float32)
+        critic[:, 1] = ds_r
+        critic[:, 2] = ds_v
+        if walls is not None:
+            ds_walls = walls @ self._rt
+            actor[:, :, k + 2] = self._gather_windows(walls, centre, 1)
+            actor[:, :, k + 3] = ds_walls[:, None]
+            critic[:, 3] = ds_walls
+        return actor, critic
+
+
+def make_observer(env_spec: Any, obs_spec: ObservationSpec) -> Observer:
+    """Observer for an env spec (needs ``rows``, ``cols``, ``agents``, ``walls`` (min, max))."""
+    if not isinstance(obs_spec, ObservationSpec):
+        raise ValueError(f"obs_spec must be an ObservationSpec, got {type(obs_spec).__name__}")
+    return Observer(env_spec, obs_spec)
