@@ -1,0 +1,1 @@
+"""DRLaaS platform services: chain client (backend.chain) and the other service adapters."""

@@ -1,0 +1,81 @@
+"""Annotated dependencies, injected per request (never module globals): ``SettingsDep``,
+``SessionDep``, ``ClockDep``, ``ChainIdDep``, ``CurrentUser``.
+
+The app factory puts the settings, session factory, clock and chain id on ``app.state``; tests
+build their own app, so each test has its own database."""
+
+from __future__ import annotations
+
+import datetime as dt
+from collections.abc import Callable, Iterator
+from typing import Annotated
+
+from fastapi import Depends, Request
+from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
+from sqlalchemy.orm import Session
+
+from backend.api.errors import RuleError
+from backend.auth import User, decode_token
+from backend.settings import Settings
+
+
+def get_settings(request: Request) -> Settings:
+    return request.app.state.settings  # type: ignore[no-any-return]
+
+
+SettingsDep = Annotated[Settings, Depends(get_settings)]
+
+
+def get_session(request: Request) -> Iterator[Session]:
+    """One session per request; rolled back (by close) unless the route committed."""
+    with request.app.state.sessions() as session:
+        yield session
+
+
+SessionDep = Annotated[Session, Depends(get_session)]
+
+
+def get_now(request: Request) -> dt.datetime:
+    clock: Callable[[], dt.datetime] = request.app.state.clock
+    return clock()
+
+
+ClockDep = Annotated[dt.datetime, Depends(get_now)]
+"""The current UTC time from the app's clock (tests move it to check expiry)."""
+
+
+def get_chain_id(request: Request) -> int:
+    chain_id: int | None = request.app.state.chain_id
+    if chain_id is None:
+        raise RuleError(
+            503,
+            "chain_id_unknown",
+            "the gateway has not learnt the chain id yet (set DRLAAS_CHAIN_ID or wait for the "
+            "chain connection)",
+        )
+    return chain_id
+
+
+ChainIdDep = Annotated[int, Depends(get_chain_id)]
+
+_bearer = HTTPBearer(
+    auto_error=False,
+    description="Access token from POST /api/auth/token (signed EIP-4361 message).",
+)
+
+
+def get_current_user(
+    settings: SettingsDep,
+    credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(_bearer)],
+) -> User:
+    if credentials is None:
+        raise RuleError(
+            401,
+            "auth_required",
+            "send 'Authorization: Bearer <token>' (token from POST /api/auth/token)",
+            headers={"WWW-Authenticate": 'Bearer realm="drlaas"'},
+        )
+    return User(address=decode_token(credentials.credentials, settings=settings))
+
+
+CurrentUser = Annotated[User, Depends(get_current_user)]

@@ -1,0 +1,89 @@
+"""Sign-in with an Ethereum key: ``POST /auth/nonce`` then ``POST /auth/token`` (EIP-4361).
+
+The gateway never sees a private key: the client signs the returned message locally
+(``personal_sign``) and exchanges message + signature for a short-lived bearer token.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+
+from fastapi import APIRouter
+from pydantic import BaseModel, Field
+
+from backend.api.deps import ChainIdDep, ClockDep, CurrentUser, SessionDep, SettingsDep
+from backend.api.errors import rule_responses
+from backend.api.schemas import Address
+from backend.auth import issue_sign_in, issue_token, verify_sign_in
+
+router = APIRouter(prefix="/auth", tags=["auth"])
+
+
+class NonceRequest(BaseModel):
+    address: Address
+
+
+class NoncePublic(BaseModel):
+    message: str = Field(description="EIP-4361 text to sign with personal_sign, unchanged")
+    nonce: str
+    expires_at: dt.datetime
+
+
+class TokenRequest(BaseModel):
+    message: str = Field(min_length=1, max_length=4096)
+    signature: str = Field(pattern=r"^(0x)?[0-9a-fA-F]{130}$", description="65-byte signature, hex")
+
+
+class TokenPublic(BaseModel):
+    access_token: str
+    token_type: str = "bearer"
+    address: str
+    expires_at: dt.datetime
+
+
+class UserPublic(BaseModel):
+    address: str
+
+
+@router.post("/nonce", response_model=NoncePublic, responses=rule_responses(503))
+def create_nonce(
+    body: NonceRequest,
+    session: SessionDep,
+    settings: SettingsDep,
+    chain_id: ChainIdDep,
+    now: ClockDep,
+) -> NoncePublic:
+    """A sign-in message with a fresh single-use nonce for ``address``."""
+    msg = issue_sign_in(
+        session, address=body.address, settings=settings, chain_id=chain_id, now=now
+    )
+    return NoncePublic(message=msg.text(), nonce=msg.nonce, expires_at=msg.expiration_time)
+
+
+@router.post("/token", response_model=TokenPublic, responses=rule_responses(401, 422, 503))
+def create_token(
+    body: TokenRequest,
+    session: SessionDep,
+    settings: SettingsDep,
+    chain_id: ChainIdDep,
+    now: ClockDep,
+) -> TokenPublic:
+    """Exchange a signed sign-in message for a bearer token bound to the signer."""
+    address = verify_sign_in(
+        session,
+        message=body.message,
+        signature=body.signature,
+        settings=settings,
+        chain_id=chain_id,
+        now=now,
+    )
+    token = issue_token(address, settings=settings)
+    return TokenPublic(
+        access_token=token.access_token, address=token.address, expires_at=token.expires_at
+    )
+
+
+@router.get("/me", response_model=UserPublic, responses=rule_responses(401))
+def me(user: CurrentUser) -> UserPublic:
+    """Who the bearer token says the caller is."""
+    return UserPublic(address=user.address)

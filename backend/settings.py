@@ -1,0 +1,289 @@
+"""Platform settings: one pydantic-settings class read from ``DRLAAS_*`` environment variables.
+
+Each service is chosen by one URL-like value, so the same code runs embedded on one machine or
+against real services (ARCHITECTURE.md, "Service adapters"):
+
+================  =====================================  ===========================================
+variable          embedded (default)                     real service
+================  =====================================  ===========================================
+DRLAAS_CHAIN      ``embedded`` (eth-tester, in process)  ``http(s)://host:port`` JSON-RPC node
+DRLAAS_IPFS       ``embedded`` or ``embedded:<dir>``     ``http(s)://host:5001`` IPFS RPC API
+DRLAAS_BROKER     ``embedded`` (kombu SQLAlchemy over    ``redis://...``, ``rediss://...``,
+                  a SQLite file, no server)              ``amqp://...``, ``amqps://...``
+DRLAAS_DATABASE   ``sqlite:///<data>/drlaas.sqlite``     ``postgresql+psycopg://user@host/db``
+================  =====================================  ===========================================
+
+Errors name the environment variable (``DRLAAS_CHAIN: ...``) so a bad deployment says which line
+of its environment is wrong; :func:`load_settings` turns pydantic's error list into one
+:class:`SettingsError` with one line per bad variable.
+"""
+
+from __future__ import annotations
+
+import secrets
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+from urllib.parse import urlsplit
+
+from pydantic import Field, SecretStr, ValidationError, field_validator, model_validator
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+ENV_PREFIX = "DRLAAS_"
+
+#: Chain id of eth-tester's py-evm backend (the embedded chain); real nodes report their own.
+EMBEDDED_CHAIN_ID = 131277322940537
+
+#: Token secrets that are obviously not secret (lower-cased); rejected outside development.
+PLACEHOLDER_SECRETS = frozenset(
+    {
+        "",
+        "changethis",
+        "changeme",
+        "change-me",
+        "secret",
+        "password",
+        "dev",
+        "test",
+        "token",
+        "drlaas",
+        "placeholder",
+        "xxx",
+        "todo",
+    }
+)
+MIN_SECRET_LENGTH = 32
+
+
+class SettingsError(ValueError):
+    """Invalid platform settings; the message has one ``DRLAAS_<NAME>: reason`` line each."""
+
+
+def env_name(field: str) -> str:
+    """The environment variable that sets ``field``."""
+    return f"{ENV_PREFIX}{field.upper()}"
+
+
+@dataclass(frozen=True)
+class ServiceURL:
+    """A parsed service choice: ``kind`` is ``"embedded"`` or the real backend's name."""
+
+    kind: str
+    url: str
+
+    @property
+    def embedded(self) -> bool:
+        return self.kind == "embedded"
+
+
+class Settings(BaseSettings):
+    """Everything the gateway, indexer and worker daemon need to know about their environment."""
+
+    model_config = SettingsConfigDict(
+        env_prefix=ENV_PREFIX, extra="ignore", validate_default=True, frozen=True
+    )
+
+    mode: Literal["development", "production"] = "development"
+    """``production`` requires a real token secret and forbids demo keys held by the gateway."""
+    data_dir: Path = Path(".drlaas")
+    """Root of embedded state: broker/result SQLite files, embedded content store, database."""
+    chain: str = "embedded"
+    """``embedded`` or an http(s) JSON-RPC URL."""
+    chain_id: int | None = Field(default=None, gt=0)
+    """Chain id put into sign-in messages; default: eth-tester's id when embedded, else the
+    id the node reports (the gateway sets it at start-up)."""
+    ipfs: str = "embedded"
+    """``embedded`` (= ``embedded:<data_dir>/ipfs``), ``embedded:<dir>`` or an IPFS RPC API URL."""
+    broker: str = "embedded"
+    """``embedded``, ``redis://``/``rediss://`` or ``amqp://``/``amqps://`` URL."""
+    result_backend: str | None = None
+    """Celery result backend; default: the Redis URL for Redis, else ``<data>/results.sqlite``,
+    or (AMQP with PostgreSQL) a ``db+`` URL over DRLAAS_DATABASE."""
+    database: str | None = None
+    """SQLAlchemy URL, ``sqlite:///path`` or ``postgresql+psycopg://...``; default SQLite in
+    the data dir."""
+    migrate_on_start: bool = True
+    """Run alembic ``upgrade head`` when the gateway starts."""
+
+    token_secret: SecretStr | None = None
+    """HMAC key of access tokens; required (>= 32 chars, not a placeholder) in production."""
+    token_ttl_s: int = Field(default=900, ge=10, le=86_400)
+    """Lifetime of an access token (short-lived: sign in again after it)."""
+    auth_domain: str = "localhost:8000"
+    """EIP-4361 ``domain`` (the gateway's host[:port]) that sign-in messages must name."""
+    auth_uri: str = "http://localhost:8000"
+    """EIP-4361 ``URI`` written into sign-in messages."""
+    nonce_ttl_s: int = Field(default=300, ge=10, le=3600)
+    """How long a sign-in message (its nonce) stays usable."""
+
+    confirmations: int = Field(default=2, ge=0, le=1000)
+    """Blocks to wait before trusting an event on a real chain (embedded: always 0)."""
+    accept_window_s: int = Field(default=600, ge=1, le=2**32 - 1)
+    """Default TMC acceptance window: an offer not accepted within it goes back to recruitment."""
+    review_window_s: int = Field(default=86_400, ge=1, le=2**32 - 1)
+    """Default TMC review window: an outcome left unreviewed past it counts as accepted."""
+    max_upload_bytes: int = Field(default=256 * 2**20, gt=0)
+    """Largest model/content upload the gateway and store accept."""
+
+    # -- field checks (messages name the variable) ------------------------------------------
+    @field_validator("data_dir")
+    @classmethod
+    def _check_data_dir(cls, v: Path) -> Path:
+        # Absolute, so that SQLite URLs mean the same file in every process (workers, gateway).
+        v = v.expanduser().resolve()
+        if v.exists() and not v.is_dir():
+            raise ValueError(f"{env_name('data_dir')} must be a directory, got the file {v}")
+        return v
+
+    @field_validator("chain")
+    @classmethod
+    def _check_chain(cls, v: str) -> str:
+        v = v.strip()
+        if v == "embedded" or _is_http(v):
+            return v
+        raise ValueError(
+            f"{env_name('chain')} must be 'embedded' or an http(s) JSON-RPC URL, got {v!r}"
+        )
+
+    @field_validator("ipfs")
+    @classmethod
+    def _check_ipfs(cls, v: str) -> str:
+        v = v.strip()
+        if v == "embedded" or _is_http(v):
+            return v
+        if v.startswith("embedded:") and v[len("embedded:") :].strip():
+            return v
+        raise ValueError(
+            f"{env_name('ipfs')} must be 'embedded', 'embedded:<dir>' or an http(s) URL of an "
+            f"IPFS RPC API, got {v!r}"
+        )
+
+    @field_validator("broker")
+    @classmethod
+    def _check_broker(cls, v: str) -> str:
+        v = v.strip()
+        if v == "embedded":
+            return v
+        scheme = urlsplit(v).scheme
+        if scheme in {"redis", "rediss", "amqp", "amqps"} and urlsplit(v).hostname:
+            return v
+        raise ValueError(
+            f"{env_name('broker')} must be 'embedded', a redis:// or an amqp:// URL, got {v!r}"
+        )
+
+    @field_validator("database")
+    @classmethod
+    def _check_database(cls, v: str | None) -> str | None:
+        if v is None:
+            return None
+        v = v.strip()
+        scheme = urlsplit(v).scheme
+        if scheme == "sqlite" and v.startswith("sqlite:///"):
+            return v
+        if scheme in {"postgresql+psycopg", "postgresql"}:
+            # plain postgresql:// would pick psycopg2, which is not a dependency: use psycopg 3.
+            return "postgresql+psycopg" + v[len(scheme) :]
+        raise ValueError(
+            f"{env_name('database')} must be 'sqlite:///<path>' or 'postgresql+psycopg://...', "
+            f"got {v!r}"
+        )
+
+    @field_validator("auth_domain")
+    @classmethod
+    def _check_domain(cls, v: str) -> str:
+        v = v.strip()
+        if not v or any(c in v for c in "/ \n\t"):
+            raise ValueError(
+                f"{env_name('auth_domain')} must be a bare host[:port] (EIP-4361 domain), got {v!r}"
+            )
+        return v
+
+    @model_validator(mode="after")
+    def _check_secret(self) -> Settings:
+        secret = self.token_secret.get_secret_value() if self.token_secret else None
+        if self.mode == "development":
+            if secret is None:
+                # A fresh random key per process: tokens do not survive a gateway restart, which
+                # is fine for development and never a guessable constant.
+                object.__setattr__(self, "token_secret", SecretStr(secrets.token_urlsafe(32)))
+            return self
+        if secret is None:
+            raise ValueError(f"{env_name('token_secret')} is required in production mode")
+        if secret.strip().lower() in PLACEHOLDER_SECRETS:
+            raise ValueError(
+                f"{env_name('token_secret')} is a placeholder value; set a random secret "
+                f"(e.g. python -c 'import secrets; print(secrets.token_urlsafe(32))')"
+            )
+        if len(secret) < MIN_SECRET_LENGTH:
+            raise ValueError(
+                f"{env_name('token_secret')} must be at least {MIN_SECRET_LENGTH} characters "
+                f"in production mode, got {len(secret)}"
+            )
+        return self
+
+    # -- derived values (computed here only) -------------------------------------------------
+    @property
+    def chain_service(self) -> ServiceURL:
+        return ServiceURL("embedded" if self.chain == "embedded" else "rpc", self.chain)
+
+    @property
+    def ipfs_service(self) -> ServiceURL:
+        """``embedded`` with ``url`` = the store directory, or ``rpc`` with the API URL."""
+        if self.ipfs == "embedded":
+            return ServiceURL("embedded", str(self.data_dir / "ipfs"))
+        if self.ipfs.startswith("embedded:"):
+            return ServiceURL("embedded", self.ipfs[len("embedded:") :])
+        return ServiceURL("rpc", self.ipfs)
+
+    @property
+    def broker_service(self) -> ServiceURL:
+        """Kind ``embedded``/``redis``/``amqp`` and the kombu broker URL."""
+        if self.broker == "embedded":
+            return ServiceURL("embedded", f"sqla+sqlite:///{self.data_dir / 'broker.sqlite'}")
+        scheme = urlsplit(self.broker).scheme
+        return ServiceURL("redis" if scheme.startswith("redis") else "amqp", self.broker)
+
+    @property
+    def database_url(self) -> str:
+        return self.database or f"sqlite:///{self.data_dir / 'drlaas.sqlite'}"
+
+    @property
+    def effective_confirmations(self) -> int:
+        """Blocks the indexer waits: none on the embedded chain (it never reorganises)."""
+        return 0 if self.chain_service.embedded else self.confirmations
+
+    @property
+    def effective_chain_id(self) -> int | None:
+        if self.chain_id is not None:
+            return self.chain_id
+        return EMBEDDED_CHAIN_ID if self.chain_service.embedded else None
+
+    @property
+    def secret_bytes(self) -> bytes:
+        assert self.token_secret is not None  # set by _check_secret
+        return self.token_secret.get_secret_value().encode()
+
+    @property
+    def demo_keys_allowed(self) -> bool:
+        """The gateway may hold users' keys only in development (never in production)."""
+        return self.mode == "development"
+
+
+def _is_http(v: str) -> bool:
+    parts = urlsplit(v)
+    return parts.scheme in {"http", "https"} and bool(parts.hostname)
+
+
+def load_settings(**overrides: Any) -> Settings:
+    """Read settings from the environment (``overrides`` win), raising :class:`SettingsError`
+    whose lines each start with the offending ``DRLAAS_*`` variable."""
+    try:
+        return Settings(**overrides)
+    except ValidationError as exc:
+        lines = []
+        for err in exc.errors():
+            field = str(err["loc"][0]) if err["loc"] else ""
+            msg = err["msg"].removeprefix("Value error, ")
+            name = env_name(field) if field else "settings"
+            lines.append(msg if msg.startswith(ENV_PREFIX) else f"{name}: {msg}")
+        raise SettingsError("invalid settings:\n  " + "\n  ".join(lines)) from None

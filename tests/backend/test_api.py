@@ -1,0 +1,106 @@
+"""Gateway shell: health, OpenAPI, error shapes for routing failures and unexpected errors."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from fastapi.testclient import TestClient
+
+from backend.api import API_PREFIX, create_app
+from backend.settings import Settings, load_settings
+
+P = API_PREFIX
+
+
+def test_health_reports_services_and_schema(settings: Settings) -> None:
+    with TestClient(create_app(settings)) as c:
+        r = c.get(f"{P}/health")
+    assert r.status_code == 200
+    body = r.json()
+    assert body["status"] == "ok" and body["database"] == "ok"
+    assert body["schema_revision"] == "0001"  # migrated on start
+    assert body["services"] == {
+        "chain": "embedded",
+        "ipfs": "embedded",
+        "broker": "embedded",
+        "database": "sqlite",
+    }
+    assert (settings.data_dir / "drlaas.sqlite").exists()
+
+
+def test_health_is_degraded_when_the_database_is_down(tmp_path: Path) -> None:
+    s = load_settings(
+        data_dir=tmp_path,
+        database="postgresql+psycopg://nobody@127.0.0.1:1/none?connect_timeout=2",
+        broker="redis://127.0.0.1:6379/0",
+        migrate_on_start=False,
+    )
+    with TestClient(create_app(s)) as c:
+        r = c.get(f"{P}/health")
+    assert r.status_code == 503
+    body = r.json()
+    assert body["status"] == "degraded" and body["database"] == "unavailable"
+    assert body["services"]["database"] == "postgresql" and body["services"]["broker"] == "redis"
+
+
+def test_secrets_never_appear_in_health(tmp_path: Path) -> None:
+    secret = "S" * 40
+    s = load_settings(data_dir=tmp_path, mode="production", token_secret=secret)
+    with TestClient(create_app(s)) as c:
+        assert secret not in c.get(f"{P}/health").text
+        assert secret not in c.get(f"{P}/openapi.json").text
+
+
+def test_openapi_documents_routes_errors_and_bearer_auth(settings: Settings) -> None:
+    with TestClient(create_app(settings)) as c:
+        spec = c.get(f"{P}/openapi.json").json()
+        assert c.get(f"{P}/docs").status_code == 200
+    paths = spec["paths"]
+    assert {f"{P}/health", f"{P}/auth/nonce", f"{P}/auth/token", f"{P}/auth/me"} <= set(paths)
+    schemas = spec["components"]["schemas"]
+    assert {"RuleErrorBody", "RuleFailure", "NoncePublic", "TokenPublic"} <= set(schemas)
+    me = paths[f"{P}/auth/me"]["get"]
+    assert me["security"] == [{"HTTPBearer": []}]
+    assert me["responses"]["401"]["content"]["application/json"]["schema"]["$ref"].endswith(
+        "/RuleErrorBody"
+    )
+    assert paths[f"{P}/auth/token"]["post"]["responses"].keys() >= {"200", "401", "422"}
+    assert {t["name"] for t in spec["tags"]} == {"health", "auth"}
+
+
+def test_routing_errors_use_the_rule_shape(settings: Settings) -> None:
+    with TestClient(create_app(settings)) as c:
+        r404 = c.get(f"{P}/no-such-thing")
+        r405 = c.delete(f"{P}/health")
+        bad_json = c.post(
+            f"{P}/auth/nonce", content=b"{not json", headers={"content-type": "application/json"}
+        )
+    assert r404.status_code == 404 and r404.json()["detail"]["rule"] == "not_found"
+    assert r405.status_code == 405 and r405.json()["detail"]["rule"] == "method_not_allowed"
+    assert bad_json.status_code == 422
+    assert bad_json.json()["detail"][0]["type"] == "json_invalid"
+
+
+def test_unexpected_error_is_a_json_500_without_internals(settings: Settings) -> None:
+    app = create_app(settings)
+
+    @app.get("/boom")
+    def boom() -> None:
+        raise RuntimeError("secret internals")
+
+    with TestClient(app, raise_server_exceptions=False) as c:
+        r = c.get("/boom")
+    assert r.status_code == 500
+    assert r.json() == {"detail": {"rule": "internal_error", "msg": "internal server error"}}
+    assert "secret internals" not in r.text
+
+
+def test_two_apps_in_one_process_keep_their_own_databases(tmp_path: Path) -> None:
+    a = create_app(load_settings(data_dir=tmp_path / "a"))
+    b = create_app(load_settings(data_dir=tmp_path / "b"))
+    with TestClient(a), TestClient(b):
+        pass
+    assert (tmp_path / "a" / "drlaas.sqlite").exists() and (
+        tmp_path / "b" / "drlaas.sqlite"
+    ).exists()
+    assert a.state.engine is not b.state.engine
