@@ -1,0 +1,226 @@
+"""Content store backed by an IPFS node's RPC API (Kubo ``/api/v0``, also served by js-ipfs).
+
+A thin client over httpx rather than ``ipfshttpclient``: that library's last release (0.7.0,
+2021) refuses every daemon newer than 0.8 in ``connect()``, its ``add_bytes`` rejects the
+``cid_version`` option, it emits urllib3 deprecation warnings, and it cannot bound the size of a
+download while streaming it. The RPC API is plain HTTP POST; the five calls needed are here.
+
+Trust model: the node is not trusted. Uploads compute the CID locally and compare it with the
+node's answer; downloads fetch block by block (``block/get``) and verify each block against its
+CID, with the size bound enforced while bytes arrive.
+"""
+
+from __future__ import annotations
+
+import json
+import random
+import re
+import time
+from collections.abc import Callable
+from typing import Any, BinaryIO, TypeVar
+
+import httpx
+
+from .base import DEFAULT_MAX_SIZE, ContentStore
+from .cid import CID, cid_key
+from .dag import ADD_PARAMS, build_dag, iter_chunks
+from .errors import CIDMismatch, ContentTooLarge, NotFound, StoreError, StoreUnavailable
+
+T = TypeVar("T")
+
+_NOT_FOUND = re.compile(
+    r"not found|could not find|request timed out|context deadline exceeded|no link named"
+    r"|not pinned|block was not found",
+    re.IGNORECASE,
+)
+"""Node error messages that mean "this content is not available" (Kubo and js-ipfs wording;
+an offline or unlucky node only knows it gave up after ``find_timeout``)."""
+
+_TRANSIENT = (
+    httpx.ConnectError,
+    httpx.ConnectTimeout,
+    httpx.ReadTimeout,
+    httpx.WriteTimeout,
+    httpx.PoolTimeout,
+    httpx.ReadError,
+    httpx.WriteError,
+    httpx.RemoteProtocolError,
+)
+
+
+def normalize_api_url(url: str) -> str:
+    """``http://h:p``, ``http://h:p/api/v0`` or a multiaddr ``/ip4/h/tcp/p[/http]`` ->
+    ``http://h:p/api/v0``."""
+    text = url.strip()
+    m = re.fullmatch(r"/(ip4|ip6|dns|dns4|dns6)/([^/]+)/tcp/(\d+)(/https?)?/?", text)
+    if m:
+        host = f"[{m.group(2)}]" if m.group(1) == "ip6" else m.group(2)
+        scheme = "https" if m.group(4) == "/https" else "http"
+        text = f"{scheme}://{host}:{m.group(3)}"
+    if not re.match(r"https?://", text):
+        raise ValueError(
+            f"IPFS RPC API URL must be http(s):// or a /ip4/.../tcp/... multiaddr, got {url!r}"
+        )
+    text = text.rstrip("/")
+    if not text.endswith("/api/v0"):
+        text += "/api/v0"
+    return text
+
+
+class IpfsRpcStore(ContentStore):
+    """Content store talking to an IPFS node over its RPC API.
+
+    ``timeout``: seconds for connecting/reading one HTTP response. ``find_timeout``: how long the
+    node may search for a block before the call counts as :class:`NotFound`. ``retries``: extra
+    attempts, with capped exponential backoff and jitter, for transient failures only
+    (connection refused, timeouts, 502/503/504); after them :class:`StoreUnavailable`.
+    """
+
+    def __init__(
+        self,
+        url: str,
+        *,
+        max_size: int = DEFAULT_MAX_SIZE,
+        timeout: float = 30.0,
+        find_timeout: float = 10.0,
+        retries: int = 2,
+        backoff: float = 0.25,
+        transport: httpx.BaseTransport | None = None,
+    ) -> None:
+        super().__init__(max_size=max_size)
+        self.url = normalize_api_url(url)
+        self.find_timeout = find_timeout
+        self.retries = max(0, retries)
+        self.backoff = backoff
+        self._client = httpx.Client(
+            base_url=self.url,
+            timeout=httpx.Timeout(timeout, connect=min(timeout, 5.0)),
+            transport=transport,
+        )
+
+    def __repr__(self) -> str:
+        return f"IpfsRpcStore({self.url!r})"
+
+    def close(self) -> None:
+        self._client.close()
+
+    # -- HTTP plumbing -----------------------------------------------------------------------------
+    def _retrying(self, what: str, call: Callable[[], T]) -> T:
+        delay = self.backoff
+        for attempt in range(self.retries + 1):
+            try:
+                return call()
+            except StoreUnavailable:
+                if attempt == self.retries:
+                    raise
+            time.sleep(min(delay, 5.0) * (0.5 + random.random()))
+            delay *= 2
+        raise AssertionError("unreachable")  # pragma: no cover
+
+    def _find_timeout(self) -> str:
+        return f"{self.find_timeout:g}s"
+
+    def _unavailable(self, endpoint: str, reason: str) -> StoreUnavailable:
+        retry_after = max(1.0, self.backoff * 8)
+        return StoreUnavailable(self.url, f"{endpoint}: {reason}", retry_after=retry_after)
+
+    def _check(self, endpoint: str, response: httpx.Response, arg: str = "") -> None:
+        """Map a non-200 answer to a typed error."""
+        if response.status_code == 200:
+            return
+        if not response.is_stream_consumed:
+            response.read()
+        try:
+            message = str(json.loads(response.content).get("Message", ""))
+        except (ValueError, AttributeError):
+            message = response.text[:200]
+        if response.status_code in (502, 503, 504):
+            raise self._unavailable(endpoint, f"HTTP {response.status_code} {message}")
+        if _NOT_FOUND.search(message):
+            raise NotFound(arg or endpoint, f"node says: {message}")
+        raise StoreError(
+            f"IPFS node rejected {endpoint} {arg}: HTTP {response.status_code} {message}"
+        )
+
+    def _post(self, endpoint: str, params: dict[str, Any], **kw: Any) -> httpx.Response:
+        try:
+            response = self._client.post(endpoint, params=params, **kw)
+        except _TRANSIENT as e:
+            raise self._unavailable(endpoint, f"{type(e).__name__}: {e}") from e
+        self._check(endpoint, response, str(params.get("arg", "")))
+        return response
+
+    def _json(self, endpoint: str, params: dict[str, Any]) -> Any:
+        response = self._retrying(endpoint, lambda: self._post(endpoint, params))
+        return response.json()
+
+    # -- writing -----------------------------------------------------------------------------------
+    def _add_stream(self, source: bytes | BinaryIO, *, pin: bool) -> str:
+        start = 0 if isinstance(source, bytes) else source.tell()
+        expected, size = build_dag(iter_chunks(source), max_size=self.max_size)
+        params = dict(ADD_PARAMS, pin="true" if pin else "false", quieter="true")
+
+        def upload() -> httpx.Response:
+            if not isinstance(source, bytes):
+                source.seek(start)
+            files = {"file": ("blob", source, "application/octet-stream")}
+            return self._post("add", params, files=files)
+
+        response = self._retrying("add", upload)
+        answer: dict[str, Any] = {}
+        for line in response.text.splitlines():
+            if line.strip():
+                entry = json.loads(line)
+                if "Hash" in entry:
+                    answer = entry
+        if "Hash" not in answer:
+            raise StoreError(f"IPFS node gave no CID for add: {response.text[:200]!r}")
+        got = cid_key(answer["Hash"])
+        if got != str(expected):
+            raise CIDMismatch(str(expected), got, f"node {self.url} answered add of {size} bytes")
+        return got
+
+    # -- reading -----------------------------------------------------------------------------------
+    def _read_block(self, cid: CID, max_bytes: int) -> bytes:
+        params = {"arg": str(cid), "timeout": self._find_timeout()}
+
+        def fetch() -> bytes:
+            try:
+                with self._client.stream("POST", "block/get", params=params) as response:
+                    self._check("block/get", response, str(cid))
+                    length = response.headers.get("content-length")
+                    if length is not None and length.isdigit() and int(length) > max_bytes:
+                        raise ContentTooLarge(int(length), max_bytes, f"block {cid}")
+                    buf = bytearray()
+                    for part in response.iter_bytes():
+                        buf += part
+                        if len(buf) > max_bytes:
+                            raise ContentTooLarge(None, max_bytes, f"block {cid}")
+                    return bytes(buf)
+            except _TRANSIENT as e:
+                raise self._unavailable("block/get", f"{type(e).__name__}: {e}") from e
+
+        return self._retrying("block/get", fetch)
+
+    def has(self, cid: str | CID) -> bool:
+        """Whether the node can produce the root block within ``find_timeout``."""
+        try:
+            self._json("block/stat", {"arg": str(CID.parse(cid)), "timeout": self._find_timeout()})
+        except NotFound:
+            return False
+        return True
+
+    # -- pins --------------------------------------------------------------------------------------
+    def pin(self, cid: str | CID) -> None:
+        self._json("pin/add", {"arg": str(CID.parse(cid)), "timeout": self._find_timeout()})
+
+    def unpin(self, cid: str | CID) -> None:
+        self._json("pin/rm", {"arg": str(CID.parse(cid))})
+
+    def pins(self) -> list[str]:
+        answer = self._json("pin/ls", {"type": "recursive"})
+        return sorted(cid_key(key) for key in answer.get("Keys", {}))
+
+    def ping(self) -> dict[str, str]:
+        answer = self._json("version", {})
+        return {"backend": "ipfs-rpc", "url": self.url, "version": str(answer.get("Version", "?"))}
