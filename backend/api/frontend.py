@@ -1,0 +1,64 @@
+"""Serve the web UI (``frontend/``: plain HTML, ES modules and CSS, no build step) at ``/``.
+
+The UI routes on the client (``/models/3``, ``/tasks/7``...), so any GET that names no file gets
+``index.html`` and the browser's router takes over. Paths under ``/api`` and ``/rpc`` never fall
+back: an unknown API path stays a JSON 404 from the app's error handlers.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from fastapi import FastAPI
+from starlette.exceptions import HTTPException
+from starlette.responses import Response
+from starlette.routing import Match, Mount
+from starlette.staticfiles import StaticFiles
+from starlette.types import Scope
+
+FRONTEND_DIR = Path(__file__).resolve().parents[2] / "frontend"
+#: First path segments that belong to the gateway, not to the UI router.
+RESERVED = ("api", "rpc")
+
+
+class SPAStaticFiles(StaticFiles):
+    """StaticFiles with an ``index.html`` fallback for client-side routes."""
+
+    async def get_response(self, path: str, scope: Scope) -> Response:
+        first = path.split("/", 1)[0]
+        if first in RESERVED:
+            raise HTTPException(status_code=404, detail=f"no route {scope.get('path')!r}")
+        try:
+            response = await super().get_response(path, scope)
+        except HTTPException as exc:
+            # A missing file with an extension (/app.js typo) is a real 404; a bare path is a route.
+            if exc.status_code != 404 or "." in path.rsplit("/", 1)[-1]:
+                raise
+            response = await super().get_response("index.html", scope)
+        if path in (".", "", "index.html") or response.media_type == "text/html":
+            # The shell is tiny; always revalidate so a new deploy is picked up at once.
+            response.headers["Cache-Control"] = "no-cache"
+        return response
+
+
+class _UIMount(Mount):
+    """A mount at ``/`` that refuses gateway paths, so the router still answers them itself:
+    405 for a wrong method on an API route, JSON 404 for an unknown one."""
+
+    def matches(self, scope: Scope) -> tuple[Match, Scope]:
+        if scope.get("type") == "http":
+            first = scope.get("path", "/").lstrip("/").split("/", 1)[0]
+            if first in RESERVED:
+                return Match.NONE, {}
+        return super().matches(scope)
+
+
+def mount_frontend(app: FastAPI, directory: str | Path = FRONTEND_DIR) -> None:
+    """Serve ``directory`` at ``/``. Call after every router is included: the mount matches any
+    path, so routes added later would be shadowed."""
+    directory = Path(directory)
+    if not (directory / "index.html").is_file():
+        raise FileNotFoundError(f"web UI not found: {directory / 'index.html'} does not exist")
+    app.router.routes.append(
+        _UIMount("/", app=SPAStaticFiles(directory=directory, html=True), name="frontend")
+    )

@@ -1,0 +1,143 @@
+// Training curves as inline SVG: no chart library, crisp at any size, testable in the DOM.
+
+import { h, s } from "./dom.js";
+
+const W = 480, H = 240, M = { top: 14, right: 16, bottom: 38, left: 56 };
+export const COLORS = ["#2563eb", "#dc2626", "#16a34a", "#9333ea", "#ea580c", "#0891b2", "#4b5563"];
+
+/** About n "nice" ticks (1, 2, 5 x 10^k steps) covering [lo, hi]. */
+export function niceTicks(lo, hi, n = 5) {
+  if (!(hi > lo)) return [lo];
+  const raw = (hi - lo) / n;
+  const mag = 10 ** Math.floor(Math.log10(raw));
+  const step = [1, 2, 5, 10].map((m) => m * mag).find((st) => st >= raw) || 10 * mag;
+  const ticks = [];
+  for (let t = Math.ceil(lo / step) * step; t <= hi + step * 1e-9; t += step) {
+    ticks.push(Number(t.toPrecision(12)));
+  }
+  return ticks;
+}
+
+function fmtTick(v) {
+  const a = Math.abs(v);
+  if (a >= 1e6) return `${+(v / 1e6).toFixed(1)}M`;
+  if (a >= 1e3) return `${+(v / 1e3).toFixed(1)}k`;
+  return `${+v.toFixed(3)}`;
+}
+
+/**
+ * series: [{label, points: [[x, y], ...], color?}]; yDomain: [lo, hi] to fix the y axis
+ * (e.g. [0, 1] for a success rate). Non-finite points are dropped.
+ */
+export function lineChart({ title, series, xLabel = "environment steps", yLabel = "", yDomain }) {
+  const clean = series
+    .map((se, i) => ({
+      ...se,
+      color: se.color || COLORS[i % COLORS.length],
+      points: se.points.filter(([x, y]) => Number.isFinite(x) && Number.isFinite(y))
+        .sort((a, b) => a[0] - b[0]),
+    }))
+    .filter((se) => se.points.length > 0);
+  const figure = h("figure", { class: "chart", "data-chart": title || yLabel });
+  if (title) figure.appendChild(h("figcaption", {}, title));
+  if (clean.length === 0) {
+    figure.appendChild(h("p", { class: "muted empty-chart" }, "No points yet."));
+    return figure;
+  }
+  const xs = clean.flatMap((se) => se.points.map((p) => p[0]));
+  const ys = clean.flatMap((se) => se.points.map((p) => p[1]));
+  let [x0, x1] = [Math.min(...xs), Math.max(...xs)];
+  let [y0, y1] = yDomain || [Math.min(...ys), Math.max(...ys)];
+  if (yDomain) { y0 = Math.min(y0, ...ys); y1 = Math.max(y1, ...ys); }
+  if (x1 === x0) { x0 -= 1; x1 += 1; }
+  if (y1 === y0) { y0 -= 0.5; y1 += 0.5; }
+  const pw = W - M.left - M.right, ph = H - M.top - M.bottom;
+  const sx = (x) => M.left + ((x - x0) / (x1 - x0)) * pw;
+  const sy = (y) => M.top + ph - ((y - y0) / (y1 - y0)) * ph;
+
+  const svg = s("svg", { viewBox: `0 0 ${W} ${H}`, class: "chart-svg", role: "img",
+    "aria-label": `${title || yLabel} against ${xLabel}` });
+  for (const t of niceTicks(y0, y1, 4)) {
+    svg.appendChild(s("line", { class: "grid", x1: M.left, x2: W - M.right, y1: sy(t), y2: sy(t) }));
+    svg.appendChild(s("text", { class: "tick", x: M.left - 6, y: sy(t) + 4, "text-anchor": "end" }, fmtTick(t)));
+  }
+  for (const t of niceTicks(x0, x1, 5)) {
+    svg.appendChild(s("line", { class: "grid", x1: sx(t), x2: sx(t), y1: M.top, y2: M.top + ph }));
+    svg.appendChild(s("text", { class: "tick", x: sx(t), y: H - M.bottom + 16, "text-anchor": "middle" }, fmtTick(t)));
+  }
+  svg.appendChild(s("rect", { class: "frame", x: M.left, y: M.top, width: pw, height: ph, fill: "none" }));
+  svg.appendChild(s("text", { class: "axis-label", x: M.left + pw / 2, y: H - 4, "text-anchor": "middle" }, xLabel));
+  if (yLabel) {
+    svg.appendChild(s("text", { class: "axis-label", x: 12, y: M.top + ph / 2, "text-anchor": "middle",
+      transform: `rotate(-90 12 ${M.top + ph / 2})` }, yLabel));
+  }
+  for (const se of clean) {
+    const pts = se.points.map(([x, y]) => `${sx(x).toFixed(1)},${sy(y).toFixed(1)}`).join(" ");
+    svg.appendChild(s("polyline", { class: "series", points: pts, stroke: se.color, fill: "none",
+      "data-series": se.label, "data-count": se.points.length }));
+    if (se.points.length === 1) {
+      const [x, y] = se.points[0];
+      svg.appendChild(s("circle", { cx: sx(x), cy: sy(y), r: 3, fill: se.color }));
+    }
+  }
+  figure.appendChild(svg);
+  if (clean.length > 1 || clean[0].label) {
+    figure.appendChild(h("div", { class: "legend" }, clean.map((se) =>
+      h("span", { class: "legend-item" }, h("i", { style: `background:${se.color}` }), se.label))));
+  }
+  return figure;
+}
+
+const X_KEYS = ["global_step", "step", "env_steps", "steps"];
+/** Which curves to draw, and which point keys feed them (first present key wins per series). */
+const PANELS = [
+  { title: "Success rate", yLabel: "success", yDomain: [0, 1],
+    series: [["training", ["success"]], ["evaluation", ["eval_success"]]] },
+  { title: "Search time", yLabel: "steps per episode",
+    series: [["training", ["time", "episode_length"]], ["evaluation", ["eval_time"]]] },
+  { title: "Cost", yLabel: "cost per episode",
+    series: [["training", ["cost", "episode_cost"]], ["evaluation", ["eval_cost"]]] },
+];
+
+function xOf(p, i) {
+  for (const k of X_KEYS) if (p[k] !== undefined && p[k] !== null) return Number(p[k]);
+  return i;
+}
+
+/**
+ * Curve panels from metric points ({global_step|step, success, time, cost, eval_*...}).
+ * groupBy (e.g. "worker") draws one line per group instead of training/evaluation lines.
+ */
+export function curvePanels(points, { groupBy } = {}) {
+  const rows = (points || []).filter((p) => p && typeof p === "object");
+  const panels = [];
+  for (const panel of PANELS) {
+    let series = [];
+    if (groupBy) {
+      const keys = panel.series[0][1];
+      const groups = new Map();
+      rows.forEach((p, i) => {
+        const key = keys.find((k) => p[k] !== undefined && p[k] !== null && p[k] !== "");
+        if (!key) return;
+        const g = String(p[groupBy] ?? "");
+        if (!groups.has(g)) groups.set(g, []);
+        groups.get(g).push([xOf(p, i), Number(p[key])]);
+      });
+      series = [...groups].map(([g, pts]) => ({
+        label: g.length > 14 ? `${g.slice(0, 6)}…${g.slice(-4)}` : g, points: pts }));
+    } else {
+      for (const [label, keys] of panel.series) {
+        const pts = [];
+        rows.forEach((p, i) => {
+          const key = keys.find((k) => p[k] !== undefined && p[k] !== null && p[k] !== "");
+          if (key) pts.push([xOf(p, i), Number(p[key])]);
+        });
+        if (pts.length) series.push({ label, points: pts });
+      }
+    }
+    if (series.some((se) => se.points.length)) {
+      panels.push(lineChart({ title: panel.title, series, yLabel: panel.yLabel, yDomain: panel.yDomain }));
+    }
+  }
+  return panels;
+}

@@ -1,0 +1,152 @@
+// Small DOM and formatting helpers. Data from the API is only ever inserted as text (never
+// innerHTML): model descriptions and task specs are user content.
+
+/** h("a", {href: "/x", class: "c", onclick: fn}, "text", child, [more]) -> Element */
+export function h(tag, attrs = {}, ...children) {
+  const el = document.createElementNS(
+    attrs && attrs.svg ? "http://www.w3.org/2000/svg" : "http://www.w3.org/1999/xhtml", tag);
+  let late = null; // value/checked are set after the children (a <select> needs its options)
+  for (const [key, value] of Object.entries(attrs || {})) {
+    if (key === "svg" || value === undefined || value === null || value === false) continue;
+    if (key.startsWith("on") && typeof value === "function") {
+      el.addEventListener(key.slice(2), value);
+    } else if (key === "dataset") {
+      Object.assign(el.dataset, value);
+    } else if ((key === "value" || key === "checked") && key in el) {
+      (late ||= {})[key] = value;
+    } else {
+      el.setAttribute(key, value === true ? "" : String(value));
+    }
+  }
+  append(el, children);
+  if (late) Object.assign(el, late);
+  return el;
+}
+
+function append(el, children) {
+  for (const child of children) {
+    if (child === undefined || child === null || child === false) continue;
+    if (Array.isArray(child)) append(el, child);
+    else if (child instanceof Node) el.appendChild(child);
+    else el.appendChild(document.createTextNode(String(child)));
+  }
+}
+
+/** SVG element shorthand. */
+export function s(tag, attrs = {}, ...children) {
+  return h(tag, { ...attrs, svg: true }, ...children);
+}
+
+export function clear(el) {
+  while (el.firstChild) el.removeChild(el.firstChild);
+  return el;
+}
+
+/** An internal link handled by the client router. */
+export function link(href, ...children) {
+  return h("a", { href, "data-link": true }, ...children);
+}
+
+/** 0x1234…abcd with the full address as tooltip. */
+export function shortAddr(addr) {
+  if (!addr || typeof addr !== "string") return h("span", { class: "muted" }, "—");
+  const text = addr.length > 14 ? `${addr.slice(0, 6)}…${addr.slice(-4)}` : addr;
+  return h("span", { class: "addr mono", title: addr }, text);
+}
+
+/** Same for a CID: keep enough to recognise it, full value on hover and in a copyable field. */
+export function shortCid(cid) {
+  if (!cid) return h("span", { class: "muted" }, "—");
+  const text = cid.length > 20 ? `${cid.slice(0, 10)}…${cid.slice(-6)}` : cid;
+  return h("span", { class: "cid mono", title: cid }, text);
+}
+
+export function num(value, digits = 2) {
+  if (value === undefined || value === null || value === "") return "—";
+  const n = Number(value);
+  if (!Number.isFinite(n)) return String(value);
+  if (Number.isInteger(n)) return n.toLocaleString("en-US");
+  return n.toLocaleString("en-US", { maximumFractionDigits: digits });
+}
+
+const WEI_PER_ETH = 10n ** 18n;
+
+/** wei (string|number|bigint) -> "0.05 ETH" without floating-point loss. */
+export function formatWei(wei) {
+  if (wei === undefined || wei === null || wei === "") return "—";
+  let v;
+  try { v = BigInt(wei); } catch { return String(wei); }
+  const neg = v < 0n; if (neg) v = -v;
+  const whole = v / WEI_PER_ETH;
+  let frac = (v % WEI_PER_ETH).toString().padStart(18, "0").replace(/0+$/, "");
+  return `${neg ? "-" : ""}${whole}${frac ? "." + frac : ""} ETH`;
+}
+
+/** "0.05" ETH (decimal string) -> wei as a decimal string; throws Error with a readable msg. */
+export function ethToWei(text) {
+  const t = String(text).trim();
+  if (!/^\d+(\.\d+)?$/.test(t)) throw new Error("enter an amount like 0.01");
+  const [whole, frac = ""] = t.split(".");
+  if (frac.length > 18) throw new Error("at most 18 decimals (1 wei)");
+  return (BigInt(whole) * WEI_PER_ETH + BigInt(frac.padEnd(18, "0"))).toString();
+}
+
+/** ISO date or unix seconds -> local "2025-01-02 13:04:05". */
+export function formatTime(t) {
+  if (t === undefined || t === null || t === "") return "—";
+  const d = typeof t === "number" ? new Date(t * 1000) : new Date(t);
+  if (Number.isNaN(d.getTime())) return String(t);
+  const pad = (x) => String(x).padStart(2, "0");
+  return `${d.getFullYear()}-${pad(d.getMonth() + 1)}-${pad(d.getDate())} `
+    + `${pad(d.getHours())}:${pad(d.getMinutes())}:${pad(d.getSeconds())}`;
+}
+
+/** A status pill; the class lets CSS colour it (open, completed, cancelled, ...). */
+export function statusPill(status) {
+  const text = status === undefined || status === null ? "unknown" : String(status);
+  return h("span", { class: `pill status-${text.toLowerCase().replace(/[^a-z0-9]+/g, "-")}` }, text);
+}
+
+/** One-line summary of an environment spec dict (or the raw value if it is not one). */
+export function envSummary(env) {
+  if (Array.isArray(env) && env.length >= 6) {
+    // The chain's env vector (backend.services.specs.env_attributes).
+    const [rows, cols, agents, moves, walls0, walls1] = env;
+    return envSummary({ rows, cols, agents, moves, walls: [walls0, walls1] });
+  }
+  if (!env || typeof env !== "object" || Array.isArray(env)) {
+    return env === undefined || env === null ? "—" : JSON.stringify(env);
+  }
+  const parts = [];
+  if (env.agents !== undefined) parts.push(`${env.agents} agent${env.agents === 1 ? "" : "s"}`);
+  if (env.rows !== undefined && env.cols !== undefined) parts.push(`${env.rows}×${env.cols}`);
+  if (Array.isArray(env.walls)) {
+    const [lo, hi] = env.walls;
+    parts.push(lo === hi ? `${lo} wall${lo === 1 ? "" : "s"}` : `${lo}–${hi} walls`);
+  } else if (env.walls !== undefined) {
+    parts.push(`${env.walls} walls`);
+  }
+  if (env.moves !== undefined) parts.push(`${env.moves} moves`);
+  if (env.intensity && typeof env.intensity === "object" && Array.isArray(env.intensity.values)) {
+    const sep = { fixed: "", choice: ",", uniform: ":" }[env.intensity.kind] ?? ",";
+    parts.push(`I=${env.intensity.values.map((v) => Number(v).toExponential(0).replace("e+", "e")).join(sep)}`);
+  }
+  return parts.join(" · ") || JSON.stringify(env);
+}
+
+/** A <dl> from [label, value] pairs; values may be nodes. Pairs with undefined values are skipped. */
+export function defList(pairs, cls = "kv") {
+  return h("dl", { class: cls }, pairs
+    .filter(([, v]) => v !== undefined)
+    .map(([k, v]) => [h("dt", {}, k), h("dd", {}, v === null ? "—" : v)]));
+}
+
+/** A <details> with pretty JSON, for fields the page does not lay out itself. */
+export function rawJson(title, value) {
+  return h("details", { class: "raw" }, h("summary", {}, title),
+    h("pre", { class: "mono" }, JSON.stringify(value, null, 2)));
+}
+
+export function errorBox(err) {
+  return h("div", { class: "error-box", role: "alert" }, err && err.message ? err.message : String(err));
+}

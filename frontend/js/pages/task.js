@@ -1,0 +1,172 @@
+// One task: GET /api/tasks/{id} (spec, status, timeline, offers, outcomes, progress), polled
+// every 2 s; each section is redrawn only when its data changed, so a half-filled review form
+// survives the polling.
+
+import { api } from "../api.js";
+import { curvePanels } from "../chart.js";
+import {
+  defList, envSummary, errorBox, formatTime, formatWei, h, link, num, rawJson, shortAddr, shortCid,
+  statusPill,
+} from "../dom.js";
+import { POLL_MS, specCid } from "./tasks.js";
+
+const SAME = (a, b) => a.length === b.length && a.every((x, i) => Object.is(x, b[i]));
+
+function section(id, title) {
+  const body = h("div", { class: "section-body" });
+  const el = h("div", { class: "panel", id }, h("h2", {}, title), body);
+  el._key = null;
+  return { el, body };
+}
+
+function eventName(e) {
+  return e.name || e.event || e.type || "event";
+}
+
+function eventDetails(e) {
+  const args = e.args || e.data || {};
+  // qos/reputation args are contract fixed point (1e6 = 1); shown as they are on chain.
+  return Object.entries(args)
+    .filter(([k]) => !["taskId", "task_id"].includes(k))
+    .map(([k, v]) => h("span", { class: "arg" }, `${k}=`,
+      typeof v === "string" && /^0x[0-9a-fA-F]{40}$/.test(v) ? shortAddr(v) : String(v)));
+}
+
+export async function render(main, [id], ctx) {
+  document.title = `Task #${id} · DRLaaS`;
+  const head = h("div", { class: "page-head" });
+  const updated = h("span", { class: "muted", id: "task-updated" });
+  const actions = h("div", { class: "actions", id: "task-actions" });
+  const sections = {
+    summary: section("task-summary", "Task"),
+    curve: section("task-curve", "Live training curve"),
+    offers: section("task-offers", "Offers"),
+    outcomes: section("task-outcomes", "Outcomes"),
+    timeline: section("task-timeline", "Timeline"),
+  };
+  const message = h("div", { id: "task-message" });
+  main.appendChild(h("section", { id: "task-page", "data-task-id": id },
+    h("p", { class: "crumbs" }, link("/tasks", "Tasks"), " / ", `#${id}`),
+    head, updated, message, actions,
+    h("div", { class: "grid2" }, sections.summary.el, sections.timeline.el),
+    sections.curve.el, sections.offers.el, sections.outcomes.el));
+
+  let task = null;
+  const draw = (name, key, build) => {
+    const sct = sections[name];
+    if (sct.el._key && SAME(sct.el._key, key)) return;
+    sct.el._key = key;
+    sct.body.replaceChildren(...[].concat(build()).filter(Boolean));
+  };
+
+  const act = async (what, path, body) => {
+    message.replaceChildren();
+    try {
+      await api(path, { method: "POST", body });
+      message.replaceChildren(h("p", { class: "ok" }, `${what}: sent.`));
+      await refresh();
+    } catch (err) {
+      message.replaceChildren(errorBox(err.rule === "sign_locally"
+        ? new Error(`${what} must be signed with your own key on this gateway (drlaas task ... with --key).`)
+        : err));
+    }
+  };
+
+  async function refresh() {
+    let t;
+    try {
+      t = await api(`/tasks/${encodeURIComponent(id)}`, { signal: ctx.signal });
+    } catch (err) {
+      if (err.name === "AbortError") throw err;
+      if (!task) { main.replaceChildren(errorBox(err)); ctx.stopped = true; return; }
+      updated.textContent = `update failed: ${err.message}`;
+      return;
+    }
+    task = t;
+    updated.textContent = `live · updated ${new Date().toLocaleTimeString("en-GB")}`;
+    const spec = t.spec || {};
+    const me = document.body.dataset.address || "";
+    const isRequester = me && t.requester && me.toLowerCase() === String(t.requester).toLowerCase();
+    head.replaceChildren(h("h1", {}, `Task #${t.id ?? id}`), h("span", { id: "task-status" }, statusPill(t.status)));
+    actions.replaceChildren(...(isRequester && String(t.status).toLowerCase() === "open"
+      ? [h("button", { type: "button", class: "small danger", id: "cancel-task",
+          onclick: () => act("Cancel", `/tasks/${encodeURIComponent(id)}/cancel`, {}) }, "Cancel task")]
+      : []));
+
+    const cid = specCid(t);
+    const summaryKey = { ...t, timeline: 0, offers: 0, outcomes: 0, progress: 0, status: 0 };
+    draw("summary", [JSON.stringify(summaryKey)], () => [
+      defList([
+        ["Requester", shortAddr(t.requester)],
+        ["Spec CID", h("code", { class: "mono", id: "task-spec-cid" }, cid || "—")],
+        ["Domain", t.domain ?? spec.domain],
+        ["Environment", envSummary(spec.env || t.env)],
+        ["Observation", spec.observation ? `${String(spec.observation.kind || "").toUpperCase()}${spec.observation.window ? `, window ${spec.observation.window}` : ""}` : undefined],
+        ["Budget", spec.budget ? [spec.budget.steps ? `${num(spec.budget.steps)} steps` : null, spec.budget.minutes ? `${num(spec.budget.minutes)} min` : null].filter(Boolean).join(", ") || "—" : undefined],
+        ["Workers", t.num_workers ?? spec.num_workers],
+        ["Offered", t.offered],
+        ["Reward / worker", formatWei(t.reward_wei ?? t.payment_wei ?? spec.payment_wei)],
+        ["Min reputation", t.min_reputation ?? spec.min_reputation],
+        ["Min rating", t.min_rating ?? spec.min_rating],
+        ["Min CPU / RAM", t.min_cpu_cores !== undefined ? `${t.min_cpu_cores} cores, ${t.min_ram_gb} GB` : undefined],
+        ["Deadline", t.deadline !== undefined ? formatTime(t.deadline) : (spec.deadline_s !== undefined ? `${num(spec.deadline_s)} s` : undefined)],
+        ["Seed", spec.seed],
+      ]),
+      Object.keys(spec).length ? rawJson("Task spec (JSON)", spec) : null,
+    ]);
+
+    const progress = (Array.isArray(t.progress) ? t.progress : []).map((p) => ({ ...(p.extra || {}), ...p }));
+    draw("curve", [progress.length, JSON.stringify(progress[progress.length - 1] || null)], () => {
+      if (!progress.length) return h("p", { class: "muted" }, "No progress yet: points appear here while a worker trains.");
+      const multi = new Set(progress.map((p) => p.worker)).size > 1;
+      const last = progress[progress.length - 1];
+      return [
+        h("p", { class: "muted", id: "progress-summary" },
+          `${progress.length} point${progress.length === 1 ? "" : "s"}; latest step ${num(last.step ?? last.global_step)}`
+          + (last.success !== undefined ? `, success ${num(last.success, 3)}` : "")),
+        h("div", { class: "charts" }, curvePanels(progress, multi ? { groupBy: "worker" } : {})),
+      ];
+    });
+
+    const offers = Array.isArray(t.offers) ? t.offers : [];
+    draw("offers", [JSON.stringify(offers)], () => offers.length
+      ? h("table", { class: "list" }, h("thead", {}, h("tr", {}, ["Worker", "State", "QoS", "Expires"].map((c) => h("th", {}, c)))),
+        h("tbody", {}, offers.map((o) => h("tr", { "data-worker": o.worker },
+          h("td", {}, shortAddr(o.worker)), h("td", {}, statusPill(o.state ?? o.status)),
+          h("td", { class: "num" }, num(o.qos, 4)), h("td", {}, formatTime(o.expiry ?? o.expires_at))))))
+      : h("p", { class: "muted" }, "No offers yet."));
+
+    const outcomes = Array.isArray(t.outcomes) ? t.outcomes : [];
+    draw("outcomes", [JSON.stringify(outcomes), isRequester], () => outcomes.length
+      ? h("table", { class: "list", id: "outcomes-table" },
+        h("thead", {}, h("tr", {}, ["Worker", "Model CID", "Review", ""].map((c) => h("th", {}, c)))),
+        h("tbody", {}, outcomes.map((o) => {
+          const reviewed = o.review !== undefined && o.review !== null;
+          let cell = null;
+          if (isRequester && !reviewed) {
+            const sel = h("select", { "aria-label": "Review 0-5" }, [5, 4, 3, 2, 1, 0].map((v) => h("option", { value: String(v) }, `${v}/5`)));
+            cell = h("span", {}, sel, h("button", { type: "button", class: "small", onclick: () =>
+              act("Review", `/tasks/${encodeURIComponent(id)}/reviews`, { worker: o.worker, review: Number(sel.value) }) }, "Review"));
+          }
+          return h("tr", { "data-worker": o.worker },
+            h("td", {}, shortAddr(o.worker)),
+            h("td", {}, o.model_id !== undefined && o.model_id !== null
+              ? link(`/models/${o.model_id}`, shortCid(o.cid))
+              : (o.cid ? link(`/models?q=${encodeURIComponent(o.cid)}`, shortCid(o.cid)) : shortCid(o.cid))),
+            h("td", {}, reviewed ? `${o.review}/5${o.accepted === false ? " (rejected)" : ""}` : h("span", { class: "muted" }, "not reviewed")),
+            h("td", {}, cell));
+        })))
+      : h("p", { class: "muted" }, "No outcome submitted yet."));
+
+    const timeline = Array.isArray(t.timeline) ? t.timeline : [];
+    draw("timeline", [JSON.stringify(timeline)], () => timeline.length
+      ? h("ol", { class: "timeline", id: "timeline" }, timeline.map((e) => h("li", {},
+        h("span", { class: "when" }, formatTime(e.block_time ?? e.time ?? e.timestamp)),
+        h("span", { class: "what" }, eventName(e)),
+        (e.block_number ?? e.block) !== undefined ? h("span", { class: "muted", title: e.tx_hash || "" }, ` block ${e.block_number ?? e.block}`) : null,
+        h("span", { class: "args" }, eventDetails(e)))))
+      : h("p", { class: "muted" }, "No events yet."));
+  }
+
+  await ctx.every(POLL_MS, refresh);
+}

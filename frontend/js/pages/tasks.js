@@ -1,0 +1,100 @@
+// Tasks with live status: GET /api/tasks?status=&requester= polled every 2 s; rows whose data
+// changed are replaced in place (and flash), the rest are left alone.
+
+import { api, asList, query } from "../api.js";
+import {
+  clear, envSummary, errorBox, formatTime, formatWei, h, link, shortAddr, shortCid, statusPill,
+} from "../dom.js";
+
+export const POLL_MS = 2000;
+const STATUSES = ["", "open", "completed", "cancelled", "closed"];
+
+function taskEnv(t) {
+  return t.env || (t.spec && t.spec.env);
+}
+
+function count(v) {
+  return Array.isArray(v) ? v.length : v;
+}
+
+/** Task spec CID: TaskPublic.description holds it (the on-chain description). */
+export function specCid(t) {
+  return t.spec_cid ?? t.description;
+}
+
+function row(t) {
+  const offered = count(t.offered);
+  const env = taskEnv(t);
+  return h("tr", { "data-task-id": t.id, "data-status": t.status },
+    h("td", {}, link(`/tasks/${encodeURIComponent(t.id)}`, `#${t.id}`)),
+    h("td", { class: "status" }, statusPill(t.status)),
+    h("td", {}, env ? envSummary(env) : shortCid(specCid(t))),
+    h("td", {}, shortAddr(t.requester)),
+    h("td", { class: "num" }, offered !== undefined ? `${offered} / ${t.num_workers ?? "—"}` : (t.num_workers ?? "—")),
+    h("td", { class: "num" }, formatWei(t.reward_wei ?? t.payment_wei)),
+    h("td", {}, formatTime(t.deadline ?? t.created_at)));
+}
+
+export async function render(main, _params, ctx) {
+  document.title = "Tasks · DRLaaS";
+  const p = new URLSearchParams(location.search);
+  const me = document.body.dataset.address || "";
+  const status = h("select", { name: "status", id: "task-status-filter", value: p.get("status") || "" },
+    STATUSES.map((st) => h("option", { value: st }, st || "any status")));
+  const mine = h("input", { type: "checkbox", name: "mine", id: "task-mine", checked: p.get("mine") === "1", disabled: !me });
+  const updated = h("span", { class: "muted", id: "tasks-updated" });
+  const body = h("div", { id: "tasks-results" });
+  let tbody = null;
+
+  const params = () => ({ status: status.value, requester: mine.checked && me ? me : "" });
+  const refresh = async () => {
+    const urlParams = { status: status.value, mine: mine.checked ? "1" : "" };
+    history.replaceState(null, "", `/tasks${query(urlParams)}`);
+    try {
+      const { data } = asList(await api(`/tasks${query(params())}`, { signal: ctx.signal }));
+      update(data);
+      updated.textContent = `live · updated ${new Date().toLocaleTimeString("en-GB")}`;
+      updated.classList.remove("warn");
+    } catch (err) {
+      if (err.name === "AbortError") throw err;
+      if (!tbody) clear(body).appendChild(errorBox(err));
+      updated.textContent = `update failed: ${err.message}`;
+      updated.classList.add("warn");
+    }
+  };
+
+  function update(tasks) {
+    if (!tasks.length) { tbody = null; clear(body).appendChild(h("p", { class: "empty", id: "no-tasks" }, "No tasks yet.")); return; }
+    if (!tbody) {
+      tbody = h("tbody");
+      clear(body).appendChild(h("table", { class: "list", id: "tasks-table" },
+        h("thead", {}, h("tr", {}, ["#", "Status", "Spec", "Requester", "Offered / workers", "Reward / worker", "Deadline"]
+          .map((c) => h("th", {}, c)))), tbody));
+    }
+    const old = new Map([...tbody.children].map((tr) => [tr.dataset.taskId, tr]));
+    const rows = tasks.map((t) => {
+      const key = JSON.stringify(t);
+      const prev = old.get(String(t.id));
+      if (prev && prev.dataset.key === key) return prev;
+      const tr = row(t);
+      tr.dataset.key = key;
+      if (prev) tr.classList.add("changed");
+      return tr;
+    });
+    rows.forEach((tr, i) => { if (tbody.children[i] !== tr) tbody.insertBefore(tr, tbody.children[i] || null); });
+    while (tbody.children.length > rows.length) tbody.lastChild.remove();
+  }
+
+  const restart = () => { tbody = null; refresh(); };
+  status.addEventListener("change", restart);
+  mine.addEventListener("change", restart);
+
+  main.appendChild(h("section", {},
+    h("div", { class: "page-head" }, h("h1", {}, "Tasks"), updated),
+    h("div", { class: "filters" },
+      h("label", {}, h("span", {}, "Status"), status),
+      h("label", { class: "inline", title: me ? "" : "sign in to filter your own tasks" }, mine, h("span", {}, "Only mine")),
+      link("/submit", "Submit a task →")),
+    body));
+  await ctx.every(POLL_MS, refresh);
+}
