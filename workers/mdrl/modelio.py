@@ -1,0 +1,185 @@
+"""Model files: `model.safetensors` (actor + critic weights) and `model.json` (the card).
+
+The card says what the model is for and how to rebuild it: env spec, observation spec,
+architecture (Table 3.1 and parameter counts), action space, training config, metrics and
+code version. `load_model(dir)` rebuilds a ready-to-act greedy policy from safetensors + JSON
+only (never pickle).
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import subprocess
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from safetensors.torch import load_file, save_file
+
+from workers.mdrl.rollout import GreedySelector, PolicyHead, policy_step
+
+CARD_FORMAT = "drlaas-model/1"
+WEIGHTS = "model.safetensors"
+CARD = "model.json"
+ARCHITECTURE = ("Table 3.1 LeNet-like CNN, same body for actor and critic: conv3x3x8 (pad 1) "
+                "ReLU -> maxpool 2x2 stride 2 (ceil) -> conv3x3x16 (pad 1) ReLU -> flatten -> "
+                "fc32 ReLU -> fc16 ReLU -> out (actor: masked softmax over actions; critic: "
+                "scalar value)")
+
+
+class GreedyPolicy:
+    """A trained actor acting greedily (Alg. 3.4): the Policy interface (reset, act) of the core.
+
+    CLDE models run the shared actor once per agent on that agent's observation; CMTL models
+    pick one joint action and decode it into per-agent actions.
+    """
+
+    def __init__(self, agent: Any, observer: Any, head: PolicyHead):
+        self.agent, self.observer, self.head = agent, observer, head
+        self._select = GreedySelector()
+
+    def reset(self, env: Any) -> None:
+        """Nothing to reset: observations carry the episode's memory."""
+
+    @torch.inference_mode()
+    def act(self, env: Any) -> np.ndarray:
+        """Greedy valid actions int64 (B, N) for the current state of `env`."""
+        actor_obs, _ = self.observer.observe(env)
+        mask = torch.from_numpy(np.ascontiguousarray(self.head.policy_mask(env.action_mask())))
+        actions, _ = policy_step(self.agent, torch.as_tensor(actor_obs), mask, self._select, env)
+        return self.head.env_actions(actions.numpy())
+
+    def action_probs(self, env: Any) -> np.ndarray:
+        """Policy probabilities (B, Np, Ap) over valid actions (for experts / analysis)."""
+        from workers.mdrl.ppo import masked_log_probs
+
+        with torch.inference_mode():
+            actor_obs, _ = self.observer.observe(env)
+            obs = torch.as_tensor(actor_obs)
+            mask = torch.from_numpy(np.ascontiguousarray(self.head.policy_mask(env.action_mask())))
+            b, n = obs.shape[:2]
+            flat_mask = mask.reshape(b * n, -1)
+            logits = self.agent.logits(obs.reshape(b * n, *obs.shape[2:]), flat_mask)
+            return masked_log_probs(logits, flat_mask).exp().reshape(b, n, -1).numpy()
+
+
+def code_version() -> dict[str, Any]:
+    """Package version and, if this is a git checkout, the commit (and whether it is dirty)."""
+    info: dict[str, Any] = {"package": "drlaas"}
+    try:
+        from importlib.metadata import version
+
+        info["version"] = version("drlaas")
+    except Exception:  # not installed (run from a source tree)
+        info["version"] = None
+    root = Path(__file__).resolve().parents[2]
+    try:
+        commit = subprocess.run(["git", "-C", str(root), "rev-parse", "HEAD"], capture_output=True,
+                                text=True, timeout=5)
+        info["git_commit"] = commit.stdout.strip() if commit.returncode == 0 else None
+        if info["git_commit"]:
+            dirty = subprocess.run(["git", "-C", str(root), "status", "--porcelain", "--",
+                                    "workers"], capture_output=True, text=True, timeout=5)
+            info["git_dirty"] = bool(dirty.stdout.strip())
+    except (OSError, subprocess.SubprocessError):
+        info["git_commit"] = None
+    return info
+
+
+def _count(module: torch.nn.Module) -> int:
+    return sum(p.numel() for p in module.parameters() if p.requires_grad)
+
+
+def save_model(path: str | Path, agent: torch.nn.Module, env_spec: Any, obs_spec: Any,
+               ppo: Any, *, metrics: dict[str, Any] | None = None, observer: Any = None,
+               training: dict[str, Any] | None = None) -> Path:
+    """Write `model.safetensors` + `model.json` into directory `path`; returns the directory."""
+    from workers.mdrl.observations import make_observer
+    from workers.mdrl.train import obs_spec_to_dict
+
+    path = Path(path)
+    path.mkdir(parents=True, exist_ok=True)
+    if observer is None:
+        observer = make_observer(env_spec, obs_spec)
+    head = PolicyHead(env_spec.num_actions, env_spec.agents, joint=bool(observer.joint_actions))
+    tensors = {k: v.detach().contiguous().clone() for k, v in agent.state_dict().items()}
+    save_file(tensors, str(path / WEIGHTS), metadata={"format": CARD_FORMAT})
+    card = {
+        "format": CARD_FORMAT,
+        "created": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
+        "model": obs_spec.kind.upper(),
+        "env": env_spec.to_dict(),
+        "observation": {**obs_spec_to_dict(obs_spec),
+                        "actor_shape": list(observer.actor_shape),
+                        "critic_shape": list(observer.critic_shape)},
+        "architecture": {
+            "description": ARCHITECTURE,
+            "actor_parameters": _count(agent.actor),
+            "critic_parameters": _count(agent.critic),
+            "total_parameters": _count(agent),
+            "tensors": {k: list(v.shape) for k, v in tensors.items()},
+        },
+        "action_space": {
+            "per_agent_actions": env_spec.num_actions,
+            "moves": env_spec.moves,
+            "agents": env_spec.agents,
+            "joint": head.joint,
+            "policy_actions": head.policy_actions,
+            "execution": ("one joint actor, index = sum a_i * A**(N-1-i)" if head.joint
+                          else "shared actor applied to each agent's observation (CLDE)"),
+        },
+        "training": {"ppo": ppo.to_dict() if hasattr(ppo, "to_dict") else dict(ppo),
+                     **(training or {})},
+        "metrics": _jsonable(metrics or {}),
+        "code": code_version(),
+    }
+    (path / CARD).write_text(json.dumps(card, indent=1))
+    return path
+
+
+def load_card(path: str | Path) -> dict[str, Any]:
+    """Read and check `model.json` of a model directory."""
+    card_path = Path(path) / CARD
+    if not card_path.is_file():
+        raise FileNotFoundError(f"not a model directory {path}: no {CARD}")
+    card = json.loads(card_path.read_text())
+    if card.get("format") != CARD_FORMAT:
+        raise ValueError(f"{card_path}: unknown model format {card.get('format')!r}")
+    return card
+
+
+def load_model(path: str | Path) -> GreedyPolicy:
+    """Rebuild the greedy policy of a model directory (safetensors + JSON, no pickle)."""
+    from workers.mdrl.networks import ActorCritic
+    from workers.mdrl.observations import make_observer
+    from workers.mdrl.spec import EnvSpec
+    from workers.mdrl.train import obs_spec_from_dict
+
+    path = Path(path)
+    card = load_card(path)
+    env_spec = EnvSpec.from_dict(card["env"])
+    obs = {k: v for k, v in card["observation"].items()
+           if k not in ("actor_shape", "critic_shape")}
+    obs_spec = obs_spec_from_dict(obs)
+    observer = make_observer(env_spec, obs_spec)
+    head = PolicyHead(env_spec.num_actions, env_spec.agents, joint=bool(observer.joint_actions))
+    agent = ActorCritic(observer, head.policy_actions)
+    agent.load_state_dict(load_file(str(path / WEIGHTS)))
+    agent.eval()
+    policy = GreedyPolicy(agent, observer, head)
+    policy.card = card  # type: ignore[attr-defined]
+    policy.env_spec = env_spec  # type: ignore[attr-defined]
+    return policy
+
+
+def _jsonable(d: dict[str, Any]) -> dict[str, Any]:
+    out = {}
+    for k, v in d.items():
+        if isinstance(v, np.generic):
+            v = v.item()
+        if isinstance(v, float) and v != v:  # NaN is not JSON
+            v = None
+        out[k] = v
+    return out

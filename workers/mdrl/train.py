@@ -1,0 +1,452 @@
+"""PPO training of the MDRL models (Alg. 3.3): CLDE for DMTL/ODMTL, a joint actor for CMTL.
+
+Reads top to bottom like CleanRL's ppo.py: config -> env -> observer -> agent -> rollout ->
+GAE -> update -> log. CLDE: each agent's (observation, action, log-prob) is one sample for
+the shared actor; the team reward (Eq. 5) and the centralized critic's value belong to the
+env step and are shared by that env's agents (one advantage per env step, used by all N
+agent samples). CMTL: one sample per env step over the A**N joint actions.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import json
+import math
+import time
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from workers.mdrl import checkpoint as ckpt
+from workers.mdrl.env import TargetLocalizationEnv
+from workers.mdrl.evaluate import evaluate
+from workers.mdrl.networks import ActorCritic
+from workers.mdrl.observations import ObservationSpec, make_observer
+from workers.mdrl.ppo import PPOConfig, entropy_from_log_probs, gae, masked_log_probs, ppo_losses
+from workers.mdrl.rollout import (
+    ActionSelector,
+    PolicyHead,
+    RolloutBuffer,
+    SampleSelector,
+    policy_step,
+)
+from workers.mdrl.spec import EnvSpec
+
+
+@dataclass
+class RunConfig:
+    """How long and how a training run goes (not learning hyperparameters)."""
+
+    seed: int = 0
+    """Seeds the env layouts/noise, network init, action sampling and minibatch order."""
+    total_steps: int | None = None
+    """Env-step budget (stop once reached); also the horizon of the learning-rate anneal."""
+    minutes: float | None = None
+    """Wall-clock budget in minutes (checked between updates, resumed runs count prior time)."""
+    eval_every: int = 10
+    """Greedy evaluation every this many updates (and after the last one); 0 = only at the end."""
+    eval_episodes: int = 200
+    """Fixed, seeded evaluation episodes (the same ones every time)."""
+    eval_seed: int = 1_000_003
+    """Seed of the evaluation episodes (independent of the training seed)."""
+    checkpoint_every: int = 10
+    """Save a checkpoint every this many updates (always after the last one); 0 = only at end."""
+    threads: int = 1
+    """torch intra-op threads (fixed so that runs are reproducible)."""
+    tensorboard: bool = True
+    """Write TensorBoard event files under out/tb."""
+    progress: bool = True
+    """Show a tqdm progress bar."""
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> RunConfig:
+        names = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(d) - names)
+        if unknown:
+            raise ValueError(f"RunConfig: unknown field(s) {unknown}; known: {sorted(names)}")
+        return cls(**d)
+
+
+METRIC_COLUMNS = [
+    "update", "global_step", "wall_time", "sps", "learning_rate",
+    "loss", "policy_loss", "value_loss", "entropy", "approx_kl", "clipfrac", "explained_variance",
+    "episodes", "success", "episode_length", "episode_cost", "episode_return",
+    "eval_success", "eval_time", "eval_cost",
+]
+"""Columns of metrics.csv, one row per update; eval_* are empty between evaluations."""
+TIMING_COLUMNS = ("wall_time", "sps")
+"""Columns that depend on the machine; every other column is reproducible from the seed."""
+
+
+def obs_spec_to_dict(spec: ObservationSpec) -> dict[str, Any]:
+    if hasattr(spec, "to_dict"):
+        return spec.to_dict()
+    d = dataclasses.asdict(spec)
+    return {k: (list(v) if isinstance(v, tuple) else v) for k, v in d.items()}
+
+
+def obs_spec_from_dict(d: dict[str, Any]) -> ObservationSpec:
+    if hasattr(ObservationSpec, "from_dict"):
+        return ObservationSpec.from_dict(d)
+    return ObservationSpec(**d)
+
+
+def greedy_eval(policy: Any, spec: EnvSpec, episodes: int, seed: int) -> dict[str, float]:
+    """Fixed, seeded episodes with `policy` via `evaluate.evaluate` (same episodes every call).
+
+    Success = target found within max_steps; time = episode length (failures count as
+    max_steps); cost = moving actions in the episode (both averaged over all episodes).
+    """
+    report = evaluate(policy, spec, episodes, seed=seed)
+    return {"eval_success": report.success_rate, "eval_time": report.time_mean,
+            "eval_cost": report.cost_mean}
+
+
+class Trainer:
+    """One PPO training run; `train()` runs it, `save_checkpoint` / `resume` continue it."""
+
+    def __init__(self, env_spec: EnvSpec, obs_spec: ObservationSpec, ppo: PPOConfig,
+                 run: RunConfig, out: str | Path | None = None,
+                 selector: ActionSelector | None = None):
+        self.env_spec, self.obs_spec, self.ppo, self.run = env_spec, obs_spec, ppo, run
+        self.out = Path(out) if out is not None else None
+        torch.set_num_threads(run.threads)
+        # environment: B envs stepped together as arrays
+        self.env = TargetLocalizationEnv(env_spec, ppo.num_envs, seed=run.seed)
+        # observer: env state -> actor (B, Np, C, H, W) and critic (B, C, H, W) maps
+        self.observer = make_observer(env_spec, obs_spec)
+        self.head = PolicyHead(env_spec.num_actions, env_spec.agents,
+                               joint=bool(self.observer.joint_actions))
+        # agent: shared actor + centralized critic (Table 3.1); init from the seed only
+        with torch.random.fork_rng():
+            torch.manual_seed(run.seed)
+            self.agent = ActorCritic(self.observer, self.head.policy_actions)
+        self.optimizer = torch.optim.Adam(self.agent.parameters(), lr=ppo.learning_rate,
+                                          eps=ppo.adam_eps)
+        self.generator = torch.Generator().manual_seed(run.seed + 1)
+        self.selector = selector if selector is not None else SampleSelector(self.generator)
+        self.selector.episode_start(np.arange(ppo.num_envs))
+        # rollout storage, time first
+        self.buffer = RolloutBuffer.allocate(
+            ppo.rollout_steps, ppo.num_envs, self.head.policy_agents, self.head.policy_actions,
+            tuple(self.observer.actor_shape), tuple(self.observer.critic_shape))
+        # counters (checkpointed)
+        self.update_idx = 0
+        self.global_step = 0
+        self.episodes = 0
+        self.elapsed = 0.0
+        self.ep_return = np.zeros(ppo.num_envs, dtype=np.float64)
+        self.last_metrics: dict[str, Any] = {}
+        self.last_eval: dict[str, float] = {}
+        self._writer: Any = None
+
+    # ------------------------------------------------------------------ rollout
+    @torch.inference_mode()
+    def collect(self) -> dict[str, float]:
+        """Run T steps of the B envs with the current policy into the buffer (Alg. 3.3 l. 3-10)."""
+        env, buf, b = self.env, self.buffer, self.ppo.num_envs
+        found, length, cost, returns = [], [], [], []
+        for t in range(buf.steps):
+            actor_obs, critic_obs = self.observer.observe(env)
+            a_obs = buf.actor_obs[t]
+            a_obs.copy_(torch.as_tensor(actor_obs))
+            buf.critic_obs[t].copy_(torch.as_tensor(critic_obs))
+            mask = buf.masks[t]
+            mask.copy_(torch.from_numpy(self.head.policy_mask(env.action_mask())))
+            actions, logp = policy_step(self.agent, a_obs, mask, self.selector, env)
+            buf.actions[t] = actions
+            buf.logp[t] = logp
+            buf.values[t] = self.agent.value(buf.critic_obs[t]).reshape(b)
+            res = env.step(self.head.env_actions(actions.numpy()))
+            buf.rewards[t] = torch.from_numpy(np.asarray(res.reward, dtype=np.float32))
+            if self.ppo.reward_scale != 1.0:
+                buf.rewards[t] *= self.ppo.reward_scale
+            buf.dones[t] = torch.from_numpy(np.asarray(res.terminated | res.truncated))
+            self.ep_return += res.reward
+            ep = res.episode
+            if ep is not None and len(ep.index):
+                found.append(ep.found)
+                length.append(ep.length)
+                cost.append(ep.cost)
+                returns.append(self.ep_return[ep.index].copy())
+                self.ep_return[ep.index] = 0.0
+                self.selector.episode_start(ep.index)
+        _, critic_obs = self.observer.observe(env)
+        self.last_value = self.agent.value(torch.as_tensor(critic_obs)).reshape(b).clone()
+        self.global_step += buf.steps * b
+        n = int(sum(len(x) for x in found))
+        self.episodes += n
+        if n == 0:
+            return {"episodes": 0, "success": math.nan, "episode_length": math.nan,
+                    "episode_cost": math.nan, "episode_return": math.nan}
+        return {"episodes": n,
+                "success": float(np.concatenate(found).mean()),
+                "episode_length": float(np.concatenate(length).mean()),
+                "episode_cost": float(np.concatenate(cost).mean()),
+                "episode_return": float(np.concatenate(returns).mean())}
+
+    # ------------------------------------------------------------------ update
+    def learning_rate(self) -> float:
+        """Current step size; linear anneal to 0 over the step budget if enabled."""
+        lr = self.ppo.learning_rate
+        if self.ppo.anneal_lr and self.run.total_steps:
+            updates = math.ceil(self.run.total_steps / self.ppo.batch_steps)
+            lr *= max(0.0, 1.0 - self.update_idx / updates)
+        return lr
+
+    def update(self) -> dict[str, float]:
+        """GAE (Eq. 3) then epochs of minibatch steps on the loss of Eq. 4 (Alg. 3.3 l. 12-13)."""
+        cfg, buf, agent = self.ppo, self.buffer, self.agent
+        for group in self.optimizer.param_groups:
+            group["lr"] = self.learning_rate()
+        advantages, returns = gae(buf.rewards, buf.values, buf.dones, self.last_value,
+                                  cfg.gamma, cfg.gae_lambda)
+        t, b, n = buf.actions.shape
+        m = t * b
+        # flatten time and envs; agents stay together so one env step = 1 value + n actor samples
+        b_actor = buf.actor_obs.reshape(m, n, *buf.actor_obs.shape[3:])
+        b_critic = buf.critic_obs.reshape(m, *buf.critic_obs.shape[2:])
+        b_mask = buf.masks.reshape(m, n, -1)
+        b_actions = buf.actions.reshape(m, n)
+        b_logp = buf.logp.reshape(m, n)
+        b_values = buf.values.reshape(m)
+        b_adv = advantages.reshape(m)
+        b_ret = returns.reshape(m)
+        mb_size = math.ceil(m / cfg.num_minibatches)
+        sums: dict[str, float] = {}
+        count = 0
+        for _epoch in range(cfg.update_epochs):
+            perm = torch.randperm(m, generator=self.generator)
+            for start in range(0, m, mb_size):
+                idx = perm[start:start + mb_size]
+                k = idx.numel()
+                mask = b_mask[idx].reshape(k * n, -1)
+                logits = agent.logits(b_actor[idx].reshape(k * n, *b_actor.shape[2:]), mask)
+                logp_all = masked_log_probs(logits, mask)
+                new_logp = logp_all.gather(-1, b_actions[idx].reshape(k * n, 1)).reshape(k, n)
+                entropy = entropy_from_log_probs(logp_all).reshape(k, n)
+                adv = b_adv[idx]
+                if cfg.norm_adv and k > 1:
+                    adv = (adv - adv.mean()) / (adv.std() + 1e-8)
+                new_values = agent.value(b_critic[idx]).reshape(k)
+                losses = ppo_losses(
+                    new_logp, b_logp[idx], adv.unsqueeze(1).expand(k, n), new_values,
+                    b_ret[idx], entropy, clip_coef=cfg.clip_coef, vf_coef=cfg.vf_coef,
+                    ent_coef=cfg.ent_coef, old_values=b_values[idx], clip_vloss=cfg.clip_vloss)
+                self.optimizer.zero_grad(set_to_none=True)
+                losses.loss.backward()
+                # actor and critic are separate networks: clip each, so the critic's larger
+                # gradients cannot shrink the actor's step through one global norm
+                torch.nn.utils.clip_grad_norm_(agent.actor.parameters(), cfg.max_grad_norm)
+                torch.nn.utils.clip_grad_norm_(agent.critic.parameters(), cfg.max_grad_norm)
+                self.optimizer.step()
+                for name, val in losses._asdict().items():
+                    sums[name] = sums.get(name, 0.0) + val.item()
+                count += 1
+            if cfg.target_kl is not None and float(losses.approx_kl) > cfg.target_kl:
+                break
+        var_ret = float(b_ret.var())
+        explained = math.nan if var_ret == 0 else 1.0 - float((b_ret - b_values).var()) / var_ret
+        out = {k: v / count for k, v in sums.items()}
+        return {"learning_rate": self.optimizer.param_groups[0]["lr"],
+                "loss": out["loss"], "policy_loss": out["pg_loss"],
+                "value_loss": out["v_loss"], "entropy": out["entropy"],
+                "approx_kl": out["approx_kl"], "clipfrac": out["clipfrac"],
+                "explained_variance": explained}
+
+    # ------------------------------------------------------------------ evaluation
+    def policy(self) -> Any:
+        """The current actor as a greedy Policy (reset/act), as load_model would return it."""
+        from workers.mdrl.modelio import GreedyPolicy
+
+        return GreedyPolicy(self.agent, self.observer, self.head)
+
+    def evaluate(self) -> dict[str, float]:
+        """Greedy evaluation on the fixed seeded episodes (does not touch training RNGs)."""
+        return greedy_eval(self.policy(), self.env_spec, self.run.eval_episodes,
+                           self.run.eval_seed)
+
+    # ------------------------------------------------------------------ loop
+    def budget_left(self) -> bool:
+        run = self.run
+        if run.total_steps is not None and self.global_step >= run.total_steps:
+            return False
+        return not (run.minutes is not None and self.elapsed >= run.minutes * 60.0)
+
+    def train(self) -> dict[str, Any]:
+        """Run updates until the step or time budget is used; returns the last metrics row."""
+        run = self.run
+        if run.total_steps is None and run.minutes is None:
+            raise ValueError("Trainer.train: give a budget (RunConfig.total_steps and/or minutes)")
+        if self.ppo.anneal_lr and run.total_steps is None:
+            warnings.warn("anneal_lr needs a step budget; learning rate stays constant",
+                          stacklevel=2)
+        torch.set_num_threads(run.threads)
+        self._open_outputs()
+        bar = self._progress_bar()
+        t0, elapsed0 = time.perf_counter(), self.elapsed
+        try:
+            while self.budget_left():
+                u0 = time.perf_counter()
+                step0 = self.global_step
+                episode_stats = self.collect()
+                loss_stats = self.update()
+                self.update_idx += 1
+                last = not self.budget_left()
+                every = run.eval_every
+                evals = {}
+                if last or (every and self.update_idx % every == 0):
+                    evals = self.evaluate()
+                    self.last_eval = evals
+                self.elapsed = elapsed0 + (time.perf_counter() - t0)
+                sps = (self.global_step - step0) / max(time.perf_counter() - u0, 1e-9)
+                row = {"update": self.update_idx, "global_step": self.global_step,
+                       "wall_time": self.elapsed, "sps": sps,
+                       **loss_stats, **episode_stats, **evals}
+                self._log(row)
+                if bar is not None:
+                    bar.update(self.global_step - step0)
+                    bar.set_postfix(sps=f"{sps:.0f}", succ=f"{episode_stats['success']:.2f}",
+                                    len=f"{episode_stats['episode_length']:.1f}",
+                                    eval=f"{self.last_eval.get('eval_success', math.nan):.2f}")
+                ce = run.checkpoint_every
+                if self.out is not None and (last or (ce and self.update_idx % ce == 0)):
+                    self.save_checkpoint(self.out / "checkpoint")
+        finally:
+            if bar is not None:
+                bar.close()
+            if self._writer is not None:
+                self._writer.close()
+                self._writer = None
+        if self.out is not None:
+            self.save_model(self.out / "model")
+        return self.last_metrics
+
+    # ------------------------------------------------------------------ outputs
+    def _open_outputs(self) -> None:
+        if self.out is None:
+            return
+        self.out.mkdir(parents=True, exist_ok=True)
+        (self.out / "config.json").write_text(json.dumps(self.config_dict(), indent=1))
+        metrics = self.out / "metrics.csv"
+        if self.update_idx == 0 or not metrics.exists():
+            with metrics.open("w", newline="") as f:
+                csv.writer(f).writerow(METRIC_COLUMNS)
+        else:  # resumed: drop rows written after the checkpoint we resumed from
+            with metrics.open(newline="") as f:
+                rows = list(csv.reader(f))
+            keep = [rows[0]] + [r for r in rows[1:] if int(r[0]) <= self.update_idx]
+            with metrics.open("w", newline="") as f:
+                csv.writer(f).writerows(keep)
+        if self.run.tensorboard:
+            from torch.utils.tensorboard import SummaryWriter
+
+            self._writer = SummaryWriter(str(self.out / "tb"), purge_step=self.global_step or None)
+            if self.update_idx == 0:
+                text = "\n".join(f"|{k}|{v}|" for k, v in self.config_dict()["ppo"].items())
+                self._writer.add_text("hyperparameters", "|param|value|\n|-|-|\n" + text)
+
+    def _progress_bar(self) -> Any:
+        if not self.run.progress:
+            return None
+        from tqdm.auto import tqdm
+
+        return tqdm(total=self.run.total_steps, initial=self.global_step, unit="step",
+                    dynamic_ncols=True, desc="train")
+
+    def _log(self, row: dict[str, Any]) -> None:
+        self.last_metrics = row
+        if self.out is not None:
+            with (self.out / "metrics.csv").open("a", newline="") as f:
+                csv.writer(f).writerow([_fmt(row.get(c)) for c in METRIC_COLUMNS])
+        if self._writer is not None:
+            step = self.global_step
+            for k in ("loss", "policy_loss", "value_loss", "entropy", "approx_kl", "clipfrac",
+                      "explained_variance"):
+                self._writer.add_scalar(f"losses/{k}", row[k], step)
+            for k in ("learning_rate", "sps", "success", "episode_length", "episode_cost",
+                      "episode_return", "eval_success", "eval_time", "eval_cost"):
+                if k in row and not (isinstance(row[k], float) and math.isnan(row[k])):
+                    self._writer.add_scalar(f"charts/{k}", row[k], step)
+
+    def config_dict(self) -> dict[str, Any]:
+        return {"env": self.env_spec.to_dict(), "observation": obs_spec_to_dict(self.obs_spec),
+                "ppo": self.ppo.to_dict(), "run": self.run.to_dict()}
+
+    def save_model(self, path: str | Path) -> Path:
+        from workers.mdrl.modelio import save_model
+
+        metrics = {k: self.last_metrics.get(k) for k in METRIC_COLUMNS if k in self.last_metrics}
+        metrics.update(self.last_eval)
+        return save_model(path, self.agent, self.env_spec, self.obs_spec, self.ppo,
+                          metrics=metrics, observer=self.observer,
+                          training={"run": self.run.to_dict(), "env_steps": self.global_step,
+                                    "updates": self.update_idx, "wall_time_s": self.elapsed})
+
+    # ------------------------------------------------------------------ checkpoints
+    def save_checkpoint(self, path: str | Path) -> Path:
+        """Save at an update boundary everything needed to continue identically."""
+        tensors = {f"agent/{k}": v for k, v in self.agent.state_dict().items()}
+        opt_tensors, opt_meta = ckpt.optimizer_to_parts(self.optimizer)
+        tensors.update(opt_tensors)
+        tensors["torch_generator"] = self.generator.get_state()
+        tensors["trainer/ep_return"] = torch.from_numpy(self.ep_return.copy())
+        env_arrays, env_meta = ckpt.env_state(self.env)
+        meta = {**self.config_dict(),
+                "counters": {"update": self.update_idx, "global_step": self.global_step,
+                             "episodes": self.episodes, "elapsed": self.elapsed},
+                "last_eval": self.last_eval, "optimizer": opt_meta, "env_state": env_meta}
+        if hasattr(self.selector, "state_dict"):  # e.g. an expert selector's per-episode flags
+            meta["selector"] = self.selector.state_dict()  # must be JSON-able
+        return ckpt.save_checkpoint(path, tensors, env_arrays, meta)
+
+    def load_state(self, tensors: dict[str, torch.Tensor], env_arrays: dict[str, np.ndarray],
+                   meta: dict[str, Any]) -> None:
+        """Restore a checkpoint into this trainer (built with the checkpoint's configs)."""
+        sd = {k[len("agent/"):]: v for k, v in tensors.items() if k.startswith("agent/")}
+        self.agent.load_state_dict(sd)
+        ckpt.optimizer_from_parts(self.optimizer, tensors, meta["optimizer"])
+        self.generator.set_state(tensors["torch_generator"])
+        self.ep_return = tensors["trainer/ep_return"].numpy().copy()
+        ckpt.restore_env_state(self.env, env_arrays, meta["env_state"])
+        c = meta["counters"]
+        self.update_idx, self.global_step = c["update"], c["global_step"]
+        self.episodes, self.elapsed = c["episodes"], c["elapsed"]
+        self.last_eval = meta.get("last_eval", {})
+        if "selector" in meta:
+            if not hasattr(self.selector, "load_state_dict"):
+                raise ValueError("checkpoint holds an action-selector state; pass the same kind "
+                                 "of selector (with load_state_dict) to resume")
+            self.selector.load_state_dict(meta["selector"])
+
+    @classmethod
+    def resume(cls, path: str | Path, out: str | Path | None = None,
+               run_overrides: dict[str, Any] | None = None,
+               selector: ActionSelector | None = None) -> Trainer:
+        """Rebuild a trainer from a checkpoint dir (or a run dir holding `checkpoint/`)."""
+        path = Path(path)
+        if (path / "checkpoint").is_dir():
+            path = path / "checkpoint"
+        tensors, env_arrays, meta = ckpt.load_checkpoint(path)
+        run = RunConfig.from_dict({**meta["run"], **(run_overrides or {})})
+        trainer = cls(EnvSpec.from_dict(meta["env"]), obs_spec_from_dict(meta["observation"]),
+                      PPOConfig.from_dict(meta["ppo"]), run,
+                      out=out if out is not None else path.parent, selector=selector)
+        trainer.load_state(tensors, env_arrays, meta)
+        return trainer
+
+
+def _fmt(v: Any) -> str:
+    if v is None:
+        return ""
+    if isinstance(v, float):
+        return "" if math.isnan(v) else repr(v)
+    return str(v)
