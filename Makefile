@@ -19,7 +19,15 @@ contracts/node_modules/.installed: contracts/package-lock.json
 	cd contracts && npm ci --no-audit --no-fund --loglevel=error
 	touch $@
 
-setup: $(STAMP) contracts/node_modules/.installed
+# Debian's Chromium for the browser tests (never a downloaded browser); CI runs as root.
+/usr/bin/chromium:
+	apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium
+
+tests/ipfs-node/node_modules/.installed: tests/ipfs-node/package-lock.json
+	cd tests/ipfs-node && npm ci --no-audit --no-fund --loglevel=error
+	touch $@
+
+setup: $(STAMP) contracts/node_modules/.installed tests/ipfs-node/node_modules/.installed /usr/bin/chromium
 
 # Main job (embedded default, nothing else to install): train the default preset briefly, then
 # evaluate the model against the baselines and the oracle on the same seeded episodes.

@@ -56,6 +56,17 @@ def test_readings_are_poisson_with_the_expected_mean():
     assert r.var() == pytest.approx(lam, rel=0.15)
 
 
+def test_expected_readings_option_is_noise_free():
+    spec = EnvSpec(rows=10, cols=10, agents=1, readings="expected")
+    env = TargetLocalizationEnv(spec, 8, seed=1)
+    env.step(np.zeros((8, 1), dtype=np.int64))
+    rows = np.arange(8)
+    cells = env.pos[:, 0]
+    assert np.allclose(env.readings[rows, cells], env.mean_reading[rows, cells], rtol=1e-6)
+    with pytest.raises(ValueError, match="readings must be"):
+        EnvSpec(readings="gaussian")
+
+
 def test_walls_attenuate_readings_and_block_moves():
     spec = EnvSpec(rows=10, cols=10, agents=1, walls=(1, 1))
     env = TargetLocalizationEnv(spec, 1, seed=0)

@@ -321,7 +321,8 @@ class TargetLocalizationEnv:
         C = self.spec.num_cells
         flat = rows[:, None] * C + cells
         lam = self.mean_reading.reshape(-1)[flat]
-        self.readings.reshape(-1)[flat] = self.noise_rng.poisson(lam)
+        noisy = self.spec.readings == "poisson"
+        self.readings.reshape(-1)[flat] = self.noise_rng.poisson(lam) if noisy else lam
         visits = self.visits.reshape(-1)
         for i in range(flat.shape[1]):  # one agent at a time: indices unique, so += counts all
             visits[flat[:, i]] += 1.0

@@ -98,7 +98,8 @@ class EnvSpec:
     ``exp(-mu * t / cos(theta))`` of every wall the straight source-detector line crosses (walls
     are thin slabs of thickness ``wall_thickness_cm`` on the centre line of their cells; theta is
     the angle to the wall's normal). d is floored at half a cell side, so the reading on the target
-    cell is finite. A reading is a Poisson draw with that mean.
+    cell is finite. A reading is a Poisson draw with that mean (``readings="poisson"``), or the
+    mean itself (``readings="expected"``, what the thesis author's public code does).
     """
 
     rows: int = 10
@@ -117,6 +118,7 @@ class EnvSpec:
     dwell_min: float = 1.0
     wall_mu_per_cm: float = 0.178
     wall_thickness_cm: float = 10.0
+    readings: str = "poisson"
 
     def __post_init__(self) -> None:
         problems = []
@@ -139,6 +141,8 @@ class EnvSpec:
             problems.append("walls need a grid of at least 4x4")
         if self.reward not in ("shaped", "sparse"):
             problems.append(f"reward must be 'shaped' (Eq. 5/8) or 'sparse' (Eq. 9), got {self.reward!r}")
+        if self.readings not in ("poisson", "expected"):
+            problems.append(f"readings must be 'poisson' or 'expected', got {self.readings!r}")
         if self.max_steps < 1:
             problems.append(f"max_steps must be >= 1, got {self.max_steps}")
         if self.idle_limit < 1:
