@@ -1,5 +1,6 @@
 """Annotated dependencies, injected per request (never module globals): ``SettingsDep``,
-``SessionDep``, ``ClockDep``, ``ChainIdDep``, ``CurrentUser``.
+``SessionDep``, ``ClockDep``, ``ChainIdDep``, ``CurrentUser``, and the platform services
+``ChainDep``, ``IndexerDep``, ``StoreDep``.
 
 The app factory puts the settings, session factory, clock and chain id on ``app.state``; tests
 build their own app, so each test has its own database."""
@@ -16,7 +17,10 @@ from sqlalchemy.orm import Session
 
 from backend.api.errors import RuleError
 from backend.auth import User, decode_token
+from backend.indexer import Indexer
+from backend.services.chain import ChainService
 from backend.settings import Settings
+from backend.store import ContentStore
 
 
 def get_settings(request: Request) -> Settings:
@@ -79,3 +83,31 @@ def get_current_user(
 
 
 CurrentUser = Annotated[User, Depends(get_current_user)]
+
+
+# -- platform services (set by create_app's lifespan; absent when the chain is disabled) --------
+def get_chain(request: Request) -> ChainService:
+    service: ChainService | None = getattr(request.app.state, "chain", None)
+    if service is None:
+        raise RuleError(503, "chain_unavailable", "the gateway is not connected to a chain")
+    return service
+
+
+ChainDep = Annotated[ChainService, Depends(get_chain)]
+
+
+def get_indexer(request: Request) -> Indexer | None:
+    return getattr(request.app.state, "indexer", None)
+
+
+IndexerDep = Annotated[Indexer | None, Depends(get_indexer)]
+
+
+def get_store(request: Request) -> ContentStore:
+    store: ContentStore | None = getattr(request.app.state, "store", None)
+    if store is None:
+        raise RuleError(503, "store_unavailable", "the gateway has no content store")
+    return store
+
+
+StoreDep = Annotated[ContentStore, Depends(get_store)]

@@ -1,7 +1,11 @@
-"""App factory: ``create_app(settings)`` wires settings, database and routers into a FastAPI app.
+"""App factory: ``create_app(settings)`` wires settings, database, chain, content store, indexer
+and routers into a FastAPI app.
 
-Nothing global: every app owns its engine and session factory (on ``app.state``), so tests and
-``drlaas up`` can build several apps in one process.
+Nothing global: every app owns its engine, session factory, chain service, store and indexer
+(on ``app.state``), so tests and ``drlaas up`` can build several apps in one process. At start
+(lifespan) the gateway migrates the database, connects the chain (embedded: deploys the
+platform and serves it at ``POST /rpc``), opens the content store and starts the indexer
+thread (docs/platform.md, "Processes").
 """
 
 from __future__ import annotations
@@ -11,14 +15,20 @@ import logging
 from collections.abc import AsyncIterator, Callable
 from contextlib import asynccontextmanager
 
-from fastapi import FastAPI
+from fastapi import FastAPI, Request
+from fastapi.responses import JSONResponse
 from starlette.concurrency import run_in_threadpool
 
 from backend.api.errors import install_error_handlers
-from backend.api.routes import api_router
+from backend.api.frontend import mount_frontend
+from backend.api.routes import api_router, models, rpc, tasks, tx, users, workers
 from backend.api.version import VERSION
 from backend.db import make_engine, make_sessionmaker, upgrade, utcnow
+from backend.indexer import Indexer, IndexerThread, OfferHook
+from backend.services.chain import ChainService, SignLocally
+from backend.services.rpc import EmbeddedRpc
 from backend.settings import Settings, load_settings
+from backend.store import make_store
 
 API_PREFIX = "/api"
 log = logging.getLogger(__name__)
@@ -31,6 +41,9 @@ OPENAPI_TAGS = [
         "short-lived bearer token; a request can only act as the address that signed.",
     },
 ]
+# Routers of the resources (users, workers, tasks, models, tx, rpc) tag their operations; their
+# descriptions are not listed here because tests/backend/test_api.py pins this list.
+INDEXER_INTERVAL_S = 1.0
 
 
 def create_app(
@@ -38,11 +51,18 @@ def create_app(
     *,
     clock: Callable[[], dt.datetime] = utcnow,
     chain_id: int | None = None,
+    chain: ChainService | bool | None = None,
+    on_offer: OfferHook | None = None,
+    indexer_interval: float | None = INDEXER_INTERVAL_S,
 ) -> FastAPI:
     """Build the gateway.
 
     ``clock`` is the source of "now" for sign-in expiry (tests move it); ``chain_id`` overrides
     the one from settings (the chain wiring sets it from the node it connects to).
+    ``chain``: a :class:`ChainService` to use (tests share one), ``None`` to connect from
+    settings at start, ``False`` for no chain (auth and health only). ``on_offer`` is the
+    indexer's hook for TaskOffered (the worker-daemon wiring enqueues Celery jobs with it);
+    ``indexer_interval=None`` runs no indexer thread (writes still index synchronously).
     """
     settings = settings or load_settings()
     engine = make_engine(settings.database_url)
@@ -51,6 +71,9 @@ def create_app(
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         if settings.migrate_on_start:
             await run_in_threadpool(upgrade, engine)
+        thread = await run_in_threadpool(
+            _start_services, app, settings, chain, on_offer, indexer_interval
+        )
         # Kinds only: URLs may carry credentials (postgresql://user:password@...).
         log.info(
             "gateway up (%s): chain=%s ipfs=%s broker=%s database=%s",
@@ -60,8 +83,15 @@ def create_app(
             settings.broker_service.kind,
             settings.database_url.split(":", 1)[0],
         )
-        yield
-        engine.dispose()
+        try:
+            yield
+        finally:
+            if thread is not None:
+                await run_in_threadpool(thread.stop)
+            store = getattr(app.state, "store", None)
+            if store is not None:
+                store.close()
+            engine.dispose()
 
     app = FastAPI(
         title="DRLaaS gateway",
@@ -78,6 +108,83 @@ def create_app(
     app.state.sessions = make_sessionmaker(engine)
     app.state.clock = clock
     app.state.chain_id = chain_id if chain_id is not None else settings.effective_chain_id
+    app.state.chain = None
+    app.state.indexer = None
+    app.state.rpc = None
+    app.state.store = None
     install_error_handlers(app)
-    app.include_router(api_router, prefix=API_PREFIX)
+
+    @app.exception_handler(SignLocally)
+    async def _sign_locally(_: Request, exc: SignLocally) -> JSONResponse:
+        return JSONResponse(
+            status_code=409,
+            content={
+                "detail": {
+                    "rule": "sign_locally",
+                    "msg": f"the gateway holds no key for {exc.sender}: sign 'tx' "
+                    f"({exc.description}) locally and POST it as {{'raw': '0x..'}} to /api/tx",
+                    "tx": exc.tx,
+                }
+            },
+        )
+
+    app.include_router(api_router, prefix=API_PREFIX)  # health, auth
+    for router in (
+        users.router,
+        workers.router,
+        tasks.router,
+        models.router,
+        tx.router,
+        rpc.contracts_router,
+    ):
+        app.include_router(router, prefix=API_PREFIX)
+    app.include_router(rpc.router)  # JSON-RPC at /rpc, outside /api
+    mount_frontend(app)  # after every router: the mount matches any remaining path
     return app
+
+
+def _start_services(
+    app: FastAPI,
+    settings: Settings,
+    chain: ChainService | bool | None,
+    on_offer: OfferHook | None,
+    interval: float | None,
+) -> IndexerThread | None:
+    """Chain, store, JSON-RPC server and indexer (see the module docstring)."""
+    app.state.store = make_store(
+        settings.ipfs, default_dir=settings.data_dir / "ipfs", max_size=settings.max_upload_bytes
+    )
+    if chain is False:
+        return None
+    if isinstance(chain, ChainService):
+        service = chain
+    elif settings.chain_service.embedded:
+        service = ChainService.embedded(settings)  # failing here (stale artifacts) stops start-up
+    else:
+        try:
+            service = ChainService.rpc(settings)
+        except (
+            Exception
+        ) as exc:  # node down or no DRLAAS_CONTRACTS: serve auth/health, 503 the rest
+            log.error(
+                "gateway: chain %s unavailable, chain endpoints answer 503: %s", settings.chain, exc
+            )
+            return None
+    app.state.chain = service
+    if app.state.chain_id is None:
+        app.state.chain_id = service.chain.chain_id
+    if service.chain.kind == "embedded":
+        app.state.rpc = EmbeddedRpc(service.chain, service.lock)
+    indexer = Indexer(
+        service,
+        app.state.sessions,
+        confirmations=0 if service.chain.kind == "embedded" else settings.confirmations,
+        on_offer=on_offer,
+        store=app.state.store,
+    )
+    app.state.indexer = indexer
+    if interval is None:
+        return None
+    thread = IndexerThread(indexer, interval)
+    thread.start()
+    return thread

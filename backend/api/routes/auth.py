@@ -11,8 +11,8 @@ import datetime as dt
 from fastapi import APIRouter
 from pydantic import BaseModel, Field
 
-from backend.api.deps import ChainIdDep, ClockDep, CurrentUser, SessionDep, SettingsDep
-from backend.api.errors import rule_responses
+from backend.api.deps import ChainDep, ChainIdDep, ClockDep, CurrentUser, SessionDep, SettingsDep
+from backend.api.errors import RuleError, rule_responses
 from backend.api.schemas import Address
 from backend.auth import issue_sign_in, issue_token, verify_sign_in
 
@@ -87,3 +87,44 @@ def create_token(
 def me(user: CurrentUser) -> UserPublic:
     """Who the bearer token says the caller is."""
     return UserPublic(address=user.address)
+
+
+class DemoUserPublic(BaseModel):
+    name: str
+    address: str
+
+
+class DemoUsersPublic(BaseModel):
+    data: list[DemoUserPublic]
+    count: int
+
+
+class DemoTokenRequest(BaseModel):
+    name: str = Field(min_length=1, max_length=64)
+    address: Address
+
+
+def _demo_keys(chain: ChainDep):
+    if chain.demo_keys is None:
+        raise RuleError(404, "demo_disabled", "this gateway holds no demo keys (production mode)")
+    return chain.demo_keys
+
+
+@router.get("/demo-users", response_model=DemoUsersPublic, responses=rule_responses(404, 503))
+def demo_users(chain: ChainDep) -> DemoUsersPublic:
+    """Development only: the demo users whose keys the gateway holds (for the web UI)."""
+    keys = _demo_keys(chain)
+    data = [DemoUserPublic(name=n, address=keys.account(n).address) for n in keys.names]
+    return DemoUsersPublic(data=data, count=len(data))
+
+
+@router.post("/demo-token", response_model=TokenPublic, responses=rule_responses(403, 404, 503))
+def demo_token(body: DemoTokenRequest, chain: ChainDep, settings: SettingsDep) -> TokenPublic:
+    """Development only: a token for a demo user; the gateway holds that key, so it vouches."""
+    keys = _demo_keys(chain)
+    if body.name not in keys.names or keys.account(body.name).address != body.address:
+        raise RuleError(403, "not_a_demo_user", f"{body.name}/{body.address} is not a demo user here")
+    token = issue_token(body.address, settings=settings)
+    return TokenPublic(
+        access_token=token.access_token, address=token.address, expires_at=token.expires_at
+    )

@@ -1,0 +1,331 @@
+"""Shared models: search, detail (card + metrics from the bundle), verified download, share
+(MMC.addModel), model-sharing requests (MMC.allocateModel) and their reviews."""
+
+from __future__ import annotations
+
+import json
+import logging
+from collections.abc import Iterator
+from typing import Annotated, Any, Literal
+
+from fastapi import APIRouter, Path, Query, status
+from fastapi.responses import StreamingResponse
+from sqlalchemy import func, or_, select
+
+from backend.api.deps import ChainDep, CurrentUser, IndexerDep, SessionDep, SettingsDep, StoreDep
+from backend.api.errors import RuleError, rule_responses
+from backend.chain.platform import Metric
+from backend.db import models as m
+from backend.schemas.common import MAX_DOMAIN, TxPublic, from_fixed, to_fixed
+from backend.schemas.models import (
+    AllocatedModelPublic,
+    ModelAllocationPublic,
+    ModelCreate,
+    ModelDetailPublic,
+    ModelPublic,
+    ModelRequestCreate,
+    ModelReviewCreate,
+    ModelsPublic,
+)
+from backend.services.gateway import catch_up, field_error, receipt_public
+from backend.services.specs import (
+    BUNDLE_FILES,
+    SpecError,
+    bundle_entry,
+    env_attributes,
+    validate_env,
+)
+from backend.store import CIDMismatch, ContentTooLarge, NotFound, StoreError
+
+router = APIRouter(prefix="/models", tags=["models"])
+log = logging.getLogger(__name__)
+ModelId = Annotated[int, Path(ge=1, le=2**63 - 1)]
+AllocId = Annotated[int, Path(ge=1, le=2**63 - 1)]
+MAX_CARD_BYTES = 1 << 20
+HALF = 500_000
+
+_SORT = {
+    "reputation": (m.ModelRow.reputation.desc(), m.ModelRow.id),
+    "newest": (m.ModelRow.id.desc(),),
+    "allocations": (m.ModelRow.alloc_count.desc(), m.ModelRow.id),
+}
+
+
+def _env_attrs(env: dict[str, Any], loc: tuple[str, ...]) -> list[int]:
+    try:
+        return env_attributes(validate_env(env))
+    except SpecError as exc:
+        field_error((*loc, exc.field), exc.msg)
+        raise  # unreachable: field_error raises
+
+
+def model_public(row: m.ModelRow, owner: m.WorkerRow | None) -> ModelPublic:
+    return ModelPublic(
+        id=row.id,
+        cid=row.cid,
+        owner=row.owner,
+        domain=row.domain,
+        env=row.env,
+        agents=row.agents,
+        walls_min=row.walls_min,
+        walls_max=row.walls_max,
+        reputation=from_fixed(row.reputation),
+        allocations=row.alloc_count,
+        rating=from_fixed(owner.sharing_rating if owner else HALF),
+    )
+
+
+@router.get("", response_model=ModelsPublic)
+def list_models(
+    session: SessionDep,
+    domain: Annotated[int | None, Query(ge=0, le=MAX_DOMAIN)] = None,
+    agents: Annotated[int | None, Query(ge=1, le=64)] = None,
+    walls: Annotated[
+        int | None, Query(ge=0, le=64, description="models trained with this many walls in range")
+    ] = None,
+    min_reputation: Annotated[float | None, Query(ge=0, le=1)] = None,
+    owner: Annotated[str | None, Query(min_length=42, max_length=42)] = None,
+    q: Annotated[str | None, Query(min_length=1, max_length=100)] = None,
+    sort: Literal["reputation", "newest", "allocations"] = "reputation",
+    limit: Annotated[int, Query(ge=1, le=500)] = 100,
+    offset: Annotated[int, Query(ge=0, le=1_000_000)] = 0,
+) -> ModelsPublic:
+    """Models matching every given filter; ``q`` searches description and CID."""
+    stmt = select(m.ModelRow)
+    if domain is not None:
+        stmt = stmt.where(m.ModelRow.domain == domain)
+    if agents is not None:
+        stmt = stmt.where(m.ModelRow.agents == agents)
+    if walls is not None:
+        stmt = stmt.where(m.ModelRow.walls_min <= walls, m.ModelRow.walls_max >= walls)
+    if min_reputation is not None:
+        stmt = stmt.where(m.ModelRow.reputation >= to_fixed(min_reputation))
+    if owner is not None:
+        from backend.auth import checksum
+
+        try:
+            stmt = stmt.where(m.ModelRow.owner == checksum(owner))
+        except ValueError as exc:
+            field_error(("query", "owner"), str(exc))
+    if q is not None:
+        like = "%" + q.replace("\\", "\\\\").replace("%", "\\%").replace("_", "\\_") + "%"
+        stmt = stmt.where(
+            or_(
+                m.ModelRow.description.ilike(like, escape="\\"),
+                m.ModelRow.cid.ilike(like, escape="\\"),
+            )
+        )
+    count = session.scalar(select(func.count()).select_from(stmt.subquery())) or 0
+    rows = session.scalars(stmt.order_by(*_SORT[sort]).limit(limit).offset(offset)).all()
+    owners = {
+        w.address: w
+        for w in session.scalars(
+            select(m.WorkerRow).where(m.WorkerRow.address.in_({r.owner for r in rows}))
+        )
+    }
+    return ModelsPublic(data=[model_public(r, owners.get(r.owner)) for r in rows], count=count)
+
+
+def _model(session: SessionDep, model_id: int) -> m.ModelRow:
+    row = session.get(m.ModelRow, model_id)
+    if row is None:
+        raise RuleError(404, "model_not_found", f"no model {model_id} (or not indexed yet)")
+    return row
+
+
+def _card(store: StoreDep, cid: str) -> dict[str, Any] | None:
+    try:
+        card_cid, size = bundle_entry(store, cid, "model.json")
+        if size > MAX_CARD_BYTES:
+            return None
+        card = json.loads(store.get(card_cid, max_size=MAX_CARD_BYTES))
+        return card if isinstance(card, dict) else None
+    except (KeyError, ValueError, StoreError) as exc:
+        log.info("model card of %s unavailable: %s", cid, exc)
+        return None
+
+
+@router.get("/{model_id}", response_model=ModelDetailPublic, responses=rule_responses(404))
+def get_model(model_id: ModelId, session: SessionDep, store: StoreDep) -> ModelDetailPublic:
+    """A model with its card (model.json of the bundle, when the store has it)."""
+    row = _model(session, model_id)
+    owner = session.get(m.WorkerRow, row.owner)
+    card = _card(store, row.cid)
+    return ModelDetailPublic(
+        **model_public(row, owner).model_dump(),
+        description=row.description,
+        card=card,
+        metrics=card.get("metrics") if card else None,
+        owner_reputation=from_fixed(owner.sharing_reputation if owner else HALF),
+        owner_rating=from_fixed(owner.sharing_rating if owner else HALF),
+    )
+
+
+@router.get(
+    "/{model_id}/download",
+    responses={200: {"content": {"application/octet-stream": {}}}, **rule_responses(404, 413, 502)},
+    response_class=StreamingResponse,
+)
+def download_model(
+    model_id: ModelId,
+    session: SessionDep,
+    store: StoreDep,
+    settings: SettingsDep,
+    file: Literal["model.safetensors", "model.json"] = "model.safetensors",
+) -> StreamingResponse:
+    """The bytes of one bundle file, each block verified against the CID before it is sent,
+    bounded by the manifest's size and the gateway's ``max_upload_bytes``."""
+    row = _model(session, model_id)
+    try:
+        file_cid, size = bundle_entry(store, row.cid, file)
+    except KeyError:
+        raise RuleError(
+            404, "bundle_file_missing", f"model {model_id}'s bundle has no {file}"
+        ) from None
+    except NotFound:
+        raise RuleError(404, "content_not_found", f"the store does not hold {row.cid}") from None
+    except (ValueError, StoreError) as exc:
+        raise RuleError(
+            502, "bundle_invalid", f"model {model_id}'s bundle is unusable: {exc}"
+        ) from None
+    if size > settings.max_upload_bytes:
+        raise RuleError(
+            413,
+            "content_too_large",
+            f"{file} is {size} bytes, the bound is {settings.max_upload_bytes}",
+        )
+    chunks = store.iter_get(file_cid, max_size=max(size, 1))
+    try:
+        first = next(chunks, b"")  # fail before the status line is sent when possible
+    except NotFound:
+        raise RuleError(404, "content_not_found", f"the store does not hold {file_cid}") from None
+    except (CIDMismatch, ContentTooLarge) as exc:
+        raise RuleError(502, "content_corrupt", f"{file_cid} failed verification: {exc}") from None
+
+    def body() -> Iterator[bytes]:
+        sent = len(first)
+        yield first
+        for chunk in chunks:  # a later bad block raises: the connection is cut, never bad bytes
+            sent += len(chunk)
+            yield chunk
+        if sent != size:
+            raise CIDMismatch(file_cid, f"{sent} bytes", f"manifest says {size} bytes")
+
+    media = "application/json" if file.endswith(".json") else "application/octet-stream"
+    return StreamingResponse(
+        body(),
+        media_type=media,
+        headers={
+            "Content-Length": str(size),
+            "Content-Disposition": f'attachment; filename="{file}"',
+            "ETag": f'"{file_cid}"',
+            "X-Content-CID": file_cid,
+        },
+    )
+
+
+@router.post(
+    "",
+    status_code=status.HTTP_201_CREATED,
+    response_model=ModelPublic,
+    responses=rule_responses(401, 403, 409, 503),
+)
+def share_model(
+    body: ModelCreate, user: CurrentUser, chain: ChainDep, session: SessionDep, indexer: IndexerDep
+) -> ModelPublic:
+    """MMC.addModel by the caller (a registered worker) for its bundle ``cid``."""
+    attrs = _env_attrs(body.env, ("body", "env"))
+    rc = chain.send(
+        user.address, chain.platform.mmc, "addModel", body.cid, body.description, body.domain, attrs
+    )
+    model_id = int(rc.one("ModelAdded").args["modelId"])
+    catch_up(indexer)
+    session.expire_all()
+    row = session.get(m.ModelRow, model_id)
+    if row is None:  # indexer lagging (confirmations): answer from the event
+        row = m.ModelRow(
+            id=model_id,
+            owner=user.address,
+            domain=body.domain,
+            cid=body.cid,
+            env=attrs,
+            agents=attrs[2],
+            walls_min=attrs[4],
+            walls_max=attrs[5],
+            alloc_count=0,
+            reputation=HALF,
+            description=body.description,
+        )
+    return model_public(row, session.get(m.WorkerRow, user.address))
+
+
+@router.post(
+    "/requests",
+    status_code=status.HTTP_201_CREATED,
+    response_model=ModelAllocationPublic,
+    responses=rule_responses(401, 403, 409, 503),
+)
+def request_models(
+    body: ModelRequestCreate, user: CurrentUser, chain: ChainDep, indexer: IndexerDep
+) -> ModelAllocationPublic:
+    """MMC.allocateModel: the top ``num_models`` models by QoS (Eq. 13 or Eq. 22-23)."""
+    attrs = _env_attrs(body.env, ("body", "env"))
+    if body.weights and len(body.weights) != len(attrs):
+        field_error(("body", "weights"), f"one weight per env attribute ({len(attrs)}), or none")
+    if body.weights and sum(body.weights) != 1_000_000:
+        field_error(("body", "weights"), "weights are fixed point (1e6 = 1) and must sum to 1e6")
+    req = (
+        body.domain,
+        body.num_models,
+        int(Metric.MODEL if body.metric == "model" else Metric.SHARING),
+        to_fixed(body.min_reputation),
+        to_fixed(body.min_rating),
+        to_fixed(body.min_model_reputation),
+        attrs,
+        list(body.weights),
+    )
+    rc = chain.send(
+        user.address,
+        chain.platform.mmc,
+        "allocateModel",
+        req,
+        value=body.price_wei * body.num_models,
+    )
+    alloc_id = int(rc.one("ModelsRequested").args["allocId"])
+    models = []
+    for e in rc.named("ModelAllocated"):
+        _, cid, _ = chain.call(chain.platform.mmc, "getModel", e.args["modelId"])
+        models.append(
+            AllocatedModelPublic(id=e.args["modelId"], cid=cid, qos=from_fixed(e.args["qos"]))
+        )
+    catch_up(indexer)
+    return ModelAllocationPublic(alloc_id=alloc_id, models=models)
+
+
+@router.post(
+    "/requests/{alloc_id}/reviews",
+    response_model=TxPublic,
+    responses=rule_responses(401, 403, 404, 409),
+)
+def review_model(
+    alloc_id: AllocId,
+    body: ModelReviewCreate,
+    user: CurrentUser,
+    session: SessionDep,
+    chain: ChainDep,
+    indexer: IndexerDep,
+) -> TxPublic:
+    """MMC.updateModelRep by the allocation's requester (Eq. 10-11 reputations)."""
+    alloc = session.get(m.AllocationRow, alloc_id)
+    if alloc is not None and alloc.requester != user.address:
+        raise RuleError(
+            403, "not_allocation_requester", f"allocation {alloc_id} belongs to {alloc.requester}"
+        )
+    rc = chain.send(
+        user.address, chain.platform.mmc, "updateModelRep", alloc_id, body.model_id, body.review
+    )
+    catch_up(indexer)
+    return TxPublic(**receipt_public(rc))
+
+
+__all__ = ["BUNDLE_FILES", "router"]

@@ -1,0 +1,314 @@
+"""Training tasks: create (spec to the content store, addTask + allocateTask), list, detail with
+timeline/offers/outcomes/progress, progress points from assigned workers, reviews, cancel."""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal
+
+from fastapi import APIRouter, Path, Query, status
+from sqlalchemy import func, select
+from sqlalchemy.exc import IntegrityError
+
+from backend.api.deps import ChainDep, CurrentUser, IndexerDep, SessionDep, StoreDep
+from backend.api.errors import RuleError, rule_responses
+from backend.api.schemas import Address
+from backend.chain.platform import TaskStatus
+from backend.db import models as m
+from backend.schemas.common import MAX_DOMAIN, EventPublic, TxPublic, from_fixed, to_fixed
+from backend.schemas.tasks import (
+    OfferPublic,
+    OutcomePublic,
+    ProgressCreate,
+    ProgressPublic,
+    TaskCreate,
+    TaskCreatedPublic,
+    TaskDetailPublic,
+    TaskPublic,
+    TaskReviewCreate,
+    TasksPublic,
+)
+from backend.services.gateway import catch_up, field_error, receipt_public
+from backend.services.specs import TASK_SPEC_FORMAT, SpecError, canonical_json, validate_env
+
+router = APIRouter(prefix="/tasks", tags=["tasks"])
+TaskId = Annotated[int, Path(ge=1, le=2**63 - 1)]
+ASSIGNED_STATES = ("accepted", "submitted", "reviewed")
+
+
+def build_spec(body: TaskCreate) -> dict:
+    """The task spec document (docs/platform.md, "Task spec"); 422 naming a bad field."""
+    try:
+        env = validate_env(body.env)
+    except SpecError as exc:
+        field_error(("body", "env", exc.field), exc.msg)
+    window = body.observation.window
+    if body.observation.kind == "odmtl" and not window < min(env.rows, env.cols):
+        field_error(
+            ("body", "observation", "window"),
+            f"odmtl window must be < min(rows, cols) = {min(env.rows, env.cols)}, got {window}",
+        )
+    return {
+        "format": TASK_SPEC_FORMAT,
+        "env": env.to_dict(),
+        "observation": body.observation.model_dump(),
+        "budget": body.budget.model_dump(),
+        "seed": body.seed,
+        "domain": body.domain,
+    }
+
+
+@router.post(
+    "",
+    status_code=status.HTTP_201_CREATED,
+    response_model=TaskCreatedPublic,
+    responses=rule_responses(401, 403, 409, 503),
+)
+def create_task(
+    body: TaskCreate, user: CurrentUser, chain: ChainDep, store: StoreDep, indexer: IndexerDep
+) -> TaskCreatedPublic:
+    """Store the spec, addTask with ``payment_wei * num_workers`` escrowed, then allocateTask.
+
+    When the gateway cannot sign for the caller, the 409 ``sign_locally`` carries the addTask
+    transaction; after relaying it via ``POST /tx`` the caller calls ``POST /tasks/{id}/allocate``.
+    """
+    spec = build_spec(body)
+    spec_cid = store.add(canonical_json(spec))
+    tmc = chain.platform.tmc
+    params = (
+        body.domain,
+        body.num_workers,
+        to_fixed(body.min_reputation),
+        to_fixed(body.min_rating),
+        body.min_cpu_cores,
+        body.min_ram_gb,
+        body.deadline_s,
+        spec_cid,
+    )
+    rc = chain.send(
+        user.address,
+        tmc,
+        "addTask",
+        params,
+        value=body.payment_wei * body.num_workers,
+        description="TasksManager.addTask",
+    )
+    task_id = int(rc.one("TaskAdded").args["taskId"])
+    rc2 = chain.send(user.address, tmc, "allocateTask", task_id)
+    catch_up(indexer)
+    return TaskCreatedPublic(
+        task_id=task_id,
+        spec_cid=spec_cid,
+        offered=[e.args["worker"] for e in rc2.named("TaskOffered")],
+        tx_hashes=[rc.tx_hash, rc2.tx_hash],
+    )
+
+
+def _task(session: SessionDep, task_id: int) -> m.TaskRow:
+    t = session.get(m.TaskRow, task_id)
+    if t is None:
+        raise RuleError(404, "task_not_found", f"no task {task_id} (or not indexed yet)")
+    return t
+
+
+def _require_requester(t: m.TaskRow, address: str) -> None:
+    if t.requester != address:
+        raise RuleError(
+            403, "not_task_requester", f"task {t.id} belongs to {t.requester}, not {address}"
+        )
+
+
+@router.post(
+    "/{task_id}/allocate", response_model=TxPublic, responses=rule_responses(401, 403, 404, 409)
+)
+def allocate_task(
+    task_id: TaskId, user: CurrentUser, session: SessionDep, chain: ChainDep, indexer: IndexerDep
+) -> TxPublic:
+    """allocateTask again: expired/declined offers go to the next best workers (thesis 7.6)."""
+    _require_requester(_task(session, task_id), user.address)
+    rc = chain.send(user.address, chain.platform.tmc, "allocateTask", task_id)
+    catch_up(indexer)
+    return TxPublic(**receipt_public(rc))
+
+
+def task_public(t: m.TaskRow) -> TaskPublic:
+    return TaskPublic(
+        id=t.id,
+        requester=t.requester,
+        domain=t.domain,
+        status=t.status,
+        num_workers=t.num_workers,
+        reward_wei=t.reward_wei,
+        deadline=t.deadline,
+        min_reputation=from_fixed(t.min_reputation),
+        min_rating=from_fixed(t.min_rating),
+        min_cpu_cores=t.min_cpu_cores,
+        min_ram_gb=t.min_ram_gb,
+        description=t.description,
+        offered=t.offered,
+    )
+
+
+@router.get("", response_model=TasksPublic)
+def list_tasks(
+    session: SessionDep,
+    status: Literal["open", "completed", "cancelled", "closed"] | None = None,
+    requester: Address | None = None,
+    worker: Address | None = None,
+    domain: Annotated[int | None, Query(ge=0, le=MAX_DOMAIN)] = None,
+    limit: Annotated[int, Query(ge=1, le=500)] = 100,
+    offset: Annotated[int, Query(ge=0, le=1_000_000)] = 0,
+) -> TasksPublic:
+    """Tasks matching every given filter, newest first; ``worker`` = offered to that worker."""
+    q = select(m.TaskRow)
+    if status is not None:
+        q = q.where(m.TaskRow.status == status)
+    if requester is not None:
+        q = q.where(m.TaskRow.requester == requester)
+    if worker is not None:
+        q = q.where(m.TaskRow.id.in_(select(m.OfferRow.task_id).where(m.OfferRow.worker == worker)))
+    if domain is not None:
+        q = q.where(m.TaskRow.domain == domain)
+    count = session.scalar(select(func.count()).select_from(q.subquery())) or 0
+    rows = session.scalars(q.order_by(m.TaskRow.id.desc()).limit(limit).offset(offset)).all()
+    return TasksPublic(data=[task_public(t) for t in rows], count=count)
+
+
+@router.get("/{task_id}", response_model=TaskDetailPublic, responses=rule_responses(404))
+def get_task(task_id: TaskId, session: SessionDep) -> TaskDetailPublic:
+    t = _task(session, task_id)
+    events = session.scalars(
+        select(m.ChainEvent)
+        .where(m.ChainEvent.task_id == task_id, m.ChainEvent.contract == "TasksManager")
+        .order_by(m.ChainEvent.block_number, m.ChainEvent.log_index)
+    ).all()
+    offers = session.scalars(
+        select(m.OfferRow).where(m.OfferRow.task_id == task_id).order_by(m.OfferRow.block_number)
+    ).all()
+    outcomes = session.scalars(select(m.OutcomeRow).where(m.OutcomeRow.task_id == task_id)).all()
+    progress = session.scalars(
+        select(m.ProgressPoint)
+        .where(m.ProgressPoint.task_id == task_id)
+        .order_by(m.ProgressPoint.worker, m.ProgressPoint.step)
+        .limit(10_000)
+    ).all()
+    return TaskDetailPublic(
+        **task_public(t).model_dump(),
+        spec=t.spec,
+        timeline=[
+            EventPublic(
+                block_number=e.block_number,
+                log_index=e.log_index,
+                tx_hash=e.tx_hash,
+                contract=e.contract,
+                name=e.name,
+                args=e.args,
+                block_time=e.block_time,
+            )
+            for e in events
+        ],
+        offers=[
+            OfferPublic(worker=o.worker, state=o.state, qos=from_fixed(o.qos), expiry=o.expiry)
+            for o in offers
+        ],
+        outcomes=[
+            OutcomePublic(worker=o.worker, cid=o.cid, review=o.review, accepted=o.accepted)
+            for o in outcomes
+        ],
+        progress=[
+            ProgressPublic(
+                worker=p.worker,
+                step=p.step,
+                success=p.success,
+                time=p.time,
+                cost=p.cost,
+                extra=p.extra,
+            )
+            for p in progress
+        ],
+    )
+
+
+@router.post(
+    "/{task_id}/progress",
+    status_code=status.HTTP_201_CREATED,
+    response_model=ProgressPublic,
+    responses=rule_responses(401, 403, 404, 409),
+)
+def post_progress(
+    task_id: TaskId, body: ProgressCreate, user: CurrentUser, session: SessionDep
+) -> ProgressPublic:
+    """A live curve point from a worker assigned to the task (accepted its offer)."""
+    _task(session, task_id)
+    offer = session.get(m.OfferRow, (task_id, user.address))
+    if offer is None or offer.state not in ASSIGNED_STATES:
+        raise RuleError(
+            403,
+            "not_assigned_worker",
+            f"{user.address} is not an assigned worker of task {task_id}",
+        )
+    point = m.ProgressPoint(
+        task_id=task_id,
+        worker=user.address,
+        step=body.step,
+        success=body.success,
+        time=body.time,
+        cost=body.cost,
+        extra=dict(body.model_extra or {}) or None,
+    )
+    session.add(point)
+    try:
+        session.commit()
+    except IntegrityError:
+        session.rollback()
+        raise RuleError(
+            409, "progress_step_exists", f"step {body.step} of task {task_id} was already posted"
+        ) from None
+    return ProgressPublic(
+        worker=point.worker,
+        step=point.step,
+        success=point.success,
+        time=point.time,
+        cost=point.cost,
+        extra=point.extra,
+    )
+
+
+@router.post(
+    "/{task_id}/reviews", response_model=TxPublic, responses=rule_responses(401, 403, 404, 409)
+)
+def review_outcome(
+    task_id: TaskId,
+    body: TaskReviewCreate,
+    user: CurrentUser,
+    session: SessionDep,
+    chain: ChainDep,
+    indexer: IndexerDep,
+) -> TxPublic:
+    """TMC.reviewOutcome by the task's requester: review 0-5 and accept (pay) or reject."""
+    _require_requester(_task(session, task_id), user.address)
+    rc = chain.send(
+        user.address,
+        chain.platform.tmc,
+        "reviewOutcome",
+        task_id,
+        body.worker,
+        body.review,
+        body.accepted,
+    )
+    catch_up(indexer)
+    return TxPublic(**receipt_public(rc))
+
+
+@router.post(
+    "/{task_id}/cancel", response_model=TxPublic, responses=rule_responses(401, 403, 404, 409)
+)
+def cancel_task(
+    task_id: TaskId, user: CurrentUser, session: SessionDep, chain: ChainDep, indexer: IndexerDep
+) -> TxPublic:
+    """Cancel an open task nobody accepted yet (escrow refunded to the requester's credit)."""
+    _require_requester(_task(session, task_id), user.address)
+    rc = chain.send(
+        user.address, chain.platform.tmc, "updateTaskStatus", task_id, int(TaskStatus.CANCELLED)
+    )
+    catch_up(indexer)
+    return TxPublic(**receipt_public(rc))

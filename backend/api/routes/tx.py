@@ -1,0 +1,38 @@
+"""Relay a transaction the caller signed locally (the answer to a 409 ``sign_locally``)."""
+
+from __future__ import annotations
+
+from fastapi import APIRouter
+from pydantic import BaseModel, Field, field_validator
+
+from backend.api.deps import ChainDep, CurrentUser, IndexerDep
+from backend.api.errors import rule_responses
+from backend.schemas.common import TxPublic
+from backend.services.gateway import catch_up, receipt_public
+
+router = APIRouter(prefix="/tx", tags=["tx"])
+
+
+class TxCreate(BaseModel):
+    raw: str = Field(
+        min_length=4,
+        max_length=2 + 2 * 131_072,
+        pattern=r"^0x[0-9a-fA-F]+$",
+        description="signed raw transaction, 0x-hex (at most 128 KiB)",
+    )
+
+    @field_validator("raw")
+    @classmethod
+    def _even(cls, v: str) -> str:
+        if len(v) % 2:
+            raise ValueError("raw must have an even number of hex digits")
+        return v
+
+
+@router.post("", response_model=TxPublic, responses=rule_responses(401, 403, 409, 422, 503))
+def relay(body: TxCreate, user: CurrentUser, chain: ChainDep, indexer: IndexerDep) -> TxPublic:
+    """Send ``raw`` if its recovered sender is the signed-in address and it calls a platform
+    contract; returns the mined receipt."""
+    rc = chain.relay_raw(bytes.fromhex(body.raw[2:]), user.address)
+    catch_up(indexer)
+    return TxPublic(**receipt_public(rc))

@@ -1,0 +1,89 @@
+"""Register the caller on the UMC: as a requester, or as a worker with its capabilities.
+
+Both act only as the signed-in address (docs/platform.md, "Signing"): the gateway signs with
+the caller's demo key in development, else answers 409 ``sign_locally`` with the transaction.
+"""
+
+from __future__ import annotations
+
+from fastapi import APIRouter, status
+
+from backend.api.deps import ChainDep, CurrentUser, IndexerDep
+from backend.api.errors import RuleError, rule_responses
+from backend.chain.platform import domain_mask
+from backend.schemas.users import RegistrationPublic, WorkerCreate
+from backend.services.gateway import catch_up
+
+router = APIRouter(prefix="/users", tags=["users"])
+
+
+@router.post(
+    "/requesters",
+    status_code=status.HTTP_201_CREATED,
+    response_model=RegistrationPublic,
+    responses=rule_responses(401, 409, 503),
+)
+def register_requester(
+    user: CurrentUser, chain: ChainDep, indexer: IndexerDep
+) -> RegistrationPublic:
+    """UMC.addRequester for the caller (409 ``users_already_registered`` the second time)."""
+    rc = chain.send(user.address, chain.platform.umc, "addRequester")
+    catch_up(indexer)
+    return RegistrationPublic(
+        address=user.address, role="requester", tx_hash=rc.tx_hash, created=True
+    )
+
+
+@router.post(
+    "/workers",
+    status_code=status.HTTP_201_CREATED,
+    response_model=RegistrationPublic,
+    responses=rule_responses(401, 409, 503),
+)
+def register_worker(
+    body: WorkerCreate, user: CurrentUser, chain: ChainDep, indexer: IndexerDep
+) -> RegistrationPublic:
+    """UMC.addWorker, or UMC.updateCapabilities when the caller is already a worker (its
+    domains are fixed at registration: 409 ``worker_domains_fixed`` if they differ)."""
+    umc = chain.platform.umc
+    if chain.call(umc, "workerId", user.address) == 0:
+        rc = chain.send(
+            user.address,
+            umc,
+            "addWorker",
+            domain_mask(body.domains),
+            body.cpu_cores,
+            body.ram_gb,
+            body.gpu_series,
+        )
+        created = True
+    else:
+        if _registered_domains(chain, user.address) != domain_mask(body.domains):
+            raise RuleError(
+                409,
+                "worker_domains_fixed",
+                "a worker's domains are fixed at registration; send the registered domains to "
+                "update capabilities",
+            )
+        rc = chain.send(
+            user.address, umc, "updateCapabilities", body.cpu_cores, body.ram_gb, body.gpu_series
+        )
+        created = False
+    catch_up(indexer)
+    return RegistrationPublic(
+        address=user.address, role="worker", tx_hash=rc.tx_hash, created=created
+    )
+
+
+def _registered_domains(chain: ChainDep, address: str) -> int:
+    """Domain bitmask of a registered worker (in its Worker record, or ``domainsOf``)."""
+    umc = chain.platform.umc
+    names = [
+        f["name"]
+        for f in umc.contract.get_function_by_name("getWorker")
+        .abi["outputs"][0]
+        .get("components", [])
+    ]
+    if "domains" in names:
+        return int(chain.call(umc, "getWorker", address)[names.index("domains")])
+    return int(chain.call(umc, "domainsOf", address))

@@ -1,0 +1,312 @@
+"""One chain interface, two backends: embedded eth-tester (py-evm) and a JSON-RPC endpoint.
+
+Every state change goes build -> sign locally -> send raw -> wait for receipt (STYLE.md,
+web3.py section); the node never signs. Reverts surface as typed
+:class:`backend.chain.errors.ContractError` subclasses with decoded arguments, raised from
+the gas estimate (or a replayed call when a mined transaction failed).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Iterable
+from typing import Any
+
+from eth_account import Account
+from eth_account.signers.local import LocalAccount
+from eth_utils import keccak
+from web3 import Web3
+from web3._utils.events import get_event_data
+from web3.contract import Contract
+from web3.exceptions import ContractCustomError, ContractLogicError
+
+from . import errors
+from .artifacts import load_artifact
+
+try:  # eth-tester raises its own exception type for reverts
+    from eth_tester.exceptions import TransactionFailed as _TesterFailed
+except ImportError:  # pragma: no cover - eth-tester is a dependency
+    _TesterFailed = ContractLogicError
+
+_REVERTS = (ContractCustomError, ContractLogicError, _TesterFailed)
+
+# anvil's and hardhat's well-known development mnemonic (never use it outside tests).
+DEV_MNEMONIC = "test test test test test test test test test test test junk"
+GAS_MARGIN = 1.2  # headroom over eth_estimateGas: block timestamp may move between the two
+
+
+@dataclasses.dataclass
+class Event:
+    """A decoded log: ``contract`` and ``name`` of the event, ``args`` by parameter name."""
+
+    contract: str
+    name: str
+    args: dict[str, Any]
+    address: str
+    log_index: int
+
+
+@dataclasses.dataclass
+class Receipt:
+    """The parts of a transaction receipt the platform uses, with decoded events."""
+
+    tx_hash: str
+    status: int
+    gas_used: int
+    effective_gas_price: int
+    block_number: int
+    events: list[Event]
+    calldata: bytes = dataclasses.field(default=b"", repr=False)
+    contract_address: str | None = None
+
+    @property
+    def fee(self) -> int:
+        """Native currency paid for gas (0 on the consortium chain; base fee on eth-tester)."""
+        return self.gas_used * self.effective_gas_price
+
+    def named(self, name: str) -> list[Event]:
+        """The events of this receipt called ``name`` (in log order)."""
+        return [e for e in self.events if e.name == name]
+
+    def one(self, name: str) -> Event:
+        """The single event called ``name``; AssertionError if there are 0 or several."""
+        found = self.named(name)
+        if len(found) != 1:
+            raise AssertionError(f"expected one {name} event, got {len(found)}: {self.events}")
+        return found[0]
+
+
+class ContractHandle:
+    """A deployed contract: ``call`` for views, ``transact`` for state changes."""
+
+    def __init__(self, chain: Chain, name: str, contract: Contract):
+        self.chain = chain
+        self.name = name
+        self.contract = contract
+        self.address: str = contract.address
+
+    def call(self, fn: str, *args: Any, sender: str | None = None) -> Any:
+        """Run view/pure function ``fn`` (or simulate a state change) and return its result."""
+        return self.chain.call(self.contract, fn, *args, sender=sender)
+
+    def transact(self, fn: str, *args: Any, sender: str, value: int = 0) -> Receipt:
+        """Send a signed transaction calling ``fn``; returns the mined receipt."""
+        return self.chain.transact(self.contract, fn, *args, sender=sender, value=value)
+
+    def estimate(self, fn: str, *args: Any, sender: str | None = None, value: int = 0) -> int:
+        """eth_estimateGas of ``fn`` (used for view functions in the gas report)."""
+        f = self.contract.functions[fn](*args)
+        try:
+            return f.estimate_gas({"from": sender or self.chain.accounts[0], "value": value})
+        except _REVERTS as exc:
+            raise _typed(exc) from None
+
+    def __repr__(self) -> str:
+        return f"<{self.name} at {self.address}>"
+
+
+def _revert_data(exc: BaseException) -> bytes | str | None:
+    """Raw revert data from web3's exception, or from eth-tester's chained one."""
+    seen: BaseException | None = exc
+    while seen is not None:
+        data = getattr(seen, "data", None)
+        if isinstance(data, dict):  # some providers wrap it
+            data = data.get("data")
+        if isinstance(data, str | bytes) and data:
+            return data
+        if seen.args and isinstance(seen.args[0], bytes):
+            return seen.args[0]
+        seen = seen.__cause__ or seen.__context__
+    return None
+
+
+def _typed(exc: BaseException) -> errors.ContractError:
+    return errors.decode_revert(_revert_data(exc))
+
+
+class Chain:
+    """A web3 connection plus local signing keys; see :meth:`embedded` and :meth:`rpc`."""
+
+    def __init__(self, w3: Web3, keys: Iterable[LocalAccount], kind: str, tester: Any = None):
+        self.w3 = w3
+        self.kind = kind
+        self._tester = tester
+        self._keys = {a.address: a for a in keys}
+        self.accounts: list[str] = list(self._keys)
+        self.chain_id: int = w3.eth.chain_id
+        self._by_address: dict[str, tuple[str, Contract]] = {}
+        # (contract address, topic0) -> (contract name, event ABI): two contracts may share
+        # an event signature (PaymentCredited in TMC and MMC).
+        self._topics: dict[tuple[str, bytes], tuple[str, dict[str, Any]]] = {}
+        self.fees_paid = 0  # native currency spent on gas by transactions sent through us
+
+    # -- construction -------------------------------------------------------------------
+    @classmethod
+    def embedded(cls, accounts: int = 10) -> Chain:
+        """An in-process py-evm chain with ``accounts`` funded accounts (1,000,000 ETH each)."""
+        from eth_tester import EthereumTester, PyEVMBackend
+        from web3 import EthereumTesterProvider
+
+        if accounts < 1:
+            raise ValueError(f"accounts must be >= 1, got {accounts}")
+        backend = PyEVMBackend(
+            genesis_state=PyEVMBackend.generate_genesis_state(num_accounts=accounts)
+        )
+        tester = EthereumTester(backend)
+        w3 = Web3(EthereumTesterProvider(tester))
+        keys = [Account.from_key(k.to_bytes()) for k in backend.account_keys]
+        return cls(w3, keys, "embedded", tester)
+
+    @classmethod
+    def rpc(
+        cls, url: str, private_keys: Iterable[str] | None = None, n_dev_accounts: int = 10
+    ) -> Chain:
+        """A JSON-RPC node at ``url``; signs with ``private_keys`` (default: the dev mnemonic,
+        which anvil funds)."""
+        w3 = Web3(Web3.HTTPProvider(url, request_kwargs={"timeout": 60}))
+        if not w3.is_connected():
+            raise ConnectionError(f"no JSON-RPC node answers at {url}")
+        if private_keys is None:
+            Account.enable_unaudited_hdwallet_features()
+            keys = [
+                Account.from_mnemonic(DEV_MNEMONIC, account_path=f"m/44'/60'/0'/0/{i}")
+                for i in range(n_dev_accounts)
+            ]
+        else:
+            keys = [Account.from_key(k) for k in private_keys]
+        return cls(w3, keys, "rpc")
+
+    # -- contracts ----------------------------------------------------------------------
+    def register(self, name: str, address: str) -> ContractHandle:
+        """A handle on contract ``name`` (artifact) already deployed at ``address``."""
+        abi = load_artifact(name)["abi"]
+        contract = self.w3.eth.contract(address=Web3.to_checksum_address(address), abi=abi)
+        self._by_address[contract.address] = (name, contract)
+        for item in abi:
+            if item.get("type") == "event":
+                types = ",".join(errors._canonical(i) for i in item["inputs"])
+                topic = keccak(text=f"{item['name']}({types})")
+                self._topics[(contract.address, topic)] = (name, item)
+        return ContractHandle(self, name, contract)
+
+    def deploy(self, name: str, *args: Any, sender: str) -> tuple[ContractHandle, Receipt]:
+        """Deploy artifact ``name`` with constructor ``args``; returns (handle, receipt)."""
+        art = load_artifact(name)
+        factory = self.w3.eth.contract(abi=art["abi"], bytecode=art["bytecode"])
+        receipt = self._send(factory.constructor(*args), sender, 0)
+        return self.register(name, receipt.contract_address), receipt
+
+    # -- calls and transactions ---------------------------------------------------------
+    def call(self, contract: Contract, fn: str, *args: Any, sender: str | None = None) -> Any:
+        """Execute ``fn`` without a transaction; custom errors raise typed exceptions."""
+        try:
+            return contract.functions[fn](*args).call({"from": sender or self.accounts[0]})
+        except _REVERTS as exc:
+            raise _typed(exc) from None
+
+    def transact(
+        self, contract: Contract, fn: str, *args: Any, sender: str, value: int = 0
+    ) -> Receipt:
+        """Build, sign locally, send raw and wait for the receipt of ``fn(*args)``."""
+        return self._send(contract.functions[fn](*args), sender, value)
+
+    def _send(self, fn: Any, sender: str, value: int) -> Receipt:
+        if sender not in self._keys:
+            raise KeyError(f"no signing key for sender {sender}; known: {self.accounts}")
+        base = self.w3.eth.get_block("latest").get("baseFeePerGas", 0) or 0
+        params = {
+            "from": sender,
+            "value": value,
+            "nonce": self.w3.eth.get_transaction_count(sender, "pending"),
+            "chainId": self.chain_id,
+            "maxPriorityFeePerGas": 0,  # consortium chain: no tips
+            "maxFeePerGas": 2 * base,
+        }
+        try:
+            gas = fn.estimate_gas({k: params[k] for k in ("from", "value")})
+        except _REVERTS as exc:
+            raise _typed(exc) from None
+        params["gas"] = min(int(gas * GAS_MARGIN) + 10_000, 30_000_000)
+        tx = fn.build_transaction(params)
+        signed = self._keys[sender].sign_transaction(tx)
+        tx_hash = self.w3.eth.send_raw_transaction(signed.raw_transaction)
+        raw = self.w3.eth.wait_for_transaction_receipt(tx_hash, timeout=120)
+        receipt = Receipt(
+            tx_hash="0x" + bytes(tx_hash).hex(),
+            status=raw["status"],
+            gas_used=raw["gasUsed"],
+            effective_gas_price=raw.get("effectiveGasPrice", 0) or 0,
+            block_number=raw["blockNumber"],
+            calldata=bytes.fromhex(tx["data"][2:]) if tx.get("data") else b"",
+            events=self._decode_logs(raw["logs"]),
+            contract_address=raw.get("contractAddress"),
+        )
+        self.fees_paid += receipt.fee
+        if receipt.status != 1:
+            # Replay as a call at the parent block to recover the revert data.
+            try:
+                fn.call({"from": sender, "value": value}, block_identifier=raw["blockNumber"] - 1)
+            except _REVERTS as exc:
+                raise _typed(exc) from None
+            raise errors.UnknownRevert({"tx": receipt.tx_hash})
+        return receipt
+
+    def _decode_logs(self, logs: list[Any]) -> list[Event]:
+        out = []
+        for log in logs:
+            topics = log["topics"]
+            address = Web3.to_checksum_address(log["address"])
+            hit = self._topics.get((address, bytes(topics[0]))) if topics else None
+            if hit is None:
+                continue
+            cname, abi = hit
+            data = get_event_data(self.w3.codec, abi, log)
+            out.append(
+                Event(cname, data["event"], dict(data["args"]), log["address"], log["logIndex"])
+            )
+        return out
+
+    def logs(self, handle: ContractHandle, from_block: int = 0) -> list[Event]:
+        """Every decoded event emitted by ``handle`` since ``from_block`` (indexer input)."""
+        raw = self.w3.eth.get_logs(
+            {"address": handle.address, "fromBlock": from_block, "toBlock": "latest"}
+        )
+        return self._decode_logs(raw)
+
+    def vm_name(self) -> str:
+        """The EVM fork in use ("PragueVM" on eth-tester; the node's client on RPC)."""
+        if self._tester is not None:
+            return type(self._tester.backend.chain.get_vm()).__name__
+        return str(self.w3.client_version)
+
+    # -- chain state --------------------------------------------------------------------
+    def balance(self, address: str) -> int:
+        return self.w3.eth.get_balance(address)
+
+    def now(self) -> int:
+        """Timestamp of the latest block (what ``block.timestamp`` was last)."""
+        return self.w3.eth.get_block("latest")["timestamp"]
+
+    def advance_time(self, seconds: int) -> int:
+        """Move chain time forward by ``seconds`` and mine a block; returns the new time."""
+        if seconds <= 0:
+            raise ValueError(f"seconds must be positive, got {seconds}")
+        target = self.now() + seconds
+        if self._tester is not None:
+            self._tester.time_travel(target)
+        else:
+            self.w3.provider.make_request("evm_increaseTime", [seconds])
+            self.w3.provider.make_request("evm_mine", [])
+        return self.now()
+
+    def snapshot(self) -> Any:
+        """A snapshot id for :meth:`revert` (test isolation)."""
+        if self._tester is not None:
+            return self._tester.take_snapshot()
+        return self.w3.provider.make_request("evm_snapshot", [])["result"]
+
+    def revert(self, snapshot_id: Any) -> None:
+        if self._tester is not None:
+            self._tester.revert_to_snapshot(snapshot_id)
+        else:
+            self.w3.provider.make_request("evm_revert", [snapshot_id])

@@ -1,0 +1,249 @@
+"""Deploy and wire the three platform contracts (UMC, TMC, MMC) and typed handles on them.
+
+:func:`deploy_platform` deploys the Users Manager (UMC), Tasks Manager (TMC) and Models
+Manager (MMC), lets the TMC and MMC update worker counters (``UMC.setPlatform``) and returns a
+:class:`Platform` whose handles expose the thesis functions with Python names and types.
+Fixed-point conventions are those of :mod:`backend.chain.qos` (ONE = 1e6, reviews 0-5).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import enum
+from collections.abc import Iterable, Sequence
+from typing import Any
+
+from .client import Chain, ContractHandle, Receipt
+
+W1_DEFAULT = 100_000  # Eq. 20 weight 0.1 scaled by 1e6 (= qos.W1_DEFAULT)
+ACCEPT_WINDOW = 3_600  # seconds a worker has to accept an offer
+REVIEW_WINDOW = 7 * 86_400  # seconds a requester has to review after the deadline
+MAX_DOMAIN = 47  # UMC keeps a worker's domains as a 48-bit mask
+ALL_GPUS_BUT_NONE = (1 << 256) - 2  # every GPU series code 1-255 accepted; 0 = no GPU
+
+
+class WorkerStatus(enum.IntEnum):
+    NONE = 0
+    ACTIVE = 1
+    IDLE = 2
+
+
+class TaskStatus(enum.IntEnum):
+    NONE = 0
+    OPEN = 1
+    COMPLETED = 2
+    CANCELLED = 3
+    CLOSED = 4
+
+
+class OfferState(enum.IntEnum):
+    NONE = 0
+    OFFERED = 1
+    ACCEPTED = 2
+    DECLINED = 3
+    EXPIRED = 4
+    SUBMITTED = 5
+    REVIEWED = 6
+    FAILED = 7
+
+
+class Metric(enum.IntEnum):
+    MODEL = 0  # Eq. 10-13 (thesis 5.3.1)
+    SHARING = 1  # Eq. 22-23 (thesis 7.5.2)
+
+
+def domain_mask(domains: Iterable[int]) -> int:
+    """Bitmask of domain codes (0-47) as the UMC stores them."""
+    mask = 0
+    for d in domains:
+        if not 0 <= d <= MAX_DOMAIN:
+            raise ValueError(f"domain codes must be in [0, {MAX_DOMAIN}], got {d}")
+        mask |= 1 << d
+    return mask
+
+
+def gpu_mask(series: Iterable[int]) -> int:
+    """Bitmask of accepted GPU series codes (0-255) for the TMC constructor."""
+    mask = 0
+    for s in series:
+        if not 0 <= s <= 255:
+            raise ValueError(f"GPU series codes must be in [0, 255], got {s}")
+        mask |= 1 << s
+    return mask
+
+
+class UsersManager(ContractHandle):
+    """UMC (thesis Table 7.2): registration, status and per-domain worker counters."""
+
+    def add_worker(
+        self, sender: str, domains: Iterable[int], cpu_cores: int, ram_gb: int, gpu_series: int
+    ) -> Receipt:
+        return self.transact(
+            "addWorker", domain_mask(domains), cpu_cores, ram_gb, gpu_series, sender=sender
+        )
+
+    def add_requester(self, sender: str) -> Receipt:
+        return self.transact("addRequester", sender=sender)
+
+    def update_status(self, sender: str, status: WorkerStatus) -> Receipt:
+        return self.transact("updateStatus", int(status), sender=sender)
+
+    def counters(self, worker: str, domain: int, task_type: int) -> dict[str, int]:
+        c = self.call("counters", worker, domain, task_type)
+        names = ("assigned", "accepted", "completed", "rating_sum", "rating_count")
+        return dict(zip(names, c, strict=True))
+
+    def get_workers(self, domain: int) -> list[dict[str, Any]]:
+        names = ("address", "status", "gpu_series", "cpu_cores", "ram_gb", "domains")
+        return [dict(zip(names, w, strict=True)) for w in self.call("getWorkers", domain)]
+
+
+class TasksManager(ContractHandle):
+    """TMC (thesis Table 7.3): training tasks, recruitment, offers, outcomes, payments."""
+
+    def add_task(
+        self,
+        sender: str,
+        *,
+        domain: int,
+        num_workers: int,
+        reward: int,
+        duration: int,
+        min_reputation: int = 0,
+        min_rating: int = 0,
+        min_cpu_cores: int = 0,
+        min_ram_gb: int = 0,
+        description: str = "",
+    ) -> tuple[int, Receipt]:
+        """addTask with ``reward`` per worker escrowed; returns (task id, receipt)."""
+        params = (
+            domain,
+            num_workers,
+            min_reputation,
+            min_rating,
+            min_cpu_cores,
+            min_ram_gb,
+            duration,
+            description,
+        )
+        rc = self.transact("addTask", params, sender=sender, value=reward * num_workers)
+        return rc.one("TaskAdded").args["taskId"], rc
+
+    def allocate(self, sender: str, task_id: int) -> tuple[list[str], Receipt]:
+        """allocateTask; returns (offered workers best first, receipt)."""
+        rc = self.transact("allocateTask", task_id, sender=sender)
+        return [e.args["worker"] for e in rc.named("TaskOffered")], rc
+
+    def offer(self, task_id: int, worker: str) -> dict[str, int]:
+        state, expiry, index = self.call("getOffer", task_id, worker)
+        return {"state": OfferState(state), "expiry": expiry, "list_index": index}
+
+    def task(self, task_id: int) -> dict[str, Any]:
+        t, r = self.call("getTask", task_id)
+        keys_t = (
+            "requester",
+            "status",
+            "num_workers",
+            "live_offers",
+            "filled",
+            "settled",
+            "offer_count",
+            "deadline",
+        )
+        keys_r = ("domain", "min_reputation", "min_rating", "min_cpu_cores", "min_ram_gb", "reward")
+        out = dict(zip(keys_t, t, strict=True)) | dict(zip(keys_r, r, strict=True))
+        out["status"] = TaskStatus(out["status"])
+        return out
+
+
+class ModelsManager(ContractHandle):
+    """MMC (thesis Tables 5.2, 7.4): shared models, allocation by QoS, reviews."""
+
+    def add_model(
+        self, sender: str, cid: str, domain: int, env: Sequence[int], description: str = ""
+    ) -> tuple[int, Receipt]:
+        rc = self.transact("addModel", cid, description, domain, list(env), sender=sender)
+        return rc.one("ModelAdded").args["modelId"], rc
+
+    def allocate(
+        self,
+        sender: str,
+        *,
+        domain: int,
+        num_models: int,
+        env: Sequence[int],
+        price: int = 0,
+        metric: Metric = Metric.SHARING,
+        min_reputation: int = 0,
+        min_rating: int = 0,
+        min_model_reputation: int = 0,
+        weights: Sequence[int] = (),
+    ) -> tuple[int, list[int], Receipt]:
+        """allocateModel; returns (allocation id, model ids best first, receipt)."""
+        req = (
+            domain,
+            num_models,
+            int(metric),
+            min_reputation,
+            min_rating,
+            min_model_reputation,
+            list(env),
+            list(weights),
+        )
+        rc = self.transact("allocateModel", req, sender=sender, value=price * num_models)
+        alloc_id = rc.one("ModelsRequested").args["allocId"]
+        return alloc_id, [e.args["modelId"] for e in rc.named("ModelAllocated")], rc
+
+
+@dataclasses.dataclass
+class Platform:
+    """Handles on the deployed UMC, TMC and MMC plus the deployment receipts."""
+
+    chain: Chain
+    admin: str
+    umc: UsersManager
+    tmc: TasksManager
+    mmc: ModelsManager
+    receipts: dict[str, Receipt]
+
+    @property
+    def contracts(self) -> tuple[ContractHandle, ...]:
+        return (self.umc, self.tmc, self.mmc)
+
+
+def _typed(handle: ContractHandle, cls: type[ContractHandle]) -> Any:
+    return cls(handle.chain, handle.name, handle.contract)
+
+
+def deploy_platform(
+    chain: Chain,
+    admin: str | None = None,
+    *,
+    w1: int = W1_DEFAULT,
+    accept_window: int = ACCEPT_WINDOW,
+    review_window: int = REVIEW_WINDOW,
+    accepted_gpus: int = ALL_GPUS_BUT_NONE,
+) -> Platform:
+    """Deploy UMC, TMC and MMC from ``admin`` (default: first account) and wire them."""
+    admin = admin or chain.accounts[0]
+    umc, r_umc = chain.deploy("UsersManager", admin, sender=admin)
+    tmc, r_tmc = chain.deploy(
+        "TasksManager",
+        umc.address,
+        w1,
+        accept_window,
+        review_window,
+        accepted_gpus,
+        sender=admin,
+    )
+    mmc, r_mmc = chain.deploy("ModelsManager", umc.address, sender=admin)
+    umc.transact("setPlatform", tmc.address, True, sender=admin)
+    umc.transact("setPlatform", mmc.address, True, sender=admin)
+    return Platform(
+        chain,
+        admin,
+        _typed(umc, UsersManager),
+        _typed(tmc, TasksManager),
+        _typed(mmc, ModelsManager),
+        {"UsersManager": r_umc, "TasksManager": r_tmc, "ModelsManager": r_mmc},
+    )

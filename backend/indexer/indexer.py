@@ -1,0 +1,511 @@
+"""Follow UMC/TMC/MMC events into SQL tables (docs/platform.md, "indexer").
+
+Guarantees:
+
+* resumes from ``index_cursor`` (one row per contract, all advanced together): the cursor's
+  ``block_number`` is the last block fully processed and ``log_index`` the last event applied
+  in it (-1 if none), so a restart rescans nothing processed and misses nothing after it;
+* idempotent on (block, log index): an event already in ``chain_events`` is skipped, so
+  re-processing a range (a lost cursor, two pollers) changes nothing;
+* a batch of blocks is one database transaction (events, entity rows and cursor together);
+* ``confirmations`` blocks are left unprocessed at the head (real nodes may reorganise);
+* ``on_offer(task_id, worker)`` is called for every ``TaskOffered`` before the batch commits:
+  at-least-once (a crash after the hook repeats it; the job key ``offer:<task>:<worker>``
+  makes the job idempotent), never lost. A failing hook rolls the batch back for a retry;
+* a different chain (another ``anchor``: hash of the UMC's deployment block, e.g. a restarted
+  embedded chain) wipes the indexed tables instead of mixing two histories.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from collections.abc import Callable, Iterable
+from typing import Any
+
+from hexbytes import HexBytes
+from sqlalchemy import delete, select
+from sqlalchemy.orm import Session, sessionmaker
+
+from backend.chain.platform import OfferState, TaskStatus, WorkerStatus
+from backend.chain.qos import mmc_reputation_fixed, rating_fixed, reputation_fixed
+from backend.db import models as m
+from backend.services.chain import ChainService
+from backend.services.specs import MAX_SPEC_BYTES, TASK_SPEC_FORMAT, load_json_doc, summarize_env
+from backend.store import ContentStore
+
+log = logging.getLogger(__name__)
+
+OfferHook = Callable[[int, str], None]
+HALF = 500_000  # QoS fixed point 0.5: no history yet (backend.chain.qos)
+INDEXED_TABLES = (
+    m.ProgressPoint,  # not from the chain, but tied to tasks of the wiped chain
+    m.ReviewRow,
+    m.AllocatedModel,
+    m.AllocationRow,
+    m.ModelRow,
+    m.OutcomeRow,
+    m.OfferRow,
+    m.TaskRow,
+    m.WorkerCounters,
+    m.WorkerDomain,
+    m.WorkerRow,
+    m.Requester,
+    m.ChainEvent,
+    m.IndexCursor,
+)
+TASK_TYPE_TRAINING, TASK_TYPE_SHARING = 0, 1
+
+
+def _noop(task_id: int, worker: str) -> None:
+    """Default ``on_offer`` hook: nothing (the worker daemon wiring injects the Celery one)."""
+
+
+def _jsonable(v: Any) -> Any:
+    if isinstance(v, bytes | HexBytes):
+        return "0x" + bytes(v).hex()
+    if isinstance(v, bool):
+        return v
+    if isinstance(v, int):
+        return v if abs(v) < 2**53 else str(v)  # JavaScript clients lose precision above 2^53
+    if isinstance(v, list | tuple):
+        return [_jsonable(x) for x in v]
+    if isinstance(v, dict):
+        return {k: _jsonable(x) for k, x in v.items()}
+    return v
+
+
+class Indexer:
+    """Poll the chain for platform events and apply them; see the module docstring."""
+
+    def __init__(
+        self,
+        service: ChainService,
+        sessions: sessionmaker[Session],
+        *,
+        confirmations: int = 0,
+        on_offer: OfferHook | None = None,
+        batch_blocks: int = 500,
+        store: ContentStore | None = None,
+    ) -> None:
+        if confirmations < 0:
+            raise ValueError(f"confirmations must be >= 0, got {confirmations}")
+        if batch_blocks < 1:
+            raise ValueError(f"batch_blocks must be >= 1, got {batch_blocks}")
+        self.service = service
+        self.sessions = sessions
+        self.confirmations = confirmations
+        self.on_offer: OfferHook = on_offer or _noop
+        self.batch_blocks = batch_blocks
+        self.store = store
+        self._poll_lock = threading.Lock()
+        self._checked_anchor = False
+        p = service.platform
+        self._names = {p.umc.address: "UsersManager", p.tmc.address: "TasksManager"}
+        self._names[p.mmc.address] = "ModelsManager"
+
+    # -- cursor ---------------------------------------------------------------------------------
+    def _anchor(self) -> str:
+        with self.service.lock:
+            block = self.service.chain.w3.eth.get_block(self.service.deploy_block)
+        return "0x" + bytes(block["hash"]).hex()
+
+    def check_anchor(self) -> bool:
+        """Wipe the index if it was built from another chain; True if it wiped."""
+        anchor = self._anchor()
+        with self.sessions() as s:
+            row = s.get(m.IndexMeta, "anchor")
+            if row is not None and row.value == anchor:
+                self._checked_anchor = True
+                return False
+            wiped = row is not None or s.scalar(select(m.ChainEvent.id).limit(1)) is not None
+            if wiped:
+                log.warning("indexer: chain anchor changed (%s); rebuilding the index", anchor)
+            for table in INDEXED_TABLES:
+                s.execute(delete(table))
+            s.merge(m.IndexMeta(key="anchor", value=anchor))
+            s.commit()
+        self._checked_anchor = True
+        return wiped
+
+    def cursor(self) -> tuple[int, int]:
+        """(last fully processed block, last applied log index in it); before any poll the
+        block before the deployment."""
+        with self.sessions() as s:
+            rows = s.scalars(select(m.IndexCursor)).all()
+        mine = [r for r in rows if self._names.get(r.address or "") == r.contract]
+        if len(mine) == len(self._names):
+            return min((r.block_number, r.log_index) for r in mine)
+        return self.service.deploy_block - 1, -1
+
+    def _save_cursor(self, s: Session, block: int, log_index: int) -> None:
+        for address, name in self._names.items():
+            s.merge(
+                m.IndexCursor(
+                    contract=name, address=address, block_number=block, log_index=log_index
+                )
+            )
+
+    # -- polling --------------------------------------------------------------------------------
+    def head(self) -> int:
+        return self.service.block_number() - self.confirmations
+
+    def poll(self) -> int:
+        """Apply every confirmed event after the cursor; returns how many were applied."""
+        with self._poll_lock:
+            if not self._checked_anchor:
+                self.check_anchor()
+            applied = 0
+            start, _ = self.cursor()
+            head = self.head()
+            while start < head:
+                to = min(head, start + self.batch_blocks)
+                applied += self._batch(start + 1, to)
+                start = to
+            return applied
+
+    def _fetch(self, from_block: int, to_block: int) -> list[tuple[dict[str, Any], Any]]:
+        chain = self.service.chain
+        with self.service.lock:
+            raw = chain.w3.eth.get_logs(
+                {"address": list(self._names), "fromBlock": from_block, "toBlock": to_block}  # type: ignore[typeddict-item]
+            )
+            raw = sorted(raw, key=lambda lg: (lg["blockNumber"], lg["logIndex"]))
+            out = []
+            times: dict[int, int] = {}
+            for lg in raw:
+                decoded = chain._decode_logs([lg])
+                if not decoded:
+                    continue
+                b = lg["blockNumber"]
+                if b not in times:
+                    times[b] = int(chain.w3.eth.get_block(b)["timestamp"])
+                out.append((dict(lg) | {"_time": times[b]}, decoded[0]))
+        return out
+
+    def _batch(self, from_block: int, to_block: int) -> int:
+        events = self._fetch(from_block, to_block)
+        offers: list[tuple[int, str]] = []
+        applied = 0
+        last_index = -1
+        with self.sessions() as s:
+            for raw, ev in events:
+                block, index = int(raw["blockNumber"]), int(raw["logIndex"])
+                if block == to_block:
+                    last_index = index
+                exists = s.scalar(
+                    select(m.ChainEvent.id).where(
+                        m.ChainEvent.block_number == block, m.ChainEvent.log_index == index
+                    )
+                )
+                if exists is not None:
+                    continue
+                args = dict(ev.args)
+                self._record(s, raw, ev.contract, ev.name, args)
+                handler = getattr(self, f"_on_{ev.name}", None)
+                if handler is not None:
+                    handler(s, args, block)
+                if ev.name == "TaskOffered":
+                    offers.append((int(args["taskId"]), str(args["worker"])))
+                applied += 1
+            self._save_cursor(s, to_block, last_index)
+            s.flush()
+            for task_id, worker in offers:
+                self.on_offer(task_id, worker)  # raising rolls the batch back (retried)
+            s.commit()
+        return applied
+
+    def _record(
+        self, s: Session, raw: dict[str, Any], contract: str, name: str, args: dict
+    ) -> None:
+        alloc_id = args.get("allocId")
+        task_id = args.get("taskId")
+        if name == "PaymentCredited" and contract == "ModelsManager":
+            alloc_id = args.get("allocId", args.get("taskId"))
+            task_id = None
+        account = next(
+            (args[k] for k in ("worker", "requester", "owner", "account") if k in args), None
+        )
+        s.add(
+            m.ChainEvent(
+                block_number=int(raw["blockNumber"]),
+                log_index=int(raw["logIndex"]),
+                tx_hash="0x" + bytes(raw["transactionHash"]).hex(),
+                contract=contract,
+                name=name,
+                args=_jsonable(args),
+                block_time=raw["_time"],
+                task_id=int(task_id) if task_id is not None else None,
+                model_id=int(args["modelId"]) if "modelId" in args else None,
+                alloc_id=int(alloc_id) if alloc_id is not None else None,
+                account=account,
+            )
+        )
+
+    # -- UMC ------------------------------------------------------------------------------------
+    def _on_WorkerAdded(self, s: Session, a: dict[str, Any], block: int) -> None:
+        address = a["worker"]
+        s.merge(
+            m.WorkerRow(
+                address=address,
+                worker_id=int(a["id"]),
+                domain_mask=str(a["domains"]),
+                cpu_cores=a["cpuCores"],
+                ram_gb=a["ramGb"],
+                gpu_series=a["gpuSeries"],
+                status=WorkerStatus.ACTIVE.name.lower(),
+                assigned=0,
+                accepted=0,
+                completed=0,
+                rating_sum=0,
+                rating_count=0,
+                reputation=HALF,
+                rating=HALF,
+                sharing_reputation=HALF,
+                sharing_rating=HALF,
+                block_number=block,
+            )
+        )
+        s.flush()
+        for d in _bits(int(a["domains"])):
+            s.merge(m.WorkerDomain(address=address, domain=d))
+
+    def _on_RequesterAdded(self, s: Session, a: dict[str, Any], block: int) -> None:
+        s.merge(m.Requester(address=a["requester"], block_number=block))
+
+    def _on_WorkerStatusUpdated(self, s: Session, a: dict[str, Any], block: int) -> None:
+        w = s.get(m.WorkerRow, a["worker"])
+        if w is not None:
+            w.status = WorkerStatus(int(a["status"])).name.lower()
+
+    def _on_WorkerCapabilitiesUpdated(self, s: Session, a: dict[str, Any], block: int) -> None:
+        w = s.get(m.WorkerRow, a["worker"])
+        if w is not None:
+            w.cpu_cores, w.ram_gb, w.gpu_series = a["cpuCores"], a["ramGb"], a["gpuSeries"]
+
+    def _on_WorkerInfoUpdated(self, s: Session, a: dict[str, Any], block: int) -> None:
+        address, task_type = a["worker"], int(a["taskType"])
+        s.merge(
+            m.WorkerCounters(
+                address=address,
+                domain=int(a["domain"]),
+                task_type=task_type,
+                assigned=a["assigned"],
+                accepted=a["accepted"],
+                completed=a["completed"],
+                rating_sum=a["ratingSum"],
+                rating_count=a["ratingCount"],
+            )
+        )
+        s.flush()
+        w = s.get(m.WorkerRow, address)
+        if w is None:
+            return
+        rows = s.scalars(
+            select(m.WorkerCounters).where(
+                m.WorkerCounters.address == address, m.WorkerCounters.task_type == task_type
+            )
+        ).all()
+        tot = {
+            k: sum(getattr(r, k) for r in rows)
+            for k in ("assigned", "accepted", "completed", "rating_sum", "rating_count")
+        }
+        rep = reputation_fixed(tot["assigned"], tot["accepted"], tot["completed"])  # Eq. 19
+        rat = rating_fixed(tot["rating_sum"], tot["rating_count"])  # 7.5.1 rating
+        if task_type == TASK_TYPE_TRAINING:
+            for k, v in tot.items():
+                setattr(w, k, v)
+            w.reputation, w.rating = rep, rat
+        else:
+            w.sharing_reputation, w.sharing_rating = rep, rat
+
+    # -- TMC ------------------------------------------------------------------------------------
+    def _on_TaskAdded(self, s: Session, a: dict[str, Any], block: int) -> None:
+        task_id = int(a["taskId"])
+        s.merge(
+            m.TaskRow(
+                id=task_id,
+                requester=a["requester"],
+                domain=int(a["domain"]),
+                num_workers=int(a["numWorkers"]),
+                reward_wei=str(a["reward"]),
+                deadline=int(a["deadline"]),
+                min_reputation=a["minReputation"],
+                min_rating=a["minRating"],
+                min_cpu_cores=a["minCpuCores"],
+                min_ram_gb=a["minRamGb"],
+                description=str(a["description"])[:512],
+                spec=self._task_spec(str(a["description"])),
+                status=TaskStatus.OPEN.name.lower(),
+                offered=0,
+                block_number=block,
+                updated_block=block,
+            )
+        )
+
+    def _task_spec(self, cid: str) -> dict[str, Any] | None:
+        """The task spec document behind a description CID, when the store has it."""
+        if self.store is None or not cid:
+            return None
+        try:
+            return load_json_doc(self.store, cid, max_size=MAX_SPEC_BYTES, fmt=TASK_SPEC_FORMAT)
+        except Exception as exc:  # not a CID, not stored here, not a spec: keep the raw text
+            log.info("indexer: task description %r is not a readable task spec: %s", cid, exc)
+            return None
+
+    def _offer(self, s: Session, a: dict[str, Any]) -> m.OfferRow | None:
+        return s.get(m.OfferRow, (int(a["taskId"]), a["worker"]))
+
+    def _on_TaskOffered(self, s: Session, a: dict[str, Any], block: int) -> None:
+        task_id = int(a["taskId"])
+        s.merge(
+            m.OfferRow(
+                task_id=task_id,
+                worker=a["worker"],
+                state=OfferState.OFFERED.name.lower(),
+                qos=int(a["qos"]),
+                expiry=int(a["expiry"]),
+                block_number=block,
+                updated_block=block,
+            )
+        )
+        t = s.get(m.TaskRow, task_id)
+        if t is not None:
+            t.offered += 1
+            t.updated_block = block
+
+    def _set_offer(self, s: Session, a: dict[str, Any], block: int, state: OfferState) -> None:
+        o = self._offer(s, a)
+        if o is not None:
+            o.state = state.name.lower()
+            o.updated_block = block
+
+    def _on_OfferAccepted(self, s: Session, a: dict[str, Any], block: int) -> None:
+        self._set_offer(s, a, block, OfferState.ACCEPTED)
+
+    def _on_OfferDeclined(self, s: Session, a: dict[str, Any], block: int) -> None:
+        self._set_offer(s, a, block, OfferState.DECLINED)
+
+    def _on_OfferExpired(self, s: Session, a: dict[str, Any], block: int) -> None:
+        self._set_offer(s, a, block, OfferState.EXPIRED)
+
+    def _on_OfferFailed(self, s: Session, a: dict[str, Any], block: int) -> None:
+        self._set_offer(s, a, block, OfferState.FAILED)
+
+    def _on_OutcomeSubmitted(self, s: Session, a: dict[str, Any], block: int) -> None:
+        self._set_offer(s, a, block, OfferState.SUBMITTED)
+        s.merge(
+            m.OutcomeRow(
+                task_id=int(a["taskId"]),
+                worker=a["worker"],
+                cid=str(a["cid"])[:512],
+                block_number=block,
+            )
+        )
+
+    def _on_OutcomeReviewed(self, s: Session, a: dict[str, Any], block: int) -> None:
+        self._set_offer(s, a, block, OfferState.REVIEWED)
+        o = s.get(m.OutcomeRow, (int(a["taskId"]), a["worker"]))
+        if o is not None:
+            o.review, o.accepted = int(a["review"]), bool(a["accepted"])
+
+    def _on_TaskStatusUpdated(self, s: Session, a: dict[str, Any], block: int) -> None:
+        t = s.get(m.TaskRow, int(a["taskId"]))
+        if t is not None:
+            t.status = TaskStatus(int(a["status"])).name.lower()
+            t.updated_block = block
+
+    # -- MMC ------------------------------------------------------------------------------------
+    def _on_ModelAdded(self, s: Session, a: dict[str, Any], block: int) -> None:
+        env = [int(v) for v in a["env"]]
+        summary = summarize_env(env)
+        s.merge(
+            m.ModelRow(
+                id=int(a["modelId"]),
+                owner=a["owner"],
+                domain=int(a["domain"]),
+                cid=str(a["cid"])[:512],
+                description=str(a["description"])[:2048],
+                env=env,
+                agents=summary.agents,
+                walls_min=summary.walls_min,
+                walls_max=summary.walls_max,
+                alloc_count=0,
+                total_review=0,
+                reputation=HALF,
+                block_number=block,
+            )
+        )
+
+    def _on_ModelsRequested(self, s: Session, a: dict[str, Any], block: int) -> None:
+        s.merge(
+            m.AllocationRow(
+                id=int(a["allocId"]),
+                requester=a["requester"],
+                domain=int(a["domain"]),
+                metric=int(a["metric"]),
+                num_models=int(a["numModels"]),
+                price_wei=str(a["price"]),
+                block_number=block,
+            )
+        )
+
+    def _on_ModelAllocated(self, s: Session, a: dict[str, Any], block: int) -> None:
+        s.merge(
+            m.AllocatedModel(
+                alloc_id=int(a["allocId"]),
+                model_id=int(a["modelId"]),
+                owner=a["owner"],
+                qos=int(a["qos"]),
+            )
+        )
+        model = s.get(m.ModelRow, int(a["modelId"]))
+        if model is not None:
+            model.alloc_count += 1
+            model.reputation = mmc_reputation_fixed(model.total_review, model.alloc_count)
+
+    def _on_ModelReviewed(self, s: Session, a: dict[str, Any], block: int) -> None:
+        alloc_id, model_id, review = int(a["allocId"]), int(a["modelId"]), int(a["review"])
+        am = s.get(m.AllocatedModel, (alloc_id, model_id))
+        if am is not None:
+            am.review = review
+        model = s.get(m.ModelRow, model_id)
+        if model is not None:
+            model.total_review += review
+            model.reputation = mmc_reputation_fixed(model.total_review, model.alloc_count)  # Eq. 11
+
+
+def _bits(mask: int) -> Iterable[int]:
+    d = 0
+    while mask:
+        if mask & 1:
+            yield d
+        mask >>= 1
+        d += 1
+
+
+class IndexerThread:
+    """Runs :meth:`Indexer.poll` every ``interval`` seconds until :meth:`stop`."""
+
+    def __init__(self, indexer: Indexer, interval: float = 1.0) -> None:
+        self.indexer = indexer
+        self.interval = interval
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="drlaas-indexer", daemon=True)
+        self.errors = 0
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            try:
+                self.indexer.poll()
+            except Exception:  # keep following; the batch was rolled back and is retried
+                self.errors += 1
+                log.exception("indexer poll failed; retrying in %.1fs", self.interval)
+            self._stop.wait(self.interval)
+
+    def stop(self, timeout: float = 10.0) -> None:
+        self._stop.set()
+        self._thread.join(timeout)

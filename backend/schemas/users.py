@@ -1,0 +1,28 @@
+from __future__ import annotations
+
+from pydantic import BaseModel, Field, field_validator
+
+from .common import Domain
+
+
+class WorkerCreate(BaseModel):
+    """Register (or update the capabilities of) the caller as a worker (UMC.addWorker)."""
+
+    domains: list[Domain] = Field(min_length=1, max_length=256)
+    cpu_cores: int = Field(ge=1, le=65_535)
+    ram_gb: int = Field(ge=0, le=65_535)
+    gpu_series: int = Field(default=0, ge=0, le=255, description="GPU series code, 0 = no GPU")
+
+    @field_validator("domains")
+    @classmethod
+    def _unique(cls, v: list[int]) -> list[int]:
+        if len(set(v)) != len(v):
+            raise ValueError("domains must not repeat")
+        return sorted(v)
+
+
+class RegistrationPublic(BaseModel):
+    address: str
+    role: str
+    tx_hash: str | None
+    created: bool = Field(description="false when only capabilities were updated")

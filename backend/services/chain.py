@@ -1,0 +1,346 @@
+"""The gateway's chain connection: one :class:`ChainService` per app (on ``app.state.chain``).
+
+* embedded (``DRLAAS_CHAIN=embedded``): an in-process eth-tester chain; the platform (UMC, TMC,
+  MMC) is deployed at start and its funded accounts become the demo users (``DemoKeys``, names
+  ``admin``, ``user1`` ...), in development mode only.
+* rpc (``DRLAAS_CHAIN=http://node:8545``): the contracts' addresses come from the JSON file
+  named by ``DRLAAS_CONTRACTS`` (``{"UsersManager": "0x..", "TasksManager": "0x..",
+  "ModelsManager": "0x..", "deploy_block": N}``); the gateway holds no keys unless given demo
+  keys explicitly.
+
+Writes act for the authenticated address only (docs/platform.md, "Signing"): when the
+gateway holds that address's demo key it signs and sends; otherwise :meth:`ChainService.send`
+raises :class:`SignLocally` carrying the unsigned transaction (answered as 409), which the
+client signs and relays through ``POST /api/tx`` (:meth:`ChainService.relay_raw`).
+
+eth-tester is not thread-safe and nonces must not race, so every chain access from request
+handlers, the ``/rpc`` endpoint and the indexer goes through :attr:`ChainService.lock`.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import threading
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from eth_account import Account
+from eth_account.signers.local import LocalAccount
+from hexbytes import HexBytes
+from web3 import Web3
+
+from backend.api.errors import RuleError
+from backend.auth import DemoKeys
+from backend.chain.client import GAS_MARGIN, Chain, ContractHandle, Receipt
+from backend.chain.errors import ContractError
+from backend.chain.platform import (
+    ModelsManager,
+    Platform,
+    TasksManager,
+    UsersManager,
+    deploy_platform,
+)
+from backend.settings import Settings
+
+CONTRACTS_ENV = "DRLAAS_CONTRACTS"
+CONTRACT_NAMES = ("UsersManager", "TasksManager", "ModelsManager")
+EMBEDDED_ACCOUNTS = 20
+"""Funded accounts of the embedded chain: ``admin`` + 19 demo users."""
+ALL_GPU_SERIES = (1 << 256) - 1
+"""Accepted GPU series of the embedded TMC: every code including 0 (no GPU), since the MDRL core
+trains on CPUs (the deployment default accepts only workers with a GPU)."""
+
+# Contract errors a client can cause, answered with these HTTP statuses (the rest: 409).
+_ERROR_STATUS = {
+    "NotRequester": 403,
+    "NotTaskRequester": 403,
+    "NotAllocationRequester": 403,
+    "NotWorker": 403,
+    "NotAdmin": 403,
+    "NotParticipant": 403,
+    "UnknownTask": 404,
+}
+
+
+class SignLocally(Exception):
+    """The gateway holds no key for ``sender``: the client must sign ``tx`` and POST it to
+    ``/api/tx``. Answered as 409 ``{"detail": {"rule": "sign_locally", "msg", "tx"}}``."""
+
+    def __init__(self, sender: str, tx: dict[str, Any], description: str) -> None:
+        super().__init__(f"sign_locally: {description} for {sender}")
+        self.sender = sender
+        self.tx = tx
+        self.description = description
+
+
+def _snake(name: str) -> str:
+    return re.sub(r"(?<!^)(?=[A-Z])", "_", name).lower()
+
+
+def contract_rule_error(exc: ContractError) -> RuleError:
+    """A typed contract revert as a RuleError: rule = snake_case error name (e.g.
+    ``tasks_not_offered_worker``), message with the decoded arguments."""
+    suffix = next((k for k in _ERROR_STATUS if exc.name.endswith(k)), None)
+    status = _ERROR_STATUS[suffix] if suffix else 409
+    return RuleError(status, _snake(exc.name), f"the contract refused the transaction: {exc}")
+
+
+def _jsonable_tx(tx: dict[str, Any]) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for k, v in tx.items():
+        if isinstance(v, bytes):
+            out[k] = "0x" + v.hex()
+        elif isinstance(v, int) and not isinstance(v, bool):
+            out[k] = v if v < 2**53 else hex(v)
+        else:
+            out[k] = v
+    out.setdefault("type", 2)
+    return out
+
+
+@dataclass
+class ChainService:
+    """Chain + deployed platform + (development) demo keys + the lock that serialises access."""
+
+    chain: Chain
+    platform: Platform
+    deploy_block: int
+    demo_keys: DemoKeys | None = None
+    lock: threading.RLock = field(default_factory=threading.RLock)
+
+    # -- construction -------------------------------------------------------------------------
+    @classmethod
+    def from_settings(cls, settings: Settings) -> ChainService:
+        if settings.chain_service.embedded:
+            return cls.embedded(settings)
+        return cls.rpc(settings)
+
+    @classmethod
+    def embedded(cls, settings: Settings, accounts: int = EMBEDDED_ACCOUNTS) -> ChainService:
+        """Fresh eth-tester chain with the platform deployed (windows from settings)."""
+        chain = Chain.embedded(accounts=accounts)
+        platform = deploy_platform(
+            chain,
+            accept_window=settings.accept_window_s,
+            review_window=settings.review_window_s,
+            accepted_gpus=ALL_GPU_SERIES,
+        )
+        deploy_block = min(r.block_number for r in platform.receipts.values())
+        keys = None
+        if settings.demo_keys_allowed:
+            keys = DemoKeys(settings)
+            for i, address in enumerate(chain.accounts):
+                keys.add("admin" if i == 0 else f"user{i}", chain._keys[address])  # type: ignore[index]
+        return cls(chain, platform, deploy_block, keys)
+
+    @classmethod
+    def rpc(
+        cls, settings: Settings, contracts: str | os.PathLike[str] | None = None
+    ) -> ChainService:
+        """A real node; addresses from ``contracts`` or the file named by DRLAAS_CONTRACTS."""
+        path = contracts or os.environ.get(CONTRACTS_ENV)
+        if not path:
+            raise RuntimeError(
+                f"{CONTRACTS_ENV} must name a JSON file of contract addresses when DRLAAS_CHAIN "
+                f"is a node URL ({settings.chain})"
+            )
+        addresses = load_contracts(path)
+        keys_allowed = settings.demo_keys_allowed
+        chain = Chain.rpc(settings.chain, private_keys=None if keys_allowed else [])
+        return cls.attach(chain, addresses, demo=keys_allowed, settings=settings)
+
+    @classmethod
+    def attach(
+        cls,
+        chain: Chain,
+        addresses: dict[str, Any],
+        *,
+        demo: bool = False,
+        settings: Settings | None = None,
+    ) -> ChainService:
+        """Handles on an existing deployment (``addresses`` as :func:`load_contracts` gives)."""
+        umc = chain.register("UsersManager", addresses["UsersManager"])
+        tmc = chain.register("TasksManager", addresses["TasksManager"])
+        mmc = chain.register("ModelsManager", addresses["ModelsManager"])
+        platform = Platform(
+            chain,
+            addresses.get("admin") or (chain.accounts[0] if chain.accounts else ""),
+            UsersManager(chain, umc.name, umc.contract),
+            TasksManager(chain, tmc.name, tmc.contract),
+            ModelsManager(chain, mmc.name, mmc.contract),
+            {},
+        )
+        keys = None
+        if demo and settings is not None and chain.accounts:
+            keys = DemoKeys(settings)
+            for i, address in enumerate(chain.accounts):
+                keys.add("admin" if i == 0 else f"user{i}", chain._keys[address])  # type: ignore[index]
+        return cls(chain, platform, int(addresses.get("deploy_block", 0)), keys)
+
+    def addresses(self) -> dict[str, Any]:
+        """The deployment as DRLAAS_CONTRACTS JSON (other processes attach with it)."""
+        p = self.platform
+        return {
+            "UsersManager": p.umc.address,
+            "TasksManager": p.tmc.address,
+            "ModelsManager": p.mmc.address,
+            "admin": p.admin,
+            "deploy_block": self.deploy_block,
+            "chain_id": self.chain.chain_id,
+        }
+
+    # -- signing --------------------------------------------------------------------------------
+    def signer(self, address: str) -> LocalAccount | None:
+        """The demo key of ``address`` if the gateway holds it (development only)."""
+        if self.demo_keys is None:
+            return None
+        for name in self.demo_keys.names:
+            account = self.demo_keys.account(name)
+            if account.address == address:
+                return account
+        return None
+
+    def send(
+        self,
+        sender: str,
+        handle: ContractHandle,
+        fn: str,
+        *args: Any,
+        value: int = 0,
+        description: str = "",
+    ) -> Receipt:
+        """``handle.fn(*args)`` sent by ``sender``: signed here with its demo key, or
+        :class:`SignLocally` with the unsigned transaction. Reverts -> RuleError."""
+        account = self.signer(sender)
+        with self.lock:
+            try:
+                if account is None:
+                    raise SignLocally(
+                        sender,
+                        self._unsigned(sender, handle, fn, args, value),
+                        description or f"{handle.name}.{fn}",
+                    )
+                self._ensure_key(account)
+                return handle.transact(fn, *args, sender=sender, value=value)
+            except ContractError as exc:
+                raise contract_rule_error(exc) from None
+
+    def _ensure_key(self, account: LocalAccount) -> None:
+        # Chain signs only for keys it was built with; a demo key added later joins them.
+        keys: dict[Any, LocalAccount] = self.chain._keys
+        if account.address not in keys:
+            keys[account.address] = account
+            self.chain.accounts.append(account.address)
+
+    def _unsigned(
+        self, sender: str, handle: ContractHandle, fn: str, args: tuple[Any, ...], value: int
+    ) -> dict[str, Any]:
+        w3 = self.chain.w3
+        f = handle.contract.functions[fn](*args)
+        gas = handle.estimate(fn, *args, sender=sender, value=value)  # typed revert first
+        base = w3.eth.get_block("latest").get("baseFeePerGas", 0) or 0
+        tx = f.build_transaction(  # type: ignore[arg-type]
+            {
+                "from": sender,
+                "value": value,
+                "nonce": w3.eth.get_transaction_count(sender, "pending"),  # type: ignore[arg-type]
+                "chainId": self.chain.chain_id,
+                "gas": min(int(gas * GAS_MARGIN) + 10_000, 30_000_000),
+                "maxPriorityFeePerGas": 0,
+                "maxFeePerGas": 2 * base,
+            }
+        )
+        return _jsonable_tx(dict(tx))
+
+    def relay_raw(self, raw: bytes, expected_sender: str) -> Receipt:
+        """Relay a transaction the client signed: its recovered sender must be the caller
+        (403 ``tx_sender_mismatch``), its target one of the platform contracts."""
+        try:
+            sender = Account.recover_transaction(raw)
+        except Exception:  # eth_account raises several types for malformed transactions
+            raise RuleError(422, "tx_invalid", "not a signed Ethereum transaction") from None
+        if sender != expected_sender:
+            raise RuleError(
+                403,
+                "tx_sender_mismatch",
+                f"transaction is signed by {sender}; signed in as {expected_sender}",
+            )
+        to = _tx_target(raw)
+        targets = {h.address for h in self.platform.contracts}
+        if to not in targets:
+            raise RuleError(
+                422, "tx_target", f"transaction goes to {to}; only platform contracts: {targets}"
+            )
+        w3 = self.chain.w3
+        with self.lock:
+            try:
+                tx_hash = w3.eth.send_raw_transaction(raw)
+            except Exception as exc:  # revert at inclusion (eth-tester) or node refusal
+                raise RuleError(
+                    409, "tx_rejected", f"node refused the transaction: {exc}"
+                ) from None
+            raw_receipt = w3.eth.wait_for_transaction_receipt(tx_hash, timeout=120)
+            events = self.chain._decode_logs(raw_receipt["logs"])
+        receipt = Receipt(
+            tx_hash="0x" + bytes(tx_hash).hex(),
+            status=raw_receipt["status"],
+            gas_used=raw_receipt["gasUsed"],
+            effective_gas_price=raw_receipt.get("effectiveGasPrice", 0) or 0,
+            block_number=raw_receipt["blockNumber"],
+            events=events,
+        )
+        if receipt.status != 1:
+            raise RuleError(409, "tx_reverted", f"transaction {receipt.tx_hash} reverted")
+        return receipt
+
+    # -- views ----------------------------------------------------------------------------------
+    def call(self, handle: ContractHandle, fn: str, *args: Any) -> Any:
+        with self.lock:
+            try:
+                return handle.call(fn, *args)
+            except ContractError as exc:
+                raise contract_rule_error(exc) from None
+
+    def block_number(self) -> int:
+        with self.lock:
+            return int(self.chain.w3.eth.block_number)
+
+
+def _tx_target(raw: bytes) -> str | None:
+    from eth_account.typed_transactions import TypedTransaction
+
+    try:
+        if raw[:1] and raw[0] < 0x7F:
+            to = TypedTransaction.from_bytes(HexBytes(raw)).as_dict().get("to")
+        else:
+            import rlp  # type: ignore[import-untyped]
+
+            to = rlp.decode(raw)[3]
+    except Exception:
+        raise RuleError(422, "tx_invalid", "cannot decode the transaction") from None
+    if not to:
+        return None
+    return Web3.to_checksum_address(to)
+
+
+def load_contracts(path: str | os.PathLike[str]) -> dict[str, Any]:
+    """Read a DRLAAS_CONTRACTS file; errors name the variable, the file and the bad key."""
+    p = Path(path)
+    try:
+        data = json.loads(p.read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise RuntimeError(f"{CONTRACTS_ENV}={p}: cannot read contract addresses: {exc}") from None
+    if not isinstance(data, dict):
+        raise RuntimeError(f"{CONTRACTS_ENV}={p}: expected a JSON object of addresses")
+    for name in CONTRACT_NAMES:
+        value = data.get(name)
+        if not isinstance(value, str) or not Web3.is_address(value):
+            raise RuntimeError(f"{CONTRACTS_ENV}={p}: {name} must be an address, got {value!r}")
+        data[name] = Web3.to_checksum_address(value)
+    block = data.get("deploy_block", 0)
+    if not isinstance(block, int) or block < 0:
+        raise RuntimeError(f"{CONTRACTS_ENV}={p}: deploy_block must be an int >= 0, got {block!r}")
+    return data

@@ -1,0 +1,243 @@
+"""End-to-end over the REST API with the embedded chain: registration, task creation with the
+spec in the content store, offers visible and equal to chain state, authorisation, validation."""
+
+from __future__ import annotations
+
+import json
+from typing import Any
+
+import pytest
+from eth_account import Account
+from fastapi.testclient import TestClient
+
+from backend.chain.platform import OfferState, TaskStatus
+from backend.services.chain import ChainService
+
+from .conftest import ENV, Login, P, addr, register, task_body
+
+WORKERS = {"user3": {"cpu_cores": 16}, "user4": {"cpu_cores": 8}, "user5": {"cpu_cores": 2}}
+
+
+def test_create_task_offers_match_chain_and_spec_is_content_addressed(
+    client: TestClient, login: Login, service: ChainService, offers_seen: list
+) -> None:
+    register(client, login, ["user1"], WORKERS)
+    tmc = service.platform.tmc
+    escrow_before = service.chain.balance(tmc.address)
+
+    r = client.post(f"{P}/tasks", json=task_body(), headers=login("user1"))
+    assert r.status_code == 201, r.text
+    created = r.json()
+    task_id = created["task_id"]
+    assert len(created["offered"]) == 2
+    assert set(created["offered"]) <= {addr(service, n) for n in WORKERS}
+    # payment escrowed: reward per worker x num_workers
+    assert service.chain.balance(tmc.address) - escrow_before == 2 * 10**15
+
+    # the on-chain description is the CID of the stored spec, which holds the validated env
+    on_chain = tmc.task(task_id)
+    store = client.app.state.store  # type: ignore[attr-defined]
+    spec = json.loads(store.get(created["spec_cid"]))
+    assert spec["env"]["rows"] == ENV["rows"] and spec["budget"]["steps"] == 20_000
+    assert spec["observation"] == {"kind": "odmtl", "window": 3}
+
+    detail = client.get(f"{P}/tasks/{task_id}").json()
+    assert detail["description"] == created["spec_cid"]
+    assert detail["spec"] == spec
+    assert detail["requester"] == addr(service, "user1") == on_chain["requester"]
+    assert detail["status"] == on_chain["status"].name.lower() == "open"
+    assert int(detail["reward_wei"]) == on_chain["reward"] == 10**15
+    assert detail["deadline"] == on_chain["deadline"]
+    assert detail["num_workers"] == on_chain["num_workers"] == 2
+    names = [e["name"] for e in detail["timeline"]]
+    assert names == ["TaskAdded", "TaskOffered", "TaskOffered", "TaskAllocated"]
+    offers = {o["worker"]: o for o in detail["offers"]}
+    assert set(offers) == set(created["offered"])
+    for worker, o in offers.items():
+        chain_offer = tmc.offer(task_id, worker)
+        assert chain_offer["state"] == OfferState.OFFERED and o["state"] == "offered"
+        assert o["expiry"] == chain_offer["expiry"]
+    # the indexer's hook saw each offer once
+    assert sorted(offers_seen) == sorted((task_id, w) for w in created["offered"])
+
+    # worker counters (assigned) follow WorkerInfoUpdated and equal the UMC's
+    for name in WORKERS:
+        w = client.get(f"{P}/workers/{addr(service, name)}").json()
+        chain_c = service.platform.umc.counters(addr(service, name), 0, 0)
+        assert w["counters"]["assigned"] == chain_c["assigned"]
+    listed = client.get(f"{P}/tasks", params={"worker": created["offered"][0]}).json()
+    assert [t["id"] for t in listed["data"]] == [task_id] and listed["count"] == 1
+
+
+def _accept(service: ChainService, task_id: int, worker: str) -> None:
+    with service.lock:
+        service.platform.tmc.transact("acceptOffer", task_id, sender=worker)
+
+
+def test_progress_review_and_cancel_act_only_for_the_right_address(
+    client: TestClient, login: Login, service: ChainService
+) -> None:
+    register(client, login, ["user1", "user2"], WORKERS)
+    task_id = client.post(
+        f"{P}/tasks", json=task_body(num_workers=1), headers=login("user1")
+    ).json()["task_id"]
+    worker = client.get(f"{P}/tasks/{task_id}").json()["offers"][0]["worker"]
+    name = next(n for n in WORKERS if addr(service, n) == worker)
+    other = next(n for n in WORKERS if n != name)
+
+    # another requester cannot cancel, allocate or review someone else's task
+    for path, body in (
+        ("cancel", None),
+        ("allocate", None),
+        ("reviews", {"worker": worker, "review": 5}),
+    ):
+        r = client.post(f"{P}/tasks/{task_id}/{path}", json=body, headers=login("user2"))
+        assert r.status_code == 403, (path, r.text)
+        assert r.json()["detail"]["rule"] == "not_task_requester"
+
+    # progress only from an assigned worker: offered is not enough, accepted is
+    point = {"step": 100, "success": 0.25, "time": 12.5, "cost": 3.0, "entropy": 1.2}
+    r = client.post(f"{P}/tasks/{task_id}/progress", json=point, headers=login(name))
+    assert r.status_code == 403 and r.json()["detail"]["rule"] == "not_assigned_worker"
+    _accept(service, task_id, worker)
+    client.app.state.indexer.poll()  # type: ignore[attr-defined]
+    r = client.post(f"{P}/tasks/{task_id}/progress", json=point, headers=login(name))
+    assert r.status_code == 201, r.text
+    assert (
+        client.post(f"{P}/tasks/{task_id}/progress", json=point, headers=login(name)).status_code
+        == 409
+    )
+    r = client.post(f"{P}/tasks/{task_id}/progress", json=point | {"step": 5}, headers=login(other))
+    assert r.status_code == 403
+    detail = client.get(f"{P}/tasks/{task_id}").json()
+    assert [(p["step"], p["extra"]) for p in detail["progress"]] == [(100, {"entropy": 1.2})]
+
+    # a task with an accepted worker cannot be cancelled (contract rule, named)
+    r = client.post(f"{P}/tasks/{task_id}/cancel", headers=login("user1"))
+    assert r.status_code == 409 and r.json()["detail"]["rule"] == "tasks_has_accepted_workers"
+
+    # submit, then the requester reviews (accept -> credited), status completes
+    with service.lock:
+        service.platform.tmc.transact("submitOutcome", task_id, "bafyoutcome", sender=worker)
+    r = client.post(
+        f"{P}/tasks/{task_id}/reviews", json={"worker": worker, "review": 4}, headers=login("user1")
+    )
+    assert r.status_code == 200, r.text
+    detail = client.get(f"{P}/tasks/{task_id}").json()
+    assert (
+        detail["status"] == "completed" == service.platform.tmc.task(task_id)["status"].name.lower()
+    )
+    assert detail["outcomes"] == [
+        {"worker": worker, "cid": "bafyoutcome", "review": 4, "accepted": True}
+    ]
+    w = client.get(f"{P}/workers/{worker}").json()
+    assert w["counters"]["rating_sum"] == 4 and w["rating"] == pytest.approx(0.8)
+
+
+def test_cancel_refunds_and_lists_by_status(
+    client: TestClient, login: Login, service: ChainService
+) -> None:
+    register(client, login, ["user1"], WORKERS)
+    ids = [
+        client.post(f"{P}/tasks", json=task_body(num_workers=1), headers=login("user1")).json()[
+            "task_id"
+        ]
+        for _ in range(2)
+    ]
+    r = client.post(f"{P}/tasks/{ids[0]}/cancel", headers=login("user1"))
+    assert r.status_code == 200, r.text
+    assert service.platform.tmc.task(ids[0])["status"] == TaskStatus.CANCELLED
+    assert service.platform.tmc.call("credits", addr(service, "user1")) == 10**15
+    cancelled = client.get(f"{P}/tasks", params={"status": "cancelled"}).json()
+    opened = client.get(f"{P}/tasks", params={"status": "open"}).json()
+    assert [t["id"] for t in cancelled["data"]] == [ids[0]]
+    assert [t["id"] for t in opened["data"]] == [ids[1]]
+    mine = client.get(f"{P}/tasks", params={"requester": addr(service, "user1").lower()}).json()
+    assert mine["count"] == 2
+    assert client.get(f"{P}/tasks", params={"requester": "0x1234"}).status_code == 422
+
+
+@pytest.mark.parametrize(
+    ("change", "loc"),
+    [
+        ({"env": ENV | {"rows": 1}}, ["body", "env", "rows"]),
+        ({"env": ENV | {"rows": 500}}, ["body", "env", "rows"]),
+        ({"env": ENV | {"moves": 5}}, ["body", "env", "moves"]),
+        ({"env": ENV | {"colour": "red"}}, ["body", "env", "colour"]),
+        ({"env": ENV | {"reward": "dense"}}, ["body", "env", "reward"]),
+        ({"env": ENV | {"agents": 64}}, ["body", "env", "agents"]),
+        ({"env": ENV | {"walls": [3, 1]}}, ["body", "env", "walls"]),
+        ({"observation": {"kind": "xmtl", "window": 3}}, ["body", "observation", "kind"]),
+        ({"observation": {"kind": "odmtl", "window": 9}}, ["body", "observation", "window"]),
+        ({"observation": {"kind": "odmtl", "window": 4}}, ["body", "observation", "window"]),
+        ({"budget": {"steps": 10**12, "minutes": 10}}, ["body", "budget", "steps"]),
+        ({"budget": {"steps": 20_000, "minutes": 0}}, ["body", "budget", "minutes"]),
+        ({"num_workers": 17}, ["body", "num_workers"]),
+        ({"payment_wei": -1}, ["body", "payment_wei"]),
+        ({"payment_wei": 2**96}, ["body", "payment_wei"]),
+        ({"min_reputation": 1.5}, ["body", "min_reputation"]),
+        ({"domain": 256}, ["body", "domain"]),
+        ({"deadline_s": 5}, ["body", "deadline_s"]),
+    ],
+)
+def test_malformed_task_is_422_naming_the_field(
+    client: TestClient, login: Login, service: ChainService, change: dict[str, Any], loc: list
+) -> None:
+    register(client, login, ["user1"], {})
+    before = service.block_number()
+    r = client.post(f"{P}/tasks", json=task_body(**change), headers=login("user1"))
+    assert r.status_code == 422, r.text
+    assert loc in [d["loc"][: len(loc)] for d in r.json()["detail"]], r.json()
+    assert service.block_number() == before  # nothing was sent
+
+
+def test_writes_need_a_token_and_a_registered_requester(
+    client: TestClient, login: Login, service: ChainService
+) -> None:
+    assert client.post(f"{P}/tasks", json=task_body()).status_code == 401
+    r = client.post(f"{P}/tasks", json=task_body(), headers=login("user6"))  # not a requester
+    assert r.status_code == 403 and r.json()["detail"]["rule"] == "tasks_not_requester"
+    client.post(f"{P}/users/requesters", headers=login("user6"))
+    r = client.post(f"{P}/users/requesters", headers=login("user6"))
+    assert r.status_code == 409 and r.json()["detail"]["rule"] == "users_already_registered"
+
+
+def test_sign_locally_then_relay(client: TestClient, service: ChainService, settings: Any) -> None:
+    """A user whose key the gateway does not hold gets the unsigned tx (409), signs it, relays it;
+    a transaction signed by someone else is refused."""
+    from backend.auth import DemoKeys, bearer_headers
+
+    me, stranger = Account.create(), Account.create()
+    with service.lock:  # fund the new account for gas
+        w3 = service.chain.w3
+        admin = service.chain._keys[service.platform.admin]
+        tx = {
+            "to": me.address,
+            "value": 10**18,
+            "gas": 21_000,
+            "chainId": service.chain.chain_id,
+            "nonce": w3.eth.get_transaction_count(admin.address),
+            "maxFeePerGas": 2 * w3.eth.get_block("latest")["baseFeePerGas"],
+            "maxPriorityFeePerGas": 0,
+        }
+        w3.eth.send_raw_transaction(admin.sign_transaction(tx).raw_transaction)
+    own = DemoKeys(settings)  # the client's keys, not the gateway's
+    own.add("me", me)
+    headers = dict(bearer_headers(own.sign_in(client, "me")))
+
+    r = client.post(f"{P}/users/requesters", headers=headers)
+    assert r.status_code == 409 and r.json()["detail"]["rule"] == "sign_locally"
+    unsigned = r.json()["detail"]["tx"]
+    assert unsigned["from"] == me.address and unsigned["to"] == service.platform.umc.address
+    unsigned.pop("from")
+    forged = "0x" + bytes(stranger.sign_transaction(unsigned).raw_transaction).hex()
+    r = client.post(f"{P}/tx", json={"raw": forged}, headers=headers)
+    assert r.status_code == 403 and r.json()["detail"]["rule"] == "tx_sender_mismatch"
+    assert not service.platform.umc.call("isRequester", me.address)
+
+    raw = "0x" + bytes(me.sign_transaction(unsigned).raw_transaction).hex()
+    r = client.post(f"{P}/tx", json={"raw": raw}, headers=headers)
+    assert r.status_code == 200, r.text
+    assert [e["name"] for e in r.json()["events"]] == ["RequesterAdded"]
+    assert service.platform.umc.call("isRequester", me.address)
+    assert client.post(f"{P}/tx", json={"raw": "0x12"}, headers=headers).status_code == 422
