@@ -213,15 +213,18 @@ class Chain:
     def _send(self, fn: Any, sender: str, value: int) -> Receipt:
         if sender not in self._keys:
             raise KeyError(f"no signing key for sender {sender}; known: {self.accounts}")
-        base = self.w3.eth.get_block("latest").get("baseFeePerGas", 0) or 0
-        params = {
+        base = self.w3.eth.get_block("latest").get("baseFeePerGas")
+        params: dict[str, Any] = {
             "from": sender,
             "value": value,
             "nonce": self.w3.eth.get_transaction_count(sender, "pending"),
             "chainId": self.chain_id,
-            "maxPriorityFeePerGas": 0,  # consortium chain: no tips
-            "maxFeePerGas": 2 * base,
         }
+        if base is None:  # pre-London PoA chains (e.g. some Quorum/Besu setups): legacy tx
+            params["gasPrice"] = self.w3.eth.gas_price
+        else:
+            params["maxPriorityFeePerGas"] = 0  # consortium chain: no tips
+            params["maxFeePerGas"] = 2 * base
         try:
             gas = fn.estimate_gas({k: params[k] for k in ("from", "value")})
         except _REVERTS as exc:

@@ -3,10 +3,8 @@
 * task spec (``drlaas-task/1``): env spec, observation spec, training budget, seed. Its CID is
   the task's on-chain ``description`` (docs/platform.md, "Task spec"), so anyone can fetch it
   and check it against the chain.
-* model bundle (``drlaas-bundle/1``): a small JSON manifest naming the CID and size of each
-  file of a shared model (``model.safetensors``, ``model.json``). The MMC stores the manifest's
-  CID; the gateway's download endpoint resolves a file through it and streams that file's
-  bytes verified block by block against its CID.
+* model bundle: see ``backend.store.bundle`` (the MMC stores the manifest's CID; the download
+  endpoint resolves a file through it and streams its bytes verified against its own CID).
 * environment attributes (MMC ``env``, Table 5.2): ``ENV_ATTRIBUTES`` of an EnvSpec as
   uint32, the vector the Eq. 13/22 distance compares.
 """
@@ -17,13 +15,11 @@ import json
 from dataclasses import dataclass
 from typing import Any
 
-from backend.store import CID, ContentStore, InvalidCID
+from backend.store import ContentStore
+from backend.store.bundle import canonical_json
 
 TASK_SPEC_FORMAT = "drlaas-task/1"
-BUNDLE_FORMAT = "drlaas-bundle/1"
 MAX_SPEC_BYTES = 64 * 1024
-MAX_MANIFEST_BYTES = 64 * 1024
-BUNDLE_FILES = ("model.safetensors", "model.json")
 ENV_ATTRIBUTES = ("rows", "cols", "agents", "moves", "walls_min", "walls_max")
 """Order of the on-chain env attribute vector (uint32 each)."""
 
@@ -99,39 +95,9 @@ def summarize_env(attrs: list[int]) -> EnvSummary:
     return EnvSummary(at("agents"), at("walls_min"), at("walls_max"))
 
 
-def canonical_json(doc: dict[str, Any]) -> bytes:
-    """Sorted keys, no spaces: equal documents give equal bytes, hence equal CIDs."""
-    return json.dumps(doc, sort_keys=True, separators=(",", ":")).encode()
-
-
 def load_json_doc(store: ContentStore, cid: str, *, max_size: int, fmt: str) -> dict[str, Any]:
     """Fetch a small JSON document of format ``fmt`` (verified, size-bounded)."""
     doc = json.loads(store.get(cid, max_size=max_size))
     if not isinstance(doc, dict) or doc.get("format") != fmt:
         raise ValueError(f"{cid} is not a {fmt} document")
     return doc
-
-
-def add_bundle(store: ContentStore, files: dict[str, bytes]) -> str:
-    """Store each file and a manifest of them; return the manifest's CID (the model's CID)."""
-    entries = {}
-    for name, data in files.items():
-        entries[name] = {"cid": store.add(data), "size": len(data)}
-    return store.add(canonical_json({"format": BUNDLE_FORMAT, "files": entries}))
-
-
-def bundle_entry(store: ContentStore, cid: str, name: str) -> tuple[str, int]:
-    """(file CID, size) of ``name`` in the bundle ``cid``; KeyError if the bundle lacks it."""
-    doc = load_json_doc(store, cid, max_size=MAX_MANIFEST_BYTES, fmt=BUNDLE_FORMAT)
-    files = doc.get("files")
-    if not isinstance(files, dict) or name not in files:
-        raise KeyError(name)
-    entry = files[name]
-    file_cid, size = entry.get("cid"), entry.get("size")
-    if not isinstance(file_cid, str) or not isinstance(size, int) or size < 0:
-        raise ValueError(f"bundle {cid}: bad entry for {name}")
-    try:
-        CID.parse(file_cid)
-    except InvalidCID:
-        raise ValueError(f"bundle {cid}: bad CID for {name}") from None
-    return file_cid, size

@@ -8,7 +8,7 @@ from pathlib import Path
 from fastapi.testclient import TestClient
 
 from backend.services.chain import ChainService
-from backend.services.specs import add_bundle, bundle_entry
+from backend.store.bundle import add_bundle, bundle_entry
 
 from .conftest import Login, P, addr, register
 

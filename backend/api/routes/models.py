@@ -28,14 +28,9 @@ from backend.schemas.models import (
     ModelsPublic,
 )
 from backend.services.gateway import catch_up, field_error, receipt_public
-from backend.services.specs import (
-    BUNDLE_FILES,
-    SpecError,
-    bundle_entry,
-    env_attributes,
-    validate_env,
-)
+from backend.services.specs import SpecError, env_attributes, validate_env
 from backend.store import CIDMismatch, ContentTooLarge, NotFound, StoreError
+from backend.store.bundle import bundle_entry
 
 router = APIRouter(prefix="/models", tags=["models"])
 log = logging.getLogger(__name__)
@@ -328,4 +323,4 @@ def review_model(
     return TxPublic(**receipt_public(rc))
 
 
-__all__ = ["BUNDLE_FILES", "router"]
+__all__ = ["router"]

@@ -1,0 +1,84 @@
+"""A model in the content store: each file added on its own, plus a manifest naming them.
+
+``{"format": "drlaas-bundle/1", "files": {name: {"cid": ..., "size": ...}}}`` in canonical JSON;
+the manifest's CID is what the chain stores (TMC outcome, MMC model). Readers resolve a file
+through the manifest and fetch it verified against its own CID, bounded by its declared size.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+from .cid import CID
+from .errors import InvalidCID, InvalidContent
+
+BUNDLE_FORMAT = "drlaas-bundle/1"
+MODEL_FILES = ("model.safetensors", "model.json")
+MAX_MANIFEST_BYTES = 64 * 1024
+
+
+def canonical_json(doc: dict[str, Any]) -> bytes:
+    """Sorted keys, no spaces: equal documents give equal bytes, hence equal CIDs."""
+    return json.dumps(doc, sort_keys=True, separators=(",", ":")).encode()
+
+
+def add_bundle(store: Any, files: dict[str, bytes]) -> str:
+    """Store each file and a manifest of them; return the manifest's CID."""
+    entries = {name: {"cid": store.add(data), "size": len(data)} for name, data in files.items()}
+    return store.add(canonical_json({"format": BUNDLE_FORMAT, "files": entries}))
+
+
+def read_bundle(store: Any, cid: str) -> dict[str, tuple[str, int]]:
+    """{name: (file CID, size)} of the bundle ``cid`` (manifest verified and checked)."""
+    raw = store.get(cid, max_size=MAX_MANIFEST_BYTES)
+    try:
+        doc = json.loads(raw)
+    except ValueError:
+        raise InvalidContent(f"{cid} is not a JSON bundle manifest") from None
+    if not isinstance(doc, dict) or doc.get("format") != BUNDLE_FORMAT:
+        raise InvalidContent(f"{cid} is not a {BUNDLE_FORMAT} manifest")
+    files = doc.get("files")
+    if not isinstance(files, dict) or not files:
+        raise InvalidContent(f"bundle {cid}: 'files' must be a non-empty object")
+    out = {}
+    for name, entry in files.items():
+        file_cid = entry.get("cid") if isinstance(entry, dict) else None
+        size = entry.get("size") if isinstance(entry, dict) else None
+        if not isinstance(file_cid, str) or not isinstance(size, int) or size < 0:
+            raise InvalidContent(f"bundle {cid}: bad entry for {name!r}")
+        try:
+            CID.parse(file_cid)
+        except InvalidCID:
+            raise InvalidContent(f"bundle {cid}: bad CID for {name!r}") from None
+        out[name] = (file_cid, size)
+    return out
+
+
+def bundle_entry(store: Any, cid: str, name: str) -> tuple[str, int]:
+    """(file CID, size) of ``name`` in the bundle ``cid``; KeyError if the bundle lacks it."""
+    return read_bundle(store, cid)[name]
+
+
+def upload_model(store: Any, model_dir: str | os.PathLike[str]) -> str:
+    """Add ``model.safetensors`` and ``model.json`` of ``model_dir`` as a bundle; its CID."""
+    d = Path(model_dir)
+    missing = [n for n in MODEL_FILES if not (d / n).is_file()]
+    if missing:
+        raise FileNotFoundError(f"model directory {d} lacks {missing}")
+    return add_bundle(store, {name: (d / name).read_bytes() for name in MODEL_FILES})
+
+
+def pull_model(store: Any, cid: str, dest: str | os.PathLike[str]) -> Path:
+    """Fetch both model files of bundle ``cid`` into ``dest``, each verified by its CID."""
+    files = read_bundle(store, cid)
+    if sorted(files) != sorted(MODEL_FILES):
+        raise InvalidContent(f"bundle {cid} must hold exactly {list(MODEL_FILES)}, has {sorted(files)}")
+    out = Path(dest)
+    out.mkdir(parents=True, exist_ok=True)
+    for name in MODEL_FILES:
+        file_cid, size = files[name]
+        store.get_to_file(file_cid, out / name, max_size=size)
+    return out

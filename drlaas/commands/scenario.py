@@ -1,0 +1,248 @@
+"""``drlaas demo-scenario``: the scripted scenario of issue 4 (item 8) against a running
+platform (``drlaas up``), through REST only.
+
+A requester and three workers register; a training task is submitted; the chain recruits; a
+worker trains with a short budget while its progress shows; the model's manifest goes to the
+content store and its CID on chain; the requester reviews it; reputations change; the model
+owner shares it and it shows in the listing; a second requester asks for experts (a
+model-sharing task) and receives that model's CID.
+
+The requesters are demo users whose keys the embedded gateway holds (``user1``, ``user2`` =
+eth-tester's deterministic keys, funded); the workers sign with their own key files from
+``<data>/keys`` (the gateway holds none of them, so their writes go through ``sign_locally``).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+from eth_account import Account
+
+from drlaas.commands.client import write
+from workers.daemon.gateway import Gateway, GatewayError
+
+#: eth-tester's account i has private key i + 1 (demo user ``user<i>`` of the gateway).
+DEMO_REQUESTER_KEYS = ("0x" + "0" * 63 + "2", "0x" + "0" * 63 + "3")
+SCENARIO_ENV = {"rows": 6, "cols": 6, "agents": 2, "walls": [0, 0]}
+
+
+def demo_requester_keys(chain_kind: str) -> tuple[str, str]:
+    """Keys of two funded demo users the gateway holds: eth-tester's deterministic accounts 1
+    and 2 on the embedded chain, the dev mnemonic's accounts 1 and 2 on a dev node (anvil)."""
+    if chain_kind == "embedded":
+        return DEMO_REQUESTER_KEYS
+    from backend.chain.client import DEV_MNEMONIC
+
+    Account.enable_unaudited_hdwallet_features()
+    return tuple(  # type: ignore[return-value]
+        "0x"
+        + bytes(Account.from_mnemonic(DEV_MNEMONIC, account_path=f"m/44'/60'/0'/0/{i}").key).hex()
+        for i in (1, 2)
+    )
+
+
+def _wait(
+    what: str,
+    fetch: Callable[[], Any],
+    ok: Callable[[Any], bool],
+    timeout: float,
+    every: float = 0.25,
+) -> Any:
+    deadline = time.monotonic() + timeout
+    while True:
+        value = fetch()
+        if ok(value):
+            return value
+        if time.monotonic() > deadline:
+            raise TimeoutError(
+                f"timed out after {timeout:.0f} s waiting for {what}; last: "
+                f"{json.dumps(value, default=str)[:1500]}"
+            )
+        time.sleep(every)
+
+
+def _register_requester(gw: Gateway) -> None:
+    try:
+        write(gw, "POST", "/users/requesters")
+    except GatewayError as exc:
+        if not (exc.status == 409 and "already" in str(exc.detail)):
+            raise
+
+
+def run_scenario(
+    url: str,
+    data_dir: Path,
+    *,
+    steps: int = 2000,
+    timeout: float = 300.0,
+    say: Callable[[str], None] = print,
+    requester_keys: tuple[str, str] = DEMO_REQUESTER_KEYS,
+) -> dict[str, Any]:
+    """Run the scenario; returns what happened (task id, CID, reputations, allocation)."""
+    req1 = Gateway(url, Account.from_key(requester_keys[0]))
+    req2 = Gateway(url, Account.from_key(requester_keys[1]))
+    anon = Gateway(url)
+    report: dict[str, Any] = {"url": url}
+
+    _register_requester(req1)
+    say(f"requester {req1.address} registered")
+    workers = _wait(
+        "three registered workers",
+        lambda: anon.get("/workers")["data"],
+        lambda d: len(d) >= 3,
+        timeout=120,
+    )
+    say("workers: " + ", ".join(f"{w['address']} ({w.get('cpu_cores')} cores)" for w in workers))
+    rep_before = {w["address"]: w.get("reputation") for w in workers}
+
+    t0 = time.monotonic()
+    created = write(
+        req1,
+        "POST",
+        "/tasks",
+        {
+            "env": SCENARIO_ENV,
+            "observation": {"kind": "odmtl", "window": 3},
+            "budget": {"steps": steps, "minutes": 2},
+            "seed": 7,
+            "num_workers": 1,
+            "payment_wei": 10**16,
+            "deadline_s": 3600,
+            "domain": 0,
+        },
+    )
+    task_id = created["task_id"]
+    report.update(task_id=task_id, spec_cid=created["spec_cid"], offered=created["offered"])
+    say(
+        f"task {task_id} submitted (spec {created['spec_cid']}); the chain offered it to "
+        f"{created['offered']}"
+    )
+    if not created["offered"]:
+        raise RuntimeError("the chain recruited nobody: are the workers registered and eligible?")
+
+    seen = 0
+
+    def show_progress(d: dict[str, Any]) -> dict[str, Any]:
+        nonlocal seen
+        for p in d.get("progress", [])[seen:]:
+            say(
+                f"  progress {p['worker'][:10]} step {p['step']:>6} success "
+                f"{p['success'] if p['success'] is not None else '-'} time {p['time']}"
+            )
+        seen = len(d.get("progress", []))
+        return d
+
+    detail = _wait(
+        f"an outcome of task {task_id}",
+        lambda: show_progress(anon.get(f"/tasks/{task_id}")),
+        lambda d: bool(d.get("outcomes")),
+        timeout=timeout,
+        every=0.5,
+    )
+    outcome = detail["outcomes"][0]
+    worker, cid = outcome["worker"], outcome["cid"]
+    report.update(
+        worker=worker,
+        cid=cid,
+        progress_points=len(detail.get("progress", [])),
+        seconds_to_outcome=time.monotonic() - t0,
+    )
+    say(
+        f"worker {worker} submitted model {cid} (manifest) after "
+        f"{report['seconds_to_outcome']:.1f} s and {report['progress_points']} progress points"
+    )
+
+    write(
+        req1, "POST", f"/tasks/{task_id}/reviews", {"worker": worker, "review": 5, "accepted": True}
+    )
+    after = _wait(
+        "the worker's reputation to change",
+        lambda: anon.get(f"/workers/{worker}"),
+        lambda w: w.get("reputation") != rep_before.get(worker),
+        timeout=30,
+    )
+    report.update(reputation_before=rep_before.get(worker), reputation_after=after["reputation"])
+    say(f"review 5/5: reputation of {worker} {rep_before.get(worker)} -> {after['reputation']}")
+
+    key_file = next(
+        (
+            k
+            for k in (data_dir / "keys").glob("*.key")
+            if Account.from_key(k.read_text().strip()).address == worker
+        ),
+        None,
+    )
+    if key_file is None:
+        raise RuntimeError(f"no key file of worker {worker} under {data_dir / 'keys'}")
+    owner = Gateway(url, Account.from_key(key_file.read_text().strip()))
+    write(
+        owner,
+        "POST",
+        "/models",
+        {
+            "cid": cid,
+            "description": f"trained for task {task_id}",
+            "domain": 0,
+            "env": SCENARIO_ENV,
+        },
+    )
+    listed = _wait(
+        "the model in the listing",
+        lambda: anon.get("/models")["data"],
+        lambda d: any(m["cid"] == cid for m in d),
+        timeout=30,
+    )
+    model = next(m for m in listed if m["cid"] == cid)
+    report["model_id"] = model["id"]
+    say(f"model {model['id']} listed: owner {model['owner']}, cid {cid}")
+
+    _register_requester(req2)
+    alloc = write(
+        req2, "POST", "/models/requests", {"domain": 0, "env": SCENARIO_ENV, "num_models": 1}
+    )
+    report.update(alloc_id=alloc["alloc_id"], allocated=[m["cid"] for m in alloc["models"]])
+    say(
+        f"requester {req2.address} asked for experts: allocation {alloc['alloc_id']} -> "
+        f"{report['allocated']}"
+    )
+    if cid not in report["allocated"]:
+        raise RuntimeError(f"the expert request did not return the trained model {cid}")
+    for g in (req1, req2, anon, owner):
+        g.close()
+    return report
+
+
+def scenario_command(
+    gateway: Annotated[
+        str | None, typer.Option(envvar="DRLAAS_GATEWAY", help="URL of a running `drlaas up`")
+    ] = None,
+    data: Annotated[Path | None, typer.Option(help="its data directory (worker key files)")] = None,
+    steps: Annotated[int, typer.Option(min=1000, help="training budget in env steps")] = 2000,
+    workers: Annotated[int, typer.Option(min=3, help="workers when starting a platform")] = 3,
+    as_json: Annotated[bool, typer.Option("--json")] = False,
+) -> None:
+    """Run the issue-4 scenario; without --gateway, start a platform for it and stop it after."""
+    from backend.settings import load_settings
+    from drlaas.commands.up import running_platform
+
+    say = (lambda s: typer.echo(s, err=True)) if as_json else typer.echo
+    settings = load_settings()
+    keys = demo_requester_keys(settings.chain_service.kind)
+    if gateway:
+        report = run_scenario(
+            gateway, data or settings.data_dir, steps=steps, say=say, requester_keys=keys
+        )
+    else:
+        with running_platform(workers=workers, data_dir=data) as p:
+            p.wait_registered()
+            say(f"platform up at {p.url}")
+            report = run_scenario(p.url, p.data_dir, steps=steps, say=say, requester_keys=keys)
+    if as_json:
+        typer.echo(json.dumps(report, indent=1, default=str))
+    else:
+        typer.echo("scenario completed")

@@ -1,0 +1,69 @@
+"""Faults of the worker daemon on the embedded stack: kill -9 mid-training and come back."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from eth_account import Account
+
+from drlaas.commands.scenario import DEMO_REQUESTER_KEYS, SCENARIO_ENV
+from drlaas.commands.up import running_platform
+from workers.daemon.gateway import Gateway
+
+from .conftest import wait_for, worker_logs
+
+
+def test_killed_worker_resumes_from_its_checkpoint(data_dir: Path) -> None:
+    """kill -9 while training: the job is redelivered when the worker comes back and resumes
+    from its last checkpoint instead of starting over; the task completes."""
+    with running_platform(
+        workers=1, data_dir=data_dir, worker_args=["--checkpoint-every", "1"]
+    ) as p:
+        p.wait_registered()
+        req = Gateway(p.url, Account.from_key(DEMO_REQUESTER_KEYS[0]))
+        req.post("/users/requesters", auth=True)
+        created = req.post(
+            "/tasks",
+            {
+                "env": SCENARIO_ENV,
+                "observation": {"kind": "odmtl", "window": 3},
+                "budget": {"steps": 14_000, "minutes": 5},
+                "seed": 1,
+                "num_workers": 1,
+            },
+            auth=True,
+        )
+        task_id, worker = created["task_id"], p.workers[0]
+        assert created["offered"] == [worker.address]
+        job = p.data_dir / "workers" / worker.address / "jobs" / str(task_id)
+        ckpt = job / "run" / "checkpoint" / "state.json"
+        try:
+            wait_for(
+                "two checkpoints",
+                lambda: json.loads(ckpt.read_text())["counters"] if ckpt.is_file() else {},
+                lambda c: c.get("update", 0) >= 2,
+                timeout=120,
+            )
+        except AssertionError as exc:
+            raise AssertionError(f"{exc}\n{worker_logs(p)}") from exc
+        worker.proc.kill()  # SIGKILL: no warm shutdown, the message stays unacknowledged
+        worker.proc.wait(timeout=10)
+        killed_at = json.loads(ckpt.read_text())["counters"]["global_step"]
+        assert killed_at < 14_000 and not (job / "run" / "model").exists()
+
+        p.start_worker(0)
+        detail = wait_for(
+            "the outcome after the restart",
+            lambda: req.get(f"/tasks/{task_id}"),
+            lambda d: bool(d["outcomes"]),
+            timeout=180,
+            every=0.5,
+        )
+        state = json.loads((job / "state.json").read_text())
+        assert detail["outcomes"][0]["worker"] == worker.address
+        assert detail["outcomes"][0]["cid"] == state["cid"]
+        # resumed from a checkpoint at or after the one seen before the kill, not from step 0
+        assert killed_at <= state["resumed_from_step"] < 14_000
+        assert state["pid"] == p.workers[0].proc.pid
+        req.close()

@@ -1,0 +1,132 @@
+"""The worker daemon's offer pipeline against an in-process chain and an on-disk store:
+accept -> train -> upload manifest -> submitOutcome, idempotence, resume, capacity, store down."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+import torch
+
+from backend.chain.client import Chain
+from backend.chain.platform import OfferState
+from backend.store import EmbeddedStore, IpfsRpcStore, StoreUnavailable
+from workers.daemon.handler import OfferHandler, Transient
+from backend.store.bundle import MODEL_FILES, pull_model, read_bundle
+from workers.daemon.taskspec import parse_spec
+from workers.mdrl.modelio import load_model
+
+from .helpers import TINY_SPEC, deploy, post_task, register
+
+torch.set_num_threads(1)
+
+
+@pytest.fixture(scope="module")
+def chain() -> Chain:
+    return Chain.embedded(accounts=8)
+
+
+@pytest.fixture
+def env(chain: Chain, tmp_path: Path):
+    snap = chain.snapshot()
+    p = deploy(chain)
+    actors = register(p, chain.accounts[1], chain.accounts[2:5])
+    store = EmbeddedStore(tmp_path / "ipfs")
+    yield p, actors, store
+    chain.revert(snap)
+
+
+def handler_for(p, address: str, store, tmp_path: Path, **kw) -> OfferHandler:
+    account = p.chain._keys[address]
+    return OfferHandler(
+        account=account, platform=p, store=store, data_dir=tmp_path / "w" / address, **kw
+    )
+
+
+def test_offer_is_trained_uploaded_as_manifest_and_submitted(env, tmp_path: Path) -> None:
+    p, actors, store = env
+    task_id, offered, _ = post_task(p, store, actors.requester)
+    assert len(offered) == 1
+    points = []
+    h = handler_for(p, offered[0], store, tmp_path)
+    h._post_progress = lambda tid, point: points.append(point)  # type: ignore[method-assign]
+    out = h.handle(task_id, offered[0].lower())
+    assert out["status"] == "submitted"
+    assert p.tmc.offer(task_id, offered[0])["state"] == OfferState.SUBMITTED
+    ev = p.tmc.contract.events.OutcomeSubmitted().get_logs(from_block=0)
+    assert [e["args"]["cid"] for e in ev] == [out["cid"]]
+    # live progress: one point per update with growing steps up to the budget
+    steps = [pt["step"] for pt in points]
+    assert len(steps) >= 3 and steps == sorted(set(steps)) and steps[-1] >= 1900
+    # the on-chain CID is a manifest whose two files make a loadable model
+    assert sorted(read_bundle(store, out["cid"])) == sorted(MODEL_FILES)
+    policy = load_model(pull_model(store, out["cid"], tmp_path / "pulled"))
+    assert policy.card["env"]["rows"] == 6
+    # idempotent: handling the same offer again sends no transaction
+    block = p.chain.w3.eth.block_number
+    again = h.handle(task_id, offered[0])
+    assert again["status"] == "submitted" and again["cid"] == out["cid"]
+    assert p.chain.w3.eth.block_number == block
+
+
+def test_a_crashed_job_resumes_from_its_checkpoint(env, tmp_path: Path) -> None:
+    p, actors, store = env
+    task_id, offered, _ = post_task(p, store, actors.requester)
+    h = handler_for(p, offered[0], store, tmp_path, checkpoint_every=1)
+
+    class Crash(Exception):
+        pass
+
+    def crash_at_update_3(tid: int, point: dict) -> None:
+        if point.get("update") == 3:
+            raise Crash()
+
+    h._post_progress = crash_at_update_3  # type: ignore[method-assign]
+    with pytest.raises(Crash):
+        h.handle(task_id, offered[0])
+    assert p.tmc.offer(task_id, offered[0])["state"] == OfferState.ACCEPTED
+    h._post_progress = lambda tid, point: None  # type: ignore[method-assign]
+    out = h.handle(task_id, offered[0])
+    assert out["status"] == "submitted"
+    state = json.loads((h.job_dir(task_id) / "state.json").read_text())
+    # the checkpoint of update 2 (not 3: it crashed before checkpointing) was the start point
+    assert state["resumed_from_step"] == 2 * parse_spec(TINY_SPEC).ppo.batch_steps
+
+
+def test_declines_when_at_capacity(env, tmp_path: Path) -> None:
+    p, actors, store = env
+    t1, offered1, _ = post_task(p, store, actors.requester)
+    h = handler_for(p, offered1[0], store, tmp_path)
+    h._save(t1, phase="accepted")  # a job in progress
+    # the same worker is offered a second task (it is the only candidate left with capacity)
+    t2, offered2, _ = post_task(p, store, actors.requester, num_workers=3)
+    assert offered1[0] in offered2
+    out = h.handle(t2, offered1[0])
+    assert out["status"] == "declined" and out["reason"] == "at capacity"
+    assert p.tmc.offer(t2, offered1[0])["state"] == OfferState.DECLINED
+
+
+def test_bad_spec_is_declined_naming_the_field(env, tmp_path: Path) -> None:
+    p, actors, store = env
+    bad = {"env": {"rows": 6, "cols": 6, "agents": 2}, "budget": {"steps": -5}}
+    task_id, offered, _ = post_task(p, store, actors.requester, spec=bad)
+    out = handler_for(p, offered[0], store, tmp_path).handle(task_id, offered[0])
+    assert out["status"] == "declined" and "budget.steps" in out["reason"]
+
+
+def test_store_down_is_a_clear_transient_error_then_the_retry_completes(
+    env, tmp_path: Path
+) -> None:
+    p, actors, store = env
+    task_id, offered, _ = post_task(p, store, actors.requester)
+    down = IpfsRpcStore("http://127.0.0.1:9", retries=0, timeout=2)  # discard port: refused
+    h = handler_for(p, offered[0], down, tmp_path)
+    with pytest.raises(Transient) as info:
+        h.handle(task_id, offered[0])
+    assert "127.0.0.1:9" in str(info.value) and "unavailable" in str(info.value)
+    assert isinstance(info.value.__cause__, StoreUnavailable)
+    # nothing was accepted while the spec could not be read; the retry with the store back works
+    assert p.tmc.offer(task_id, offered[0])["state"] == OfferState.OFFERED
+    h.store = store
+    assert h.handle(task_id, offered[0])["status"] == "submitted"

@@ -1,0 +1,62 @@
+"""The issue-4 scenario on the embedded stack: gateway + chain + indexer + 3 worker processes,
+driven through REST only (drlaas.commands.scenario)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from drlaas.commands.client import model_app, task_app, worker_app
+from drlaas.commands.scenario import run_scenario
+from drlaas.commands.up import running_platform
+from workers.daemon.links import open_store
+from backend.store.bundle import pull_model, read_bundle
+from workers.mdrl.modelio import load_model
+
+from .conftest import worker_logs
+
+
+def test_scenario_end_to_end(
+    data_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    lines: list[str] = []
+    monkeypatch.setenv("DRLAAS_DATA_DIR", str(data_dir))  # the CLI's `model pull` reads the store
+    with running_platform(workers=3, data_dir=data_dir) as p:
+        p.wait_registered()
+        try:
+            report = run_scenario(p.url, p.data_dir, steps=2000, timeout=240, say=lines.append)
+        except Exception as exc:
+            raise AssertionError(f"{exc}\n{worker_logs(p)}") from exc
+        tmc = p.chain.platform.tmc
+        submitted = tmc.contract.events.OutcomeSubmitted().get_logs(from_block=0)
+        store = open_store(p.settings)
+        # the CID on chain is the worker's manifest, and it pulls into a loadable model
+        assert [e["args"]["cid"] for e in submitted] == [report["cid"]]
+        assert submitted[0]["args"]["worker"] == report["worker"] in report["offered"]
+        assert set(read_bundle(store, report["cid"])) == {
+            "model.safetensors",
+            "model.json",
+        }
+        policy = load_model(pull_model(store, report["cid"], tmp_path / "model"))
+        assert policy.card["env"]["agents"] == 2
+        # the CLI sees the same state through REST
+        cli, url = CliRunner(), ["--gateway", p.url]
+        shown = cli.invoke(task_app, ["show", str(report["task_id"]), "--json", *url])
+        assert shown.exit_code == 0, shown.output
+        assert json.loads(shown.output)["outcomes"][0]["cid"] == report["cid"]
+        listed = cli.invoke(model_app, ["list", *url])
+        assert listed.exit_code == 0 and report["cid"][:20] in listed.output
+        pulled = cli.invoke(
+            model_app, ["pull", str(report["model_id"]), "--out", str(tmp_path / "cli-model"), *url]
+        )
+        assert pulled.exit_code == 0, pulled.output
+        assert load_model(tmp_path / "cli-model").card["env"]["rows"] == 6
+        status = cli.invoke(worker_app, ["status", report["worker"], "--json", *url])
+        assert json.loads(status.output)["reputation"] == report["reputation_after"]
+    assert report["progress_points"] >= 3  # the curve was visible while it trained
+    assert report["reputation_after"] > report["reputation_before"]
+    assert report["allocated"] == [report["cid"]]
+    assert any("progress" in ln for ln in lines)

@@ -1,0 +1,167 @@
+"""Small pieces of the daemon: capabilities, spec parsing, manifest checks, job keys, backoff."""
+
+from __future__ import annotations
+
+import json
+import random
+from pathlib import Path
+
+import pytest
+
+from backend.store import EmbeddedStore, InvalidContent
+from workers.daemon.capabilities import measure, ram_gb
+from workers.daemon.command import parse_domains
+from backend.store.bundle import pull_model, read_bundle, upload_model
+from workers.daemon.tasks import RETRY_CAP_S, make_on_offer, offer_key, retry_delay
+from workers.daemon.taskspec import SpecError, parse_spec
+
+
+def test_ram_is_read_from_meminfo(tmp_path: Path) -> None:
+    f = tmp_path / "meminfo"
+    f.write_text("MemTotal:       16318404 kB\nMemFree:  1 kB\n")
+    assert ram_gb(f) == 15  # 15.56 GiB, whole GiB rounded down
+    f.write_text("MemFree: 1 kB\n")
+    with pytest.raises(ValueError, match="MemTotal"):
+        ram_gb(f)
+    caps = measure()
+    assert caps.cpu_cores >= 1 and caps.ram_gb >= 1 and caps.gpu_series == 0  # CPU-only torch
+
+
+def test_spec_errors_name_the_field() -> None:
+    good = {
+        "env": {"rows": 6, "cols": 6, "agents": 2},
+        "budget": {"steps": 2000},
+        "seed": 1,
+        "format": "drlaas-task/1",
+        "domain": 0,
+    }
+    spec = parse_spec(json.dumps(good))
+    assert spec.steps == 2000 and spec.env.agents == 2 and spec.ppo.batch_steps <= 500
+    for bad, field in [
+        ({**good, "budget": {}}, "budget"),
+        ({**good, "budget": {"steps": 0}}, "budget.steps"),
+        ({**good, "env": {"rows": 1}}, "env"),
+        ({**good, "observation": {"kind": "xyz"}}, "observation"),
+        ({**good, "seed": -1}, "seed"),
+        ({**good, "ppo": {"horizon": 0}}, "ppo"),
+    ]:
+        with pytest.raises(SpecError, match=f"spec.{field}"):
+            parse_spec(bad)
+    with pytest.raises(SpecError, match="not JSON"):
+        parse_spec(b"{nope")
+
+
+def test_manifest_round_trip_and_rejects_other_documents(tmp_path: Path) -> None:
+    store = EmbeddedStore(tmp_path / "ipfs")
+    model = tmp_path / "model"
+    model.mkdir()
+    (model / "model.safetensors").write_bytes(b"\x00weights" * 100)
+    (model / "model.json").write_text('{"card": 1}')
+    cid = upload_model(store, model)
+    files = read_bundle(store, cid)
+    assert files["model.json"] == (store.add((model / "model.json").read_bytes()), 11)
+    out = pull_model(store, cid, tmp_path / "pulled")
+    assert (out / "model.safetensors").read_bytes() == (model / "model.safetensors").read_bytes()
+    not_manifest = store.add(b'{"format": "something-else", "files": {}}')
+    with pytest.raises(InvalidContent, match="not a drlaas-bundle/1 manifest"):
+        read_bundle(store, not_manifest)
+    (model / "model.json").unlink()
+    with pytest.raises(FileNotFoundError, match="model.json"):
+        upload_model(store, model)
+
+
+def test_offer_jobs_use_idempotent_keys_on_per_worker_queues() -> None:
+    sent = []
+
+    class FakeApp:
+        def send_task(self, name, args, queue, task_id):  # noqa: ANN001
+            sent.append((name, args, queue, task_id))
+
+    hook = make_on_offer(None, FakeApp())  # type: ignore[arg-type]
+    w = "0x7e5f4552091a69125d5dfcb7b8c2659029395bdf"
+    hook(5, w)
+    hook(5, w.upper().replace("0X", "0x"))
+    (name, args, queue, key), again = sent
+    assert again == sent[0]  # same offer, same key, whatever the address case
+    assert name == "drlaas.handle_offer" and args == [
+        5,
+        "0x7E5F4552091A69125d5DfCb7b8C2659029395Bdf",
+    ]
+    assert queue == "worker.0x7E5F4552091A69125d5DfCb7b8C2659029395Bdf" and key == offer_key(5, w)
+
+
+def test_retry_backoff_grows_is_jittered_and_capped() -> None:
+    rng = random.Random(0)
+    early = [retry_delay(0, rng=rng) for _ in range(200)]
+    late = [retry_delay(20, rng=rng) for _ in range(200)]
+    assert 0.5 <= min(early) and max(early) <= 2.0
+    assert max(late) <= RETRY_CAP_S and len(set(late)) > 100 and max(late) > 10 * max(early)
+
+
+def test_domains_option() -> None:
+    assert parse_domains("0,3,5-7") == (0, 3, 5, 6, 7)
+    assert parse_domains("all") == tuple(range(48))
+    with pytest.raises(ValueError, match="0-47"):
+        parse_domains("48")
+
+
+def test_celery_job_retries_transient_errors_only(tmp_path: Path) -> None:
+    from backend.celery_app import make_celery
+    from backend.settings import load_settings
+    from workers.daemon import tasks
+    from workers.daemon.handler import Transient
+
+    class Flaky:
+        def __init__(self, exc: Exception) -> None:
+            self.exc = exc
+            self.calls = 0
+
+        def handle(self, task_id: int, worker: str) -> dict:
+            self.calls += 1
+            raise self.exc
+
+    app = make_celery(load_settings(data_dir=tmp_path))
+    app.finalize()
+    job = app.tasks[tasks.TASK_NAME]
+    assert job.acks_late and job.reject_on_worker_lost
+    w = "0x7e5f4552091a69125d5dfcb7b8c2659029395bdf"
+    try:
+        # eager apply runs the retries at once: a transient error is retried up to the cap
+        down = Flaky(Transient("content store unavailable at http://x: refused"))
+        tasks.set_runtime(down)  # type: ignore[arg-type]
+        res = job.apply(args=[1, w], task_id=tasks.offer_key(1, w))
+        assert down.calls == tasks.MAX_RETRIES + 1
+        assert res.state == "FAILURE" and "content store unavailable" in str(res.result)
+        bad = Flaky(ValueError("bad offer"))
+        tasks.set_runtime(bad)  # type: ignore[arg-type]
+        res = job.apply(args=[1, w], task_id=tasks.offer_key(1, w))
+        assert bad.calls == 1 and isinstance(res.result, ValueError)  # never retried
+    finally:
+        tasks.set_runtime(None)
+
+
+def test_progress_points_wait_for_the_gateway_index_and_keep_their_order(tmp_path: Path) -> None:
+    from workers.daemon.gateway import GatewayError
+    from workers.daemon.handler import OfferHandler
+
+    class LaggingGateway:
+        """Refuses points until the gateway's index has seen the acceptance (3rd call)."""
+
+        def __init__(self) -> None:
+            self.calls, self.got = 0, []
+
+        def post(self, path: str, json: dict, auth: bool) -> None:  # noqa: A002
+            self.calls += 1
+            if self.calls < 3:
+                raise GatewayError("POST", path, 403, {"rule": "not_assigned_worker", "msg": ""})
+            if json["step"] == 2:
+                raise GatewayError("POST", path, 409, {"rule": "progress_step_exists", "msg": ""})
+            self.got.append(json["step"])
+
+    gw = LaggingGateway()
+    h = OfferHandler(account=None, platform=None, store=None, data_dir=tmp_path, gateway=gw)  # type: ignore[arg-type]
+    h._post_progress(7, {"step": 1})  # refused: queued
+    assert gw.got == [] and h._pending[7] == [{"step": 1}]
+    h._post_progress(7, {"step": 2})  # refused again, then 1 goes; 2 is a duplicate: dropped
+    h._post_progress(7, {"step": 3})
+    assert gw.got == [1, 3] and h._pending[7] == []

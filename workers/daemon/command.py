@@ -1,0 +1,137 @@
+"""``drlaas worker``: register this machine on chain and consume its offer queue.
+
+On start the daemon measures CPU cores, RAM and GPU, registers its address as a worker (or
+updates its capabilities when they changed), then runs a Celery worker on ``worker.<address>``
+(solo pool, one job at a time: training already uses the cores it is given).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+
+from workers.daemon.capabilities import Capabilities, measure
+
+log = logging.getLogger(__name__)
+
+#: Domains a worker serves when none are given: every code the UMC accepts (0-47).
+DEFAULT_DOMAINS = tuple(range(48))
+
+
+def parse_domains(text: str) -> tuple[int, ...]:
+    """'0,3,5-7' -> (0, 3, 5, 6, 7); 'all' -> every UMC domain code."""
+    if text.strip() == "all":
+        return DEFAULT_DOMAINS
+    out: set[int] = set()
+    for part in text.split(","):
+        part = part.strip()
+        if not part:
+            continue
+        try:
+            if "-" in part:
+                lo, hi = (int(x) for x in part.split("-"))
+                out.update(range(lo, hi + 1))
+            else:
+                out.add(int(part))
+        except ValueError:
+            raise ValueError(
+                f"--domains: expected codes like '0,3,5-7' or 'all', got {text!r}"
+            ) from None
+    if not out or min(out) < 0 or max(out) > 47:
+        raise ValueError(f"--domains: codes must be in 0-47, got {text!r}")
+    return tuple(sorted(out))
+
+
+def register_worker(platform: Any, caps: Capabilities, domains: tuple[int, ...]) -> str:
+    """Add the worker record (or update its capabilities); returns what was done."""
+    umc, me = platform.umc, platform.admin
+    if platform.chain.balance(me) == 0 and platform.chain.w3.eth.gas_price > 0:
+        raise RuntimeError(
+            f"worker {me} has no native currency for gas on this chain; fund it first "
+            f"(`drlaas up` funds its local workers)"
+        )
+    if umc.call("workerId", me) == 0:
+        umc.add_worker(me, domains, caps.cpu_cores, caps.ram_gb, caps.gpu_series)
+        return "registered"
+    w = umc.call("getWorker", me)
+    current = (int(w[3]), int(w[4]), int(w[2]))  # cpuCores, ramGb, gpuSeries
+    if current != (caps.cpu_cores, caps.ram_gb, caps.gpu_series):
+        umc.transact("updateCapabilities", caps.cpu_cores, caps.ram_gb, caps.gpu_series, sender=me)
+        return "updated"
+    return "unchanged"
+
+
+def worker_command(
+    key: Annotated[
+        Path, typer.Option("--key", help="key file of this worker (created if missing)")
+    ],
+    gateway: Annotated[
+        str | None,
+        typer.Option(envvar="DRLAAS_GATEWAY", help="gateway URL (hosts /rpc in embedded mode)"),
+    ] = None,
+    domains: Annotated[
+        str, typer.Option(help="domain codes served, e.g. '0,3,5-7' or 'all'")
+    ] = "all",
+    max_jobs: Annotated[int, typer.Option(min=1, help="jobs at once before declining offers")] = 1,
+    checkpoint_every: Annotated[int, typer.Option(min=1, help="updates between checkpoints")] = 2,
+    data: Annotated[
+        Path | None, typer.Option(help="job directory root (default <data>/workers/<address>)")
+    ] = None,
+    loglevel: Annotated[str, typer.Option(help="Celery log level")] = "INFO",
+) -> None:
+    """Run a worker daemon: register on chain, then accept, train and submit offered tasks."""
+    from backend.celery_app import worker_queue
+    from backend.settings import load_settings
+    from workers.daemon import job, tasks
+    from workers.daemon.app import app
+    from workers.daemon.keys import load_or_create_key
+
+    logging.getLogger("httpx").setLevel(logging.WARNING)  # one line per progress point otherwise
+    settings = load_settings()
+    account = load_or_create_key(key)
+    os.environ["DRLAAS_WORKER_KEY"] = str(key)
+    os.environ["DRLAAS_WORKER_MAX_JOBS"] = str(max_jobs)
+    os.environ["DRLAAS_WORKER_CHECKPOINT_EVERY"] = str(checkpoint_every)
+    if gateway:
+        os.environ["DRLAAS_GATEWAY"] = gateway
+    if data:
+        os.environ["DRLAAS_WORKER_DATA"] = str(data)
+    handler = tasks.runtime_from_env(settings)
+    caps = measure()
+    done = register_worker(handler.platform, caps, parse_domains(domains))
+    typer.echo(
+        f"worker {account.address}: {done} on chain ({caps.cpu_cores} cores, "
+        f"{caps.ram_gb} GB RAM, GPU series {caps.gpu_series}); queue "
+        f"{worker_queue(account.address)}",
+        err=True,
+    )
+    job.warm_up()
+    tasks.set_runtime(handler)
+    app.worker_main(
+        [
+            "worker",
+            "--pool",
+            "solo",
+            "-Q",
+            worker_queue(account.address),
+            "-n",
+            f"{account.address}@%h",
+            "--without-heartbeat",
+            "--without-gossip",
+            "--without-mingle",
+            "--loglevel",
+            loglevel,
+        ]
+    )
+
+
+def main() -> None:
+    typer.run(worker_command)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,119 @@
+"""A small REST client of the gateway with EIP-4361 sign-in (backend.auth's flow).
+
+Used by the worker daemon (progress points) and the CLI. The token is fetched on first use
+and fetched again once when the gateway answers 401 (tokens are short-lived).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import httpx
+from eth_account.messages import encode_defunct
+from eth_account.signers.local import LocalAccount
+
+API = "/api"
+
+
+class GatewayError(RuntimeError):
+    """A non-2xx answer; ``status`` and the gateway's ``detail`` (rule + msg, or field list)."""
+
+    def __init__(self, method: str, path: str, status: int, detail: Any) -> None:
+        self.status = status
+        self.detail = detail
+        super().__init__(f"{method} {path} -> {status}: {_show(detail)}")
+
+
+def _show(detail: Any) -> str:
+    if isinstance(detail, dict) and "msg" in detail:
+        return f"{detail.get('rule', '')}: {detail['msg']}".lstrip(": ")
+    if isinstance(detail, list):
+        return "; ".join(
+            f"{'.'.join(str(x) for x in d.get('loc', []))}: {d.get('msg')}"
+            if isinstance(d, dict)
+            else str(d)
+            for d in detail
+        )
+    return str(detail)
+
+
+class Gateway:
+    """``Gateway(url, account)``: ``get``/``post`` JSON under ``/api``, signed in as
+    ``account`` when ``auth=True``."""
+
+    def __init__(
+        self,
+        url: str,
+        account: LocalAccount | None = None,
+        *,
+        timeout: float = 30.0,
+        client: httpx.Client | None = None,
+    ) -> None:
+        self.url = url.rstrip("/")
+        self.account = account
+        self._client = client or httpx.Client(base_url=self.url, timeout=timeout)
+        self._token: str | None = None
+
+    def close(self) -> None:
+        self._client.close()
+
+    def __enter__(self) -> Gateway:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    @property
+    def address(self) -> str:
+        if self.account is None:
+            raise RuntimeError("this command needs a key file (--key) to sign in")
+        return str(self.account.address)
+
+    def sign_in(self) -> str:
+        """nonce -> personal_sign -> bearer token (valid for the gateway's token TTL)."""
+        r = self._client.post(f"{API}/auth/nonce", json={"address": self.address})
+        self._check("POST", "/auth/nonce", r)
+        message = r.json()["message"]
+        assert self.account is not None
+        sig = self.account.sign_message(encode_defunct(text=message)).signature
+        r = self._client.post(
+            f"{API}/auth/token", json={"message": message, "signature": "0x" + bytes(sig).hex()}
+        )
+        self._check("POST", "/auth/token", r)
+        self._token = str(r.json()["access_token"])
+        return self._token
+
+    def request(self, method: str, path: str, *, auth: bool = False, **kwargs: Any) -> Any:
+        """JSON body of ``method /api<path>``; :class:`GatewayError` on a non-2xx answer."""
+        for attempt in (0, 1):
+            headers = dict(kwargs.pop("headers", {}) or {})
+            if auth:
+                if self._token is None:
+                    self.sign_in()
+                headers["Authorization"] = f"Bearer {self._token}"
+            r = self._client.request(method, f"{API}{path}", headers=headers, **kwargs)
+            if r.status_code == 401 and auth and attempt == 0:
+                self._token = None  # expired: sign in again once
+                continue
+            self._check(method, path, r)
+            if r.status_code == 204 or not r.content:
+                return None
+            ctype = r.headers.get("content-type", "")
+            return r.json() if "json" in ctype else r.content
+        raise AssertionError("unreachable")
+
+    def get(self, path: str, **kwargs: Any) -> Any:
+        return self.request("GET", path, **kwargs)
+
+    def post(self, path: str, json: Any = None, **kwargs: Any) -> Any:
+        return self.request("POST", path, json=json, **kwargs)
+
+    @staticmethod
+    def _check(method: str, path: str, r: httpx.Response) -> None:
+        if r.is_success:
+            return
+        try:
+            detail = r.json().get("detail", r.text)
+        except ValueError:
+            detail = r.text
+        raise GatewayError(method, path, r.status_code, detail)

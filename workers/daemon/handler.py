@@ -1,0 +1,237 @@
+"""The offer pipeline of a worker, free of Celery so it can be called and tested directly.
+
+``OfferHandler.handle(task_id, worker)`` is idempotent: it reads the offer's state on chain and
+the job's state in ``<worker data>/jobs/<task_id>/state.json`` and continues from where a
+previous attempt stopped (offered -> accepted -> trained -> uploaded -> submitted). Transient
+failures (content store or chain node unreachable) raise :class:`Transient`; the Celery job
+retries those with backoff.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import httpx
+import requests
+from eth_account.signers.local import LocalAccount
+
+from backend.auth import checksum
+from backend.chain.platform import OfferState, Platform, TaskStatus
+from backend.store import ContentStore, StoreError, StoreUnavailable
+from workers.daemon import job as jobs
+from workers.daemon.gateway import Gateway, GatewayError
+from workers.daemon.links import task_spec_cid
+from backend.store.bundle import read_bundle, upload_model
+from workers.daemon.taskspec import SpecError, TrainingSpec, parse_spec
+
+log = logging.getLogger(__name__)
+
+#: Seconds kept free before the task deadline for upload and submitOutcome.
+DEADLINE_MARGIN_S = 30.0
+#: Phases a job goes through, in order (``state.json``).
+PHASES = ("accepted", "trained", "uploaded", "submitted")
+
+
+class Transient(RuntimeError):
+    """A failure worth retrying later (service down); the message says which service."""
+
+
+@dataclass
+class OfferHandler:
+    account: LocalAccount
+    platform: Platform
+    store: ContentStore
+    data_dir: Path
+    gateway: Gateway | None = None
+    max_jobs: int = 1
+    checkpoint_every: int = jobs.CHECKPOINT_EVERY
+    clock: Callable[[], float] = time.time
+    on_first_step: Callable[[int, int], None] | None = None
+    progress_errors: int = field(default=0, init=False)
+    _pending: dict[int, list[dict[str, Any]]] = field(default_factory=dict, init=False)
+
+    @property
+    def address(self) -> str:
+        return str(self.account.address)
+
+    def job_dir(self, task_id: int) -> Path:
+        return self.data_dir / "jobs" / str(task_id)
+
+    # -- job state -------------------------------------------------------------------------
+    def _state(self, task_id: int) -> dict[str, Any]:
+        f = self.job_dir(task_id) / "state.json"
+        return json.loads(f.read_text()) if f.is_file() else {}
+
+    def _save(self, task_id: int, **changes: Any) -> dict[str, Any]:
+        d = self.job_dir(task_id)
+        d.mkdir(parents=True, exist_ok=True)
+        state = {**self._state(task_id), **changes, "pid": os.getpid()}
+        tmp = d / "state.json.tmp"
+        tmp.write_text(json.dumps(state, indent=1))
+        os.replace(tmp, d / "state.json")
+        return state
+
+    def active_jobs(self, exclude: int) -> list[int]:
+        """Tasks this worker accepted and has not submitted yet (other than ``exclude``)."""
+        root = self.data_dir / "jobs"
+        out = []
+        for f in root.glob("*/state.json") if root.is_dir() else []:
+            tid = int(f.parent.name) if f.parent.name.isdigit() else None
+            if tid is None or tid == exclude:
+                continue
+            st = json.loads(f.read_text())
+            if st.get("phase") in PHASES[:-1] and st.get("phase") != "failed":
+                out.append(tid)
+        return out
+
+    # -- the pipeline ----------------------------------------------------------------------
+    def handle(self, task_id: int, worker: str) -> dict[str, Any]:
+        """Accept (or decline) the offer, train, upload, submit; returns what happened."""
+        if checksum(worker) != self.address:
+            raise ValueError(
+                f"offer for {checksum(worker)} delivered to the daemon of {self.address}: "
+                f"queues must be per worker"
+            )
+        tmc = self.platform.tmc
+        try:
+            offer = tmc.offer(task_id, self.address)
+            task = tmc.task(task_id)
+        except (requests.ConnectionError, requests.Timeout, httpx.TransportError) as exc:
+            raise Transient(f"chain node unreachable: {exc}") from exc
+        state = OfferState(offer["state"])
+        if state in (OfferState.SUBMITTED, OfferState.REVIEWED):
+            st = self._state(task_id)
+            return {"task_id": task_id, "status": "submitted", "cid": st.get("cid")}
+        if task["status"] != TaskStatus.OPEN:
+            return {"task_id": task_id, "status": f"task {TaskStatus(task['status']).name.lower()}"}
+        if state not in (OfferState.OFFERED, OfferState.ACCEPTED):
+            self._save(task_id, phase="closed", offer=state.name.lower())
+            return {"task_id": task_id, "status": f"offer {state.name.lower()}"}
+
+        spec = self._fetch_spec(task_id)
+        if state == OfferState.OFFERED:
+            if isinstance(spec, SpecError):
+                self._transact("declineOffer", task_id)
+                self._save(task_id, phase="declined", reason=str(spec))
+                return {"task_id": task_id, "status": "declined", "reason": str(spec)}
+            busy = self.active_jobs(exclude=task_id)
+            if len(busy) >= self.max_jobs:
+                self._transact("declineOffer", task_id)
+                self._save(task_id, phase="declined", reason=f"at capacity: {busy}")
+                return {"task_id": task_id, "status": "declined", "reason": "at capacity"}
+            self._transact("acceptOffer", task_id)
+            self._save(task_id, phase="accepted", accepted_at=self.clock())
+        elif isinstance(spec, SpecError):  # accepted earlier, spec cannot be trained: give up
+            self._save(task_id, phase="failed", reason=str(spec))
+            raise spec
+
+        st = self._state(task_id)
+        model_dir = jobs.run_dir(self.job_dir(task_id)) / "model"
+        if (
+            st.get("phase") not in ("trained", "uploaded")
+            or not (model_dir / "model.json").is_file()
+        ):
+            model_dir = self._train(task_id, spec, deadline=int(task["deadline"]))
+            st = self._save(task_id, phase="trained")
+        if st.get("phase") != "uploaded" or not st.get("cid"):
+            try:
+                cid = upload_model(self.store, model_dir)
+                files = {name: entry[0] for name, entry in read_bundle(self.store, cid).items()}
+            except StoreUnavailable as exc:
+                raise Transient(str(exc)) from exc
+            st = self._save(task_id, phase="uploaded", cid=cid, files=files)
+        cid = st["cid"]
+        self._flush_progress(task_id, wait_s=5.0)  # the curve is complete before the outcome
+        rc = self._transact("submitOutcome", task_id, cid)
+        self._save(task_id, phase="submitted", tx=rc.tx_hash, submitted_at=self.clock())
+        return {"task_id": task_id, "status": "submitted", "cid": cid, "tx": rc.tx_hash}
+
+    def _fetch_spec(self, task_id: int) -> TrainingSpec | SpecError:
+        """The verified spec, or the SpecError saying why it cannot be trained."""
+        try:
+            cid = task_spec_cid(self.platform, task_id)
+        except (requests.ConnectionError, requests.Timeout) as exc:
+            raise Transient(f"chain node unreachable: {exc}") from exc
+        try:
+            raw = self.store.get(cid, max_size=256 * 1024)
+        except StoreUnavailable as exc:
+            raise Transient(f"cannot fetch task spec {cid}: {exc}") from exc
+        except StoreError as exc:  # bad CID, not found, mismatch, too large
+            return SpecError(f"task spec {cid!r}: {exc}")
+        try:
+            return parse_spec(raw)
+        except SpecError as exc:
+            return exc
+
+    def _train(self, task_id: int, spec: TrainingSpec, *, deadline: int) -> Path:
+        left_min = (deadline - self.clock() - DEADLINE_MARGIN_S) / 60.0
+        if left_min <= 0:
+            raise RuntimeError(f"task {task_id}: deadline {deadline} leaves no time to train")
+        minutes = min(spec.minutes, left_min) if spec.minutes is not None else left_min
+
+        def first(step: int) -> None:
+            self._save(task_id, first_step_at=self.clock(), resumed_from_step=step)
+            if self.on_first_step is not None:
+                self.on_first_step(task_id, step)
+
+        model_dir, _ = jobs.run_job(
+            spec,
+            self.job_dir(task_id),
+            minutes=minutes,
+            checkpoint_every=self.checkpoint_every,
+            on_progress=lambda p: self._post_progress(task_id, p),
+            on_first_step=first,
+        )
+        return model_dir
+
+    def _transact(self, fn: str, *args: Any) -> Any:
+        try:
+            return self.platform.tmc.transact(fn, *args, sender=self.address)
+        except (requests.ConnectionError, requests.Timeout, httpx.TransportError) as exc:
+            raise Transient(f"chain node unreachable during {fn}: {exc}") from exc
+
+    def _post_progress(self, task_id: int, point: dict[str, Any]) -> None:
+        """Queue ``point`` and send every queued point of the task, oldest first.
+
+        Best effort: a gateway hiccup never stops training (points stay in progress.jsonl).
+        A 403 ``not_assigned_worker`` means the gateway's index has not seen our acceptance
+        yet (the indexer polls the chain): the points wait for the next try."""
+        if self.gateway is None:
+            return
+        queue = self._pending.setdefault(task_id, [])
+        queue.append(point)
+        self._flush_progress(task_id)
+
+    def _flush_progress(self, task_id: int, wait_s: float = 0.0) -> None:
+        """Send queued points; keep trying up to ``wait_s`` while the gateway lags."""
+        if self.gateway is None:
+            return
+        queue = self._pending.get(task_id, [])
+        deadline = time.monotonic() + wait_s
+        while queue:
+            try:
+                self.gateway.post(f"/tasks/{task_id}/progress", json=queue[0], auth=True)
+            except GatewayError as exc:
+                rule = exc.detail.get("rule") if isinstance(exc.detail, dict) else None
+                if rule == "not_assigned_worker" or exc.status >= 500:
+                    if time.monotonic() >= deadline:
+                        return  # keep the queue for the next update
+                    time.sleep(0.2)
+                    continue
+                self._progress_warning(task_id, exc)  # 409 duplicate step, 422: drop it
+            except httpx.HTTPError as exc:
+                self._progress_warning(task_id, exc)
+                return
+            queue.pop(0)
+
+    def _progress_warning(self, task_id: int, exc: Exception) -> None:
+        self.progress_errors += 1
+        if self.progress_errors <= 3:
+            log.warning("progress point of task %s not posted: %s", task_id, exc)

@@ -1,0 +1,131 @@
+"""A worker's connections: the chain (signing with its own key only), the content store and the
+contract addresses.
+
+In embedded mode the gateway hosts the chain and serves it at ``<gateway>/rpc`` (platform.md),
+so a daemon uses :meth:`Chain.rpc` either way: ``DRLAAS_CHAIN`` when it is a node URL, else the
+gateway's ``/rpc``. Contract addresses come from, in order: ``DRLAAS_CONTRACTS`` (JSON or the
+path of a JSON file), the gateway (``GET /api/chain``), ``<data>/deployment.json``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import httpx
+from eth_account.signers.local import LocalAccount
+
+from backend.chain.client import Chain
+from backend.chain.platform import ModelsManager, Platform, TasksManager, UsersManager
+from backend.settings import Settings
+from backend.store import ContentStore, make_store
+
+DEPLOYMENT_FILE = "deployment.json"
+_NAMES = {"umc": "UsersManager", "tmc": "TasksManager", "mmc": "ModelsManager"}
+
+
+@dataclass(frozen=True)
+class Deployment:
+    """Addresses of the three platform contracts."""
+
+    umc: str
+    tmc: str
+    mmc: str
+
+    def to_dict(self) -> dict[str, str]:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> Deployment:
+        """Accepts ``{umc, tmc, mmc}`` or contract names (``UsersManager``...), possibly under
+        a ``contracts`` key."""
+        if isinstance(d.get("contracts"), dict):
+            d = d["contracts"]
+        out = {}
+        for short, name in _NAMES.items():
+            v = d.get(short) or d.get(name)
+            if isinstance(v, dict):
+                v = v.get("address")
+            if not isinstance(v, str) or not v.startswith("0x"):
+                raise ValueError(f"deployment: no address for {name} ({short}) in {sorted(d)}")
+            out[short] = v
+        return cls(**out)
+
+    @classmethod
+    def of(cls, platform: Platform) -> Deployment:
+        return cls(platform.umc.address, platform.tmc.address, platform.mmc.address)
+
+
+def write_deployment(path: str | Path, deployment: Deployment, chain_url: str = "") -> None:
+    p = Path(path)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    p.write_text(json.dumps({**deployment.to_dict(), "chain": chain_url}, indent=1))
+
+
+def resolve_deployment(settings: Settings, gateway: str | None) -> Deployment:
+    """Find the contract addresses (see module docstring); the error lists what was tried."""
+    tried = []
+    env = os.environ.get("DRLAAS_CONTRACTS", "").strip()
+    if env:
+        doc = json.loads(env if env.startswith("{") else Path(env).read_text())
+        return Deployment.from_dict(doc)
+    tried.append("DRLAAS_CONTRACTS (unset)")
+    if gateway:
+        for path in ("/api/chain", "/api/health"):
+            try:
+                r = httpx.get(gateway.rstrip("/") + path, timeout=10)
+                if r.is_success:
+                    return Deployment.from_dict(r.json())
+                tried.append(f"GET {path} -> {r.status_code}")
+            except (httpx.HTTPError, ValueError) as exc:
+                tried.append(f"GET {path}: {exc}")
+    f = settings.data_dir / DEPLOYMENT_FILE
+    if f.is_file():
+        return Deployment.from_dict(json.loads(f.read_text()))
+    tried.append(f"{f} (missing)")
+    raise RuntimeError("cannot find the contract addresses; tried: " + "; ".join(tried))
+
+
+def chain_url(settings: Settings, gateway: str | None) -> str:
+    """The JSON-RPC endpoint a daemon or CLI uses: the node, or the gateway's ``/rpc``."""
+    if not settings.chain_service.embedded:
+        return settings.chain
+    if not gateway:
+        raise ValueError(
+            "DRLAAS_CHAIN=embedded: the chain lives in the gateway; give its URL "
+            "(--gateway or DRLAAS_GATEWAY) so the daemon can reach <gateway>/rpc"
+        )
+    return gateway.rstrip("/") + "/rpc"
+
+
+def connect_platform(url: str, account: LocalAccount, deployment: Deployment) -> Platform:
+    """Typed UMC/TMC/MMC handles over ``url`` that can sign for ``account`` only."""
+    chain = Chain.rpc(url, private_keys=["0x" + bytes(account.key).hex()])
+    umc = chain.register(_NAMES["umc"], deployment.umc)
+    tmc = chain.register(_NAMES["tmc"], deployment.tmc)
+    mmc = chain.register(_NAMES["mmc"], deployment.mmc)
+    return Platform(
+        chain,
+        account.address,
+        UsersManager(chain, umc.name, umc.contract),
+        TasksManager(chain, tmc.name, tmc.contract),
+        ModelsManager(chain, mmc.name, mmc.contract),
+        receipts={},
+    )
+
+
+def open_store(settings: Settings) -> ContentStore:
+    svc = settings.ipfs_service
+    return make_store(svc.url if svc.embedded else svc.url, default_dir=settings.data_dir / "ipfs")
+
+
+def task_spec_cid(platform: Platform, task_id: int) -> str:
+    """The task's on-chain description (its spec CID), from its ``TaskAdded`` event."""
+    ev = platform.tmc.contract.events.TaskAdded()
+    logs = ev.get_logs(from_block=0, argument_filters={"taskId": task_id})
+    if not logs:
+        raise LookupError(f"task {task_id}: no TaskAdded event on the TMC {platform.tmc.address}")
+    return str(logs[0]["args"]["description"])

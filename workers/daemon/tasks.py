@@ -1,0 +1,135 @@
+"""The Celery job of the worker daemon, ``drlaas.handle_offer(task_id, worker)``, and the
+``on_offer`` callable the indexer uses to enqueue it.
+
+Jobs go to the worker's own queue ``worker.<address>`` with the idempotent id
+``offer:<task_id>:<worker>``; ``acks_late`` + ``reject_on_worker_lost`` mean a worker killed
+mid-training gets the job again when it comes back, and :class:`OfferHandler` resumes from the
+job's checkpoint. Only :class:`~workers.daemon.handler.Transient` errors (store or node down)
+are retried, with capped exponential backoff and jitter (STYLE.md, "Workers").
+
+The handler of a daemon process is built once from the environment (``runtime_from_env``):
+``DRLAAS_WORKER_KEY`` (key file), ``DRLAAS_GATEWAY`` (gateway URL), ``DRLAAS_WORKER_DATA``
+(default ``<data>/workers/<address>``), ``DRLAAS_WORKER_MAX_JOBS`` (default 1),
+``DRLAAS_WORKER_CHECKPOINT_EVERY`` (updates between checkpoints, default 2).
+"""
+
+from __future__ import annotations
+
+import os
+import random
+import threading
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from celery import Celery, shared_task
+
+from backend.auth import checksum
+from backend.celery_app import make_celery, worker_queue
+from backend.settings import Settings, load_settings
+from workers.daemon.handler import OfferHandler, Transient
+
+TASK_NAME = "drlaas.handle_offer"
+MAX_RETRIES = 8
+RETRY_BASE_S = 2.0
+RETRY_CAP_S = 120.0
+
+
+def offer_key(task_id: int, worker: str) -> str:
+    """The idempotent job id of one offer."""
+    return f"offer:{int(task_id)}:{checksum(worker)}"
+
+
+def retry_delay(retries: int, *, rng: random.Random | None = None) -> float:
+    """Full-jitter exponential backoff: uniform in [0, min(cap, base * 2**retries)], at least
+    half a second so a down service is not hammered."""
+    ceiling = min(RETRY_CAP_S, RETRY_BASE_S * 2**retries)
+    return max(0.5, (rng or random).uniform(0, ceiling))
+
+
+def make_on_offer(settings: Settings, app: Celery | None = None) -> Callable[[int, str], None]:
+    """The ``on_offer(task_id, worker)`` callable for the indexer: enqueue the job on the
+    worker's queue under its idempotent key."""
+    app = app or make_celery(settings)
+
+    def warm() -> None:
+        """Open the producer's broker connection now (the first send otherwise pays for it,
+        and for creating the embedded broker's tables, inside the first task submission)."""
+        with app.pool.acquire(block=True) as conn:
+            conn.ensure_connection(max_retries=3)
+            conn.default_channel  # noqa: B018 - creating the channel is the point
+
+    def on_offer(task_id: int, worker: str) -> None:
+        worker = checksum(worker)
+        app.send_task(
+            TASK_NAME,
+            args=[int(task_id), worker],
+            queue=worker_queue(worker),
+            task_id=offer_key(task_id, worker),
+        )
+
+    on_offer.warm = warm  # type: ignore[attr-defined]
+    return on_offer
+
+
+_runtime: OfferHandler | None = None
+_lock = threading.Lock()
+
+
+def runtime_from_env(settings: Settings | None = None) -> OfferHandler:
+    """Build this process's handler from the environment (see module docstring)."""
+    from workers.daemon.gateway import Gateway
+    from workers.daemon.keys import load_key
+    from workers.daemon.links import chain_url, connect_platform, open_store, resolve_deployment
+
+    settings = settings or load_settings()
+    key_file = os.environ.get("DRLAAS_WORKER_KEY")
+    if not key_file:
+        raise RuntimeError("DRLAAS_WORKER_KEY is not set: the daemon needs its key file")
+    account = load_key(key_file)
+    gateway_url = os.environ.get("DRLAAS_GATEWAY") or None
+    platform = connect_platform(
+        chain_url(settings, gateway_url), account, resolve_deployment(settings, gateway_url)
+    )
+    data = Path(
+        os.environ.get("DRLAAS_WORKER_DATA") or settings.data_dir / "workers" / account.address
+    )
+    return OfferHandler(
+        account=account,
+        platform=platform,
+        store=open_store(settings),
+        data_dir=data,
+        gateway=Gateway(gateway_url, account) if gateway_url else None,
+        max_jobs=int(os.environ.get("DRLAAS_WORKER_MAX_JOBS", "1")),
+        checkpoint_every=int(os.environ.get("DRLAAS_WORKER_CHECKPOINT_EVERY", "2")),
+    )
+
+
+def runtime() -> OfferHandler:
+    global _runtime
+    with _lock:
+        if _runtime is None:
+            _runtime = runtime_from_env()
+        return _runtime
+
+
+def set_runtime(handler: OfferHandler | None) -> None:
+    """Install a handler (the daemon command builds it once at start-up; tests inject one)."""
+    global _runtime
+    with _lock:
+        _runtime = handler
+
+
+@shared_task(
+    name=TASK_NAME,
+    bind=True,
+    acks_late=True,
+    reject_on_worker_lost=True,
+    max_retries=MAX_RETRIES,
+)
+def handle_offer(self: Any, task_id: int, worker: str) -> dict[str, Any]:
+    """Accept or decline the offer of ``task_id`` to ``worker``, train, upload, submit."""
+    try:
+        return runtime().handle(int(task_id), worker)
+    except Transient as exc:
+        raise self.retry(exc=exc, countdown=retry_delay(self.request.retries)) from exc
