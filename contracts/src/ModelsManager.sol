@@ -1,0 +1,423 @@
+// SPDX-License-Identifier: MIT
+pragma solidity ^0.8.24;
+
+import {ReentrancyGuardTransient} from "@openzeppelin/contracts/utils/ReentrancyGuardTransient.sol";
+import {IUsersManager, Packed} from "./IUsersManager.sol";
+import {QoSMath} from "./QoSMath.sol";
+
+/**
+ * @title ModelsManager (MMC, thesis Tables 5.2 and 7.4)
+ * @dev Shared DRL models (IPFS CID, domain, environment details) and their allocation to
+ * requesters by greedy top-N QoS, with either metric:
+ *  - Metric.Model   (thesis 5.3.1): QoS_m = Rep_i * Rep_m / (1 + D_m), Eq. 10-13;
+ *  - Metric.Sharing (thesis 7.5.2): QoS = Exp * Rep_MS * R_MS / (1 + S), Eq. 16-19, 22-23,
+ *    with the owner's model-sharing counters kept by the UMC.
+ * The requester pays the same price per requested model (5.3.1); each allocated model's
+ * price is credited to its owner at allocation (the model is already published, so the
+ * share is immediate), unfilled slots are refunded, and the requester reviews each
+ * allocated model once ({updateModelRep}), which updates Eq. 10, Eq. 11 and the owner's
+ * model-sharing rating. Counters (A, Ac, E of Eq. 17-18) grow by one per allocation.
+ *
+ * The requester's own models are never allocated to it (no self-review).
+ *
+ * Gas: a model is one slot: owner id, domain, attribute count, both Eq. 11 totals and its
+ * first four environment attributes (uint32 each), so a candidate with d <= 4 attributes
+ * costs one cold SLOAD (plus its owner's profile); attributes 5-64 go eight per slot. The
+ * CID is stored (requesters read it after allocation); the description lives only in the
+ * {ModelAdded} event.
+ */
+contract ModelsManager is ReentrancyGuardTransient {
+    using Packed for uint256;
+
+    uint8 internal constant SHARING = 1;
+    uint8 internal constant SHARED = 1 | 2 | 4; // ASSIGNED | ACCEPTED | COMPLETED
+    uint8 internal constant REVIEWED = 8;
+    uint256 public constant MAX_MODELS = 16;
+    uint256 public constant MAX_ENV_DIMS = 64;
+    uint256 internal constant ONE = QoSMath.ONE;
+    uint256 internal constant ELIGIBLE = 1 << 255;
+
+    enum Metric {
+        Model, // Eq. 10-13
+        Sharing // Eq. 22-23
+    }
+
+    enum AllocState {
+        None,
+        Allocated,
+        Reviewed
+    }
+
+    struct Model {
+        uint32 ownerId; // UMC worker id
+        uint8 domain;
+        uint8 envLen;
+        uint40 allocCount; // Eq. 11 denominator
+        uint40 totalReview; // Eq. 11 numerator (reviews in [0, 5])
+        uint128 envHead; // attributes 0-3, attribute j at bits 32j
+    }
+
+    /// What {getModel} returns (owner resolved to its address).
+    struct ModelView {
+        address owner;
+        uint8 domain;
+        uint8 envLen;
+        uint40 allocCount;
+        uint40 totalReview;
+    }
+
+    struct OwnerRep {
+        uint40 allocCount; // Eq. 10: allocations of all the owner's models
+        uint40 totalReview;
+    }
+
+    struct Allocation {
+        address requester;
+        uint8 domain;
+        Metric metric;
+        uint80 price;
+    }
+
+    struct ModelRequest {
+        uint32 domain;
+        uint8 numModels;
+        Metric metric;
+        uint32 minReputation; // Model: owner Rep_i (Eq. 10); Sharing: Rep_MS (Eq. 19)
+        uint32 minRating; // Sharing only: R_MS
+        uint32 minModelReputation; // Model only: Rep_m (Eq. 11)
+        uint32[] env; // requester's environment attributes (E^r / F^T)
+        uint32[] weights; // Eq. 13/22 weights scaled by 1e6 summing to 1e6; empty = equal
+    }
+
+    error ModelsNotWorker(address account);
+    error ModelsNotRequester(address account);
+    error ModelsBadDomain(uint32 domain);
+    error ModelsEmptyCid();
+    error ModelsBadEnv(uint256 length);
+    error ModelsBadModelCount(uint8 numModels);
+    error ModelsBadWeights();
+    error ModelsBadThreshold(uint32 value);
+    error ModelsBadPayment(uint256 value, uint8 numModels);
+    error ModelsNoEligibleModel(uint32 domain);
+    error ModelsNotAllocationRequester(uint256 allocId, address account);
+    error ModelsNotAllocated(uint256 allocId, uint256 modelId);
+    error ModelsBadReview(uint8 review);
+    error ModelsNothingToWithdraw(address account);
+    error ModelsTransferFailed(address account, uint256 amount);
+
+    event ModelAdded(
+        uint256 indexed modelId,
+        address indexed owner,
+        uint32 indexed domain,
+        string cid,
+        string description,
+        uint32[] env
+    );
+    event ModelsRequested(
+        uint256 indexed allocId,
+        address indexed requester,
+        uint32 indexed domain,
+        Metric metric,
+        uint8 numModels,
+        uint80 price
+    );
+    event ModelAllocated(uint256 indexed allocId, uint256 indexed modelId, address indexed owner, uint256 qos);
+    event ModelReviewed(uint256 indexed allocId, uint256 indexed modelId, uint8 review);
+    event PaymentCredited(address indexed account, uint256 indexed allocId, uint256 amount);
+    event Withdrawn(address indexed account, uint256 amount);
+
+    IUsersManager public immutable umc;
+    uint256 public modelCount;
+    uint256 public allocCount;
+
+    mapping(uint256 => Model) internal _models;
+    /// Attributes 4.. of a model, eight uint32 per word: word k holds attributes 4+8k..11+8k.
+    mapping(uint256 => mapping(uint256 => uint256)) internal _envTail;
+    mapping(uint256 => string) internal _cids;
+    /// Domain Models (thesis: uint -> Model[]), as model ids in submission order.
+    mapping(uint256 => uint32[]) internal _domainModels;
+    mapping(uint32 => OwnerRep) internal _ownerRep; // by UMC worker id
+    mapping(uint256 => Allocation) internal _allocs;
+    mapping(uint256 => mapping(uint256 => AllocState)) public allocState;
+    mapping(address => uint256) public credits;
+
+    constructor(IUsersManager umc_) {
+        umc = umc_;
+    }
+
+    /**
+     * @dev A worker shares a model: IPFS `cid`, textual `description`, `domain` code and
+     * environment attributes `env` (Table 5.2).
+     * Requirements: caller is a registered worker; domain <= 47; non-empty CID; at most 64
+     * attributes. Emits a {ModelAdded} event.
+     */
+    function addModel(string calldata cid, string calldata description, uint32 domain, uint32[] calldata env)
+        external
+        returns (uint256 modelId)
+    {
+        uint32 ownerId = umc.workerId(msg.sender);
+        if (ownerId == 0) revert ModelsNotWorker(msg.sender);
+        if (domain > Packed.MAX_DOMAIN) revert ModelsBadDomain(domain);
+        if (bytes(cid).length == 0) revert ModelsEmptyCid();
+        if (env.length > MAX_ENV_DIMS) revert ModelsBadEnv(env.length);
+        modelId = ++modelCount;
+        uint256 head;
+        uint256 word;
+        for (uint256 j; j < env.length; ++j) {
+            if (j < 4) {
+                head |= uint256(env[j]) << (32 * j);
+                continue;
+            }
+            word |= uint256(env[j]) << (32 * ((j - 4) & 7));
+            if ((j - 4) & 7 == 7 || j + 1 == env.length) {
+                _envTail[modelId][(j - 4) >> 3] = word;
+                word = 0;
+            }
+        }
+        _models[modelId] = Model(ownerId, uint8(domain), uint8(env.length), 0, 0, uint128(head));
+        _cids[modelId] = cid;
+        _domainModels[domain].push(uint32(modelId));
+        emit ModelAdded(modelId, msg.sender, domain, cid, description, env);
+    }
+
+    /**
+     * @dev Allocates up to `numModels` models of `domain` with the highest QoS (greedy,
+     * ties to the earlier model) and pays their owners `msg.value / numModels` each;
+     * unfilled slots are refunded to the requester's credit.
+     * Requirements: caller is a registered requester; 1 <= numModels <= 16; domain <= 47;
+     * thresholds <= 1e6; <= 64 attributes; weights empty or one per attribute summing to 1e6;
+     * msg.value a multiple of numModels; at least one eligible model.
+     * Emits {ModelsRequested}, one {ModelAllocated} and {PaymentCredited} per model.
+     */
+    function allocateModel(ModelRequest calldata r) external payable returns (uint256 allocId) {
+        if (!umc.isRequester(msg.sender)) revert ModelsNotRequester(msg.sender);
+        if (r.numModels == 0 || r.numModels > MAX_MODELS) revert ModelsBadModelCount(r.numModels);
+        if (r.domain > Packed.MAX_DOMAIN) revert ModelsBadDomain(r.domain);
+        if (r.minReputation > ONE) revert ModelsBadThreshold(r.minReputation);
+        if (r.minRating > ONE) revert ModelsBadThreshold(r.minRating);
+        if (r.minModelReputation > ONE) revert ModelsBadThreshold(r.minModelReputation);
+        uint256 price = msg.value / r.numModels;
+        if (price * r.numModels != msg.value || price > type(uint80).max) {
+            revert ModelsBadPayment(msg.value, r.numModels);
+        }
+        uint256[] memory weights = _weights(r.env.length, r.weights);
+
+        // No self-dealing: the requester's own models are skipped (owner id 0 never exists).
+        uint32 selfId = umc.workerId(msg.sender);
+        (uint256[] memory idx, uint256[] memory qs, uint256 count, uint32[] memory ids) =
+            r.metric == Metric.Model ? _selectModel(r, weights, selfId) : _selectSharing(r, weights, selfId);
+        if (count == 0) revert ModelsNoEligibleModel(r.domain);
+
+        allocId = ++allocCount;
+        _allocs[allocId] = Allocation(msg.sender, uint8(r.domain), r.metric, uint80(price));
+        emit ModelsRequested(allocId, msg.sender, r.domain, r.metric, r.numModels, uint80(price));
+        uint32[] memory owners = new uint32[](count);
+        for (uint256 i; i < count; ++i) {
+            owners[i] = _models[ids[idx[i]]].ownerId;
+        }
+        (uint256[] memory words,) = umc.profiles(owners, r.domain, SHARING);
+        for (uint256 i; i < count; ++i) {
+            uint256 modelId = ids[idx[i]];
+            Model storage m = _models[modelId];
+            address owner = words[i].addr();
+            m.allocCount += 1;
+            _ownerRep[owners[i]].allocCount += 1;
+            allocState[allocId][modelId] = AllocState.Allocated;
+            umc.updateInfo(owner, r.domain, SHARING, SHARED, 0);
+            emit ModelAllocated(allocId, modelId, owner, qs[i]);
+            _credit(owner, allocId, price);
+        }
+        _credit(msg.sender, allocId, (r.numModels - count) * price);
+    }
+
+    /**
+     * @dev The requester reviews an allocated model once (`review` in [0, 5]): updates the
+     * model's reputation (Eq. 11), its owner's (Eq. 10) and the owner's model-sharing rating.
+     * Requirements: caller made allocation `allocId`; the model is in it, not yet reviewed.
+     * Emits a {ModelReviewed} event.
+     */
+    function updateModelRep(uint256 allocId, uint256 modelId, uint8 review) external {
+        Allocation storage a = _allocs[allocId];
+        if (a.requester != msg.sender) revert ModelsNotAllocationRequester(allocId, msg.sender);
+        if (allocState[allocId][modelId] != AllocState.Allocated) revert ModelsNotAllocated(allocId, modelId);
+        if (review > QoSMath.REVIEW_MAX) revert ModelsBadReview(review);
+        allocState[allocId][modelId] = AllocState.Reviewed;
+        Model storage m = _models[modelId];
+        m.totalReview += review;
+        uint32 ownerId = m.ownerId;
+        _ownerRep[ownerId].totalReview += review;
+        uint32[] memory one = new uint32[](1);
+        one[0] = ownerId;
+        (uint256[] memory words,) = umc.profiles(one, a.domain, SHARING);
+        umc.updateInfo(words[0].addr(), a.domain, SHARING, REVIEWED, review);
+        emit ModelReviewed(allocId, modelId, review);
+    }
+
+    /**
+     * @dev Sends the caller's credited balance (pull payment; CEI plus reentrancy guard).
+     * Requirements: a positive credit. Emits a {Withdrawn} event.
+     */
+    function withdraw() external nonReentrant {
+        uint256 amount = credits[msg.sender];
+        if (amount == 0) revert ModelsNothingToWithdraw(msg.sender);
+        credits[msg.sender] = 0;
+        emit Withdrawn(msg.sender, amount);
+        (bool ok,) = msg.sender.call{value: amount}("");
+        if (!ok) revert ModelsTransferFailed(msg.sender, amount);
+    }
+
+    // ---------------------------------------------------------------------------- views
+
+    function getModel(uint256 modelId)
+        external
+        view
+        returns (ModelView memory model, string memory cid, uint32[] memory env)
+    {
+        Model memory m = _models[modelId];
+        uint32[] memory one = new uint32[](1);
+        one[0] = m.ownerId;
+        (uint256[] memory words,) = umc.profiles(one, m.domain, SHARING);
+        model = ModelView(words[0].addr(), m.domain, m.envLen, m.allocCount, m.totalReview);
+        env = new uint32[](m.envLen);
+        for (uint256 j; j < m.envLen; ++j) {
+            env[j] = uint32(_attr(modelId, m.envHead, j));
+        }
+        cid = _cids[modelId];
+    }
+
+    /// @dev Eq. 10 totals of the owner `owner` (allocations of all its models, review sum).
+    function ownerRep(address owner) external view returns (OwnerRep memory) {
+        return _ownerRep[umc.workerId(owner)];
+    }
+
+    function getAllocation(uint256 allocId) external view returns (Allocation memory) {
+        return _allocs[allocId];
+    }
+
+    function domainModels(uint32 domain) external view returns (uint32[] memory) {
+        return _domainModels[domain];
+    }
+
+    // ---------------------------------------------------------------------------- internal
+
+    /// @dev Eq. 10-13: Rep_i (owner totals) and Rep_m (model totals) filter and rank.
+    function _selectModel(ModelRequest calldata r, uint256[] memory weights, uint32 selfId)
+        internal
+        view
+        returns (uint256[] memory idx, uint256[] memory qs, uint256 count, uint32[] memory ids)
+    {
+        ids = _domainModels[r.domain];
+        idx = new uint256[](r.numModels);
+        qs = new uint256[](r.numModels);
+        uint256 d = r.env.length;
+        for (uint256 i; i < ids.length; ++i) {
+            Model memory m = _models[ids[i]];
+            if (m.envLen != d || m.ownerId == selfId) continue;
+            uint256 repM = QoSMath.rating(m.totalReview, m.allocCount);
+            if (repM < r.minModelReputation) continue;
+            OwnerRep memory o = _ownerRep[m.ownerId];
+            uint256 repI = QoSMath.rating(o.totalReview, o.allocCount);
+            if (repI < r.minReputation) continue;
+            uint256 q = (repI * repM) / (ONE + _distance(ids[i], m.envHead, r.env, weights));
+            count = QoSMath.insertTop(idx, qs, count, i, q);
+        }
+    }
+
+    /// @dev Eq. 16-19, 22-23 with the owners' model-sharing counters from the UMC. N_max
+    /// (Eq. 16) is taken over the eligible models' owners.
+    function _selectSharing(ModelRequest calldata r, uint256[] memory weights, uint32 selfId)
+        internal
+        view
+        returns (uint256[] memory idx, uint256[] memory qs, uint256 count, uint32[] memory ids)
+    {
+        ids = _domainModels[r.domain];
+        uint256 n = ids.length;
+        uint32[] memory owners = new uint32[](n);
+        uint256[] memory dist = new uint256[](n);
+        for (uint256 i; i < n; ++i) {
+            Model memory m = _models[ids[i]];
+            if (m.envLen != r.env.length || m.ownerId == selfId) continue; // owner id 0: ineligible
+            owners[i] = m.ownerId;
+            dist[i] = _distance(ids[i], m.envHead, r.env, weights);
+        }
+        (uint256[] memory ws, uint256[] memory cs) = umc.profiles(owners, r.domain, SHARING);
+        uint256 nMax;
+        for (uint256 i; i < n; ++i) {
+            uint256 w = ws[i];
+            ws[i] = 0; // from here on ws[i] holds the eligibility word (0 = not eligible)
+            if (w.status() != Packed.ACTIVE || w & Packed.MEMBER_BIT == 0) continue;
+            uint256 c = cs[i];
+            uint256 rep = QoSMath.reputation(c.assigned(), c.accepted(), c.completed());
+            uint256 rat = QoSMath.rating(c.ratingSum(), c.ratingCount());
+            if (rep < r.minReputation || rat < r.minRating) continue;
+            uint256 e = c.completed();
+            if (e > nMax) nMax = e;
+            // eligible flag | E << 64 | Rep * R (< 1e12); S stays in dist[i]
+            ws[i] = ELIGIBLE | (e << 64) | (rep * rat);
+        }
+        idx = new uint256[](r.numModels);
+        qs = new uint256[](r.numModels);
+        for (uint256 i; i < n; ++i) {
+            uint256 p = ws[i];
+            if (p & ELIGIBLE == 0) continue;
+            uint256 q = (QoSMath.expertise(uint48(p >> 64), nMax) * uint64(p)) / ((ONE + dist[i]) * ONE);
+            count = QoSMath.insertTop(idx, qs, count, i, q);
+        }
+    }
+
+    /// @dev Eq. 13 / Eq. 22: sum_n w_n |F_n^m - F_n^r| (exact; weights scaled by 1e6).
+    function _distance(uint256 modelId, uint256 head, uint32[] calldata env, uint256[] memory weights)
+        internal
+        view
+        returns (uint256 s)
+    {
+        uint256 word;
+        for (uint256 j; j < env.length; ++j) {
+            uint256 a;
+            if (j < 4) {
+                a = uint32(head >> (32 * j));
+            } else {
+                if ((j - 4) & 7 == 0) word = _envTail[modelId][(j - 4) >> 3]; // one SLOAD per 8
+                a = uint32(word >> (32 * ((j - 4) & 7)));
+            }
+            uint256 b = env[j];
+            s += weights[j] * (a >= b ? a - b : b - a);
+        }
+    }
+
+    /// @dev Environment attribute `j` of a model.
+    function _attr(uint256 modelId, uint256 head, uint256 j) internal view returns (uint256) {
+        if (j < 4) return uint32(head >> (32 * j));
+        return uint32(_envTail[modelId][(j - 4) >> 3] >> (32 * ((j - 4) & 7)));
+    }
+
+    /// @dev Given weights (each <= 1e6, sum == 1e6) or the default: ONE / d each with the
+    /// remainder on the first (qos.default_weights).
+    function _weights(uint256 d, uint32[] calldata given) internal pure returns (uint256[] memory w) {
+        if (d > MAX_ENV_DIMS) revert ModelsBadEnv(d);
+        w = new uint256[](d);
+        if (d == 0) {
+            if (given.length != 0) revert ModelsBadWeights();
+            return w;
+        }
+        if (given.length == 0) {
+            uint256 each = ONE / d;
+            for (uint256 j; j < d; ++j) w[j] = each;
+            w[0] += ONE - each * d;
+            return w;
+        }
+        if (given.length != d) revert ModelsBadWeights();
+        uint256 sum;
+        for (uint256 j; j < d; ++j) {
+            w[j] = given[j];
+            sum += given[j];
+        }
+        if (sum != ONE) revert ModelsBadWeights();
+    }
+
+    function _credit(address account, uint256 allocId, uint256 amount) internal {
+        if (amount == 0) return;
+        credits[account] += amount;
+        emit PaymentCredited(account, allocId, amount);
+    }
+}

@@ -1,0 +1,565 @@
+// SPDX-License-Identifier: MIT
+pragma solidity ^0.8.24;
+
+import {ReentrancyGuardTransient} from "@openzeppelin/contracts/utils/ReentrancyGuardTransient.sol";
+import {IUsersManager, Packed} from "./IUsersManager.sol";
+import {QoSMath} from "./QoSMath.sol";
+
+/**
+ * @title TasksManager (TMC, thesis Table 7.3)
+ * @dev DRL training tasks: escrowed payment at {addTask}, greedy QoS recruitment (Eq. 16-21,
+ * thesis 7.6) in {allocateTask}, offers accepted or declined within an acceptance window, an
+ * expired or declined offer handed to the next best eligible worker by calling
+ * {allocateTask} again, outcomes (IPFS CIDs) submitted before the deadline, one review per
+ * outcome, pull payments. Model-sharing requests go to the MMC.
+ *
+ * Payment: `reward` per worker slot is escrowed for `numWorkers` slots. Every slot is settled
+ * exactly once: credited to the worker for an accepted outcome (or an outcome left
+ * unreviewed past the review window), or refunded to the requester (rejected outcome,
+ * cancellation, slots still unfilled at close). Credits are withdrawn with {withdraw}
+ * (checks-effects-interactions plus a transient reentrancy guard).
+ *
+ * Text (description, outcome CIDs) lives only in events: the indexer keeps it, the chain
+ * keeps what the rules need (~20k gas saved per 32 bytes not stored).
+ */
+contract TasksManager is ReentrancyGuardTransient {
+    using Packed for uint256;
+
+    uint8 internal constant TRAINING = 0;
+    uint8 internal constant ASSIGNED = 1;
+    uint8 internal constant ACCEPTED = 2;
+    uint8 internal constant COMPLETED = 4;
+    uint8 internal constant REVIEWED = 8;
+    uint256 public constant MAX_WORKERS = 16; // NW fits uint8 and keeps the top-k array tiny
+    uint256 public constant MAX_OFFERS = 64; // bounds the per-task offer loops
+    uint256 internal constant ELIGIBLE = 1 << 255;
+
+    enum TaskStatus {
+        None,
+        Open,
+        Completed,
+        Cancelled,
+        Closed
+    }
+
+    enum OfferState {
+        None,
+        Offered,
+        Accepted,
+        Declined,
+        Expired,
+        Submitted,
+        Reviewed,
+        Failed
+    }
+
+    /// One slot: who, state, slot counters and deadline.
+    struct Task {
+        address requester;
+        TaskStatus status;
+        uint8 numWorkers;
+        uint8 liveOffers; // offers not yet accepted, declined or expired
+        uint8 filled; // workers who accepted
+        uint8 settled; // slots paid or refunded
+        uint8 offerCount; // offers ever made (<= MAX_OFFERS)
+        uint40 deadline;
+    }
+
+    /// One slot: the requirements of 7.5.1 and the reward per worker.
+    struct Reqs {
+        uint32 domain;
+        uint32 minReputation;
+        uint32 minRating;
+        uint32 minCpuCores;
+        uint32 minRamGb;
+        uint96 reward;
+    }
+
+    struct Offer {
+        OfferState state;
+        uint40 expiry;
+        uint32 listIndex; // position in the UMC domain list (for exclusion on re-allocation)
+    }
+
+    struct TaskParams {
+        uint32 domain;
+        uint8 numWorkers;
+        uint32 minReputation;
+        uint32 minRating;
+        uint32 minCpuCores;
+        uint32 minRamGb;
+        uint40 duration;
+        string description;
+    }
+
+    error TasksNotAdmin(address account);
+    error TasksNotRequester(address account);
+    error TasksUnknownTask(uint256 taskId);
+    error TasksNotTaskRequester(uint256 taskId, address account);
+    error TasksNotParticipant(uint256 taskId, address account);
+    error TasksBadWorkerCount(uint8 numWorkers);
+    error TasksBadDomain(uint32 domain);
+    error TasksBadThreshold(uint32 value);
+    error TasksBadDuration(uint40 duration);
+    error TasksBadPayment(uint256 value, uint8 numWorkers);
+    error TasksNotOpen(uint256 taskId, TaskStatus status);
+    error TasksDeadlinePassed(uint256 taskId, uint40 deadline);
+    error TasksDeadlineNotPassed(uint256 taskId, uint40 deadline);
+    error TasksNoOpenSlot(uint256 taskId);
+    error TasksOfferLimitReached(uint256 taskId);
+    error TasksNotOfferedWorker(uint256 taskId, address worker);
+    error TasksOfferExpired(uint256 taskId, address worker, uint40 expiry);
+    error TasksNotAssignedWorker(uint256 taskId, address worker);
+    error TasksNotSubmitted(uint256 taskId, address worker);
+    error TasksEmptyCid();
+    error TasksBadReview(uint8 review);
+    error TasksHasAcceptedWorkers(uint256 taskId);
+    error TasksHasLiveOffers(uint256 taskId);
+    error TasksReviewWindowOpen(uint256 taskId, uint256 until);
+    error TasksBadStatus(TaskStatus status);
+    error TasksBadConfig();
+    error TasksNothingToWithdraw(address account);
+    error TasksTransferFailed(address account, uint256 amount);
+
+    event TaskAdded(
+        uint256 indexed taskId,
+        address indexed requester,
+        uint32 indexed domain,
+        uint8 numWorkers,
+        uint96 reward,
+        uint40 deadline,
+        uint32 minReputation,
+        uint32 minRating,
+        uint32 minCpuCores,
+        uint32 minRamGb,
+        string description
+    );
+    event TaskOffered(uint256 indexed taskId, address indexed worker, uint256 qos, uint40 expiry);
+    event TaskAllocated(uint256 indexed taskId, uint256 offered);
+    event OfferAccepted(uint256 indexed taskId, address indexed worker);
+    event OfferDeclined(uint256 indexed taskId, address indexed worker);
+    event OfferExpired(uint256 indexed taskId, address indexed worker);
+    event OfferFailed(uint256 indexed taskId, address indexed worker);
+    event OutcomeSubmitted(uint256 indexed taskId, address indexed worker, string cid);
+    event OutcomeReviewed(uint256 indexed taskId, address indexed worker, uint8 review, bool accepted);
+    event TaskStatusUpdated(uint256 indexed taskId, TaskStatus status);
+    event PaymentCredited(address indexed account, uint256 indexed taskId, uint256 amount);
+    event Withdrawn(address indexed account, uint256 amount);
+    event ConfigUpdated(uint64 w1, uint32 acceptWindow, uint32 reviewWindow);
+    event AcceptedGpusUpdated(uint256 mask);
+
+    IUsersManager public immutable umc;
+
+    /// Admin-set parameters (one slot): Eq. 20 weight w1 (scaled by 1e6), windows in seconds.
+    uint64 public w1;
+    uint32 public acceptWindow;
+    uint32 public reviewWindow;
+    /// Accepted GPU series (7.5.1) as a bitmask of codes 0-255: one SLOAD for all candidates.
+    uint256 public acceptedGpus;
+    uint256 public taskCount;
+
+    mapping(uint256 => Task) internal _tasks;
+    mapping(uint256 => Reqs) internal _reqs;
+    mapping(uint256 => address[]) internal _offerees;
+    mapping(uint256 => mapping(address => Offer)) internal _offers;
+    /// Domain Tasks (thesis: uint -> Task[]), as task ids.
+    mapping(uint32 => uint256[]) internal _domainTasks;
+    /// Pull payments: native currency owed to each account.
+    mapping(address => uint256) public credits;
+
+    constructor(IUsersManager umc_, uint64 w1_, uint32 acceptWindow_, uint32 reviewWindow_, uint256 gpus) {
+        umc = umc_;
+        _setConfig(w1_, acceptWindow_, reviewWindow_);
+        acceptedGpus = gpus;
+        emit AcceptedGpusUpdated(gpus);
+    }
+
+    // ---------------------------------------------------------------------------- admin
+
+    /**
+     * @dev Sets w1 (Eq. 20, scaled by 1e6, in [1, 1e12]) and the acceptance and review
+     * windows (seconds, > 0). Requirements: caller is a consortium admin.
+     * Emits a {ConfigUpdated} event.
+     */
+    function setConfig(uint64 w1_, uint32 acceptWindow_, uint32 reviewWindow_) external {
+        _checkAdmin();
+        _setConfig(w1_, acceptWindow_, reviewWindow_);
+    }
+
+    /**
+     * @dev Adds or removes a GPU series from the accepted list (7.5.1).
+     * Requirements: caller is a consortium admin. Emits an {AcceptedGpusUpdated} event
+     * with the whole new mask (bit s = series s accepted).
+     */
+    function setGpuSeries(uint8 series, bool accepted) external {
+        _checkAdmin();
+        uint256 mask = acceptedGpus;
+        mask = accepted ? mask | (uint256(1) << series) : mask & ~(uint256(1) << series);
+        acceptedGpus = mask;
+        emit AcceptedGpusUpdated(mask);
+    }
+
+    // ---------------------------------------------------------------------------- requester
+
+    /**
+     * @dev Creates a training task and escrows `msg.value` = reward * numWorkers.
+     * Requirements: caller is a registered requester; 1 <= numWorkers <= 16; domain <= 47;
+     * thresholds <= 1e6; 0 < duration < 2^32 s; msg.value a multiple of numWorkers.
+     * Emits a {TaskAdded} event.
+     */
+    function addTask(TaskParams calldata p) external payable returns (uint256 taskId) {
+        if (!umc.isRequester(msg.sender)) revert TasksNotRequester(msg.sender);
+        if (p.numWorkers == 0 || p.numWorkers > MAX_WORKERS) revert TasksBadWorkerCount(p.numWorkers);
+        if (p.domain > Packed.MAX_DOMAIN) revert TasksBadDomain(p.domain);
+        if (p.minReputation > QoSMath.ONE) revert TasksBadThreshold(p.minReputation);
+        if (p.minRating > QoSMath.ONE) revert TasksBadThreshold(p.minRating);
+        if (p.duration == 0 || p.duration > type(uint32).max) revert TasksBadDuration(p.duration);
+        uint256 reward = msg.value / p.numWorkers;
+        if (reward * p.numWorkers != msg.value || reward > type(uint96).max) {
+            revert TasksBadPayment(msg.value, p.numWorkers);
+        }
+        taskId = ++taskCount;
+        uint40 deadline = uint40(block.timestamp) + p.duration;
+        _tasks[taskId] = Task(msg.sender, TaskStatus.Open, p.numWorkers, 0, 0, 0, 0, deadline);
+        _reqs[taskId] =
+            Reqs(p.domain, p.minReputation, p.minRating, p.minCpuCores, p.minRamGb, uint96(reward));
+        _domainTasks[p.domain].push(taskId);
+        emit TaskAdded(
+            taskId,
+            msg.sender,
+            p.domain,
+            p.numWorkers,
+            uint96(reward),
+            deadline,
+            p.minReputation,
+            p.minRating,
+            p.minCpuCores,
+            p.minRamGb,
+            p.description
+        );
+    }
+
+    /**
+     * @dev Recruits workers for the open slots (thesis 7.6): expires offers past their
+     * acceptance window, then offers the task to the best eligible workers by Eq. 21 QoS,
+     * excluding everyone offered this task before (the "next best" after an expiry) and
+     * the requester itself.
+     * Requirements: caller is the task's requester or an admin; task open; before deadline;
+     * at least one open slot; fewer than MAX_OFFERS offers made.
+     * Emits {OfferExpired}, {TaskOffered} per offer and one {TaskAllocated} event.
+     */
+    function allocateTask(uint256 taskId) external returns (uint256 offered) {
+        Task storage t = _tasks[taskId];
+        if (t.requester != msg.sender && !umc.isAdmin(msg.sender)) _checkRequester(t, taskId);
+        _checkOpen(t, taskId);
+        Reqs memory r = _reqs[taskId];
+        (uint256[] memory ws, uint256[] memory cs) = umc.candidates(r.domain, TRAINING);
+        bool[] memory excluded = new bool[](ws.length);
+        uint256 live = _expireOffers(taskId, excluded);
+        uint256 open = t.numWorkers - live - t.filled;
+        if (open == 0) revert TasksNoOpenSlot(taskId);
+        uint256 room = MAX_OFFERS - t.offerCount;
+        if (room == 0) revert TasksOfferLimitReached(taskId);
+        if (open > room) open = room;
+
+        _excludeSelf(ws, excluded, t.requester);
+        (uint256[] memory idx, uint256[] memory qs, uint256 count) = _select(r, ws, cs, excluded, open);
+        uint40 expiry = uint40(block.timestamp) + acceptWindow;
+        for (uint256 i; i < count; ++i) {
+            address a = ws[idx[i]].addr();
+            _offers[taskId][a] = Offer(OfferState.Offered, expiry, uint32(idx[i]));
+            _offerees[taskId].push(a);
+            umc.updateInfo(a, r.domain, TRAINING, ASSIGNED, 0);
+            emit TaskOffered(taskId, a, qs[i], expiry);
+        }
+        t.liveOffers = uint8(live + count);
+        t.offerCount += uint8(count);
+        emit TaskAllocated(taskId, count);
+        return count;
+    }
+
+    /**
+     * @dev The requester reviews a submitted outcome once: `review` in [0, 5] feeds the
+     * worker's rating; `accepted` releases the slot's reward to the worker, otherwise it is
+     * refunded. Requirements: caller is the task's requester; the worker's outcome is
+     * submitted and not yet reviewed; review <= 5.
+     * Emits {OutcomeReviewed}, {PaymentCredited} and, on the last slot, {TaskStatusUpdated}.
+     */
+    function reviewOutcome(uint256 taskId, address worker, uint8 review, bool accepted) external {
+        Task storage t = _tasks[taskId];
+        _checkRequester(t, taskId);
+        Offer storage o = _offers[taskId][worker];
+        if (o.state != OfferState.Submitted) revert TasksNotSubmitted(taskId, worker);
+        if (review > QoSMath.REVIEW_MAX) revert TasksBadReview(review);
+        o.state = OfferState.Reviewed;
+        Reqs storage r = _reqs[taskId];
+        _credit(accepted ? worker : t.requester, taskId, r.reward);
+        uint8 settled = t.settled + 1;
+        t.settled = settled;
+        if (settled == t.numWorkers) {
+            t.status = TaskStatus.Completed;
+            emit TaskStatusUpdated(taskId, TaskStatus.Completed);
+        }
+        umc.updateInfo(worker, r.domain, TRAINING, REVIEWED, review);
+        emit OutcomeReviewed(taskId, worker, review, accepted);
+    }
+
+    /**
+     * @dev Task status changes (thesis updateTaskStatus):
+     * - Cancelled: by the requester while open, before any worker accepted and with no offer
+     *   inside its acceptance window (an offered worker keeps its chance to accept: its
+     *   offer already counts in A of Eq. 17); refunds all.
+     * - Closed: after the deadline, by the requester, an admin or any worker offered the
+     *   task. Outcomes submitted but not reviewed are paid (if the review window is over;
+     *   otherwise the call reverts), accepted offers without outcome become Failed, pending
+     *   offers Expired, and the unsettled slots are refunded to the requester.
+     * Emits {TaskStatusUpdated}, {PaymentCredited} and per-offer events.
+     */
+    function updateTaskStatus(uint256 taskId, TaskStatus status) external {
+        Task storage t = _tasks[taskId];
+        if (t.status == TaskStatus.None) revert TasksUnknownTask(taskId);
+        if (status == TaskStatus.Cancelled) {
+            _checkRequester(t, taskId);
+            _checkOpen(t, taskId);
+            if (t.filled != 0) revert TasksHasAcceptedWorkers(taskId);
+            if (t.liveOffers != 0 && _hasLiveOffer(taskId)) revert TasksHasLiveOffers(taskId);
+        } else if (status == TaskStatus.Closed) {
+            if (
+                t.requester != msg.sender && _offers[taskId][msg.sender].state == OfferState.None
+                    && !umc.isAdmin(msg.sender)
+            ) revert TasksNotParticipant(taskId, msg.sender);
+            if (t.status != TaskStatus.Open) revert TasksNotOpen(taskId, t.status);
+            if (block.timestamp <= t.deadline) revert TasksDeadlineNotPassed(taskId, t.deadline);
+            _settleOffers(taskId, t);
+        } else {
+            revert TasksBadStatus(status);
+        }
+        t.status = status;
+        uint256 unsettled = t.numWorkers - t.settled;
+        t.settled = t.numWorkers;
+        if (unsettled != 0) _credit(t.requester, taskId, unsettled * _reqs[taskId].reward);
+        emit TaskStatusUpdated(taskId, status);
+    }
+
+    // ---------------------------------------------------------------------------- worker
+
+    /**
+     * @dev The offered worker accepts within the acceptance window.
+     * Requirements: task open; caller holds a live offer; now <= expiry.
+     * Emits an {OfferAccepted} event.
+     */
+    function acceptOffer(uint256 taskId) external {
+        Task storage t = _tasks[taskId];
+        _checkOpen(t, taskId);
+        Offer storage o = _offers[taskId][msg.sender];
+        if (o.state != OfferState.Offered) revert TasksNotOfferedWorker(taskId, msg.sender);
+        if (block.timestamp > o.expiry) revert TasksOfferExpired(taskId, msg.sender, o.expiry);
+        o.state = OfferState.Accepted;
+        t.liveOffers -= 1;
+        t.filled += 1;
+        umc.updateInfo(msg.sender, _reqs[taskId].domain, TRAINING, ACCEPTED, 0);
+        emit OfferAccepted(taskId, msg.sender);
+    }
+
+    /**
+     * @dev The offered worker declines; the slot goes to the next best at the next
+     * {allocateTask}. Requirements: caller holds a live offer on an open task.
+     * Emits an {OfferDeclined} event.
+     */
+    function declineOffer(uint256 taskId) external {
+        Task storage t = _tasks[taskId];
+        if (t.status != TaskStatus.Open) revert TasksNotOpen(taskId, t.status);
+        Offer storage o = _offers[taskId][msg.sender];
+        if (o.state != OfferState.Offered) revert TasksNotOfferedWorker(taskId, msg.sender);
+        o.state = OfferState.Declined;
+        t.liveOffers -= 1;
+        emit OfferDeclined(taskId, msg.sender);
+    }
+
+    /**
+     * @dev An assigned worker submits the outcome's IPFS CID before the deadline; this
+     * counts as a completed task (E of Eq. 18, N of Eq. 16).
+     * Requirements: task open; caller accepted the task and has not submitted; before the
+     * deadline; non-empty CID. Emits an {OutcomeSubmitted} event.
+     */
+    function submitOutcome(uint256 taskId, string calldata cid) external {
+        Task storage t = _tasks[taskId];
+        _checkOpen(t, taskId);
+        Offer storage o = _offers[taskId][msg.sender];
+        if (o.state != OfferState.Accepted) revert TasksNotAssignedWorker(taskId, msg.sender);
+        if (bytes(cid).length == 0) revert TasksEmptyCid();
+        o.state = OfferState.Submitted;
+        umc.updateInfo(msg.sender, _reqs[taskId].domain, TRAINING, COMPLETED, 0);
+        emit OutcomeSubmitted(taskId, msg.sender, cid);
+    }
+
+    // ---------------------------------------------------------------------------- payments
+
+    /**
+     * @dev Sends the caller's credited balance (pull payment; CEI plus reentrancy guard).
+     * Requirements: a positive credit. Emits a {Withdrawn} event.
+     */
+    function withdraw() external nonReentrant {
+        uint256 amount = credits[msg.sender];
+        if (amount == 0) revert TasksNothingToWithdraw(msg.sender);
+        credits[msg.sender] = 0;
+        emit Withdrawn(msg.sender, amount);
+        (bool ok,) = msg.sender.call{value: amount}("");
+        if (!ok) revert TasksTransferFailed(msg.sender, amount);
+    }
+
+    // ---------------------------------------------------------------------------- views
+
+    function getTask(uint256 taskId) external view returns (Task memory, Reqs memory) {
+        return (_tasks[taskId], _reqs[taskId]);
+    }
+
+    function getOffer(uint256 taskId, address worker) external view returns (Offer memory) {
+        return _offers[taskId][worker];
+    }
+
+    function offerees(uint256 taskId) external view returns (address[] memory) {
+        return _offerees[taskId];
+    }
+
+    function domainTasks(uint32 domain) external view returns (uint256[] memory) {
+        return _domainTasks[domain];
+    }
+
+    // ---------------------------------------------------------------------------- internal
+
+    /**
+     * @dev Eq. 16-21 over the candidates, then greedy top-k. Pass 1 applies the constraints
+     * of 7.5.1 and keeps Rep*R*CC (exact product, < 1e18) and E per eligible worker, and
+     * N_max over all eligible workers (excluded ones included, as qos.py); pass 2 forms
+     * QoS = floor(Exp * Rep * R * CC / 1e18) and keeps the k best (ties: earlier index).
+     */
+    function _select(Reqs memory r, uint256[] memory ws, uint256[] memory cs, bool[] memory excluded, uint256 k)
+        internal
+        view
+        returns (uint256[] memory idx, uint256[] memory qs, uint256 count)
+    {
+        uint256 n = ws.length;
+        uint256[] memory part = new uint256[](n);
+        uint256 nMax;
+        uint256 gpus = acceptedGpus;
+        uint256 weight = w1;
+        for (uint256 i; i < n; ++i) {
+            uint256 w = ws[i];
+            if (
+                w.status() != Packed.ACTIVE || w.cores() < r.minCpuCores || w.ram() < r.minRamGb
+                    || (gpus >> w.gpu()) & 1 == 0
+            ) continue;
+            uint256 c = cs[i];
+            uint256 rep = QoSMath.reputation(c.assigned(), c.accepted(), c.completed());
+            if (rep < r.minReputation) continue;
+            uint256 rat = QoSMath.rating(c.ratingSum(), c.ratingCount());
+            if (rat < r.minRating) continue;
+            uint256 e = c.completed();
+            if (e > nMax) nMax = e;
+            part[i] = ELIGIBLE | (e << 64) | (rep * rat * QoSMath.atanFixed(weight * w.cores()));
+        }
+        idx = new uint256[](k);
+        qs = new uint256[](k);
+        for (uint256 i; i < n; ++i) {
+            uint256 p = part[i];
+            if (p == 0 || excluded[i]) continue;
+            uint256 q = (QoSMath.expertise(uint48(p >> 64), nMax) * uint64(p)) / 1e18;
+            count = QoSMath.insertTop(idx, qs, count, i, q);
+        }
+    }
+
+    /// @dev No self-dealing: a requester who is also a worker is never offered its own task
+    /// (it could otherwise review itself up). Excluded workers still count for N_max.
+    function _excludeSelf(uint256[] memory ws, bool[] memory excluded, address requester) internal pure {
+        for (uint256 i; i < ws.length; ++i) {
+            if (ws[i].addr() == requester) {
+                excluded[i] = true;
+                return;
+            }
+        }
+    }
+
+    /// @dev Marks offers past their window Expired, flags every offeree as excluded and
+    /// returns the number of live offers. Bounded by MAX_OFFERS.
+    function _expireOffers(uint256 taskId, bool[] memory excluded) internal returns (uint256 live) {
+        address[] storage list = _offerees[taskId];
+        uint256 m = list.length;
+        for (uint256 j; j < m; ++j) {
+            address a = list[j];
+            Offer storage o = _offers[taskId][a];
+            if (o.listIndex < excluded.length) excluded[o.listIndex] = true;
+            if (o.state != OfferState.Offered) continue;
+            if (block.timestamp > o.expiry) {
+                o.state = OfferState.Expired;
+                emit OfferExpired(taskId, a);
+            } else {
+                ++live;
+            }
+        }
+    }
+
+    /// @dev Whether an offer of the task is still inside its acceptance window.
+    function _hasLiveOffer(uint256 taskId) internal view returns (bool) {
+        address[] storage list = _offerees[taskId];
+        for (uint256 j; j < list.length; ++j) {
+            Offer storage o = _offers[taskId][list[j]];
+            if (o.state == OfferState.Offered && block.timestamp <= o.expiry) return true;
+        }
+        return false;
+    }
+
+    /// @dev At close: pay unreviewed outcomes (after the review window), fail or expire the
+    /// rest. Bounded by MAX_OFFERS.
+    function _settleOffers(uint256 taskId, Task storage t) internal {
+        address[] storage list = _offerees[taskId];
+        uint256 m = list.length;
+        uint256 reward = _reqs[taskId].reward;
+        uint256 reviewEnd = uint256(t.deadline) + reviewWindow;
+        for (uint256 j; j < m; ++j) {
+            address a = list[j];
+            Offer storage o = _offers[taskId][a];
+            OfferState s = o.state;
+            if (s == OfferState.Submitted) {
+                if (block.timestamp <= reviewEnd) revert TasksReviewWindowOpen(taskId, reviewEnd);
+                o.state = OfferState.Reviewed;
+                t.settled += 1;
+                _credit(a, taskId, reward);
+                emit OutcomeReviewed(taskId, a, 0, true);
+            } else if (s == OfferState.Accepted) {
+                o.state = OfferState.Failed;
+                emit OfferFailed(taskId, a);
+            } else if (s == OfferState.Offered) {
+                o.state = OfferState.Expired;
+                emit OfferExpired(taskId, a);
+            }
+        }
+        t.liveOffers = 0;
+    }
+
+    function _credit(address account, uint256 taskId, uint256 amount) internal {
+        if (amount == 0) return;
+        credits[account] += amount;
+        emit PaymentCredited(account, taskId, amount);
+    }
+
+    function _setConfig(uint64 w1_, uint32 acceptWindow_, uint32 reviewWindow_) internal {
+        if (w1_ == 0 || w1_ > 1e12 || acceptWindow_ == 0 || reviewWindow_ == 0) revert TasksBadConfig();
+        (w1, acceptWindow, reviewWindow) = (w1_, acceptWindow_, reviewWindow_);
+        emit ConfigUpdated(w1_, acceptWindow_, reviewWindow_);
+    }
+
+    function _checkAdmin() internal view {
+        if (!umc.isAdmin(msg.sender)) revert TasksNotAdmin(msg.sender);
+    }
+
+    function _checkRequester(Task storage t, uint256 taskId) internal view {
+        if (t.status == TaskStatus.None) revert TasksUnknownTask(taskId);
+        if (t.requester != msg.sender) revert TasksNotTaskRequester(taskId, msg.sender);
+    }
+
+    function _checkOpen(Task storage t, uint256 taskId) internal view {
+        if (t.status != TaskStatus.Open) revert TasksNotOpen(taskId, t.status);
+        if (block.timestamp > t.deadline) revert TasksDeadlinePassed(taskId, t.deadline);
+    }
+}

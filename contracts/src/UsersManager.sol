@@ -1,0 +1,344 @@
+// SPDX-License-Identifier: MIT
+pragma solidity ^0.8.24;
+
+import {Math} from "@openzeppelin/contracts/utils/math/Math.sol";
+
+/**
+ * @title UsersManager (UMC, thesis Table 7.2)
+ * @dev Registers workers and requesters and keeps, per worker, domain and task type, the
+ * counters the recruitment QoS needs (Eq. 16-19 and the rating): offers assigned (A),
+ * accepted (Ac), completed (E), review sum and review count. Only platform contracts (the
+ * TMC and the MMC, set by an admin) update counters. The consortium admins are kept here and
+ * the TMC/MMC ask `isAdmin`. A two-mapping role set instead of OpenZeppelin AccessControl:
+ * AccessControl (role admins, ERC-165, renounce) added ~1.2 kB of runtime, i.e. ~250k deploy
+ * gas, for features this consortium does not use.
+ *
+ * Domains are codes 0-47 kept as a 48-bit mask inside the worker slot (O(1) membership
+ * test); GPU series are codes 0-255 (0 = no GPU); cores and RAM (GB) are uint16.
+ *
+ * Gas: a worker is one storage slot (address, status, GPU, cores, RAM, domains) and each
+ * counter set is one slot (five uint48: 2.8e14 tasks before overflow); domain lists hold
+ * uint32 ids, eight per slot, so a candidate scan costs two cold SLOADs per worker and
+ * addWorker writes three new slots (worker, id, list entry).
+ */
+contract UsersManager {
+
+    uint8 public constant TRAINING = 0;
+    uint8 public constant SHARING = 1;
+
+    // updateInfo flags: which counters a platform event increments.
+    uint8 public constant ASSIGNED = 1;
+    uint8 public constant ACCEPTED = 2;
+    uint8 public constant COMPLETED = 4;
+    uint8 public constant REVIEWED = 8;
+
+    uint256 internal constant REVIEW_MAX = 5;
+    uint256 internal constant MEMBER_BIT = 1 << 255;
+    uint256 public constant MAX_DOMAIN = 47;
+    uint256 internal constant DOMAINS_SHIFT = 208;
+    uint256 internal constant WORKER_FIELDS = (1 << DOMAINS_SHIFT) - 1; // all but the domains
+
+    enum Status {
+        None,
+        Active, // takes offers ("available" in qos.py)
+        Idle // registered, takes no offers
+    }
+
+    struct Worker {
+        address addr;
+        Status status;
+        uint8 gpuSeries;
+        uint16 cpuCores;
+        uint16 ramGb;
+        uint48 domains; // bit d = domain code d
+    }
+
+    struct Counters {
+        uint48 assigned;
+        uint48 accepted;
+        uint48 completed;
+        uint48 ratingSum;
+        uint48 ratingCount;
+    }
+
+    error UsersNotAdmin(address account);
+    error UsersNotPlatform(address account);
+    error UsersLastAdmin(address account);
+    error UsersAlreadyRegistered(address account);
+    error UsersNotWorker(address account);
+    error UsersBadDomains(uint256 domains);
+    error UsersBadDomain(uint256 domain);
+    error UsersBadStatus(uint8 status);
+    error UsersBadTaskType(uint8 taskType);
+    error UsersBadReview(uint8 review);
+    error UsersBadFlags(uint8 flags);
+    error UsersCountersInconsistent(address worker, uint256 domain, uint8 taskType);
+
+    event AdminUpdated(address indexed account, bool isAdmin);
+    event PlatformUpdated(address indexed account, bool isPlatform);
+    event WorkerAdded(
+        address indexed worker, uint32 indexed id, uint256 domains, uint16 cpuCores, uint16 ramGb, uint8 gpuSeries
+    );
+    event RequesterAdded(address indexed requester);
+    event WorkerStatusUpdated(address indexed worker, Status status);
+    event WorkerCapabilitiesUpdated(address indexed worker, uint16 cpuCores, uint16 ramGb, uint8 gpuSeries);
+    event WorkerInfoUpdated(
+        address indexed worker,
+        uint32 indexed domain,
+        uint8 indexed taskType,
+        uint48 assigned,
+        uint48 accepted,
+        uint48 completed,
+        uint48 ratingSum,
+        uint48 ratingCount
+    );
+
+    /// Workers List (thesis: address -> Worker); ids start at 1, 0 = not a worker.
+    mapping(uint32 => Worker) internal _workers;
+    mapping(address => uint32) public workerId;
+    /// Domain Workers (thesis: uint -> address[]), as worker ids in registration order.
+    mapping(uint256 => uint32[]) internal _domainWorkers;
+    /// Counters per (worker id, domain, task type): key = id << 16 | domain << 8 | type.
+    mapping(uint256 => Counters) internal _counters;
+    mapping(address => bool) public isRequester;
+    uint32 public workerCount;
+
+    mapping(address => bool) public isAdmin;
+    mapping(address => bool) public isPlatform;
+    uint256 public adminCount;
+
+    modifier onlyAdmin() {
+        _checkAdmin();
+        _;
+    }
+
+    constructor(address admin) {
+        isAdmin[admin] = true;
+        adminCount = 1;
+        emit AdminUpdated(admin, true);
+    }
+
+    // ---------------------------------------------------------------------------- admin
+
+    /**
+     * @dev Adds or removes a consortium admin.
+     * Requirements: caller is an admin; the last admin cannot be removed.
+     * Emits an {AdminUpdated} event.
+     */
+    function setAdmin(address account, bool on) external onlyAdmin {
+        if (isAdmin[account] == on) return;
+        if (!on && adminCount == 1) revert UsersLastAdmin(account);
+        isAdmin[account] = on;
+        adminCount = on ? adminCount + 1 : adminCount - 1;
+        emit AdminUpdated(account, on);
+    }
+
+    /**
+     * @dev Allows or forbids a platform contract (TMC, MMC) to call {updateInfo}.
+     * Requirements: caller is an admin. Emits a {PlatformUpdated} event.
+     */
+    function setPlatform(address account, bool on) external onlyAdmin {
+        isPlatform[account] = on;
+        emit PlatformUpdated(account, on);
+    }
+
+    // ---------------------------------------------------------------------------- users
+
+    /**
+     * @dev Registers msg.sender as a worker covering the domains set in `domains` (bit d =
+     * domain code d, thesis Domains uint[]) with the given computational capabilities
+     * (Table 7.2). Requirements: not yet a worker; at least one domain, all codes <= 47.
+     * Emits a {WorkerAdded} event.
+     */
+    function addWorker(uint256 domains, uint16 cpuCores, uint16 ramGb, uint8 gpuSeries) external {
+        if (workerId[msg.sender] != 0) revert UsersAlreadyRegistered(msg.sender);
+        if (domains == 0 || domains >> (MAX_DOMAIN + 1) != 0) revert UsersBadDomains(domains);
+        uint32 id = ++workerCount;
+        _workers[id] = Worker(msg.sender, Status.Active, gpuSeries, cpuCores, ramGb, uint48(domains));
+        workerId[msg.sender] = id;
+        uint256 rest = domains;
+        while (rest != 0) {
+            uint256 low = rest & (~rest + 1);
+            _domainWorkers[Math.log2(low)].push(id);
+            rest ^= low;
+        }
+        emit WorkerAdded(msg.sender, id, domains, cpuCores, ramGb, gpuSeries);
+    }
+
+    /**
+     * @dev Registers msg.sender as a requester.
+     * Requirements: not yet a requester. Emits a {RequesterAdded} event.
+     */
+    function addRequester() external {
+        if (isRequester[msg.sender]) revert UsersAlreadyRegistered(msg.sender);
+        isRequester[msg.sender] = true;
+        emit RequesterAdded(msg.sender);
+    }
+
+    /**
+     * @dev A worker switches between Active (takes offers) and Idle.
+     * Requirements: caller is a worker; `status` is Active or Idle.
+     * Emits a {WorkerStatusUpdated} event.
+     */
+    function updateStatus(Status status) external {
+        uint32 id = _workerIdOf(msg.sender);
+        if (status == Status.None) revert UsersBadStatus(uint8(status));
+        _workers[id].status = status;
+        emit WorkerStatusUpdated(msg.sender, status);
+    }
+
+    /**
+     * @dev A worker updates its computational capabilities (Comp. Capabilities, Table 7.2).
+     * Requirements: caller is a worker. Emits a {WorkerCapabilitiesUpdated} event.
+     */
+    function updateCapabilities(uint16 cpuCores, uint16 ramGb, uint8 gpuSeries) external {
+        uint32 id = _workerIdOf(msg.sender);
+        Worker storage w = _workers[id];
+        (w.cpuCores, w.ramGb, w.gpuSeries) = (cpuCores, ramGb, gpuSeries);
+        emit WorkerCapabilitiesUpdated(msg.sender, cpuCores, ramGb, gpuSeries);
+    }
+
+    /**
+     * @dev Performance details after a platform event (thesis updateInfo): increments the
+     * counters selected by `flags` (ASSIGNED, ACCEPTED, COMPLETED, REVIEWED with `review`).
+     * Requirements: caller is a platform contract (TMC, MMC); `worker` is a worker; taskType
+     * TRAINING or SHARING; review <= 5; completed <= accepted <= assigned afterwards.
+     * Emits a {WorkerInfoUpdated} event with the new counters.
+     */
+    function updateInfo(address worker, uint32 domain, uint8 taskType, uint8 flags, uint8 review)
+        external
+    {
+        if (!isPlatform[msg.sender]) revert UsersNotPlatform(msg.sender);
+        uint32 id = _workerIdOf(worker);
+        if (taskType > SHARING) revert UsersBadTaskType(taskType);
+        if (flags == 0 || flags > 15) revert UsersBadFlags(flags);
+        Counters memory c = _counters[_key(id, domain, taskType)];
+        unchecked {
+            // uint48 counters: 2.8e14 events per worker before wrapping.
+            if (flags & ASSIGNED != 0) ++c.assigned;
+            if (flags & ACCEPTED != 0) ++c.accepted;
+            if (flags & COMPLETED != 0) ++c.completed;
+            if (flags & REVIEWED != 0) {
+                if (review > REVIEW_MAX) revert UsersBadReview(review);
+                c.ratingSum += review;
+                ++c.ratingCount;
+            }
+        }
+        if (c.completed > c.accepted || c.accepted > c.assigned) {
+            revert UsersCountersInconsistent(worker, domain, taskType);
+        }
+        _counters[_key(id, domain, taskType)] = c;
+        emit WorkerInfoUpdated(worker, domain, taskType, c.assigned, c.accepted, c.completed, c.ratingSum, c.ratingCount);
+    }
+
+    // ---------------------------------------------------------------------------- views
+
+    /// @dev All workers of `domain` in registration order (thesis getWorkers).
+    function getWorkers(uint32 domain) external view returns (Worker[] memory out) {
+        uint32[] storage ids = _domainWorkers[domain];
+        out = new Worker[](ids.length);
+        for (uint256 i; i < out.length; ++i) {
+            out[i] = _workers[ids[i]];
+        }
+    }
+
+    /// @dev Counters of `worker` for (`domain`, `taskType`) (zeros for unknown workers).
+    function counters(address worker, uint32 domain, uint8 taskType) external view returns (Counters memory) {
+        return _counters[_key(workerId[worker], domain, taskType)];
+    }
+
+    function getWorker(address worker) external view returns (Worker memory) {
+        return _workers[workerId[worker]];
+    }
+
+    /// @dev Domain bitmask of `worker` (0 for unknown addresses).
+    function domainsOf(address worker) external view returns (uint256) {
+        return _workers[workerId[worker]].domains;
+    }
+
+    function domainSize(uint32 domain) external view returns (uint256) {
+        return _domainWorkers[domain].length;
+    }
+
+    /**
+     * @dev Candidate scan input for the TMC: for every worker of `domain` (registration
+     * order), the packed worker word and the packed counters of (`domain`, `taskType`).
+     * Packing (low bits first): worker = addr | status << 160 | gpu << 168 | cores << 176 |
+     * ram << 192 | 1 << 255 (domain member); counters = five 48-bit fields
+     * (assigned, accepted, completed, ratingSum, ratingCount). Two words per candidate keep
+     * the ABI copy cheap (a struct array would be ten).
+     */
+    function candidates(uint32 domain, uint8 taskType)
+        external
+        view
+        returns (uint256[] memory workers, uint256[] memory stats)
+    {
+        uint32[] memory ids = _domainWorkers[domain]; // one SLOAD per eight ids
+        uint256 n = ids.length;
+        workers = new uint256[](n);
+        stats = new uint256[](n);
+        for (uint256 i; i < n; ++i) {
+            uint32 id = ids[i];
+            workers[i] = (_rawWorker(id) & WORKER_FIELDS) | MEMBER_BIT;
+            stats[i] = _rawCounters(_key(id, domain, taskType));
+        }
+    }
+
+    /**
+     * @dev The same packed words for workers given by id (model owners, Eq. 23); bit 255 of
+     * the worker word is set when the worker covers `domain`. Id 0 gives zero words.
+     */
+    function profiles(uint32[] calldata ids, uint32 domain, uint8 taskType)
+        external
+        view
+        returns (uint256[] memory workers, uint256[] memory stats)
+    {
+        uint256 n = ids.length;
+        workers = new uint256[](n);
+        stats = new uint256[](n);
+        for (uint256 i; i < n; ++i) {
+            uint32 id = ids[i];
+            if (id == 0) continue;
+            uint256 raw = _rawWorker(id);
+            uint256 word = raw & WORKER_FIELDS;
+            if (domain <= MAX_DOMAIN && (raw >> (DOMAINS_SHIFT + domain)) & 1 == 1) word |= MEMBER_BIT;
+            workers[i] = word;
+            stats[i] = _rawCounters(_key(id, domain, taskType));
+        }
+    }
+
+    // ---------------------------------------------------------------------------- internal
+
+    function _checkAdmin() internal view {
+        if (!isAdmin[msg.sender]) revert UsersNotAdmin(msg.sender);
+    }
+
+    /// @dev The storage word of worker `id`: its layout (addr | status << 160 | gpu << 168 |
+    /// cores << 176 | ram << 192 | domains << 208) is the packed format itself, so scans copy
+    /// it without decoding the struct (~1.5k gas less per candidate).
+    function _rawWorker(uint32 id) internal view returns (uint256 w) {
+        assembly {
+            mstore(0, id)
+            mstore(32, _workers.slot)
+            w := sload(keccak256(0, 64))
+        }
+    }
+
+    /// @dev The storage word of a counter set (five uint48 from the low bits = packed format).
+    function _rawCounters(uint256 key) internal view returns (uint256 c) {
+        assembly {
+            mstore(0, key)
+            mstore(32, _counters.slot)
+            c := sload(keccak256(0, 64))
+        }
+    }
+
+    function _workerIdOf(address account) internal view returns (uint32 id) {
+        id = workerId[account];
+        if (id == 0) revert UsersNotWorker(account);
+    }
+
+    function _key(uint32 id, uint32 domain, uint8 taskType) internal pure returns (uint256) {
+        return (uint256(id) << 40) | (uint256(domain) << 8) | taskType;
+    }
+}
