@@ -135,7 +135,7 @@ def test_progress_review_and_cancel_act_only_for_the_right_address(
 
 
 def test_cancel_refunds_and_lists_by_status(
-    client: TestClient, login: Login, service: ChainService
+    client: TestClient, login: Login, service: ChainService, settings: Settings
 ) -> None:
     register(client, login, ["user1"], WORKERS)
     ids = [
@@ -144,6 +144,10 @@ def test_cancel_refunds_and_lists_by_status(
         ]
         for _ in range(2)
     ]
+    r = client.post(f"{P}/tasks/{ids[0]}/cancel", headers=login("user1"))
+    assert r.status_code == 409 and r.json()["detail"]["rule"] == "tasks_has_live_offers"
+    with service.lock:  # once the acceptance window has passed, the offers are dead
+        service.chain.advance_time(settings.accept_window_s + 1)
     r = client.post(f"{P}/tasks/{ids[0]}/cancel", headers=login("user1"))
     assert r.status_code == 200, r.text
     assert service.platform.tmc.task(ids[0])["status"] == TaskStatus.CANCELLED
