@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 DEMO_OUT ?= runs/demo
 
-.PHONY: setup demo test lint bench-env bench-train bench-table bench-recruitment clean
+.PHONY: setup demo train-demo test lint bench-env bench-train bench-table bench-recruitment clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
@@ -29,11 +29,16 @@ tests/ipfs-node/node_modules/.installed: tests/ipfs-node/package-lock.json
 
 setup: $(STAMP) contracts/node_modules/.installed tests/ipfs-node/node_modules/.installed /usr/bin/chromium
 
-# Main job (embedded default, nothing else to install): train the default preset briefly, then
-# evaluate the model against the baselines and the oracle on the same seeded episodes.
+# Main job (embedded default, nothing else to install): start the whole platform on this
+# machine (chain with contracts, content store, broker, database, gateway, 3 worker daemons) and
+# run the issue-4 scenario against it: register, submit, recruit, train, upload, review, share.
 demo: setup
-	$(BIN)/drlaas train --preset odmtl-3a-10x10 --minutes 3 --seed 0 --out $(DEMO_OUT)
-	$(BIN)/drlaas eval --policy $(DEMO_OUT)/model --episodes 500 --seed 1
+	$(BIN)/drlaas demo-scenario --steps 50000 --data $(DEMO_OUT)/platform
+
+# The MDRL core alone: train the default preset briefly, then evaluate it against the baselines.
+train-demo: setup
+	$(BIN)/drlaas train --preset odmtl-3a-10x10 --minutes 3 --seed 0 --out $(DEMO_OUT)/odmtl
+	$(BIN)/drlaas eval --policy $(DEMO_OUT)/odmtl/model --episodes 500 --seed 1
 	$(BIN)/drlaas eval --policy bayes --agents 3 --episodes 500 --seed 1
 
 test: setup

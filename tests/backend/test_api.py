@@ -88,6 +88,8 @@ def test_unexpected_error_is_a_json_500_without_internals(settings: Settings) ->
     def boom() -> None:
         raise RuntimeError("secret internals")
 
+    app.router.routes.insert(0, app.router.routes.pop())  # ahead of the web UI's catch-all mount
+
     with TestClient(app, raise_server_exceptions=False) as c:
         r = c.get("/boom")
     assert r.status_code == 500
