@@ -42,6 +42,7 @@ train-demo: setup
 	$(BIN)/drlaas eval --policy bayes --agents 3 --episodes 500 --seed 1
 
 test: setup
+	$(BIN)/ruff check .
 	$(BIN)/python -m pytest -q
 
 lint: setup

@@ -1,4 +1,4 @@
-"""Environment throughput in agent-steps/s, observations included (issue 2, target >= 1e6 at B=1024).
+"""Environment throughput in agent-steps/s, observations included (target >= 1e6 at B=1024).
 
 Batched ``TargetLocalizationEnv`` + ODMTL observer at B = 1, 64, 1024 against stepping the
 PettingZoo view one environment at a time. Random valid actions are drawn outside the timed
@@ -65,7 +65,8 @@ def main() -> None:
     rows, cols = parse_grid(args.grid)
     spec = EnvSpec(rows=rows, cols=cols, agents=args.agents)
     obs_spec = ObservationSpec(args.kind, window=args.window)
-    print(f"# env throughput: {args.kind.upper()} w={args.window}, {args.agents} agents, {args.grid}, step + observe")
+    what = f"{args.kind.upper()} w={args.window}, {args.agents} agents, {args.grid}"
+    print(f"# env throughput: {what}, step + observe")
     ref = pettingzoo(spec, obs_spec, args.seconds)
     print(f"{'PettingZoo view, 1 env at a time':<36} {ref:>14,.0f} agent-steps/s   1.0x")
     for B in (1, 64, 1024):

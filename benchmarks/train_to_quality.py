@@ -27,13 +27,29 @@ TABLE_3_5 = {  # (time, cost) lowest averages per team size, thesis Table 3.5
 }
 
 
-def run(preset_name: str, minutes: float, eval_every: int, episodes: int, seed: int,
-        stop_at: tuple[float, float, float] | None, threads: int, readings: str) -> dict:
+def run(
+    preset_name: str,
+    minutes: float,
+    eval_every: int,
+    episodes: int,
+    seed: int,
+    stop_at: tuple[float, float, float] | None,
+    threads: int,
+    readings: str,
+    out: str | None = None,
+) -> dict:
     """Train update by update; evaluate greedily; stop at the quality bar or the time budget."""
     preset = get_preset(preset_name)
     preset = dataclasses.replace(preset, env=preset.env.replace(readings=readings))
-    runcfg = RunConfig(seed=seed, minutes=minutes, eval_every=0, eval_episodes=episodes,
-                       threads=threads, tensorboard=False, progress=False)
+    runcfg = RunConfig(
+        seed=seed,
+        minutes=minutes,
+        eval_every=0,
+        eval_episodes=episodes,
+        threads=threads,
+        tensorboard=False,
+        progress=False,
+    )
     trainer = Trainer(preset.env, preset.observation, preset.ppo, runcfg, out=None)
     t0 = time.perf_counter()
     best, reached, evals = None, None, 0
@@ -49,21 +65,40 @@ def run(preset_name: str, minutes: float, eval_every: int, episodes: int, seed: 
                 continue
         e = trainer.evaluate()
         evals += 1
-        point = {"steps": trainer.global_step, "seconds": round(time.perf_counter() - t0, 1),
-                 "success": e["eval_success"], "time": e["eval_time"], "cost": e["eval_cost"]}
+        point = {
+            "steps": trainer.global_step,
+            "seconds": round(time.perf_counter() - t0, 1),
+            "success": e["eval_success"],
+            "time": e["eval_time"],
+            "cost": e["eval_cost"],
+        }
         if best is None or (point["success"], -point["time"] - point["cost"]) > (
-            best["success"], -best["time"] - best["cost"]
+            best["success"],
+            -best["time"] - best["cost"],
         ):
             best = point
-        if stop_at and point["success"] >= stop_at[0] and point["time"] <= stop_at[1] \
-                and point["cost"] <= stop_at[2]:
+        if (
+            stop_at
+            and point["success"] >= stop_at[0]
+            and point["time"] <= stop_at[1]
+            and point["cost"] <= stop_at[2]
+        ):
             reached = point
             break
-    oracle = evaluate(make_baseline("oracle"), preset.env, episodes,
-                      seed=runcfg.eval_seed)
-    return {"preset": preset_name, "readings": readings, "budget_minutes": minutes, "evaluations": evals,
-            "steps": trainer.global_step, "best": best, "reached": reached,
-            "oracle_time": oracle.time_mean, "oracle_cost": oracle.cost_mean}
+    if out:
+        trainer.save_model(out)
+    oracle = evaluate(make_baseline("oracle"), preset.env, episodes, seed=runcfg.eval_seed)
+    return {
+        "preset": preset_name,
+        "readings": readings,
+        "budget_minutes": minutes,
+        "evaluations": evals,
+        "steps": trainer.global_step,
+        "best": best,
+        "reached": reached,
+        "oracle_time": oracle.time_mean,
+        "oracle_cost": oracle.cost_mean,
+    }
 
 
 def main() -> None:
@@ -75,45 +110,78 @@ def main() -> None:
     ap.add_argument("--episodes", type=int, default=500)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--threads", type=int, default=1)
-    ap.add_argument("--readings", default="poisson", choices=["poisson", "expected"],
-                    help="reading model: Poisson draws (issue) or expected counts (author's code)")
+    ap.add_argument(
+        "--readings",
+        default="poisson",
+        choices=["poisson", "expected"],
+        help="reading model: Poisson draws (issue) or expected counts (author's code)",
+    )
+    ap.add_argument("--out", default=None, help="save the ODMTL model here (for policy_table.py)")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
 
     results = []
-    r = run("odmtl-3a-10x10", args.minutes, args.eval_every, args.episodes, args.seed,
-            (0.99, 5.8, 6.3), args.threads, args.readings)
+    r = run(
+        "odmtl-3a-10x10",
+        args.minutes,
+        args.eval_every,
+        args.episodes,
+        args.seed,
+        (0.99, 5.8, 6.3),
+        args.threads,
+        args.readings,
+        args.out,
+    )
     results.append(r)
     if not args.skip_short:
         for kind, sizes in (("dmtl", (1, 2, 3, 4)), ("cmtl", (1, 2, 3))):
             for n in sizes:
-                results.append(run(f"{kind}-{n}a-10x10", args.short_minutes, args.eval_every,
-                                   args.episodes, args.seed, None, args.threads,
-                                   args.readings))
+                results.append(
+                    run(
+                        f"{kind}-{n}a-10x10",
+                        args.short_minutes,
+                        args.eval_every,
+                        args.episodes,
+                        args.seed,
+                        None,
+                        args.threads,
+                        args.readings,
+                    )
+                )
     if args.json:
         print(json.dumps(results, indent=1))
         return
     q = results[0]
-    print(f"# train to Table 3.5 quality: ODMTL w=3, 3 agents, 10x10, I=1e9, {args.readings} readings")
+    print(
+        f"# train to Table 3.5 quality: ODMTL w=3, 3 agents, 10x10, I=1e9, {args.readings} readings"
+    )
     if q["reached"]:
         p = q["reached"]
-        print(f"reached success {p['success']:.3f}, time {p['time']:.2f}, cost {p['cost']:.2f} "
-              f"after {p['seconds']:.0f} s and {p['steps']:,} env steps")
+        print(
+            f"reached success {p['success']:.3f}, time {p['time']:.2f}, cost {p['cost']:.2f} "
+            f"after {p['seconds']:.0f} s and {p['steps']:,} env steps"
+        )
     else:
         b = q["best"]
-        print(f"NOT reached in {q['budget_minutes']:g} min ({q['steps']:,} env steps); best: "
-              f"success {b['success']:.3f}, time {b['time']:.2f}, cost {b['cost']:.2f} "
-              f"at {b['seconds']:.0f} s / {b['steps']:,} steps")
-    print(f"{'preset':<16} {'min':>5} {'steps':>11} {'success':>8} {'time':>6} {'cost':>6} "
-          f"{'thesis t/c':>11} {'oracle t':>9} {'time/oracle':>12}")
+        print(
+            f"NOT reached in {q['budget_minutes']:g} min ({q['steps']:,} env steps); best: "
+            f"success {b['success']:.3f}, time {b['time']:.2f}, cost {b['cost']:.2f} "
+            f"at {b['seconds']:.0f} s / {b['steps']:,} steps"
+        )
+    print(
+        f"{'preset':<16} {'min':>5} {'steps':>11} {'success':>8} {'time':>6} {'cost':>6} "
+        f"{'thesis t/c':>11} {'oracle t':>9} {'time/oracle':>12}"
+    )
     for r in results:
         b = r["reached"] or r["best"]
         kind, n = r["preset"].split("-")[0], int(r["preset"].split("-")[1][:-1])
         thesis = TABLE_3_5.get(kind, {}).get(n)
         th = f"{thesis[0]:.1f}/{thesis[1]:.1f}" if thesis else "n/a"
-        print(f"{r['preset']:<16} {r['budget_minutes']:>5g} {r['steps']:>11,} {b['success']:>8.3f} "
-              f"{b['time']:>6.2f} {b['cost']:>6.2f} {th:>11} {r['oracle_time']:>9.2f} "
-              f"{b['time'] / r['oracle_time']:>12.2f}")
+        print(
+            f"{r['preset']:<16} {r['budget_minutes']:>5g} {r['steps']:>11,} {b['success']:>8.3f} "
+            f"{b['time']:>6.2f} {b['cost']:>6.2f} {th:>11} {r['oracle_time']:>9.2f} "
+            f"{b['time'] / r['oracle_time']:>12.2f}"
+        )
 
 
 if __name__ == "__main__":

@@ -16,7 +16,6 @@ from dataclasses import dataclass
 from typing import Any
 
 from backend.store import ContentStore
-from backend.store.bundle import canonical_json
 
 TASK_SPEC_FORMAT = "drlaas-task/1"
 MAX_SPEC_BYTES = 64 * 1024

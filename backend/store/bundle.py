@@ -75,7 +75,9 @@ def pull_model(store: Any, cid: str, dest: str | os.PathLike[str]) -> Path:
     """Fetch both model files of bundle ``cid`` into ``dest``, each verified by its CID."""
     files = read_bundle(store, cid)
     if sorted(files) != sorted(MODEL_FILES):
-        raise InvalidContent(f"bundle {cid} must hold exactly {list(MODEL_FILES)}, has {sorted(files)}")
+        raise InvalidContent(
+            f"bundle {cid} must hold exactly {list(MODEL_FILES)}, has {sorted(files)}"
+        )
     out = Path(dest)
     out.mkdir(parents=True, exist_ok=True)
     for name in MODEL_FILES:

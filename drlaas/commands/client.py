@@ -435,8 +435,8 @@ def model_pull(
     Reads the content store of DRLAAS_IPFS when it is reachable from here (embedded store on
     this machine, or an IPFS node); the gateway resolves a model id to its CID."""
     from backend.settings import load_settings
-    from workers.daemon.links import open_store
     from backend.store.bundle import pull_model
+    from workers.daemon.links import open_store
 
     cid = model
     if model.isdigit():

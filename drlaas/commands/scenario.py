@@ -46,13 +46,14 @@ def demo_requester_keys(chain_kind: str) -> tuple[str, str]:
     )
 
 
-def _wait(
+def wait_for(
     what: str,
     fetch: Callable[[], Any],
     ok: Callable[[Any], bool],
     timeout: float,
     every: float = 0.25,
 ) -> Any:
+    """Poll ``fetch`` until ``ok(value)``; TimeoutError naming ``what`` and the last value."""
     deadline = time.monotonic() + timeout
     while True:
         value = fetch()
@@ -91,7 +92,7 @@ def run_scenario(
 
     _register_requester(req1)
     say(f"requester {req1.address} registered")
-    workers = _wait(
+    workers = wait_for(
         "three registered workers",
         lambda: anon.get("/workers")["data"],
         lambda d: len(d) >= 3,
@@ -137,7 +138,7 @@ def run_scenario(
         seen = len(d.get("progress", []))
         return d
 
-    detail = _wait(
+    detail = wait_for(
         f"an outcome of task {task_id}",
         lambda: show_progress(anon.get(f"/tasks/{task_id}")),
         lambda d: bool(d.get("outcomes")),
@@ -160,7 +161,7 @@ def run_scenario(
     write(
         req1, "POST", f"/tasks/{task_id}/reviews", {"worker": worker, "review": 5, "accepted": True}
     )
-    after = _wait(
+    after = wait_for(
         "the worker's reputation to change",
         lambda: anon.get(f"/workers/{worker}"),
         lambda w: w.get("reputation") != rep_before.get(worker),
@@ -191,7 +192,7 @@ def run_scenario(
             "env": SCENARIO_ENV,
         },
     )
-    listed = _wait(
+    listed = wait_for(
         "the model in the listing",
         lambda: anon.get("/models")["data"],
         lambda d: any(m["cid"] == cid for m in d),

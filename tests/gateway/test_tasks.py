@@ -12,6 +12,7 @@ from fastapi.testclient import TestClient
 
 from backend.chain.platform import OfferState, TaskStatus
 from backend.services.chain import ChainService
+from backend.settings import Settings
 
 from .conftest import ENV, Login, P, addr, register, task_body
 

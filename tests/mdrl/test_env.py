@@ -19,7 +19,9 @@ def place(env, b, target, agents):
     env.next_cell[b] = env._move_table(env.walls[b : b + 1])[0]
     env.target[b] = target
     env.dist[b] = env._free_dist[target]
-    env.mean_reading[b] = env.expected_counts(np.array([target]), env.walls[b : b + 1], env.intensity[b : b + 1])[0]
+    env.mean_reading[b] = env.expected_counts(
+        np.array([target]), env.walls[b : b + 1], env.intensity[b : b + 1]
+    )[0]
     env.pos[b] = agents
     env.history[b] = np.asarray(agents)[None, :]
     env.t[b] = env.idle_streak[b] = env.cost[b] = 0
@@ -189,7 +191,9 @@ def test_truncation_at_max_steps_and_frozen_envs_without_autoreset():
 
 
 def test_same_seed_same_episodes_whatever_the_actions():
-    spec = EnvSpec(rows=8, cols=8, agents=3, walls=(0, 2), intensity=IntensitySpec.uniform(1e8, 1e9))
+    spec = EnvSpec(
+        rows=8, cols=8, agents=3, walls=(0, 2), intensity=IntensitySpec.uniform(1e8, 1e9)
+    )
     a = TargetLocalizationEnv(spec, 16, seed=7, autoreset=False)
     b = TargetLocalizationEnv(spec, 16, seed=7, autoreset=False)
     assert (a.target == b.target).all() and (a.pos == b.pos).all() and (a.walls == b.walls).all()
@@ -218,7 +222,9 @@ def test_state_dict_restores_an_identical_continuation():
 
 
 def test_spec_validation_and_json_round_trip():
-    spec = EnvSpec(rows=12, cols=9, agents=4, walls=(1, 3), moves=8, intensity=IntensitySpec.choice([1e8, 1e9]))
+    spec = EnvSpec(
+        rows=12, cols=9, agents=4, walls=(1, 3), moves=8, intensity=IntensitySpec.choice([1e8, 1e9])
+    )
     assert EnvSpec.from_dict(spec.to_dict()) == spec
     with pytest.raises(ValueError, match="moves must be 4 or 8"):
         EnvSpec(moves=6)

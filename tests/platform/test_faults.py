@@ -7,11 +7,11 @@ from pathlib import Path
 
 from eth_account import Account
 
-from drlaas.commands.scenario import DEMO_REQUESTER_KEYS, SCENARIO_ENV
+from drlaas.commands.scenario import DEMO_REQUESTER_KEYS, SCENARIO_ENV, wait_for
 from drlaas.commands.up import running_platform
 from workers.daemon.gateway import Gateway
 
-from .conftest import wait_for, worker_logs
+from .conftest import worker_logs
 
 
 def test_killed_worker_resumes_from_its_checkpoint(data_dir: Path) -> None:

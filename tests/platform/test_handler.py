@@ -12,8 +12,8 @@ import torch
 from backend.chain.client import Chain
 from backend.chain.platform import OfferState
 from backend.store import EmbeddedStore, IpfsRpcStore, StoreUnavailable
-from workers.daemon.handler import OfferHandler, Transient
 from backend.store.bundle import MODEL_FILES, pull_model, read_bundle
+from workers.daemon.handler import OfferHandler, Transient
 from workers.daemon.taskspec import parse_spec
 from workers.mdrl.modelio import load_model
 

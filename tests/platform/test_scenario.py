@@ -9,11 +9,11 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
+from backend.store.bundle import pull_model, read_bundle
 from drlaas.commands.client import model_app, task_app, worker_app
 from drlaas.commands.scenario import run_scenario
 from drlaas.commands.up import running_platform
 from workers.daemon.links import open_store
-from backend.store.bundle import pull_model, read_bundle
 from workers.mdrl.modelio import load_model
 
 from .conftest import worker_logs

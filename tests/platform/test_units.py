@@ -9,9 +9,9 @@ from pathlib import Path
 import pytest
 
 from backend.store import EmbeddedStore, InvalidContent
+from backend.store.bundle import pull_model, read_bundle, upload_model
 from workers.daemon.capabilities import measure, ram_gb
 from workers.daemon.command import parse_domains
-from backend.store.bundle import pull_model, read_bundle, upload_model
 from workers.daemon.tasks import RETRY_CAP_S, make_on_offer, offer_key, retry_delay
 from workers.daemon.taskspec import SpecError, parse_spec
 

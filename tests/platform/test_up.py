@@ -12,7 +12,7 @@ from pathlib import Path
 
 import httpx
 
-from .conftest import wait_for
+from drlaas.commands.scenario import wait_for
 
 REPO = Path(__file__).resolve().parents[2]
 

@@ -25,10 +25,10 @@ from eth_account.signers.local import LocalAccount
 from backend.auth import checksum
 from backend.chain.platform import OfferState, Platform, TaskStatus
 from backend.store import ContentStore, StoreError, StoreUnavailable
+from backend.store.bundle import read_bundle, upload_model
 from workers.daemon import job as jobs
 from workers.daemon.gateway import Gateway, GatewayError
 from workers.daemon.links import task_spec_cid
-from backend.store.bundle import read_bundle, upload_model
 from workers.daemon.taskspec import SpecError, TrainingSpec, parse_spec
 
 log = logging.getLogger(__name__)

@@ -69,11 +69,14 @@ class TargetLocalizationEnv:
         nc = self.cell_col[:, None] + self.moves[None, :, 1]
         inside = (nr >= 0) & (nr < m) & (nc >= 0) & (nc < n)
         self._free_next = np.where(inside, nr * n + nc, -1)  # (C, A) move table without walls
-        diff = np.abs(self.cell_row[:, None] - self.cell_row[None]), np.abs(
-            self.cell_col[:, None] - self.cell_col[None]
+        diff = (
+            np.abs(self.cell_row[:, None] - self.cell_row[None]),
+            np.abs(self.cell_col[:, None] - self.cell_col[None]),
         )
         # Wall-free BFS distances have a closed form: Manhattan (4 moves) or Chebyshev (8 moves).
-        self._free_dist = (diff[0] + diff[1] if spec.moves == 4 else np.maximum(*diff)).astype(np.int32)
+        self._free_dist = (diff[0] + diff[1] if spec.moves == 4 else np.maximum(*diff)).astype(
+            np.int32
+        )
         d2_cm2 = ((self.centre_m[:, None, :] - self.centre_m[None, :, :]) ** 2).sum(-1) * 1e4
         d2_cm2 = np.maximum(d2_cm2, (min(cy, cx) * 100 / 2) ** 2)
         # Expected count per photon/min without walls (Eq. 6): dwell * area / (4 pi d^2).
@@ -102,7 +105,7 @@ class TargetLocalizationEnv:
 
     # ------------------------------------------------------------------ seeding and state
     def seed(self, seed: int | None) -> None:
-        """Two independent streams: layouts (so policies see the same episodes) and reading noise."""
+        """Two streams: layouts (so policies see the same episodes) and reading noise."""
         layout, noise = np.random.SeedSequence(seed).spawn(2)
         self.layout_rng = np.random.Generator(np.random.PCG64(layout))
         self.noise_rng = np.random.Generator(np.random.PCG64(noise))
@@ -131,7 +134,9 @@ class TargetLocalizationEnv:
             current = getattr(self, name)
             value = np.asarray(arrays[name.lstrip("_")])
             if value.shape != current.shape:
-                raise ValueError(f"saved env array {name} has shape {value.shape}, expected {current.shape}")
+                raise ValueError(
+                    f"saved env array {name} has shape {value.shape}, expected {current.shape}"
+                )
             current[...] = value
         self.layout_rng.bit_generator.state = extras["layout_rng"]
         self.noise_rng.bit_generator.state = extras["noise_rng"]
@@ -215,7 +220,7 @@ class TargetLocalizationEnv:
         return walls.reshape(R, -1)
 
     def _move_table(self, walls: np.ndarray) -> np.ndarray:
-        """(R, C, A) destination of every move; -1 where it leaves the grid, hits a wall or cuts a corner."""
+        """(R, C, A) destination of every move; -1 off the grid, into a wall or cutting a corner."""
         R = len(walls)
         table = np.broadcast_to(self._free_next, (R, *self._free_next.shape)).copy()
         if not walls.any():
@@ -265,7 +270,9 @@ class TargetLocalizationEnv:
         dist[idx] = sub
         return dist
 
-    def expected_counts(self, target: np.ndarray, walls: np.ndarray, intensity: np.ndarray) -> np.ndarray:
+    def expected_counts(
+        self, target: np.ndarray, walls: np.ndarray, intensity: np.ndarray
+    ) -> np.ndarray:
         """(R, C) mean reading at every cell for sources at ``target`` (Eq. 6 x wall transmission).
 
         Public so model-based baselines can evaluate hypothetical targets with the same physics.
@@ -276,7 +283,7 @@ class TargetLocalizationEnv:
         return mean * self._transmission(target, walls)
 
     def _transmission(self, target: np.ndarray, walls: np.ndarray) -> np.ndarray:
-        """Beer-Lambert exp(-mu t / cos(theta)) for every wall the straight detector-source line crosses.
+        """Beer-Lambert exp(-mu t / cos(theta)) per wall crossed by the detector-source line.
 
         A wall is the run of wall cells that leaves a side; its slab lies on the centre line of
         those cells, from the side to the far edge of its last cell.
@@ -287,7 +294,10 @@ class TargetLocalizationEnv:
         R = len(target)
         grid = walls.reshape(R, m, n)
         py, px = self.centre_m[None, :, 0], self.centre_m[None, :, 1]  # detectors (1, C)
-        qy, qx = self.centre_m[target, 0][:, None], self.centre_m[target, 1][:, None]  # sources (R, 1)
+        qy, qx = (
+            self.centre_m[target, 0][:, None],
+            self.centre_m[target, 1][:, None],
+        )  # sources (R, 1)
         length = np.hypot(py - qy, px - qx)
         top = np.cumprod(grid, axis=1).sum(1)  # (R, n) run down from the top of each column
         bottom = np.cumprod(grid[:, ::-1], axis=1).sum(1)
@@ -333,7 +343,9 @@ class TargetLocalizationEnv:
         B, N, A = self.num_envs, spec.agents, spec.num_actions
         actions = np.asarray(actions)
         if actions.shape != (B, N):
-            raise ValueError(f"actions must have shape (num_envs, agents) = {(B, N)}, got {actions.shape}")
+            raise ValueError(
+                f"actions must have shape (num_envs, agents) = {(B, N)}, got {actions.shape}"
+            )
         if not np.issubdtype(actions.dtype, np.integer):
             raise ValueError(f"actions must be integers, got {actions.dtype}")
         actions = actions.astype(np.int64, copy=False)

@@ -93,7 +93,11 @@ class TargetLocalizationParallelEnv(ParallelEnv):
         if terminated or truncated:
             stats = result.episode
             for a in self.agents:
-                infos[a] = {"found": bool(stats.found[0]), "length": int(stats.length[0]), "cost": int(stats.cost[0])}
+                infos[a] = {
+                    "found": bool(stats.found[0]),
+                    "length": int(stats.length[0]),
+                    "cost": int(stats.cost[0]),
+                }
             self.agents = []
         if self.render_mode == "ansi":
             print(self.render())

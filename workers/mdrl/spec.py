@@ -46,7 +46,9 @@ class IntensitySpec:
         if self.kind == "fixed" and len(self.values) != 1:
             raise ValueError("a fixed intensity has exactly one value")
         if self.kind == "uniform" and (len(self.values) != 2 or self.values[0] > self.values[1]):
-            raise ValueError(f"a uniform intensity needs (low, high) with low <= high, got {self.values}")
+            raise ValueError(
+                f"a uniform intensity needs (low, high) with low <= high, got {self.values}"
+            )
 
     @classmethod
     def fixed(cls, value: float) -> IntensitySpec:
@@ -127,7 +129,9 @@ class EnvSpec:
         if self.agents < 1:
             problems.append(f"agents must be >= 1, got {self.agents}")
         if self.agents + 1 > self.rows * self.cols:
-            problems.append(f"{self.agents} agents and a target do not fit on {self.rows}x{self.cols}")
+            problems.append(
+                f"{self.agents} agents and a target do not fit on {self.rows}x{self.cols}"
+            )
         if self.moves not in MOVES:
             problems.append(f"moves must be 4 or 8, got {self.moves}")
         lo, hi = self.walls
@@ -136,11 +140,15 @@ class EnvSpec:
         if self.wall_length is not None:
             wl, wh = self.wall_length
             if not 1 <= wl <= wh:
-                problems.append(f"wall_length must be (min, max) with 1 <= min <= max, got {self.wall_length}")
+                problems.append(
+                    f"wall_length must be (min, max) with 1 <= min <= max, got {self.wall_length}"
+                )
         if hi > 0 and min(self.rows, self.cols) < 4:
             problems.append("walls need a grid of at least 4x4")
         if self.reward not in ("shaped", "sparse"):
-            problems.append(f"reward must be 'shaped' (Eq. 5/8) or 'sparse' (Eq. 9), got {self.reward!r}")
+            problems.append(
+                f"reward must be 'shaped' (Eq. 5/8) or 'sparse' (Eq. 9), got {self.reward!r}"
+            )
         if self.readings not in ("poisson", "expected"):
             problems.append(f"readings must be 'poisson' or 'expected', got {self.readings!r}")
         if self.max_steps < 1:
@@ -170,7 +178,7 @@ class EnvSpec:
         return self.area_m[0] / self.rows, self.area_m[1] / self.cols
 
     def wall_length_range(self, span: int) -> tuple[int, int]:
-        """Wall lengths for a side of ``span`` cells; at most span - 2 so a wall never seals a side."""
+        """Wall lengths for a side of ``span`` cells: at most span - 2, never sealing a side."""
         lo, hi = self.wall_length if self.wall_length is not None else (2, span - 2)
         hi = min(hi, span - 2)
         return min(lo, hi), hi

@@ -123,7 +123,9 @@ def demo_token(body: DemoTokenRequest, chain: ChainDep, settings: SettingsDep) -
     """Development only: a token for a demo user; the gateway holds that key, so it vouches."""
     keys = _demo_keys(chain)
     if body.name not in keys.names or keys.account(body.name).address != body.address:
-        raise RuleError(403, "not_a_demo_user", f"{body.name}/{body.address} is not a demo user here")
+        raise RuleError(
+            403, "not_a_demo_user", f"{body.name}/{body.address} is not a demo user here"
+        )
     token = issue_token(body.address, settings=settings)
     return TokenPublic(
         access_token=token.access_token, address=token.address, expires_at=token.expires_at
