@@ -399,3 +399,26 @@ def test_num_actor_outputs():
     for kind in ("dmtl", "odmtl"):
         observer = make_observer(make_spec(10, 10, 3), ObservationSpec(kind))
         assert observer.num_actor_outputs(9) == 9 and not observer.joint_actions
+
+
+def test_odmtl_full_critic_sees_the_dmtl_joint_maps_and_leaves_the_actor_alone():
+    from workers.mdrl.env import TargetLocalizationEnv
+    from workers.mdrl.spec import EnvSpec
+
+    spec = EnvSpec(rows=8, cols=8, agents=3, walls=(0, 2))
+    env = TargetLocalizationEnv(spec, 16, seed=3)
+    rng = np.random.default_rng(0)
+    for _ in range(4):
+        keys = rng.random(env.action_mask().shape) * env.action_mask()
+        env.step(keys.argmax(-1))
+    reduced = make_observer(spec, ObservationSpec("odmtl", critic="reduced"))
+    full = make_observer(spec, ObservationSpec("odmtl", critic="full"))
+    dmtl = make_observer(spec, ObservationSpec("dmtl"))
+    a_red, _ = reduced.observe(env)
+    a_full, c_full = full.observe(env)
+    _, c_dmtl = dmtl.observe(env)
+    assert full.critic_shape == dmtl.critic_shape == (4, 8, 8)
+    np.testing.assert_array_equal(a_full, a_red)
+    np.testing.assert_allclose(c_full, c_dmtl, rtol=1e-6)
+    with pytest.raises(ValueError, match="critic must be"):
+        ObservationSpec("odmtl", critic="huge")

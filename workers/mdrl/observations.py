@@ -60,6 +60,10 @@ class ObservationSpec:
     """w: side of the windowed and downsized ODMTL maps; odd, 1 < w < min(rows, cols)."""
     walls: bool | None = None
     """Append wall maps; None = iff the env can have walls (``spec.walls[1] > 0``)."""
+    critic: str = "reduced"
+    """ODMTL critic input: 'reduced' (3.6.2: downsized w x w maps) or 'full' (the m x n joint
+    maps, as DMTL's critic). The critic only trains the actor (CLDE), so the deployed actor
+    and its Table 3.4 parameter count are the same either way."""
 
     def __post_init__(self) -> None:
         if self.kind not in KINDS:
@@ -69,6 +73,10 @@ class ObservationSpec:
         if self.window < 1 or self.window % 2 == 0:
             raise ValueError(
                 f"ObservationSpec.window must be a positive odd int, got {self.window}"
+            )
+        if self.critic not in ("reduced", "full"):
+            raise ValueError(
+                f"ObservationSpec.critic must be 'reduced' or 'full', got {self.critic!r}"
             )
         if self.walls is not None and not isinstance(self.walls, bool):
             raise ValueError(
@@ -80,7 +88,7 @@ class ObservationSpec:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> ObservationSpec:
-        unknown = set(d) - {"kind", "window", "walls"}
+        unknown = set(d) - {"kind", "window", "walls", "critic"}
         if unknown:
             raise ValueError(f"unknown ObservationSpec fields: {sorted(unknown)}")
         return cls(**d)
@@ -217,10 +225,14 @@ class Observer:
                 + (["win_walls", "ds_walls"] if self.walls else [])
             )
             critic = ["ds_all_locations", "ds_readings", "ds_visits"] + [f"ds_{x}" for x in walls]
+        self.full_critic = self.kind == "odmtl" and obs_spec.critic == "full"
+        if self.full_critic:
+            critic = ["all_locations", "readings", "visits"] + walls
         self.actor_channels, self.critic_channels = tuple(actor), tuple(critic)
         h, wd = (w, w) if self.kind == "odmtl" else (rows, cols)
         self.actor_shape = (len(actor), h, wd)
-        self.critic_shape = (len(critic), h, wd)
+        reduced_critic = self.kind == "odmtl" and not self.full_critic
+        self.critic_shape = (len(critic), h, wd) if reduced_critic else (len(critic), rows, cols)
         if self.kind == "odmtl":
             self._rt = downsize_matrix(rows, cols, w).T.astype(np.float32).copy()  # (C, w*w)
             self._win = window_index(rows, cols, w)
@@ -356,8 +368,9 @@ class Observer:
         centre = np.asarray(env.past_pos(p))
         if centre.shape != pos.shape:
             raise ValueError(f"env.past_pos({p}) must have shape {pos.shape}, got {centre.shape}")
+        critic_cells = self.cells if self.full_critic else ww
         actor, critic = self._outputs(
-            out, (b, n, self.actor_shape[0], ww), (b, self.critic_shape[0], ww)
+            out, (b, n, self.actor_shape[0], ww), (b, self.critic_shape[0], critic_cells)
         )
         # Normalising then windowing/downsizing equals windowing/downsizing then scaling by
         # 1 / max (both are linear), which avoids writing normalised copies of the full maps.
@@ -382,14 +395,25 @@ class Observer:
         ds_v = (visits @ self._rt) * inv_v[:, None]
         actor[:, :, k] = ds_r[:, None]
         actor[:, :, k + 1] = ds_v[:, None]
-        critic[:, 0] = ds_all / at_cell.max(1, keepdims=True).astype(np.float32)
-        critic[:, 1] = ds_r
-        critic[:, 2] = ds_v
+        top_count = at_cell.max(1, keepdims=True).astype(np.float32)
+        if self.full_critic:  # the m x n joint maps (DMTL's critic input)
+            counts = critic[:, 0]
+            counts[...] = 0.0
+            rows = np.arange(b)
+            for i in range(n):  # one agent at a time: indices unique, so += counts them all
+                counts[rows, pos[:, i]] += 1.0
+            counts /= top_count
+            critic[:, 1] = readings * inv_r[:, None]
+            critic[:, 2] = visits * inv_v[:, None]
+        else:
+            critic[:, 0] = ds_all / top_count
+            critic[:, 1] = ds_r
+            critic[:, 2] = ds_v
         if walls is not None:
             ds_walls = walls @ self._rt
             actor[:, :, k + 2] = self._gather_windows(walls, centre, 1)
             actor[:, :, k + 3] = ds_walls[:, None]
-            critic[:, 3] = ds_walls
+            critic[:, 3] = walls if self.full_critic else ds_walls
         return actor, critic
 
 
