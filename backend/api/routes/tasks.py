@@ -28,7 +28,8 @@ from backend.schemas.tasks import (
     TasksPublic,
 )
 from backend.services.gateway import catch_up, field_error, receipt_public
-from backend.services.specs import TASK_SPEC_FORMAT, SpecError, canonical_json, validate_env
+from backend.services.specs import TASK_SPEC_FORMAT, SpecError, validate_env
+from backend.store.bundle import canonical_json
 
 router = APIRouter(prefix="/tasks", tags=["tasks"])
 TaskId = Annotated[int, Path(ge=1, le=2**63 - 1)]
