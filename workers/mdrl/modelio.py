@@ -97,7 +97,6 @@ def save_model(path: str | Path, agent: torch.nn.Module, env_spec: Any, obs_spec
                training: dict[str, Any] | None = None) -> Path:
     """Write `model.safetensors` + `model.json` into directory `path`; returns the directory."""
     from workers.mdrl.observations import make_observer
-    from workers.mdrl.train import obs_spec_to_dict
 
     path = Path(path)
     path.mkdir(parents=True, exist_ok=True)
@@ -111,7 +110,7 @@ def save_model(path: str | Path, agent: torch.nn.Module, env_spec: Any, obs_spec
         "created": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
         "model": obs_spec.kind.upper(),
         "env": env_spec.to_dict(),
-        "observation": {**obs_spec_to_dict(obs_spec),
+        "observation": {**obs_spec.to_dict(),
                         "actor_shape": list(observer.actor_shape),
                         "critic_shape": list(observer.critic_shape)},
         "architecture": {
@@ -153,16 +152,15 @@ def load_card(path: str | Path) -> dict[str, Any]:
 def load_model(path: str | Path) -> GreedyPolicy:
     """Rebuild the greedy policy of a model directory (safetensors + JSON, no pickle)."""
     from workers.mdrl.networks import ActorCritic
-    from workers.mdrl.observations import make_observer
+    from workers.mdrl.observations import ObservationSpec, make_observer
     from workers.mdrl.spec import EnvSpec
-    from workers.mdrl.train import obs_spec_from_dict
 
     path = Path(path)
     card = load_card(path)
     env_spec = EnvSpec.from_dict(card["env"])
     obs = {k: v for k, v in card["observation"].items()
            if k not in ("actor_shape", "critic_shape")}
-    obs_spec = obs_spec_from_dict(obs)
+    obs_spec = ObservationSpec.from_dict(obs)
     observer = make_observer(env_spec, obs_spec)
     head = PolicyHead(env_spec.num_actions, env_spec.agents, joint=bool(observer.joint_actions))
     agent = ActorCritic(observer, head.policy_actions)

@@ -86,19 +86,6 @@ TIMING_COLUMNS = ("wall_time", "sps")
 """Columns that depend on the machine; every other column is reproducible from the seed."""
 
 
-def obs_spec_to_dict(spec: ObservationSpec) -> dict[str, Any]:
-    if hasattr(spec, "to_dict"):
-        return spec.to_dict()
-    d = dataclasses.asdict(spec)
-    return {k: (list(v) if isinstance(v, tuple) else v) for k, v in d.items()}
-
-
-def obs_spec_from_dict(d: dict[str, Any]) -> ObservationSpec:
-    if hasattr(ObservationSpec, "from_dict"):
-        return ObservationSpec.from_dict(d)
-    return ObservationSpec(**d)
-
-
 def greedy_eval(policy: Any, spec: EnvSpec, episodes: int, seed: int) -> dict[str, float]:
     """Fixed, seeded episodes with `policy` via `evaluate.evaluate` (same episodes every call).
 
@@ -378,7 +365,7 @@ class Trainer:
                     self._writer.add_scalar(f"charts/{k}", row[k], step)
 
     def config_dict(self) -> dict[str, Any]:
-        return {"env": self.env_spec.to_dict(), "observation": obs_spec_to_dict(self.obs_spec),
+        return {"env": self.env_spec.to_dict(), "observation": self.obs_spec.to_dict(),
                 "ppo": self.ppo.to_dict(), "run": self.run.to_dict()}
 
     def save_model(self, path: str | Path) -> Path:
@@ -437,8 +424,9 @@ class Trainer:
             path = path / "checkpoint"
         tensors, env_arrays, meta = ckpt.load_checkpoint(path)
         run = RunConfig.from_dict({**meta["run"], **(run_overrides or {})})
-        trainer = cls(EnvSpec.from_dict(meta["env"]), obs_spec_from_dict(meta["observation"]),
-                      PPOConfig.from_dict(meta["ppo"]), run,
+        env_spec, ppo = EnvSpec.from_dict(meta["env"]), PPOConfig.from_dict(meta["ppo"])
+        obs_spec = ObservationSpec.from_dict(meta["observation"])
+        trainer = cls(env_spec, obs_spec, ppo, run,
                       out=out if out is not None else path.parent, selector=selector)
         trainer.load_state(tensors, env_arrays, meta)
         return trainer
