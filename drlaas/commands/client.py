@@ -102,6 +102,15 @@ def fail(exc: Exception) -> None:
     raise typer.Exit(1)
 
 
+def read(gateway: str, path: str, params: dict[str, Any] | None = None) -> Any:
+    """GET ``path`` from the gateway (no sign-in needed); exit with the error on failure."""
+    with connect(gateway) as gw:
+        try:
+            return gw.get(path, params=params) if params else gw.get(path)
+        except GatewayError as exc:
+            fail(exc)
+
+
 def emit(doc: Any, as_json: bool, render: Any = None) -> None:
     if as_json or render is None:
         typer.echo(json.dumps(doc, indent=1, sort_keys=True, default=str))
@@ -244,11 +253,7 @@ def task_list(
     params = {
         k: v for k, v in {"status": status, "requester": requester, "worker": worker}.items() if v
     }
-    with connect(gateway) as gw:
-        try:
-            out = gw.get("/tasks", params=params)
-        except GatewayError as exc:
-            fail(exc)
+    out = read(gateway, "/tasks", params=params)
     emit(
         out,
         as_json,
@@ -274,11 +279,7 @@ def task_show(
     task_id: int, gateway: GatewayOpt = DEFAULT_GATEWAY, as_json: JsonOpt = False
 ) -> None:
     """A task with its offers, outcomes and the live training curve."""
-    with connect(gateway) as gw:
-        try:
-            out = gw.get(f"/tasks/{task_id}")
-        except GatewayError as exc:
-            fail(exc)
+    out = read(gateway, f"/tasks/{task_id}")
 
     def render(d: dict[str, Any]) -> None:
         typer.echo(kv(d, ["id", "status", "requester", "num_workers", "deadline", "description"]))
@@ -357,11 +358,7 @@ def model_list(
         }.items()
         if v is not None
     }
-    with connect(gateway) as gw:
-        try:
-            out = gw.get("/models", params=params)
-        except GatewayError as exc:
-            fail(exc)
+    out = read(gateway, "/models", params=params)
     emit(
         out,
         as_json,
@@ -387,11 +384,7 @@ def model_show(
     model_id: int, gateway: GatewayOpt = DEFAULT_GATEWAY, as_json: JsonOpt = False
 ) -> None:
     """A model: card, metrics, owner reputation, CID."""
-    with connect(gateway) as gw:
-        try:
-            out = gw.get(f"/models/{model_id}")
-        except GatewayError as exc:
-            fail(exc)
+    out = read(gateway, f"/models/{model_id}")
 
     def render(d: dict[str, Any]) -> None:
         typer.echo(
