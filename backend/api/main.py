@@ -91,6 +91,8 @@ def create_app(
             store = getattr(app.state, "store", None)
             if store is not None:
                 store.close()
+            if chain is None and app.state.chain is not None:  # ours: release its file
+                app.state.chain.chain.close()
             engine.dispose()
 
     app = FastAPI(

@@ -13,6 +13,8 @@ import enum
 from collections.abc import Iterable, Sequence
 from typing import Any
 
+from eth_utils import keccak
+
 from .client import Chain, ContractHandle, Receipt
 
 W1_DEFAULT = 100_000  # Eq. 20 weight 0.1 scaled by 1e6 (= qos.W1_DEFAULT)
@@ -205,10 +207,21 @@ class Platform:
     tmc: TasksManager
     mmc: ModelsManager
     receipts: dict[str, Receipt]
+    _identity: str | None = dataclasses.field(default=None, init=False, repr=False)
 
     @property
     def contracts(self) -> tuple[ContractHandle, ...]:
         return (self.umc, self.tmc, self.mmc)
+
+    @property
+    def identity(self) -> str:
+        """This deployment on this chain: a hash of the genesis block and the three contract
+        addresses. Anything kept per task off chain (a worker's job directory, a queued job) is
+        keyed by it, so a task id of another chain (a restarted dev node) never matches."""
+        if self._identity is None:
+            parts = [self.chain.genesis_hash, *(h.address for h in self.contracts)]
+            self._identity = keccak(text="|".join(p.lower() for p in parts)).hex()[:16]
+        return self._identity
 
 
 def _typed(handle: ContractHandle, cls: type[ContractHandle]) -> Any:

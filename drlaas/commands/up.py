@@ -92,6 +92,7 @@ class RunningPlatform:
             stdout=logf.open("ab"),
             stderr=subprocess.STDOUT,
             start_new_session=True,
+            preexec_fn=_die_with_parent,
         )
         wp = WorkerProc(account.address, key, logf, proc)
         if i < len(self.workers):
@@ -114,6 +115,18 @@ class RunningPlatform:
                 if time.monotonic() > deadline:
                     raise TimeoutError(f"worker {w.address} did not register; log {w.log}")
                 time.sleep(0.1)
+
+
+def _die_with_parent() -> None:
+    """In the forked child: get SIGTERM (Celery's warm shutdown) when ``drlaas up`` dies, even
+    by kill -9, so no daemon outlives the platform it was started for (Linux prctl
+    PR_SET_PDEATHSIG; elsewhere the daemon's own lock file still stops a second copy)."""
+    if sys.platform != "linux":
+        return
+    import ctypes
+
+    PR_SET_PDEATHSIG = 1
+    ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
 
 
 def fund(chain: Any, address: str, amount: int = WORKER_FUNDS_WEI) -> None:
