@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import sqlite3
 from collections.abc import Iterator
 from pathlib import Path
@@ -163,7 +164,8 @@ class DurableBackend(PyEVMBackend):
         else:
             self.chain = chain_class.from_genesis(
                 base_db,
-                get_default_genesis_params(),
+                # a random extra_data: two chains made in the same second differ (identity)
+                get_default_genesis_params(overrides={"extra_data": os.urandom(32)}),
                 PyEVMBackend.generate_genesis_state(num_accounts=num_accounts),
             )
             self.kv.commit()

@@ -118,15 +118,17 @@ class RunningPlatform:
 
 
 def _die_with_parent() -> None:
-    """In the forked child: get SIGTERM (Celery's warm shutdown) when ``drlaas up`` dies, even
-    by kill -9, so no daemon outlives the platform it was started for (Linux prctl
-    PR_SET_PDEATHSIG; elsewhere the daemon's own lock file still stops a second copy)."""
+    """In the forked child: be killed when ``drlaas up`` dies (even by kill -9), so no daemon
+    outlives the platform it was started for and a restarted ``drlaas up`` never runs two
+    daemons of one worker. SIGKILL, not SIGTERM: Celery's warm shutdown would finish the whole
+    training job first; the unacknowledged job is redelivered and resumes from its checkpoint.
+    (Linux prctl PR_SET_PDEATHSIG; elsewhere the daemon's lock file still stops a second copy.)"""
     if sys.platform != "linux":
         return
     import ctypes
 
     PR_SET_PDEATHSIG = 1
-    ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
+    ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
 
 
 def fund(chain: Any, address: str, amount: int = WORKER_FUNDS_WEI) -> None:
