@@ -24,11 +24,11 @@ import jwt
 from eth_account import Account
 from eth_account.messages import encode_defunct
 from eth_account.signers.local import LocalAccount
-from eth_utils import is_address, to_checksum_address
 from sqlalchemy import CursorResult, delete, update
 from sqlalchemy.orm import Session
 
 from backend.api.errors import RuleError
+from backend.chain.addresses import checksum
 from backend.db.base import utcnow
 from backend.db.models import AuthNonce
 from backend.settings import Settings
@@ -44,13 +44,6 @@ _BEARER_CHALLENGE = {"WWW-Authenticate": 'Bearer realm="drlaas"'}
 
 def _unauthorized(rule: str, msg: str) -> RuleError:
     return RuleError(401, rule, msg, headers=_BEARER_CHALLENGE)
-
-
-def checksum(address: str) -> str:
-    """EIP-55 checksummed form of ``address``; ``ValueError`` naming it if it is not one."""
-    if not isinstance(address, str) or not is_address(address):
-        raise ValueError(f"not an Ethereum address: {address!r}")
-    return to_checksum_address(address)
 
 
 # -- EIP-4361 message ---------------------------------------------------------------------------

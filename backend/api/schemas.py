@@ -7,7 +7,7 @@ from typing import Annotated
 
 from pydantic import AfterValidator, Field
 
-from backend.auth import checksum
+from backend.chain.addresses import checksum
 
 Address = Annotated[
     str,

@@ -14,9 +14,9 @@ from eth_account.messages import encode_defunct
 from fastapi import APIRouter
 from fastapi.testclient import TestClient
 
-from backend.api import API_PREFIX, create_app
 from backend.api.deps import CurrentUser
 from backend.api.errors import RuleError
+from backend.api.main import API_PREFIX, create_app
 from backend.api.schemas import Address
 from backend.auth import DemoKeys, bearer_headers, issue_token, require_self
 from backend.db.models import AuthNonce

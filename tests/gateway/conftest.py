@@ -11,7 +11,7 @@ import pytest
 from fastapi import FastAPI
 from fastapi.testclient import TestClient
 
-from backend.api import create_app
+from backend.api.main import create_app
 from backend.auth import bearer_headers
 from backend.services.chain import ChainService
 from backend.settings import Settings

@@ -13,7 +13,7 @@ import httpx
 import pytest
 import uvicorn
 
-from backend.api import create_app
+from backend.api.main import create_app
 from backend.chain.client import Chain
 from backend.chain.errors import ContractError
 from backend.chain.platform import TasksManager, UsersManager

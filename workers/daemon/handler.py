@@ -22,7 +22,7 @@ import httpx
 import requests
 from eth_account.signers.local import LocalAccount
 
-from backend.auth import checksum
+from backend.chain.addresses import checksum
 from backend.chain.platform import OfferState, Platform, TaskStatus
 from backend.store import ContentStore, StoreError, StoreUnavailable
 from backend.store.bundle import read_bundle, upload_model

@@ -96,7 +96,7 @@ def list_models(
     if min_reputation is not None:
         stmt = stmt.where(m.ModelRow.reputation >= to_fixed(min_reputation))
     if owner is not None:
-        from backend.auth import checksum
+        from backend.chain.addresses import checksum
 
         try:
             stmt = stmt.where(m.ModelRow.owner == checksum(owner))
