@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import enum
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
 from eth_utils import keccak
@@ -226,6 +226,24 @@ class Platform:
 
 def _typed(handle: ContractHandle, cls: type[ContractHandle]) -> Any:
     return cls(handle.chain, handle.name, handle.contract)
+
+
+CONTRACT_NAMES = ("UsersManager", "TasksManager", "ModelsManager")
+
+
+def connect_platform(chain: Chain, addresses: Mapping[str, Any], admin: str = "") -> Platform:
+    """Typed handles on a deployment already on ``chain`` (``addresses`` by contract name). The
+    one way the gateway and the worker daemon attach; ``admin`` is who the handles act for by
+    default (the deployer for the gateway, the worker itself for a daemon)."""
+    handles = {name: chain.register(name, addresses[name]) for name in CONTRACT_NAMES}
+    return Platform(
+        chain,
+        admin,
+        _typed(handles["UsersManager"], UsersManager),
+        _typed(handles["TasksManager"], TasksManager),
+        _typed(handles["ModelsManager"], ModelsManager),
+        {},
+    )
 
 
 def deploy_platform(

@@ -36,17 +36,10 @@ from backend.api.errors import RuleError
 from backend.auth import DemoKeys
 from backend.chain.client import GAS_MARGIN, Chain, ContractHandle, Receipt
 from backend.chain.errors import ContractError
-from backend.chain.platform import (
-    ModelsManager,
-    Platform,
-    TasksManager,
-    UsersManager,
-    deploy_platform,
-)
+from backend.chain.platform import CONTRACT_NAMES, Platform, connect_platform, deploy_platform
 from backend.settings import Settings
 
 CONTRACTS_ENV = "DRLAAS_CONTRACTS"
-CONTRACT_NAMES = ("UsersManager", "TasksManager", "ModelsManager")
 EMBEDDED_ACCOUNTS = 20
 """Funded accounts of the embedded chain: ``admin`` + 19 demo users."""
 ALL_GPU_SERIES = (1 << 256) - 1
@@ -170,16 +163,10 @@ class ChainService:
         settings: Settings | None = None,
     ) -> ChainService:
         """Handles on an existing deployment (``addresses`` as :func:`load_contracts` gives)."""
-        umc = chain.register("UsersManager", addresses["UsersManager"])
-        tmc = chain.register("TasksManager", addresses["TasksManager"])
-        mmc = chain.register("ModelsManager", addresses["ModelsManager"])
-        platform = Platform(
+        platform = connect_platform(
             chain,
-            addresses.get("admin") or (chain.accounts[0] if chain.accounts else ""),
-            UsersManager(chain, umc.name, umc.contract),
-            TasksManager(chain, tmc.name, tmc.contract),
-            ModelsManager(chain, mmc.name, mmc.contract),
-            {},
+            addresses,
+            admin=addresses.get("admin") or (chain.accounts[0] if chain.accounts else ""),
         )
         keys = None
         if demo and settings is not None and chain.accounts:
