@@ -19,7 +19,6 @@ from backend.api.errors import RuleError, rule_responses
 from backend.services.rpc import INVALID_REQUEST, EmbeddedRpc
 
 router = APIRouter(tags=["rpc"])
-MAX_RPC_BYTES = 1 << 20
 
 
 @router.post(
@@ -37,11 +36,7 @@ async def rpc(request: Request) -> JSONResponse:
     server: EmbeddedRpc | None = getattr(request.app.state, "rpc", None)
     if server is None:
         raise RuleError(404, "rpc_not_embedded", "JSON-RPC is served only for the embedded chain")
-    body = await request.body()
-    if len(body) > MAX_RPC_BYTES:
-        raise RuleError(
-            413, "payload_too_large", f"JSON-RPC bodies are at most {MAX_RPC_BYTES} bytes"
-        )
+    body = await request.body()  # size and depth already bounded (backend.api.limits)
     try:
         payload: Any = json.loads(body)
     except (json.JSONDecodeError, UnicodeDecodeError):
