@@ -21,6 +21,7 @@ from starlette.concurrency import run_in_threadpool
 
 from backend.api.errors import install_error_handlers
 from backend.api.frontend import mount_frontend
+from backend.api.limits import BodyLimits
 from backend.api.routes import api_router, models, rpc, tasks, tx, users, workers
 from backend.api.version import VERSION
 from backend.db import make_engine, make_sessionmaker, upgrade, utcnow
@@ -113,6 +114,9 @@ def create_app(
     app.state.rpc = None
     app.state.store = None
     install_error_handlers(app)
+    app.add_middleware(
+        BodyLimits, max_bytes=settings.max_request_bytes, max_depth=settings.max_json_depth
+    )
 
     @app.exception_handler(SignLocally)
     async def _sign_locally(_: Request, exc: SignLocally) -> JSONResponse:

@@ -22,11 +22,13 @@ from web3.exceptions import ContractCustomError, ContractLogicError
 
 from . import errors
 from .artifacts import load_artifact
+from .pyevm import restore_recursion_limit
 
 try:  # eth-tester raises its own exception type for reverts
     from eth_tester.exceptions import TransactionFailed as _TesterFailed
 except ImportError:  # pragma: no cover - eth-tester is a dependency
     _TesterFailed = ContractLogicError
+restore_recursion_limit()  # eth_account and py-evm raised it at import
 
 _REVERTS = (ContractCustomError, ContractLogicError, _TesterFailed)
 
@@ -146,6 +148,8 @@ class Chain:
         """An in-process py-evm chain with ``accounts`` funded accounts (1,000,000 ETH each)."""
         from eth_tester import EthereumTester, PyEVMBackend
         from web3 import EthereumTesterProvider
+
+        restore_recursion_limit()
 
         if accounts < 1:
             raise ValueError(f"accounts must be >= 1, got {accounts}")
