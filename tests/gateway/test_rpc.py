@@ -4,14 +4,10 @@ indexer thread picks the events up."""
 
 from __future__ import annotations
 
-import socket
-import threading
 import time
-from collections.abc import Iterator
 
 import httpx
 import pytest
-import uvicorn
 
 from backend.api import create_app
 from backend.chain.client import Chain
@@ -19,30 +15,6 @@ from backend.chain.errors import ContractError
 from backend.chain.platform import TasksManager, UsersManager
 from backend.services.chain import ChainService
 from backend.settings import Settings
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
-@pytest.fixture
-def gateway(settings: Settings, service: ChainService) -> Iterator[str]:
-    app = create_app(settings, chain=service, indexer_interval=0.1)
-    port = _free_port()
-    server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning"))
-    thread = threading.Thread(target=server.run, daemon=True)
-    thread.start()
-    deadline = time.monotonic() + 20
-    while not server.started:
-        assert time.monotonic() < deadline, "gateway did not start"
-        time.sleep(0.05)
-    try:
-        yield f"http://127.0.0.1:{port}"
-    finally:
-        server.should_exit = True
-        thread.join(10)
 
 
 def test_chain_rpc_through_the_gateway(gateway: str, service: ChainService) -> None:
