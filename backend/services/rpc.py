@@ -21,6 +21,7 @@ import threading
 from typing import Any
 
 from eth_tester.exceptions import ValidationError as TesterValidationError
+from eth_utils import ValidationError as EvmValidationError
 from web3.middleware import combine_middleware
 
 from backend.chain.client import Chain
@@ -65,6 +66,7 @@ INVALID_REQUEST = -32600
 METHOD_NOT_FOUND = -32601
 INVALID_PARAMS = -32602
 INTERNAL_ERROR = -32603
+SERVER_ERROR = -32000  # geth: e.g. "insufficient funds for gas * price + value"
 EXECUTION_REVERTED = 3
 
 
@@ -145,6 +147,8 @@ class EmbeddedRpc:
             return _error(rid, exc.code, exc.message, exc.data)
         except (InvalidParams, TesterValidationError) as exc:
             return _error(rid, INVALID_PARAMS, str(exc))
+        except EvmValidationError as exc:  # valid request, transaction invalid on this state
+            return _error(rid, SERVER_ERROR, f"invalid transaction: {exc}")
         except Exception as exc:  # eth-tester raises many types; report, never crash
             data = _revert_bytes(exc)
             if type(exc).__name__ == "TransactionFailed" or data is not None:

@@ -122,6 +122,8 @@ def call_object(tx: Any, chain_id: int) -> dict[str, Any]:
     for key in ("gas", "value", *FEE_FIELDS):
         if key in tx:
             tx[key] = quantity(tx[key], key)
+    if "maxFeePerGas" in tx:
+        tx.setdefault("maxPriorityFeePerGas", 0)  # a fee cap alone: no tip (eth-tester needs both)
     tx.setdefault("from", ZERO_ADDRESS)
     return tx
 
@@ -173,6 +175,8 @@ def normalize(method: str, params: list[Any], chain_id: int, by_hash: BlockByHas
             raise InvalidParams("eth_getLogs takes one filter object")
         params[0] = log_filter(params[0], by_hash)
     at = BLOCK_PARAM.get(method)
+    if at is not None and at == len(params):
+        params.append("latest")  # the spec's default; web3's formatters want it spelled out
     if at is not None and at < len(params):
         block = block_id(params[at], by_hash)
         params[at] = _executed(block) if method in ("eth_call", "eth_estimateGas") else block
