@@ -23,11 +23,13 @@ from web3.exceptions import ContractCustomError, ContractLogicError
 
 from . import errors
 from .artifacts import load_artifact
+from .pyevm import restore_recursion_limit
 
 try:  # eth-tester raises its own exception type for reverts
     from eth_tester.exceptions import TransactionFailed as _TesterFailed
 except ImportError:  # pragma: no cover - eth-tester is a dependency
     _TesterFailed = ContractLogicError
+restore_recursion_limit()  # eth_account and py-evm raised it at import
 
 _REVERTS = (ContractCustomError, ContractLogicError, _TesterFailed)
 
@@ -150,6 +152,8 @@ class Chain:
         later call with the same directory reopens it; without, it lives in memory (tests)."""
         from eth_tester import EthereumTester, PyEVMBackend
         from web3 import EthereumTesterProvider
+
+        restore_recursion_limit()
 
         if accounts < 1:
             raise ValueError(f"accounts must be >= 1, got {accounts}")
