@@ -11,7 +11,7 @@ from eth_account.messages import encode_defunct
 from eth_account.signers.local import LocalAccount
 from fastapi.testclient import TestClient
 
-from backend.api import create_app
+from backend.api.main import create_app
 from backend.services.chain import ChainService
 from backend.services.faucet import FAUCET_THRESHOLD_WEI, FAUCET_WEI, Faucet, FaucetLimited
 from backend.settings import Settings

@@ -115,7 +115,7 @@ def test_recursion_limit_is_restored_in_a_fresh_gateway_process(tmp_path: Path) 
     code = (
         "import sys; start = sys.getrecursionlimit()\n"
         "import eth_account; raised = sys.getrecursionlimit()\n"
-        "from backend.api import create_app\n"
+        "from backend.api.main import create_app\n"
         "from backend.chain.client import Chain\n"
         "create_app(); Chain.embedded(accounts=1)\n"
         "print(start, raised, sys.getrecursionlimit())\n"
