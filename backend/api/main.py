@@ -20,8 +20,8 @@ from fastapi.responses import JSONResponse
 from starlette.concurrency import run_in_threadpool
 
 from backend.api.errors import install_error_handlers
-from backend.api.frontend import mount_frontend
-from backend.api.routes import api_router, models, rpc, tasks, tx, users, workers
+from backend.api.frontend import mount_docs_redirects, mount_frontend
+from backend.api.routes import api_router, blocks, local, models, rpc, tasks, tx, users, workers
 from backend.api.version import VERSION
 from backend.db import make_engine, make_sessionmaker, upgrade, utcnow
 from backend.indexer import Indexer, IndexerThread, OfferHook
@@ -136,9 +136,12 @@ def create_app(
         models.router,
         tx.router,
         rpc.contracts_router,
+        blocks.router,
+        local.router,
     ):
         app.include_router(router, prefix=API_PREFIX)
     app.include_router(rpc.router)  # JSON-RPC at /rpc, outside /api
+    mount_docs_redirects(app)  # /docs, /redoc -> /api/docs (the UI would answer "not found")
     mount_frontend(app)  # after every router: the mount matches any remaining path
     return app
 

@@ -79,27 +79,37 @@ def worker_command(
     max_jobs: Annotated[int, typer.Option(min=1, help="jobs at once before declining offers")] = 1,
     checkpoint_every: Annotated[int, typer.Option(min=1, help="updates between checkpoints")] = 2,
     data: Annotated[
-        Path | None, typer.Option(help="job directory root (default <data>/workers/<address>)")
+        Path | None,
+        typer.Option(
+            help="job directory root (default $DRLAAS_DATA_DIR or ~/.drlaas, + /workers/<address>)"
+        ),
     ] = None,
     loglevel: Annotated[str, typer.Option(help="Celery log level")] = "INFO",
 ) -> None:
     """Run a worker daemon: register on chain, then accept, train and submit offered tasks."""
     from backend.celery_app import worker_queue
-    from backend.settings import load_settings
     from workers.daemon import job, tasks
-    from workers.daemon.app import app
+    from workers.daemon.funding import ensure_gas
+    from workers.daemon.gateway import Gateway
     from workers.daemon.keys import load_or_create_key
+    from workers.daemon.links import worker_settings
 
     logging.getLogger("httpx").setLevel(logging.WARNING)  # one line per progress point otherwise
-    settings = load_settings()
+    settings, own_dir = worker_settings(gateway)
     account = load_or_create_key(key)
+    # the Celery app and the job runtime read these (same services as the gateway's)
+    os.environ["DRLAAS_DATA_DIR"] = str(settings.data_dir)
+    os.environ["DRLAAS_IPFS"] = settings.ipfs
     os.environ["DRLAAS_WORKER_KEY"] = str(key)
     os.environ["DRLAAS_WORKER_MAX_JOBS"] = str(max_jobs)
     os.environ["DRLAAS_WORKER_CHECKPOINT_EVERY"] = str(checkpoint_every)
     if gateway:
         os.environ["DRLAAS_GATEWAY"] = gateway
-    if data:
-        os.environ["DRLAAS_WORKER_DATA"] = str(data)
+        with Gateway(gateway, account) as gw:
+            ensure_gas(gw)  # an empty key on the embedded demo chain: the faucet
+    os.environ["DRLAAS_WORKER_DATA"] = str(data or own_dir / "workers" / account.address)
+    from workers.daemon.app import app  # built from the environment set above
+
     handler = tasks.runtime_from_env(settings)
     caps = measure()
     done = register_worker(handler.platform, caps, parse_domains(domains))
