@@ -19,10 +19,17 @@ from .errors import ContentTooLarge, NotFound, StoreError, StoreUnavailable
 class GatewayBlocks(ContentStore):
     """``GatewayBlocks("http://gateway:8000")``: reads only; writes and pins raise."""
 
-    def __init__(self, url: str, *, timeout: float = 60.0, max_size: int | None = None) -> None:
+    def __init__(
+        self,
+        url: str,
+        *,
+        timeout: float = 60.0,
+        max_size: int | None = None,
+        client: httpx.Client | None = None,
+    ) -> None:
         super().__init__(**({"max_size": max_size} if max_size else {}))
         self.url = url.rstrip("/")
-        self._client = httpx.Client(base_url=self.url, timeout=timeout)
+        self._client = client or httpx.Client(base_url=self.url, timeout=timeout)
 
     def __repr__(self) -> str:
         return f"GatewayBlocks({self.url!r})"

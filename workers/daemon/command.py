@@ -71,7 +71,10 @@ def worker_command(
     ],
     gateway: Annotated[
         str | None,
-        typer.Option(envvar="DRLAAS_GATEWAY", help="gateway URL (hosts /rpc in embedded mode)"),
+        typer.Option(
+            envvar="DRLAAS_GATEWAY",
+            help="gateway URL (hosts /rpc in embedded mode; default http://127.0.0.1:8000 then)",
+        ),
     ] = None,
     domains: Annotated[
         str, typer.Option(help="domain codes served, e.g. '0,3,5-7' or 'all'")
@@ -92,9 +95,10 @@ def worker_command(
     from workers.daemon.funding import ensure_gas
     from workers.daemon.gateway import Gateway
     from workers.daemon.keys import load_or_create_key
-    from workers.daemon.links import worker_settings
+    from workers.daemon.links import default_gateway, worker_settings
 
     logging.getLogger("httpx").setLevel(logging.WARNING)  # one line per progress point otherwise
+    gateway = gateway or default_gateway()
     settings, own_dir = worker_settings(gateway)
     account = load_or_create_key(key)
     # the Celery app and the job runtime read these (same services as the gateway's)

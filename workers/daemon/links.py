@@ -28,6 +28,9 @@ from backend.settings import Settings, load_settings
 from backend.store import ContentStore, make_store
 
 DEPLOYMENT_FILE = "deployment.json"
+#: The gateway of ``drlaas up --port 8000`` on this machine: where an embedded chain lives when
+#: no --gateway / DRLAAS_GATEWAY is given.
+LOCAL_GATEWAY = "http://127.0.0.1:8000"
 #: A worker's own data directory when DRLAAS_DATA_DIR is not set (job directories, keys).
 USER_DATA_DIR = Path("~/.drlaas")
 _NAMES = {"umc": "UsersManager", "tmc": "TasksManager", "mmc": "ModelsManager"}
@@ -93,6 +96,12 @@ def resolve_deployment(settings: Settings, gateway: str | None) -> Deployment:
         return Deployment.from_dict(json.loads(f.read_text()))
     tried.append(f"{f} (missing)")
     raise RuntimeError("cannot find the contract addresses; tried: " + "; ".join(tried))
+
+
+def default_gateway() -> str | None:
+    """:data:`LOCAL_GATEWAY` when the chain is embedded (it lives in a gateway), else ``None``
+    (a real node needs no gateway)."""
+    return LOCAL_GATEWAY if load_settings().chain_service.embedded else None
 
 
 def worker_settings(gateway: str | None) -> tuple[Settings, Path]:
