@@ -124,6 +124,9 @@ class Settings(BaseSettings):
     """Default TMC review window: an outcome left unreviewed past it counts as accepted."""
     max_upload_bytes: int = Field(default=256 * 2**20, gt=0)
     """Largest model/content upload the gateway and store accept."""
+    log_format: Literal["text", "json"] = "text"
+    """``json``: one JSON object per log line (time, level, logger, message, task_id) for log
+    collectors; ``text``: readable lines."""
 
     # -- field checks (messages name the variable) ------------------------------------------
     @field_validator("data_dir")

@@ -25,6 +25,8 @@ from backend.api.routes import api_router, blocks, local, models, rpc, tasks, tx
 from backend.api.version import VERSION
 from backend.db import make_engine, make_sessionmaker, upgrade, utcnow
 from backend.indexer import Indexer, IndexerThread, OfferHook
+from backend.observability.logs import configure_logging
+from backend.observability.metrics import install_metrics, instrument_web3
 from backend.services.chain import ChainService, SignLocally
 from backend.services.rpc import EmbeddedRpc
 from backend.settings import Settings, load_settings
@@ -65,6 +67,8 @@ def create_app(
     ``indexer_interval=None`` runs no indexer thread (writes still index synchronously).
     """
     settings = settings or load_settings()
+    if settings.log_format == "json":
+        configure_logging("json")  # DRLAAS_LOG_FORMAT; text leaves the host's logging alone
     engine = make_engine(settings.database_url)
 
     @asynccontextmanager
@@ -113,6 +117,7 @@ def create_app(
     app.state.rpc = None
     app.state.store = None
     install_error_handlers(app)
+    install_metrics(app, settings)  # GET /metrics, HTTP latency and errors (Prometheus)
 
     @app.exception_handler(SignLocally)
     async def _sign_locally(_: Request, exc: SignLocally) -> JSONResponse:
@@ -174,6 +179,7 @@ def _start_services(
             )
             return None
     app.state.chain = service
+    instrument_web3(service.chain.w3, app.state.metrics.chain_latency)
     if app.state.chain_id is None:
         app.state.chain_id = service.chain.chain_id
     if service.chain.kind == "embedded":
