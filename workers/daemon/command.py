@@ -88,6 +88,13 @@ def worker_command(
         ),
     ] = None,
     loglevel: Annotated[str, typer.Option(help="Celery log level")] = "INFO",
+    metrics_port: Annotated[
+        int | None,
+        typer.Option(
+            envvar="DRLAAS_WORKER_METRICS_PORT", help="serve Prometheus /metrics on this port"
+        ),
+    ] = None,
+    metrics_host: Annotated[str, typer.Option(help="interface of the metrics port")] = "127.0.0.1",
 ) -> None:
     """Run a worker daemon: register on chain, then accept, train and submit offered tasks."""
     from backend.celery_app import worker_queue
@@ -96,10 +103,13 @@ def worker_command(
     from workers.daemon.gateway import Gateway
     from workers.daemon.keys import load_or_create_key
     from workers.daemon.links import default_gateway, worker_settings
+    from workers.daemon.logs import configure_daemon_logging
+    from workers.daemon.metrics import serve_worker_metrics
 
     logging.getLogger("httpx").setLevel(logging.WARNING)  # one line per progress point otherwise
     gateway = gateway or default_gateway()
     settings, own_dir = worker_settings(gateway)
+    configure_daemon_logging(settings.log_format)  # DRLAAS_LOG_FORMAT=json|text
     account = load_or_create_key(key)
     # the Celery app and the job runtime read these (same services as the gateway's)
     os.environ["DRLAAS_DATA_DIR"] = str(settings.data_dir)
@@ -115,6 +125,8 @@ def worker_command(
     from workers.daemon.app import app  # built from the environment set above
 
     handler = tasks.runtime_from_env(settings)
+    if metrics_port is not None:
+        serve_worker_metrics(handler, metrics_port, metrics_host)
     caps = measure()
     done = register_worker(handler.platform, caps, parse_domains(domains))
     typer.echo(
