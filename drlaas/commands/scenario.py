@@ -24,7 +24,9 @@ from typing import Annotated, Any
 import typer
 from eth_account import Account
 
+from backend.settings import load_settings
 from drlaas.commands.client import write
+from drlaas.commands.up import running_platform
 from workers.daemon.gateway import Gateway, GatewayError
 
 #: eth-tester's account i has private key i + 1 (demo user ``user<i>`` of the gateway).
@@ -235,9 +237,6 @@ def scenario_command(
     as_json: Annotated[bool, typer.Option("--json")] = False,
 ) -> None:
     """Run the issue-4 scenario; without --gateway, start a platform for it and stop it after."""
-    from backend.settings import load_settings
-    from drlaas.commands.up import running_platform
-
     say = (lambda s: typer.echo(s, err=True)) if as_json else typer.echo
     settings = load_settings()
     keys = demo_requester_keys(settings.chain_service.kind)

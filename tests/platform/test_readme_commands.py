@@ -21,8 +21,11 @@ from pathlib import Path
 
 import httpx
 import pytest
+import typer
+from typer.testing import CliRunner
 
 from backend.store.bundle import pull_model
+from drlaas.cli import app
 from drlaas.commands.up import REPO, running_platform
 from workers.daemon.keys import load_key
 
@@ -145,3 +148,27 @@ def wait_registered(
             if r.status_code == 200 and r.json().get("address") == address:
                 return address
         time.sleep(0.5)
+
+
+def test_every_documented_command_exists() -> None:
+    """Each ``drlaas <command> [<subcommand>]`` named in README.md or docs/ is a real command
+    (a group must be followed by one of its subcommands) whose ``--help`` works."""
+    root = typer.main.get_command(app)
+    assert hasattr(root, "commands")  # a group (typer's own click)
+    named: set[tuple[str, ...]] = set()
+    for doc in [REPO / "README.md", *sorted((REPO / "docs").glob("*.md"))]:
+        for m in re.finditer(r"drlaas ([a-z][\w-]*)(?: ([a-z][\w-]*))?", doc.read_text()):
+            named.add(tuple(w for w in m.groups() if w))
+    assert ("worker", "run") in named and ("task", "pull") in named
+    runner = CliRunner()
+    for words in sorted(named):
+        cmd = root.get_command(None, words[0])  # type: ignore[arg-type]
+        assert cmd is not None, f"`drlaas {words[0]}` is documented but does not exist"
+        path = words[:1]
+        if hasattr(cmd, "commands"):
+            assert len(words) == 2 and cmd.get_command(None, words[1]) is not None, (  # type: ignore[arg-type]
+                f"`drlaas {' '.join(words)}`: {words[0]} needs one of {sorted(cmd.commands)}"
+            )
+            path = words
+        done = runner.invoke(app, [*path, "--help"])
+        assert done.exit_code == 0, f"drlaas {' '.join(path)} --help: {done.output}"
