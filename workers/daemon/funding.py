@@ -8,8 +8,6 @@ says so instead of failing later inside a transaction.
 
 from __future__ import annotations
 
-import httpx
-
 from workers.daemon.gateway import Gateway, GatewayError
 
 
@@ -26,13 +24,7 @@ def chain_balance(gw: Gateway, address: str) -> int | None:
         return None
     if not served:
         return None
-    r = httpx.post(
-        gw.url + served,
-        json={"jsonrpc": "2.0", "id": 1, "method": "eth_getBalance", "params": [address, "latest"]},
-        timeout=30,
-    )
-    r.raise_for_status()
-    result = r.json().get("result")
+    result = gw.rpc(served, "eth_getBalance", [address, "latest"])
     return int(result, 16) if isinstance(result, str) else None
 
 
