@@ -38,8 +38,9 @@ setup: $(STAMP) contracts/node_modules/.installed tests/ipfs-node/node_modules/.
 # Main job (embedded default, nothing else to install): start the whole platform on this
 # machine (chain with contracts, content store, broker, database, gateway, 3 worker daemons) and
 # run the issue-4 scenario against it: register, submit, recruit, train, upload, review, share.
+# Each run gets a fresh data directory (chain, jobs, store), $(DEMO_OUT)/platform-<time>.
 demo: setup
-	$(BIN)/drlaas demo-scenario --steps 50000 --data $(DEMO_OUT)/platform
+	$(BIN)/drlaas demo-scenario --steps 50000 --data $(DEMO_OUT)/platform-$$(date +%Y%m%d-%H%M%S)
 
 # The MDRL core alone: train the default preset briefly, then evaluate it against the baselines.
 train-demo: setup

@@ -132,6 +132,9 @@ class Settings(BaseSettings):
     """Embedded demo chain: seconds between two faucet top-ups of one address."""
     faucet_per_minute: int = Field(default=30, ge=1, le=10_000)
     """Embedded demo chain: faucet top-ups per minute over all addresses."""
+    log_format: Literal["text", "json"] = "text"
+    """``json``: one JSON object per log line (time, level, logger, message, task_id) for log
+    collectors; ``text``: readable lines."""
 
     # -- field checks (messages name the variable) ------------------------------------------
     @field_validator("data_dir")

@@ -7,11 +7,12 @@ back: an unknown API path stays a JSON 404 from the app's error handlers.
 
 from __future__ import annotations
 
+from collections.abc import Awaitable, Callable
 from pathlib import Path
 
 from fastapi import FastAPI
 from starlette.exceptions import HTTPException
-from starlette.responses import Response
+from starlette.responses import RedirectResponse, Response
 from starlette.routing import Match, Mount
 from starlette.staticfiles import StaticFiles
 from starlette.types import Scope
@@ -51,6 +52,23 @@ class _UIMount(Mount):
             if first in RESERVED:
                 return Match.NONE, {}
         return super().matches(scope)
+
+
+#: Where people look for API documentation, and where it is.
+DOCS_ALIASES = {"/docs": "/api/docs", "/redoc": "/api/docs", "/openapi.json": "/api/openapi.json"}
+
+
+def mount_docs_redirects(app: FastAPI) -> None:
+    """Redirect the usual documentation paths to the gateway's (under ``/api``)."""
+    for alias, target in DOCS_ALIASES.items():
+        app.add_api_route(alias, _redirect_to(target), methods=["GET"], include_in_schema=False)
+
+
+def _redirect_to(target: str) -> Callable[[], Awaitable[RedirectResponse]]:
+    async def redirect() -> RedirectResponse:  # no parameters: the target is fixed
+        return RedirectResponse(target, status_code=307)
+
+    return redirect
 
 
 def mount_frontend(app: FastAPI, directory: str | Path = FRONTEND_DIR) -> None:

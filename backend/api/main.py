@@ -20,12 +20,14 @@ from fastapi.responses import JSONResponse
 from starlette.concurrency import run_in_threadpool
 
 from backend.api.errors import install_error_handlers
-from backend.api.frontend import mount_frontend
+from backend.api.frontend import mount_docs_redirects, mount_frontend
 from backend.api.limits import BodyLimits
-from backend.api.routes import api_router, models, rpc, tasks, tx, users, workers
+from backend.api.routes import api_router, blocks, local, models, rpc, tasks, tx, users, workers
 from backend.api.version import VERSION
 from backend.db import make_engine, make_sessionmaker, upgrade, utcnow
 from backend.indexer import Indexer, IndexerThread, OfferHook
+from backend.observability.logs import configure_logging
+from backend.observability.metrics import install_metrics, instrument_web3
 from backend.services.chain import ChainService, SignLocally
 from backend.services.faucet import Faucet
 from backend.services.rpc import EmbeddedRpc
@@ -67,6 +69,8 @@ def create_app(
     ``indexer_interval=None`` runs no indexer thread (writes still index synchronously).
     """
     settings = settings or load_settings()
+    if settings.log_format == "json":
+        configure_logging("json")  # DRLAAS_LOG_FORMAT; text leaves the host's logging alone
     engine = make_engine(settings.database_url)
 
     @asynccontextmanager
@@ -121,6 +125,7 @@ def create_app(
     app.add_middleware(
         BodyLimits, max_bytes=settings.max_request_bytes, max_depth=settings.max_json_depth
     )
+    install_metrics(app, settings)  # GET /metrics, HTTP latency and errors (Prometheus)
 
     @app.exception_handler(SignLocally)
     async def _sign_locally(_: Request, exc: SignLocally) -> JSONResponse:
@@ -144,9 +149,12 @@ def create_app(
         models.router,
         tx.router,
         rpc.contracts_router,
+        blocks.router,
+        local.router,
     ):
         app.include_router(router, prefix=API_PREFIX)
     app.include_router(rpc.router)  # JSON-RPC at /rpc, outside /api
+    mount_docs_redirects(app)  # /docs, /redoc -> /api/docs (the UI would answer "not found")
     mount_frontend(app)  # after every router: the mount matches any remaining path
     return app
 
@@ -179,6 +187,7 @@ def _start_services(
             )
             return None
     app.state.chain = service
+    instrument_web3(service.chain.w3, app.state.metrics.chain_latency)
     if app.state.chain_id is None:
         app.state.chain_id = service.chain.chain_id
     if service.chain.kind == "embedded":

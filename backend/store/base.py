@@ -83,6 +83,16 @@ class ContentStore(ABC):
         the bound."""
         return b"".join(self.iter_get(cid, max_size=max_size))
 
+    def get_block(self, cid: str | CID, *, max_bytes: int) -> bytes:
+        """One raw block, verified against ``cid`` (what a remote reader rebuilds files from:
+        it verifies again, so it trusts no one in between)."""
+        parsed = CID.parse(cid)
+        block = self._read_block(parsed, max_bytes)
+        if len(block) > max_bytes:
+            raise ContentTooLarge(len(block), max_bytes, f"block {parsed}")
+        parsed.verify(block)
+        return block
+
     def get_to_file(
         self, cid: str | CID, path: str | os.PathLike[str], *, max_size: int | None = None
     ) -> int:

@@ -15,6 +15,7 @@ eth-tester's deterministic keys, funded); the workers sign with their own key fi
 from __future__ import annotations
 
 import json
+import os
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -23,7 +24,9 @@ from typing import Annotated, Any
 import typer
 from eth_account import Account
 
+from backend.settings import load_settings
 from drlaas.commands.client import write
+from drlaas.commands.up import running_platform
 from workers.daemon.gateway import Gateway, GatewayError
 
 #: eth-tester's account i has private key i + 1 (demo user ``user<i>`` of the gateway).
@@ -222,15 +225,18 @@ def scenario_command(
     gateway: Annotated[
         str | None, typer.Option(envvar="DRLAAS_GATEWAY", help="URL of a running `drlaas up`")
     ] = None,
-    data: Annotated[Path | None, typer.Option(help="its data directory (worker key files)")] = None,
+    data: Annotated[
+        Path | None,
+        typer.Option(
+            help="with --gateway: its data directory (worker key files); without: a new, empty "
+            "directory for the platform it starts (default <data>/demo-<time>)"
+        ),
+    ] = None,
     steps: Annotated[int, typer.Option(min=1000, help="training budget in env steps")] = 2000,
     workers: Annotated[int, typer.Option(min=3, help="workers when starting a platform")] = 3,
     as_json: Annotated[bool, typer.Option("--json")] = False,
 ) -> None:
     """Run the issue-4 scenario; without --gateway, start a platform for it and stop it after."""
-    from backend.settings import load_settings
-    from drlaas.commands.up import running_platform
-
     say = (lambda s: typer.echo(s, err=True)) if as_json else typer.echo
     settings = load_settings()
     keys = demo_requester_keys(settings.chain_service.kind)
@@ -239,7 +245,11 @@ def scenario_command(
             gateway, data or settings.data_dir, steps=steps, say=say, requester_keys=keys
         )
     else:
-        with running_platform(workers=workers, data_dir=data) as p:
+        # a platform of its own starts from nothing: never reuse an earlier run's jobs or chain
+        fresh = data or settings.data_dir / f"demo-{time.strftime('%Y%m%d-%H%M%S')}-{os.getpid()}"
+        if fresh.exists() and any(fresh.iterdir()):
+            raise typer.BadParameter(f"{fresh} is not empty: give a new --data directory")
+        with running_platform(workers=workers, data_dir=fresh) as p:
             p.wait_registered()
             say(f"platform up at {p.url}")
             report = run_scenario(p.url, p.data_dir, steps=steps, say=say, requester_keys=keys)

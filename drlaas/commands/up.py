@@ -210,7 +210,15 @@ def running_platform(
     data.mkdir(parents=True, exist_ok=True)
     app = build_gateway(settings)
     server = uvicorn.Server(
-        uvicorn.Config(app, host=host, port=port, log_level="warning", lifespan="on")
+        uvicorn.Config(
+            app,
+            host=host,
+            port=port,
+            log_level="warning",
+            lifespan="on",
+            # json: uvicorn's loggers go through the root handler (one JSON object per line)
+            **({"log_config": None} if settings.log_format == "json" else {}),
+        )
     )
     thread = threading.Thread(target=server.run, name="gateway", daemon=True)
     thread.start()
@@ -279,7 +287,10 @@ def up_command(
     ] = None,
 ) -> None:
     """Start the whole platform on this machine; Ctrl-C stops it."""
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
+    from backend.observability.logs import configure_logging
+    from backend.settings import load_settings
+
+    configure_logging(load_settings().log_format)  # DRLAAS_LOG_FORMAT=json|text
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())

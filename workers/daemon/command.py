@@ -71,7 +71,10 @@ def worker_command(
     ],
     gateway: Annotated[
         str | None,
-        typer.Option(envvar="DRLAAS_GATEWAY", help="gateway URL (hosts /rpc in embedded mode)"),
+        typer.Option(
+            envvar="DRLAAS_GATEWAY",
+            help="gateway URL (hosts /rpc in embedded mode; default http://127.0.0.1:8000 then)",
+        ),
     ] = None,
     domains: Annotated[
         str, typer.Option(help="domain codes served, e.g. '0,3,5-7' or 'all'")
@@ -79,30 +82,53 @@ def worker_command(
     max_jobs: Annotated[int, typer.Option(min=1, help="jobs at once before declining offers")] = 1,
     checkpoint_every: Annotated[int, typer.Option(min=1, help="updates between checkpoints")] = 2,
     data: Annotated[
-        Path | None, typer.Option(help="job directory root (default <data>/workers/<address>)")
+        Path | None,
+        typer.Option(
+            help="job directory root (default $DRLAAS_DATA_DIR or ~/.drlaas, + /workers/<address>)"
+        ),
     ] = None,
     loglevel: Annotated[str, typer.Option(help="Celery log level")] = "INFO",
+    metrics_port: Annotated[
+        int | None,
+        typer.Option(
+            envvar="DRLAAS_WORKER_METRICS_PORT", help="serve Prometheus /metrics on this port"
+        ),
+    ] = None,
+    metrics_host: Annotated[str, typer.Option(help="interface of the metrics port")] = "127.0.0.1",
 ) -> None:
     """Run a worker daemon: register on chain, then accept, train and submit offered tasks."""
     from backend.celery_app import worker_queue
-    from backend.settings import load_settings
     from workers.daemon import job, tasks
-    from workers.daemon.app import app
+    from workers.daemon.funding import ensure_gas
+    from workers.daemon.gateway import Gateway
     from workers.daemon.keys import load_or_create_key
+    from workers.daemon.links import default_gateway, worker_settings
     from workers.daemon.lock import hold_daemon_lock
+    from workers.daemon.logs import configure_daemon_logging
+    from workers.daemon.metrics import serve_worker_metrics
 
     logging.getLogger("httpx").setLevel(logging.WARNING)  # one line per progress point otherwise
-    settings = load_settings()
+    gateway = gateway or default_gateway()
+    settings, own_dir = worker_settings(gateway)
+    configure_daemon_logging(settings.log_format)  # DRLAAS_LOG_FORMAT=json|text
     account = load_or_create_key(key)
+    # the Celery app and the job runtime read these (same services as the gateway's)
+    os.environ["DRLAAS_DATA_DIR"] = str(settings.data_dir)
+    os.environ["DRLAAS_IPFS"] = settings.ipfs
     os.environ["DRLAAS_WORKER_KEY"] = str(key)
     os.environ["DRLAAS_WORKER_MAX_JOBS"] = str(max_jobs)
     os.environ["DRLAAS_WORKER_CHECKPOINT_EVERY"] = str(checkpoint_every)
     if gateway:
         os.environ["DRLAAS_GATEWAY"] = gateway
-    if data:
-        os.environ["DRLAAS_WORKER_DATA"] = str(data)
+        with Gateway(gateway, account) as gw:
+            ensure_gas(gw)  # an empty key on the embedded demo chain: the faucet
+    os.environ["DRLAAS_WORKER_DATA"] = str(data or own_dir / "workers" / account.address)
+    from workers.daemon.app import app  # built from the environment set above
+
     handler = tasks.runtime_from_env(settings)
     lock = hold_daemon_lock(handler.data_dir)  # noqa: F841 - held until the process exits
+    if metrics_port is not None:
+        serve_worker_metrics(handler, metrics_port, metrics_host)
     caps = measure()
     done = register_worker(handler.platform, caps, parse_domains(domains))
     typer.echo(

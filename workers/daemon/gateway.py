@@ -102,6 +102,18 @@ class Gateway:
             return r.json() if "json" in ctype else r.content
         raise AssertionError("unreachable")
 
+    def rpc(self, path: str, method: str, params: list[Any]) -> Any:
+        """``result`` of a JSON-RPC call to the chain the gateway serves at ``path``
+        (``/rpc``); :class:`GatewayError` for an HTTP or JSON-RPC error."""
+        r = self._client.post(
+            path, json={"jsonrpc": "2.0", "id": 1, "method": method, "params": params}
+        )
+        self._check("POST", path, r)
+        doc = r.json()
+        if "error" in doc:
+            raise GatewayError("POST", f"{path} {method}", r.status_code, doc["error"])
+        return doc.get("result")
+
     def get(self, path: str, **kwargs: Any) -> Any:
         return self.request("GET", path, **kwargs)
 

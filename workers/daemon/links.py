@@ -4,7 +4,11 @@ contract addresses.
 In embedded mode the gateway hosts the chain and serves it at ``<gateway>/rpc`` (platform.md),
 so a daemon uses :meth:`Chain.rpc` either way: ``DRLAAS_CHAIN`` when it is a node URL, else the
 gateway's ``/rpc``. Contract addresses come from, in order: ``DRLAAS_CONTRACTS`` (JSON or the
-path of a JSON file), the gateway (``GET /api/chain``), ``<data>/deployment.json``.
+path of a JSON file), the gateway (``GET /api/chain/contracts``), ``<data>/deployment.json``.
+
+A worker needs no ``DRLAAS_DATA_DIR`` (:func:`worker_settings`): its own files go to the per-user
+``~/.drlaas``, and when the gateway's broker and store are embedded (on this machine) it opens
+the gateway's, whose location the gateway tells loopback clients (``GET /api/local/services``).
 """
 
 from __future__ import annotations
@@ -20,10 +24,15 @@ from eth_account.signers.local import LocalAccount
 
 from backend.chain.client import Chain
 from backend.chain.platform import ModelsManager, Platform, TasksManager, UsersManager
-from backend.settings import Settings
+from backend.settings import Settings, load_settings
 from backend.store import ContentStore, make_store
 
 DEPLOYMENT_FILE = "deployment.json"
+#: The gateway of ``drlaas up --port 8000`` on this machine: where an embedded chain lives when
+#: no --gateway / DRLAAS_GATEWAY is given.
+LOCAL_GATEWAY = "http://127.0.0.1:8000"
+#: A worker's own data directory when DRLAAS_DATA_DIR is not set (job directories, keys).
+USER_DATA_DIR = Path("~/.drlaas")
 _NAMES = {"umc": "UsersManager", "tmc": "TasksManager", "mmc": "ModelsManager"}
 
 
@@ -74,7 +83,7 @@ def resolve_deployment(settings: Settings, gateway: str | None) -> Deployment:
         return Deployment.from_dict(doc)
     tried.append("DRLAAS_CONTRACTS (unset)")
     if gateway:
-        for path in ("/api/chain", "/api/health"):
+        for path in ("/api/chain/contracts",):
             try:
                 r = httpx.get(gateway.rstrip("/") + path, timeout=10)
                 if r.is_success:
@@ -87,6 +96,45 @@ def resolve_deployment(settings: Settings, gateway: str | None) -> Deployment:
         return Deployment.from_dict(json.loads(f.read_text()))
     tried.append(f"{f} (missing)")
     raise RuntimeError("cannot find the contract addresses; tried: " + "; ".join(tried))
+
+
+def default_gateway() -> str | None:
+    """:data:`LOCAL_GATEWAY` when the chain is embedded (it lives in a gateway), else ``None``
+    (a real node needs no gateway)."""
+    return LOCAL_GATEWAY if load_settings().chain_service.embedded else None
+
+
+def worker_settings(gateway: str | None) -> tuple[Settings, Path]:
+    """(settings for the shared services, the worker's own data directory).
+
+    With ``DRLAAS_DATA_DIR`` set both are that directory (``drlaas up`` starts its workers so).
+    Without it the worker's own directory is ``~/.drlaas``, and when its broker or store is
+    ``embedded`` the gateway's embedded ones are used (same machine; an error says so if the
+    gateway does not tell where they are)."""
+    if os.environ.get("DRLAAS_DATA_DIR"):
+        settings = load_settings()
+        return settings, settings.data_dir
+    own = USER_DATA_DIR.expanduser().resolve()
+    settings = load_settings(data_dir=str(own))
+    if not gateway or not (settings.broker_service.embedded or settings.ipfs_service.embedded):
+        return settings, own
+    try:
+        r = httpx.get(gateway.rstrip("/") + "/api/local/services", timeout=10)
+        doc = r.json() if r.is_success else None
+    except (httpx.HTTPError, ValueError):
+        doc = None
+    if not isinstance(doc, dict) or not isinstance(doc.get("data_dir"), str):
+        raise RuntimeError(
+            f"DRLAAS_BROKER / DRLAAS_IPFS are 'embedded' but the gateway {gateway} does not say "
+            f"where its embedded services are (it must run on this machine in development "
+            f"mode); set DRLAAS_BROKER and DRLAAS_IPFS to the platform's broker and IPFS URLs"
+        )
+    overrides: dict[str, Any] = {}
+    if settings.broker == "embedded" and doc.get("broker_embedded"):
+        overrides["data_dir"] = doc["data_dir"]
+    if settings.ipfs == "embedded" and doc.get("ipfs_dir"):
+        overrides["ipfs"] = "embedded:" + doc["ipfs_dir"]
+    return load_settings(**{"data_dir": str(own), **overrides}), own
 
 
 def chain_url(settings: Settings, gateway: str | None) -> str:

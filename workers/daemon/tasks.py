@@ -26,6 +26,7 @@ from celery import Celery, shared_task
 
 from backend.celery_app import make_celery, worker_queue
 from backend.chain.addresses import checksum
+from backend.observability.logs import task_context
 from backend.settings import Settings, load_settings
 from workers.daemon.handler import OfferHandler, Transient
 
@@ -130,6 +131,7 @@ def set_runtime(handler: OfferHandler | None) -> None:
 def handle_offer(self: Any, task_id: int, worker: str) -> dict[str, Any]:
     """Accept or decline the offer of ``task_id`` to ``worker``, train, upload, submit."""
     try:
-        return runtime().handle(int(task_id), worker)
+        with task_context(int(task_id)):  # JSON log lines of this job carry its task id
+            return runtime().handle(int(task_id), worker)
     except Transient as exc:
         raise self.retry(exc=exc, countdown=retry_delay(self.request.retries)) from exc

@@ -1,0 +1,47 @@
+"""``GET /api/blocks/{cid}``: one raw block of the content store, so a client on another machine
+(or with no access to the gateway's embedded store) can fetch any content by CID, like an IPFS
+trustless gateway: it rebuilds the file from blocks and verifies each one against its CID, so
+it trusts neither the gateway nor the network. ``drlaas model pull`` / ``task pull`` use it.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+from fastapi import APIRouter, Path
+from fastapi.responses import Response
+
+from backend.api.deps import StoreDep
+from backend.api.errors import RuleError, rule_responses
+from backend.store import CHUNK_SIZE, CIDMismatch, ContentTooLarge, InvalidCID, NotFound
+
+router = APIRouter(prefix="/blocks", tags=["models"])
+
+#: A block is a leaf chunk or a node of at most MAX_LINKS links: far below this bound.
+MAX_BLOCK_BYTES = 4 * CHUNK_SIZE
+CidPath = Annotated[
+    str, Path(min_length=8, max_length=128, pattern=r"^[A-Za-z0-9]+$", description="a CID")
+]
+RAW_BLOCK = "application/vnd.ipld.raw"
+
+
+@router.get(
+    "/{cid}",
+    response_class=Response,
+    responses={200: {"content": {RAW_BLOCK: {}}}, **rule_responses(404, 422, 502)},
+)
+def get_block(cid: CidPath, store: StoreDep) -> Response:
+    """The raw bytes of block ``cid`` (verified here, and again by the reader)."""
+    try:
+        block = store.get_block(cid, max_bytes=MAX_BLOCK_BYTES)
+    except InvalidCID as exc:
+        raise RuleError(422, "invalid_cid", f"{cid!r} is not a CID: {exc}") from None
+    except NotFound:
+        raise RuleError(404, "content_not_found", f"the store does not hold block {cid}") from None
+    except (CIDMismatch, ContentTooLarge) as exc:
+        raise RuleError(502, "content_corrupt", f"block {cid} failed verification: {exc}") from None
+    return Response(
+        block,
+        media_type=RAW_BLOCK,
+        headers={"ETag": f'"{cid}"', "Cache-Control": "public, max-age=31536000, immutable"},
+    )

@@ -1,0 +1,153 @@
+"""What every REST client command shares: options, the signed-in session, writes that relay a
+locally signed transaction, and output (a readable table or one JSON document).
+
+Writes the gateway cannot sign itself come back as 409 ``sign_locally`` with the unsigned
+transaction: :func:`write` signs it with the key file and relays it through ``POST /api/tx``
+(docs/platform.md, "Signing").
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+from web3 import Web3
+
+from workers.daemon.funding import NoGas, ensure_gas
+from workers.daemon.gateway import Gateway, GatewayError
+from workers.daemon.keys import load_or_create_key
+
+DEFAULT_GATEWAY = "http://127.0.0.1:8000"
+
+GatewayOpt = Annotated[str, typer.Option("--gateway", envvar="DRLAAS_GATEWAY", help="gateway URL")]
+KeyOpt = Annotated[
+    Path, typer.Option("--key", envvar="DRLAAS_KEY", help="your key file (created if missing)")
+]
+JsonOpt = Annotated[bool, typer.Option("--json", help="print one JSON document")]
+
+#: Fields of a ``sign_locally`` transaction that arrive as 0x-hex and must be signed as ints.
+_INT_FIELDS = frozenset(
+    {"value", "nonce", "chainId", "gas", "maxFeePerGas", "maxPriorityFeePerGas", "gasPrice", "type"}
+)
+
+
+def connect(gateway: str, key: Path | None = None) -> Gateway:
+    """A gateway session, signing in as the key file's account when ``key`` is given."""
+    account = load_or_create_key(key) if key is not None else None
+    return Gateway(gateway or os.environ.get("DRLAAS_GATEWAY", DEFAULT_GATEWAY), account)
+
+
+def connect_funded(gateway: str, key: Path) -> Gateway:
+    """:func:`connect`, then make sure the key can pay gas (the embedded demo chain's faucet
+    tops up an empty key; elsewhere the error says who funds it)."""
+    gw = connect(gateway, key)
+    try:
+        ensure_gas(gw)
+    except (NoGas, GatewayError) as exc:
+        gw.close()
+        fail(exc)
+    return gw
+
+
+def write(gw: Gateway, method: str, path: str, body: Any = None) -> Any:
+    """A write acting as the key's address: relay the transaction ourselves if the gateway
+    answers ``sign_locally`` (it holds no key for us). Returns the endpoint's answer, or the
+    relayed transaction's receipt (``{tx_hash, block_number, status, events}``)."""
+    try:
+        return gw.request(method, path, json=body, auth=True)
+    except GatewayError as exc:
+        detail = exc.detail if isinstance(exc.detail, dict) else {}
+        if exc.status != 409 or detail.get("rule") != "sign_locally" or "tx" not in detail:
+            raise
+        raw = sign(gw, detail["tx"])
+    try:
+        return gw.post("/tx", {"raw": raw}, auth=True)
+    except GatewayError as relay_exc:
+        rule = relay_exc.detail.get("rule") if isinstance(relay_exc.detail, dict) else None
+        if relay_exc.status != 422 or rule != "tx_invalid":
+            raise
+        # the relay could not decode a valid signed transaction: send it to the chain's
+        # JSON-RPC endpoint ourselves (platform.md: clients may send raw transactions)
+        return send_raw(gw.url + "/rpc", raw)
+
+
+def sign(gw: Gateway, tx: dict[str, Any]) -> str:
+    """The 0x-hex raw transaction of ``tx`` (a ``sign_locally`` body) signed by the key."""
+    fields = {
+        k: (int(v, 16) if isinstance(v, str) and k in _INT_FIELDS and v.startswith("0x") else v)
+        for k, v in tx.items()
+    }
+    if gw.account is None:
+        raise RuntimeError("this command needs a key file (--key) to sign")
+    return "0x" + bytes(gw.account.sign_transaction(fields).raw_transaction).hex()
+
+
+def send_raw(rpc_url: str, raw: str, timeout: float = 60.0) -> dict[str, Any]:
+    """eth_sendRawTransaction at ``rpc_url`` and wait for the receipt; error if it reverted."""
+    w3 = Web3(Web3.HTTPProvider(rpc_url, request_kwargs={"timeout": timeout}))
+    tx_hash = w3.eth.send_raw_transaction(bytes.fromhex(raw.removeprefix("0x")))
+    receipt = w3.eth.wait_for_transaction_receipt(tx_hash, timeout=timeout)
+    if receipt["status"] != 1:
+        raise RuntimeError(f"transaction 0x{bytes(tx_hash).hex()} reverted")
+    return {
+        "tx_hash": "0x" + bytes(tx_hash).hex(),
+        "block_number": receipt["blockNumber"],
+        "status": receipt["status"],
+        "events": [],
+    }
+
+
+def event_arg(receipt: dict[str, Any], event: str, arg: str) -> Any:
+    """``args[arg]`` of the first ``event`` in a relayed receipt; LookupError naming both."""
+    for e in receipt.get("events") or []:
+        if e.get("name") == event:
+            return e["args"][arg]
+    raise LookupError(f"transaction {receipt.get('tx_hash')} emitted no {event} event")
+
+
+def fail(exc: Exception) -> None:
+    typer.echo(f"error: {exc}", err=True)
+    raise typer.Exit(1)
+
+
+def read(gateway: str, path: str, params: dict[str, Any] | None = None) -> Any:
+    """GET ``path`` from the gateway (no sign-in needed); exit with the error on failure."""
+    with connect(gateway) as gw:
+        try:
+            return gw.get(path, params=params) if params else gw.get(path)
+        except GatewayError as exc:
+            fail(exc)
+
+
+def emit(doc: Any, as_json: bool, render: Any = None) -> None:
+    if as_json or render is None:
+        typer.echo(json.dumps(doc, indent=1, sort_keys=True, default=str))
+    else:
+        render(doc)
+
+
+def table(rows: list[dict[str, Any]], columns: list[tuple[str, str]]) -> str:
+    """A plain fixed-width table of ``rows`` with (key, header) ``columns``."""
+
+    def cell(v: Any) -> str:
+        if v is None:
+            return "-"
+        if isinstance(v, float):
+            return f"{v:.3f}"
+        s = str(v)
+        return s if len(s) <= 46 else s[:20] + "…" + s[-20:]
+
+    cells = [[cell(r.get(k)) for k, _ in columns] for r in rows]
+    widths = [max([len(h)] + [len(c[i]) for c in cells]) for i, (_, h) in enumerate(columns)]
+    lines = ["  ".join(h.ljust(w) for (_, h), w in zip(columns, widths, strict=True))]
+    lines.append("  ".join("-" * w for w in widths))
+    lines += ["  ".join(c.ljust(w) for c, w in zip(r, widths, strict=True)) for r in cells]
+    return "\n".join(lines)
+
+
+def kv(doc: dict[str, Any], keys: list[str]) -> str:
+    width = max(len(k) for k in keys)
+    return "\n".join(f"{k.ljust(width)}  {doc.get(k, '-')}" for k in keys)

@@ -1,0 +1,304 @@
+"""``drlaas task ...``: submit a training task, list, show, review.
+
+The body of ``POST /api/tasks`` is built in one place, :func:`task_body`. When the gateway holds
+no key for the requester, ``submit`` relays the signed ``addTask`` itself and then allocates the
+task the same way (``POST /api/tasks/{id}/allocate``, docs/platform.md "Signing").
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+
+from drlaas.commands.client.models import pull
+from drlaas.commands.client.session import (
+    DEFAULT_GATEWAY,
+    GatewayOpt,
+    JsonOpt,
+    KeyOpt,
+    connect,
+    connect_funded,
+    emit,
+    event_arg,
+    fail,
+    kv,
+    read,
+    table,
+    write,
+)
+from workers.daemon.gateway import Gateway, GatewayError
+from workers.mdrl.spec import parse_grid, parse_walls
+
+task_app = typer.Typer(
+    help="Training tasks: submit, list, show, wait, pull, review.", no_args_is_help=True
+)
+
+
+def task_body(
+    *,
+    grid: str,
+    agents: int,
+    walls: str,
+    kind: str,
+    window: int,
+    steps: int,
+    minutes: int,
+    seed: int,
+    workers: int,
+    payment_wei: int,
+    deadline_s: int,
+    domain: int,
+    spec: Path | None,
+) -> dict[str, Any]:
+    """POST /tasks body from options, or from a JSON file (``--spec``) that options fill in."""
+    if spec is not None:
+        return json.loads(spec.read_text())
+    rows, cols = parse_grid(grid)
+    return {
+        "env": {"rows": rows, "cols": cols, "agents": agents, "walls": list(parse_walls(walls))},
+        "observation": {"kind": kind, "window": window},
+        "budget": {"steps": steps, "minutes": minutes},
+        "seed": seed,
+        "num_workers": workers,
+        "payment_wei": payment_wei,
+        "deadline_s": deadline_s,
+        "domain": domain,
+    }
+
+
+@task_app.command("submit")
+def task_submit(
+    key: KeyOpt,
+    gateway: GatewayOpt = DEFAULT_GATEWAY,
+    grid: Annotated[str, typer.Option(help="ROWSxCOLS")] = "10x10",
+    agents: Annotated[int, typer.Option(min=1)] = 3,
+    walls: Annotated[str, typer.Option(help="count or range, e.g. 0-2")] = "0",
+    kind: Annotated[str, typer.Option(help="odmtl | dmtl | cmtl")] = "odmtl",
+    window: Annotated[int, typer.Option(help="ODMTL window (odd)")] = 3,
+    steps: Annotated[int, typer.Option(help="env-step budget")] = 200_000,
+    minutes: Annotated[int, typer.Option(help="wall-clock cap")] = 30,
+    seed: int = 0,
+    workers: Annotated[int, typer.Option(min=1, help="workers to recruit")] = 1,
+    payment_wei: Annotated[int, typer.Option(min=0, help="reward per worker (escrowed)")] = 0,
+    deadline_s: Annotated[int, typer.Option(min=60)] = 86_400,
+    domain: int = 0,
+    spec: Annotated[Path | None, typer.Option(help="JSON body of POST /api/tasks instead")] = None,
+    as_json: JsonOpt = False,
+) -> None:
+    """Submit a training task: the spec goes to the content store, the chain recruits."""
+    body = task_body(
+        grid=grid,
+        agents=agents,
+        walls=walls,
+        kind=kind,
+        window=window,
+        steps=steps,
+        minutes=minutes,
+        seed=seed,
+        workers=workers,
+        payment_wei=payment_wei,
+        deadline_s=deadline_s,
+        domain=domain,
+        spec=spec,
+    )
+    with connect_funded(gateway, key) as gw:
+        try:
+            out = submit(gw, body)
+        except (GatewayError, LookupError) as exc:
+            fail(exc)
+        emit(
+            out,
+            as_json,
+            lambda d: typer.echo(
+                f"task {d['task_id']} submitted (spec {d['spec_cid']}); offered to: "
+                + (", ".join(d.get("offered") or []) or "nobody yet")
+            ),
+        )
+
+
+def submit(gw: Gateway, body: dict[str, Any]) -> dict[str, Any]:
+    """Create and allocate a task; ``{task_id, spec_cid, offered, tx_hashes}`` either way: the
+    gateway signs both transactions (it holds the key), or we relay ``addTask`` and then
+    allocate (the gateway answered ``sign_locally``)."""
+    out = write(gw, "POST", "/tasks", body)
+    if "task_id" in out:
+        return out
+    task_id = int(event_arg(out, "TaskAdded", "taskId"))
+    spec_cid = str(event_arg(out, "TaskAdded", "description"))
+    alloc = write(gw, "POST", f"/tasks/{task_id}/allocate")
+    return {
+        "task_id": task_id,
+        "spec_cid": spec_cid,
+        "offered": [e["args"]["worker"] for e in alloc["events"] if e["name"] == "TaskOffered"],
+        "tx_hashes": [out["tx_hash"], alloc["tx_hash"]],
+    }
+
+
+@task_app.command("list")
+def task_list(
+    gateway: GatewayOpt = DEFAULT_GATEWAY,
+    status: Annotated[str | None, typer.Option(help="open|completed|cancelled|closed")] = None,
+    requester: str | None = None,
+    worker: str | None = None,
+    as_json: JsonOpt = False,
+) -> None:
+    """List tasks (filter by status, requester, worker)."""
+    params = {
+        k: v for k, v in {"status": status, "requester": requester, "worker": worker}.items() if v
+    }
+    out = read(gateway, "/tasks", params=params)
+    emit(
+        out,
+        as_json,
+        lambda d: typer.echo(
+            table(
+                d["data"],
+                [
+                    ("id", "ID"),
+                    ("status", "STATUS"),
+                    ("requester", "REQUESTER"),
+                    ("num_workers", "WORKERS"),
+                    ("offered", "OFFERED"),
+                    ("deadline", "DEADLINE"),
+                    ("description", "SPEC CID"),
+                ],
+            )
+        ),
+    )
+
+
+@task_app.command("show")
+def task_show(
+    task_id: int, gateway: GatewayOpt = DEFAULT_GATEWAY, as_json: JsonOpt = False
+) -> None:
+    """A task with its offers, outcomes and the live training curve."""
+    out = read(gateway, f"/tasks/{task_id}")
+
+    def render(d: dict[str, Any]) -> None:
+        typer.echo(kv(d, ["id", "status", "requester", "num_workers", "deadline", "description"]))
+        if d.get("offers"):
+            typer.echo(
+                "\noffers\n"
+                + table(d["offers"], [("worker", "WORKER"), ("state", "STATE"), ("qos", "QOS")])
+            )
+        if d.get("outcomes"):
+            typer.echo(
+                "\noutcomes\n"
+                + table(d["outcomes"], [("worker", "WORKER"), ("cid", "CID"), ("review", "REVIEW")])
+            )
+        if d.get("progress"):
+            typer.echo(
+                "\nprogress\n"
+                + table(
+                    d["progress"][-10:],
+                    [
+                        ("worker", "WORKER"),
+                        ("step", "STEP"),
+                        ("success", "SUCCESS"),
+                        ("time", "TIME"),
+                        ("cost", "COST"),
+                    ],
+                )
+            )
+
+    emit(out, as_json, render)
+
+
+@task_app.command("review")
+def task_review(
+    task_id: int,
+    worker: Annotated[str, typer.Option(help="worker whose outcome you review")],
+    review: Annotated[int, typer.Option(min=0, max=5, help="0-5")],
+    key: KeyOpt,
+    reject: Annotated[bool, typer.Option(help="reject the outcome (no payment)")] = False,
+    gateway: GatewayOpt = DEFAULT_GATEWAY,
+    as_json: JsonOpt = False,
+) -> None:
+    """Review a worker's outcome (TMC.reviewOutcome): pays and updates its reputation."""
+    with connect_funded(gateway, key) as gw:
+        try:
+            out = write(
+                gw,
+                "POST",
+                f"/tasks/{task_id}/reviews",
+                {"worker": worker, "review": review, "accepted": not reject},
+            )
+        except GatewayError as exc:
+            fail(exc)
+    emit(out, as_json, lambda d: typer.echo(f"reviewed {worker} on task {task_id}: {review}/5"))
+
+
+@task_app.command("wait")
+def task_wait(
+    task_id: int,
+    gateway: GatewayOpt = DEFAULT_GATEWAY,
+    timeout: Annotated[float, typer.Option(min=1, help="seconds before giving up")] = 1800,
+    as_json: JsonOpt = False,
+) -> None:
+    """Wait until a worker submits an outcome for the task (or the task ends); training
+    progress is printed as it arrives. Exit 1 on timeout or when the task ended without one."""
+    deadline = time.monotonic() + timeout
+    shown = 0
+    with connect(gateway) as gw:
+        while True:
+            try:
+                d = gw.get(f"/tasks/{task_id}")
+            except GatewayError as exc:
+                if exc.status != 404 or time.monotonic() > deadline:  # 404: not indexed yet
+                    fail(exc)
+                d = {"status": "unknown", "outcomes": [], "progress": []}
+            for p in (d.get("progress") or [])[shown:]:
+                typer.echo(
+                    f"task {task_id}: step {p.get('step')} success {p.get('success')}", err=True
+                )
+            shown = max(shown, len(d.get("progress") or []))
+            if d.get("outcomes"):
+                break
+            if d.get("status") in ("cancelled", "closed", "completed"):
+                fail(RuntimeError(f"task {task_id} is {d['status']} with no outcome"))
+            if time.monotonic() > deadline:
+                fail(
+                    TimeoutError(
+                        f"task {task_id}: no outcome after {timeout:g} s ({d.get('status')})"
+                    )
+                )
+            time.sleep(2.0)
+    emit(
+        d["outcomes"],
+        as_json,
+        lambda o: typer.echo(
+            "\n".join(f"task {task_id}: outcome {x['cid']} from {x['worker']}" for x in o)
+        ),
+    )
+
+
+@task_app.command("pull")
+def task_pull(
+    task_id: int,
+    out: Annotated[
+        Path | None, typer.Option("--out", help="directory (default ./task-<ID>-model)")
+    ] = None,
+    worker: Annotated[str | None, typer.Option(help="whose outcome (default: the first)")] = None,
+    gateway: GatewayOpt = DEFAULT_GATEWAY,
+    as_json: JsonOpt = False,
+) -> None:
+    """Download a task's outcome model through the gateway, verified against its CID (the
+    requester does not have to wait until the worker shares it)."""
+    outcomes = read(gateway, f"/tasks/{task_id}").get("outcomes") or []
+    chosen = [o for o in outcomes if worker is None or o["worker"].lower() == worker.lower()]
+    if not chosen:
+        fail(LookupError(f"task {task_id} has no outcome" + (f" from {worker}" if worker else "")))
+    cid = chosen[0]["cid"]
+    try:
+        path = pull(gateway, cid, out if out is not None else Path(f"task-{task_id}-model"))
+    except Exception as exc:  # noqa: BLE001 - shown to the user with its type
+        fail(RuntimeError(f"cannot pull {cid}: {type(exc).__name__}: {exc}"))
+    emit(
+        {"task_id": task_id, "worker": chosen[0]["worker"], "cid": cid, "path": str(path)},
+        as_json,
+        lambda d: typer.echo(f"task {task_id} outcome {cid} ({d['worker']}) -> {path}"),
+    )

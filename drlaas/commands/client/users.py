@@ -1,0 +1,33 @@
+"""``drlaas requester ...``: your requester record on the UMC."""
+
+from __future__ import annotations
+
+import typer
+
+from drlaas.commands.client.session import (
+    DEFAULT_GATEWAY,
+    GatewayOpt,
+    JsonOpt,
+    KeyOpt,
+    connect_funded,
+    emit,
+    fail,
+    write,
+)
+from workers.daemon.gateway import GatewayError
+
+requester_app = typer.Typer(help="Your requester record.", no_args_is_help=True)
+
+
+@requester_app.command("register")
+def requester_register(
+    key: KeyOpt, gateway: GatewayOpt = DEFAULT_GATEWAY, as_json: JsonOpt = False
+) -> None:
+    """Register the key's address as a requester (UMC.addRequester); an empty key on the
+    embedded demo chain is funded from the faucet first."""
+    with connect_funded(gateway, key) as gw:
+        try:
+            out = write(gw, "POST", "/users/requesters")
+        except GatewayError as exc:
+            fail(exc)
+        emit(out, as_json, lambda d: typer.echo(f"requester {gw.address} registered"))

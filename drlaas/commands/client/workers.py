@@ -1,0 +1,86 @@
+"""``drlaas worker ...``: your worker record (register, status) and the daemon itself (run)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from drlaas.commands.client.session import (
+    DEFAULT_GATEWAY,
+    GatewayOpt,
+    JsonOpt,
+    KeyOpt,
+    connect,
+    connect_funded,
+    emit,
+    fail,
+    kv,
+    write,
+)
+from workers.daemon.capabilities import measure
+from workers.daemon.command import parse_domains, worker_command
+from workers.daemon.gateway import GatewayError
+
+worker_app = typer.Typer(
+    help="Your worker: register, status, run (the daemon).", no_args_is_help=True
+)
+
+
+@worker_app.command("register")
+def worker_register(
+    key: KeyOpt,
+    gateway: GatewayOpt = DEFAULT_GATEWAY,
+    domains: Annotated[str, typer.Option(help="domain codes, e.g. '0,3' or 'all'")] = "0",
+    as_json: JsonOpt = False,
+) -> None:
+    """Register (or update) your worker record with this machine's measured capabilities."""
+    caps = measure()
+    with connect_funded(gateway, key) as gw:
+        try:
+            out = write(
+                gw,
+                "POST",
+                "/users/workers",
+                {"domains": list(parse_domains(domains)), **caps.to_dict()},
+            )
+        except GatewayError as exc:
+            fail(exc)
+    emit(
+        out,
+        as_json,
+        lambda d: typer.echo(
+            f"worker {gw.address}: {'registered' if d.get('created', True) else 'updated'} "
+            f"({caps.cpu_cores} cores, {caps.ram_gb} GB, GPU {caps.gpu_series})"
+        ),
+    )
+
+
+@worker_app.command("status")
+def worker_status(
+    address: Annotated[str | None, typer.Argument(help="worker address (default: --key's)")] = None,
+    key: Annotated[Path | None, typer.Option("--key", envvar="DRLAAS_KEY")] = None,
+    gateway: GatewayOpt = DEFAULT_GATEWAY,
+    as_json: JsonOpt = False,
+) -> None:
+    """A worker's status, capabilities, reputation and counters."""
+    with connect(gateway, key) as gw:
+        who = address or (gw.address if key else None)
+        if who is None:
+            fail(ValueError("give an ADDRESS or --key"))
+        try:
+            out = gw.get(f"/workers/{who}")
+        except GatewayError as exc:
+            fail(exc)
+    emit(
+        out,
+        as_json,
+        lambda d: typer.echo(kv(d, [k for k in d if not isinstance(d[k], dict | list)])),
+    )
+
+
+worker_app.command(
+    "run",
+    help="Run the worker daemon: register on chain, then accept, train and submit offered tasks.",
+)(worker_command)
