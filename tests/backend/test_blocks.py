@@ -12,7 +12,7 @@ import httpx
 import pytest
 from fastapi.testclient import TestClient
 
-from backend.api import create_app
+from backend.api.main import create_app
 from backend.settings import Settings
 from backend.store import CHUNK_SIZE, CIDMismatch, NotFound, compute_cid
 from backend.store.bundle import add_bundle, pull_model

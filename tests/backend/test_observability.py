@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 from fastapi.testclient import TestClient
 
-from backend.api import create_app
+from backend.api.main import create_app
 from backend.db import models as m
 from backend.observability.logs import JsonFormatter, _Ours, task_context
 from backend.observability.metrics import metric_names

@@ -10,7 +10,7 @@ import pytest
 from eth_account import Account
 from fastapi.testclient import TestClient
 
-from backend.api import create_app
+from backend.api.main import create_app
 from backend.services.chain import ChainService
 from backend.settings import Settings
 from workers.daemon.funding import NoGas, chain_balance, ensure_gas
