@@ -86,7 +86,14 @@ class OutcomePublic(BaseModel):
 class ProgressCreate(BaseModel):
     """A training-curve point; extra numeric metrics (at most 16) are kept as they are."""
 
-    model_config = ConfigDict(extra="allow")
+    model_config = ConfigDict(
+        extra="allow",
+        json_schema_extra={
+            "additionalProperties": {"type": "number"},
+            "propertyNames": {"maxLength": 64},
+            "maxProperties": 4 + MAX_EXTRA_METRICS,
+        },
+    )
 
     step: int = Field(ge=0, le=10**12)
     success: float | None = Field(default=None, ge=0.0, le=1.0)

@@ -39,6 +39,9 @@ class Int:
     odd: bool = False
 
     def check(self, v: Any, field: str) -> int:
+        # JSON Schema's integer includes 2.0 (a number with no fraction); so does this rule
+        if isinstance(v, float) and v.is_integer():
+            v = int(v)
         if not _is_int(v):
             raise SpecError(field, f"expected an integer, got {v!r}")
         if not self.lo <= v <= self.hi:

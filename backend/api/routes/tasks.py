@@ -84,7 +84,7 @@ def min_payment_per_worker_hour() -> int:
     "",
     status_code=status.HTTP_201_CREATED,
     response_model=TaskCreatedPublic,
-    responses=rule_responses(401, 403, 409, 503),
+    responses=rule_responses(401, 403, 409, 422, 503),
 )
 def create_task(
     body: TaskCreate,
