@@ -84,7 +84,7 @@ def min_payment_per_worker_hour() -> int:
     "",
     status_code=status.HTTP_201_CREATED,
     response_model=TaskCreatedPublic,
-    responses=rule_responses(401, 403, 409, 422, 503),
+    responses=rule_responses(400, 401, 403, 409, 422, 503),
 )
 def create_task(
     body: TaskCreate,
@@ -260,7 +260,7 @@ def get_task(task_id: TaskId, session: SessionDep) -> TaskDetailPublic:
     "/{task_id}/progress",
     status_code=status.HTTP_201_CREATED,
     response_model=ProgressPublic,
-    responses=rule_responses(401, 403, 404, 409),
+    responses=rule_responses(400, 401, 403, 404, 409),
 )
 def post_progress(
     task_id: TaskId, body: ProgressCreate, user: CurrentUser, session: SessionDep
@@ -302,7 +302,9 @@ def post_progress(
 
 
 @router.post(
-    "/{task_id}/reviews", response_model=TxPublic, responses=rule_responses(401, 403, 404, 409)
+    "/{task_id}/reviews",
+    response_model=TxPublic,
+    responses=rule_responses(400, 401, 403, 404, 409),
 )
 def review_outcome(
     task_id: TaskId,
