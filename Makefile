@@ -27,7 +27,13 @@ tests/ipfs-node/node_modules/.installed: tests/ipfs-node/package-lock.json
 	cd tests/ipfs-node && npm ci --no-audit --no-fund --loglevel=error
 	touch $@
 
-setup: $(STAMP) contracts/node_modules/.installed tests/ipfs-node/node_modules/.installed /usr/bin/chromium
+# Foundry's cast (binary inside the npm package): the standard client the /rpc tests drive.
+tests/foundry/node_modules/.installed: tests/foundry/package-lock.json
+	cd tests/foundry && npm ci --no-audit --no-fund --loglevel=error
+	touch $@
+
+setup: $(STAMP) contracts/node_modules/.installed tests/ipfs-node/node_modules/.installed \
+	tests/foundry/node_modules/.installed /usr/bin/chromium
 
 # Main job (embedded default, nothing else to install): start the whole platform on this
 # machine (chain with contracts, content store, broker, database, gateway, 3 worker daemons) and
@@ -61,4 +67,4 @@ bench-recruitment: setup
 	$(BIN)/python benchmarks/recruitment/run.py
 
 clean:
-	rm -rf $(VENV) runs contracts/node_modules
+	rm -rf $(VENV) runs contracts/node_modules tests/foundry/node_modules

@@ -6,7 +6,7 @@ checks domain, chain id, nonce (known, issued to that address, unused, unexpired
 nonce used; ``issue_token`` returns an HS256 JWT (PyJWT) bound to the address. A request then
 acts only as that address (``require_self``).
 
-Every failure raises :class:`~backend.api.errors.RuleError` with a named rule, e.g.
+Every failure raises a :mod:`backend.errors` domain error with a named rule, e.g.
 ``siwe_nonce_used`` (a replay) or ``token_expired``.
 """
 
@@ -24,13 +24,13 @@ import jwt
 from eth_account import Account
 from eth_account.messages import encode_defunct
 from eth_account.signers.local import LocalAccount
-from eth_utils import is_address, to_checksum_address
 from sqlalchemy import CursorResult, delete, update
 from sqlalchemy.orm import Session
 
-from backend.api.errors import RuleError
+from backend.chain.addresses import checksum
 from backend.db.base import utcnow
 from backend.db.models import AuthNonce
+from backend.errors import Forbidden, Invalid, Unauthorized
 from backend.settings import Settings
 
 Clock = Callable[[], dt.datetime]
@@ -39,18 +39,10 @@ TOKEN_ALGORITHM = "HS256"
 TOKEN_AUDIENCE = "drlaas-gateway"
 SIWE_VERSION = "1"
 SIWE_STATEMENT = "Sign in to DRLaaS. This request costs nothing and sends no transaction."
-_BEARER_CHALLENGE = {"WWW-Authenticate": 'Bearer realm="drlaas"'}
 
 
-def _unauthorized(rule: str, msg: str) -> RuleError:
-    return RuleError(401, rule, msg, headers=_BEARER_CHALLENGE)
-
-
-def checksum(address: str) -> str:
-    """EIP-55 checksummed form of ``address``; ``ValueError`` naming it if it is not one."""
-    if not isinstance(address, str) or not is_address(address):
-        raise ValueError(f"not an Ethereum address: {address!r}")
-    return to_checksum_address(address)
+def _unauthorized(rule: str, msg: str) -> Unauthorized:
+    return Unauthorized(rule, msg)
 
 
 # -- EIP-4361 message ---------------------------------------------------------------------------
@@ -97,11 +89,10 @@ class SiweMessage:
 
     @classmethod
     def parse(cls, text: str) -> SiweMessage:
-        """Parse the subset of EIP-4361 the gateway issues; ``RuleError`` 422 when malformed."""
+        """Parse the subset of EIP-4361 the gateway issues; ``Invalid`` (422) when malformed."""
         m = _SIWE_RE.fullmatch(text.replace("\r\n", "\n"))
         if m is None:
-            raise RuleError(
-                422,
+            raise Invalid(
                 "siwe_message_malformed",
                 "message is not an EIP-4361 sign-in message as issued by POST /api/auth/nonce",
             )
@@ -118,7 +109,7 @@ class SiweMessage:
                 expiration_time=_parse_iso(m["expiration_time"]),
             )
         except ValueError as exc:
-            raise RuleError(422, "siwe_message_malformed", str(exc)) from None
+            raise Invalid("siwe_message_malformed", str(exc)) from None
 
 
 _SIWE_RE = re.compile(
@@ -289,10 +280,9 @@ def require_self(user: User, address: str) -> str:
     try:
         target = checksum(address)
     except ValueError as exc:
-        raise RuleError(422, "address_invalid", str(exc)) from None
+        raise Invalid("address_invalid", str(exc)) from None
     if target != user.address:
-        raise RuleError(
-            403,
+        raise Forbidden(
             "act_as_self_only",
             f"signed in as {user.address}; a request can only act as the address that signed",
         )

@@ -134,7 +134,7 @@ class EmbeddedSQLATransport(kombu_sqla.Transport):
 def worker_queue(address: str) -> str:
     """The queue of the worker daemon running for ``address`` (checksummed, so one queue per
     address whatever case a caller used)."""
-    from backend.auth import checksum
+    from backend.chain.addresses import checksum
 
     return f"{WORKER_QUEUE_PREFIX}{checksum(address)}"
 

@@ -130,6 +130,14 @@ class Settings(BaseSettings):
     max_task_worker_hours: float = Field(default=200.0, gt=0, le=1e7)
     """Largest estimated worker-hours (hours per worker x num_workers) of one task; beyond it
     task creation is a 422 ``spec_exceeds_worker_hours_limit``."""
+    max_request_bytes: int = Field(default=2**20, ge=1024, le=2**30)
+    """Largest request body the gateway reads (every route, before parsing: 413 above it)."""
+    max_json_depth: int = Field(default=64, ge=2, le=1000)
+    """Deepest bracket nesting a request body may have (checked before parsing: 422)."""
+    faucet_interval_s: int = Field(default=60, ge=0, le=86_400)
+    """Embedded demo chain: seconds between two faucet top-ups of one address."""
+    faucet_per_minute: int = Field(default=30, ge=1, le=10_000)
+    """Embedded demo chain: faucet top-ups per minute over all addresses."""
 
     # -- field checks (messages name the variable) ------------------------------------------
     @field_validator("data_dir")

@@ -18,7 +18,7 @@ from pathlib import Path
 
 from fastapi.testclient import TestClient
 
-from backend.api import create_app
+from backend.api.main import create_app
 from backend.db import models as m
 from backend.settings import Settings
 

@@ -57,6 +57,7 @@ def main() -> None:
                 / "workers"
                 / worker.address
                 / "jobs"
+                / p.chain.platform.identity
                 / str(created["task_id"])
                 / "state.json"
             )

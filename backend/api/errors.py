@@ -10,6 +10,7 @@ client never has to parse a bare string.
 from __future__ import annotations
 
 import logging
+import math
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -18,6 +19,9 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from pydantic import BaseModel, RootModel
 from starlette.exceptions import HTTPException as StarletteHTTPException
+
+from backend import errors as domain
+from backend.errors import DomainError
 
 log = logging.getLogger(__name__)
 
@@ -101,7 +105,45 @@ _HTTP_RULES = {
 }
 
 
+DOMAIN_STATUS: dict[type[DomainError], int] = {
+    domain.BadRequest: 400,
+    domain.Unauthorized: 401,
+    domain.PaymentRequired: 402,
+    domain.Forbidden: 403,
+    domain.NotFound: 404,
+    domain.Conflict: 409,
+    domain.TooLarge: 413,
+    domain.Invalid: 422,
+    domain.RateLimited: 429,
+    domain.Unavailable: 503,
+}
+"""HTTP status of each kind of domain error (backend.errors); the body is the rule shape."""
+_BEARER_CHALLENGE = {"WWW-Authenticate": 'Bearer realm="drlaas"'}
+
+
+def domain_status(exc: DomainError) -> int:
+    for cls in type(exc).__mro__:
+        if cls in DOMAIN_STATUS:
+            return DOMAIN_STATUS[cls]
+    return 409
+
+
+def domain_headers(exc: DomainError) -> dict[str, str]:
+    headers = dict(_BEARER_CHALLENGE) if isinstance(exc, domain.Unauthorized) else {}
+    if exc.retry_after is not None:
+        headers["Retry-After"] = str(max(1, math.ceil(exc.retry_after)))
+    return headers
+
+
 def install_error_handlers(app: FastAPI) -> None:
+    @app.exception_handler(DomainError)
+    async def _domain(_: Request, exc: DomainError) -> JSONResponse:
+        return JSONResponse(
+            status_code=domain_status(exc),
+            content={"detail": {"rule": exc.rule, "msg": exc.msg}},
+            headers=domain_headers(exc) or None,
+        )
+
     @app.exception_handler(RequestValidationError)
     async def _validation(_: Request, exc: RequestValidationError) -> JSONResponse:
         return JSONResponse(status_code=422, content={"detail": validation_issues(exc.errors())})

@@ -21,11 +21,13 @@ from starlette.concurrency import run_in_threadpool
 
 from backend.api.errors import install_error_handlers
 from backend.api.frontend import mount_frontend
+from backend.api.limits import BodyLimits
 from backend.api.routes import api_router, models, rpc, tasks, tx, users, workers
 from backend.api.version import VERSION
 from backend.db import make_engine, make_sessionmaker, upgrade, utcnow
 from backend.indexer import Indexer, IndexerThread, OfferHook
 from backend.services.chain import ChainService, SignLocally
+from backend.services.faucet import Faucet
 from backend.services.rpc import EmbeddedRpc
 from backend.settings import Settings, load_settings
 from backend.store import make_store
@@ -91,6 +93,8 @@ def create_app(
             store = getattr(app.state, "store", None)
             if store is not None:
                 store.close()
+            if chain is None and app.state.chain is not None:  # ours: release its file
+                app.state.chain.chain.close()
             engine.dispose()
 
     app = FastAPI(
@@ -111,8 +115,12 @@ def create_app(
     app.state.chain = None
     app.state.indexer = None
     app.state.rpc = None
+    app.state.faucet = None
     app.state.store = None
     install_error_handlers(app)
+    app.add_middleware(
+        BodyLimits, max_bytes=settings.max_request_bytes, max_depth=settings.max_json_depth
+    )
 
     @app.exception_handler(SignLocally)
     async def _sign_locally(_: Request, exc: SignLocally) -> JSONResponse:
@@ -175,6 +183,12 @@ def _start_services(
         app.state.chain_id = service.chain.chain_id
     if service.chain.kind == "embedded":
         app.state.rpc = EmbeddedRpc(service.chain, service.lock)
+        if settings.demo_keys_allowed:  # the faucet: embedded demo chain only
+            app.state.faucet = Faucet(
+                service,
+                interval_s=settings.faucet_interval_s,
+                per_minute=settings.faucet_per_minute,
+            )
     indexer = Indexer(
         service,
         app.state.sessions,

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Iterable
+from pathlib import Path
 from typing import Any
 
 from eth_account import Account
@@ -22,11 +23,13 @@ from web3.exceptions import ContractCustomError, ContractLogicError
 
 from . import errors
 from .artifacts import load_artifact
+from .pyevm import restore_recursion_limit
 
 try:  # eth-tester raises its own exception type for reverts
     from eth_tester.exceptions import TransactionFailed as _TesterFailed
 except ImportError:  # pragma: no cover - eth-tester is a dependency
     _TesterFailed = ContractLogicError
+restore_recursion_limit()  # eth_account and py-evm raised it at import
 
 _REVERTS = (ContractCustomError, ContractLogicError, _TesterFailed)
 
@@ -142,16 +145,26 @@ class Chain:
 
     # -- construction -------------------------------------------------------------------
     @classmethod
-    def embedded(cls, accounts: int = 10) -> Chain:
-        """An in-process py-evm chain with ``accounts`` funded accounts (1,000,000 ETH each)."""
+    def embedded(cls, accounts: int = 10, directory: str | Path | None = None) -> Chain:
+        """An in-process py-evm chain with ``accounts`` funded accounts (1,000,000 ETH each).
+
+        With ``directory`` the chain lives on disk there (:mod:`backend.chain.durable`) and a
+        later call with the same directory reopens it; without, it lives in memory (tests)."""
         from eth_tester import EthereumTester, PyEVMBackend
         from web3 import EthereumTesterProvider
 
+        restore_recursion_limit()
+
         if accounts < 1:
             raise ValueError(f"accounts must be >= 1, got {accounts}")
-        backend = PyEVMBackend(
-            genesis_state=PyEVMBackend.generate_genesis_state(num_accounts=accounts)
-        )
+        if directory is not None:
+            from .durable import DurableBackend
+
+            backend: PyEVMBackend = DurableBackend(directory, accounts)
+        else:
+            backend = PyEVMBackend(
+                genesis_state=PyEVMBackend.generate_genesis_state(num_accounts=accounts)
+            )
         tester = EthereumTester(backend)
         w3 = Web3(EthereumTesterProvider(tester))
         keys = [Account.from_key(k.to_bytes()) for k in backend.account_keys]
@@ -283,6 +296,18 @@ class Chain:
         return str(self.w3.client_version)
 
     # -- chain state --------------------------------------------------------------------
+    @property
+    def genesis_hash(self) -> str:
+        """Hash of block 0: tells one chain from another (a reset dev node, a new embedded
+        directory), whatever their chain ids."""
+        return "0x" + bytes(self.w3.eth.get_block(0)["hash"]).hex()
+
+    def close(self) -> None:
+        """Release the embedded chain's file (every mined block is already on disk)."""
+        kv = getattr(getattr(self._tester, "backend", None), "kv", None)
+        if kv is not None:
+            kv.close()
+
     def balance(self, address: str) -> int:
         return self.w3.eth.get_balance(address)
 

@@ -10,8 +10,10 @@ from __future__ import annotations
 
 import dataclasses
 import enum
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
+
+from eth_utils import keccak
 
 from .client import Chain, ContractHandle, Receipt
 
@@ -205,14 +207,43 @@ class Platform:
     tmc: TasksManager
     mmc: ModelsManager
     receipts: dict[str, Receipt]
+    _identity: str | None = dataclasses.field(default=None, init=False, repr=False)
 
     @property
     def contracts(self) -> tuple[ContractHandle, ...]:
         return (self.umc, self.tmc, self.mmc)
 
+    @property
+    def identity(self) -> str:
+        """This deployment on this chain: a hash of the genesis block and the three contract
+        addresses. Anything kept per task off chain (a worker's job directory, a queued job) is
+        keyed by it, so a task id of another chain (a restarted dev node) never matches."""
+        if self._identity is None:
+            parts = [self.chain.genesis_hash, *(h.address for h in self.contracts)]
+            self._identity = keccak(text="|".join(p.lower() for p in parts)).hex()[:16]
+        return self._identity
+
 
 def _typed(handle: ContractHandle, cls: type[ContractHandle]) -> Any:
     return cls(handle.chain, handle.name, handle.contract)
+
+
+CONTRACT_NAMES = ("UsersManager", "TasksManager", "ModelsManager")
+
+
+def connect_platform(chain: Chain, addresses: Mapping[str, Any], admin: str = "") -> Platform:
+    """Typed handles on a deployment already on ``chain`` (``addresses`` by contract name). The
+    one way the gateway and the worker daemon attach; ``admin`` is who the handles act for by
+    default (the deployer for the gateway, the worker itself for a daemon)."""
+    handles = {name: chain.register(name, addresses[name]) for name in CONTRACT_NAMES}
+    return Platform(
+        chain,
+        admin,
+        _typed(handles["UsersManager"], UsersManager),
+        _typed(handles["TasksManager"], TasksManager),
+        _typed(handles["ModelsManager"], ModelsManager),
+        {},
+    )
 
 
 def deploy_platform(

@@ -61,7 +61,7 @@ def _noop(task_id: int, worker: str) -> None:
     """Default ``on_offer`` hook: nothing (the worker daemon wiring injects the Celery one)."""
 
 
-def _jsonable(v: Any) -> Any:
+def jsonable(v: Any) -> Any:
     if isinstance(v, bytes | HexBytes):
         return "0x" + bytes(v).hex()
     if isinstance(v, bool):
@@ -69,9 +69,9 @@ def _jsonable(v: Any) -> Any:
     if isinstance(v, int):
         return v if abs(v) < 2**53 else str(v)  # JavaScript clients lose precision above 2^53
     if isinstance(v, list | tuple):
-        return [_jsonable(x) for x in v]
+        return [jsonable(x) for x in v]
     if isinstance(v, dict):
-        return {k: _jsonable(x) for k, x in v.items()}
+        return {k: jsonable(x) for k, x in v.items()}
     return v
 
 
@@ -233,7 +233,7 @@ class Indexer:
                 tx_hash="0x" + bytes(raw["transactionHash"]).hex(),
                 contract=contract,
                 name=name,
-                args=_jsonable(args),
+                args=jsonable(args),
                 block_time=raw["_time"],
                 task_id=int(task_id) if task_id is not None else None,
                 model_id=int(args["modelId"]) if "modelId" in args else None,

@@ -6,7 +6,8 @@ from typing import Annotated, Any, Generic, TypeVar
 
 from pydantic import AfterValidator, BaseModel, Field
 
-from backend.api.schemas import Address
+from backend.chain.addresses import checksum
+from backend.chain.platform import MAX_DOMAIN
 from backend.store import CID, InvalidCID
 
 __all__ = [
@@ -22,10 +23,17 @@ __all__ = [
     "Wei",
 ]
 
-try:  # the UMC's domain bound (a worker's domains are a bitmask of that width)
-    from backend.chain.platform import MAX_DOMAIN
-except ImportError:  # pragma: no cover - older chain package: 8-bit codes
-    MAX_DOMAIN = 255
+Address = Annotated[
+    str,
+    Field(
+        description="Ethereum address (0x + 40 hex digits; returned EIP-55 checksummed)",
+        examples=["0x7E5F4552091A69125d5DfCb7b8C2659029395Bdf"],
+        min_length=42,
+        max_length=42,
+        pattern=r"^0x[0-9a-fA-F]{40}$",
+    ),
+    AfterValidator(checksum),
+]
 
 ONE = 1_000_000  # QoS fixed point of the contracts (backend.chain.qos)
 T = TypeVar("T")

@@ -36,17 +36,10 @@ from backend.api.errors import RuleError
 from backend.auth import DemoKeys
 from backend.chain.client import GAS_MARGIN, Chain, ContractHandle, Receipt
 from backend.chain.errors import ContractError
-from backend.chain.platform import (
-    ModelsManager,
-    Platform,
-    TasksManager,
-    UsersManager,
-    deploy_platform,
-)
+from backend.chain.platform import CONTRACT_NAMES, Platform, connect_platform, deploy_platform
 from backend.settings import Settings
 
 CONTRACTS_ENV = "DRLAAS_CONTRACTS"
-CONTRACT_NAMES = ("UsersManager", "TasksManager", "ModelsManager")
 EMBEDDED_ACCOUNTS = 20
 """Funded accounts of the embedded chain: ``admin`` + 19 demo users."""
 ALL_GPU_SERIES = (1 << 256) - 1
@@ -120,21 +113,29 @@ class ChainService:
 
     @classmethod
     def embedded(cls, settings: Settings, accounts: int = EMBEDDED_ACCOUNTS) -> ChainService:
-        """Fresh eth-tester chain with the platform deployed (windows from settings)."""
-        chain = Chain.embedded(accounts=accounts)
-        platform = deploy_platform(
-            chain,
-            accept_window=settings.accept_window_s,
-            review_window=settings.review_window_s,
-            accepted_gpus=ALL_GPU_SERIES,
-        )
-        deploy_block = min(r.block_number for r in platform.receipts.values())
-        keys = None
+        """The embedded chain in ``<data_dir>/chain`` (:mod:`backend.chain.durable`): reopened
+        with its deployment when it exists, else a new chain with the platform deployed
+        (windows from settings) and the deployment recorded in the same file."""
+        chain = Chain.embedded(accounts=accounts, directory=settings.data_dir / "chain")
+        backend = chain._tester.backend  # type: ignore[union-attr]
+        recorded = backend.kv.get_meta("deployment")
+        if recorded is not None:
+            service = cls.attach(chain, recorded)
+        else:
+            platform = deploy_platform(
+                chain,
+                accept_window=settings.accept_window_s,
+                review_window=settings.review_window_s,
+                accepted_gpus=ALL_GPU_SERIES,
+            )
+            deploy_block = min(r.block_number for r in platform.receipts.values())
+            service = cls(chain, platform, deploy_block)
+            backend.kv.set_meta("deployment", service.addresses())
         if settings.demo_keys_allowed:
-            keys = DemoKeys(settings)
+            service.demo_keys = DemoKeys(settings)
             for i, address in enumerate(chain.accounts):
-                keys.add("admin" if i == 0 else f"user{i}", chain._keys[address])  # type: ignore[index]
-        return cls(chain, platform, deploy_block, keys)
+                service.demo_keys.add("admin" if i == 0 else f"user{i}", chain._keys[address])  # type: ignore[index]
+        return service
 
     @classmethod
     def rpc(
@@ -162,16 +163,10 @@ class ChainService:
         settings: Settings | None = None,
     ) -> ChainService:
         """Handles on an existing deployment (``addresses`` as :func:`load_contracts` gives)."""
-        umc = chain.register("UsersManager", addresses["UsersManager"])
-        tmc = chain.register("TasksManager", addresses["TasksManager"])
-        mmc = chain.register("ModelsManager", addresses["ModelsManager"])
-        platform = Platform(
+        platform = connect_platform(
             chain,
-            addresses.get("admin") or (chain.accounts[0] if chain.accounts else ""),
-            UsersManager(chain, umc.name, umc.contract),
-            TasksManager(chain, tmc.name, tmc.contract),
-            ModelsManager(chain, mmc.name, mmc.contract),
-            {},
+            addresses,
+            admin=addresses.get("admin") or (chain.accounts[0] if chain.accounts else ""),
         )
         keys = None
         if demo and settings is not None and chain.accounts:

@@ -6,8 +6,13 @@ hex quantities). Reverts answer ``{"code": 3, "message": "execution reverted", "
 like geth/anvil, so web3 on the client raises its custom-error exception with the revert data
 and ``backend.chain`` decodes it into a typed error.
 
-Only a whitelist of methods is served: nothing that makes the node sign (``eth_sendTransaction``,
-``eth_sign``) — every write is a locally signed raw transaction.
+Only the standard methods a client needs are served (reads, ``eth_sendRawTransaction``,
+receipts, logs, chain id, gas and fees), each with its number of parameters. Nothing that
+makes the node sign (``eth_sendTransaction``, ``eth_sign``) and no test or admin method
+(``evm_mine``, ``evm_increaseTime``, ``evm_snapshot``, ``evm_revert``, ...): anyone can reach
+``/rpc``, and those would let anyone rewrite the chain. They answer -32601 like any unknown
+method. Parameters are read the execution-API way first (:mod:`backend.services.rpc_params`),
+so standard clients such as Foundry's ``cast`` work unchanged.
 """
 
 from __future__ import annotations
@@ -15,40 +20,45 @@ from __future__ import annotations
 import threading
 from typing import Any
 
+from eth_tester.exceptions import ValidationError as TesterValidationError
+from eth_utils import ValidationError as EvmValidationError
 from web3.middleware import combine_middleware
 
 from backend.chain.client import Chain
+from backend.services.rpc_call import unpriced_call
+from backend.services.rpc_params import InvalidParams, is_unpriced, normalize
+from backend.services.rpc_results import fee_history, shape
 
-ALLOWED_METHODS = frozenset(
-    {
-        "web3_clientVersion",
-        "net_version",
-        "net_listening",
-        "eth_chainId",
-        "eth_blockNumber",
-        "eth_getBalance",
-        "eth_getCode",
-        "eth_getStorageAt",
-        "eth_getTransactionCount",
-        "eth_getBlockByNumber",
-        "eth_getBlockByHash",
-        "eth_getTransactionByHash",
-        "eth_getTransactionReceipt",
-        "eth_getLogs",
-        "eth_call",
-        "eth_estimateGas",
-        "eth_gasPrice",
-        "eth_maxPriorityFeePerGas",
-        "eth_feeHistory",
-        "eth_sendRawTransaction",
-        "eth_syncing",
-        "eth_accounts",
-        "evm_mine",
-        "evm_increaseTime",
-        "evm_snapshot",
-        "evm_revert",
-    }
-)
+#: Served methods -> (fewest, most) parameters.
+METHODS: dict[str, tuple[int, int]] = {
+    "web3_clientVersion": (0, 0),
+    "net_version": (0, 0),
+    "net_listening": (0, 0),
+    "eth_chainId": (0, 0),
+    "eth_syncing": (0, 0),
+    "eth_accounts": (0, 0),
+    "eth_blockNumber": (0, 0),
+    "eth_gasPrice": (0, 0),
+    "eth_maxPriorityFeePerGas": (0, 0),
+    "eth_feeHistory": (2, 3),
+    "eth_getBalance": (1, 2),
+    "eth_getCode": (1, 2),
+    "eth_getStorageAt": (2, 3),
+    "eth_getTransactionCount": (1, 2),
+    "eth_getBlockByNumber": (1, 2),
+    "eth_getBlockByHash": (1, 2),
+    "eth_getBlockTransactionCountByNumber": (1, 1),
+    "eth_getBlockTransactionCountByHash": (1, 1),
+    "eth_getTransactionByHash": (1, 1),
+    "eth_getTransactionByBlockNumberAndIndex": (2, 2),
+    "eth_getTransactionByBlockHashAndIndex": (2, 2),
+    "eth_getTransactionReceipt": (1, 1),
+    "eth_getLogs": (1, 1),
+    "eth_call": (1, 4),
+    "eth_estimateGas": (1, 3),
+    "eth_sendRawTransaction": (1, 1),
+}
+ALLOWED_METHODS = frozenset(METHODS)
 MAX_BATCH = 50
 
 # JSON-RPC error codes (EIP-1474 / geth conventions).
@@ -56,6 +66,7 @@ INVALID_REQUEST = -32600
 METHOD_NOT_FOUND = -32601
 INVALID_PARAMS = -32602
 INTERNAL_ERROR = -32603
+SERVER_ERROR = -32000  # geth: e.g. "insufficient funds for gas * price + value"
 EXECUTION_REVERTED = 3
 
 
@@ -122,13 +133,22 @@ class EmbeddedRpc:
         params = req.get("params", [])
         if not isinstance(params, list):
             return _error(rid, INVALID_PARAMS, "params must be a list")
-        if method not in ALLOWED_METHODS:
+        if method not in METHODS:
             return _error(rid, METHOD_NOT_FOUND, f"method {method!r} is not served here")
+        fewest, most = METHODS[method]
+        if not fewest <= len(params) <= most:
+            return _error(
+                rid, INVALID_PARAMS, f"{method} takes {fewest}..{most} params, got {len(params)}"
+            )
         try:
             with self.lock:
                 result = self._dispatch(method, params)
         except _RpcFailure as exc:
             return _error(rid, exc.code, exc.message, exc.data)
+        except (InvalidParams, TesterValidationError) as exc:
+            return _error(rid, INVALID_PARAMS, str(exc))
+        except EvmValidationError as exc:  # valid request, transaction invalid on this state
+            return _error(rid, SERVER_ERROR, f"invalid transaction: {exc}")
         except Exception as exc:  # eth-tester raises many types; report, never crash
             data = _revert_bytes(exc)
             if type(exc).__name__ == "TransactionFailed" or data is not None:
@@ -139,43 +159,32 @@ class EmbeddedRpc:
         return {"jsonrpc": "2.0", "id": rid, "result": _quantities(result)}
 
     def _dispatch(self, method: str, params: list[Any]) -> Any:
-        t = self.tester
         if method == "eth_accounts":
             return []  # the node holds no keys for anyone
-        if method == "evm_mine":
-            t.mine_blocks(1)
-            return "0x0"
-        if method == "evm_increaseTime":
-            seconds = _int_param(params, 0, "seconds")
-            if seconds <= 0:
-                raise _RpcFailure(INVALID_PARAMS, "seconds must be positive")
-            now = t.get_block_by_number("pending")["timestamp"]
-            t.time_travel(now + seconds)
-            return seconds
-        if method == "evm_snapshot":
-            return t.take_snapshot()
-        if method == "evm_revert":
-            t.revert_to_snapshot(_int_param(params, 0, "snapshot id"))
-            return True
+        params = normalize(method, params, self.chain.chain_id, self._block_number_of)
+        if method == "eth_call" and is_unpriced(params[0]):
+            return unpriced_call(self.tester, params[0], *params[1:])
+        if method == "eth_feeHistory":
+            return fee_history(self.tester, params)
+        if method == "eth_estimateGas" and is_unpriced(params[0]):
+            params[0] = {**params[0], "maxFeePerGas": 0, "maxPriorityFeePerGas": 0}
         response = self._request(method, params)
         if "error" in response:
             err = response["error"]
             raise _RpcFailure(err.get("code", INTERNAL_ERROR), str(err.get("message", "")))
-        return response["result"]
+        return shape(method, response["result"])
+
+    def _block_number_of(self, block_hash: str) -> int:
+        try:
+            return int(self.tester.get_block_by_hash(block_hash)["number"])
+        except Exception:  # eth-tester: BlockNotFound
+            raise InvalidParams(f"no block with hash {block_hash}") from None
 
 
 class _RpcFailure(Exception):
     def __init__(self, code: int, message: str, data: str | None = None) -> None:
         super().__init__(message)
         self.code, self.message, self.data = code, message, data
-
-
-def _int_param(params: list[Any], i: int, name: str) -> int:
-    try:
-        v = params[i]
-        return int(v, 16) if isinstance(v, str) else int(v)
-    except (IndexError, TypeError, ValueError):
-        raise _RpcFailure(INVALID_PARAMS, f"param {i} ({name}) must be an integer") from None
 
 
 def _error(rid: Any, code: int, message: str, data: str | None = None) -> dict[str, Any]:

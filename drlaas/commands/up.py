@@ -92,6 +92,7 @@ class RunningPlatform:
             stdout=logf.open("ab"),
             stderr=subprocess.STDOUT,
             start_new_session=True,
+            preexec_fn=_die_with_parent,
         )
         wp = WorkerProc(account.address, key, logf, proc)
         if i < len(self.workers):
@@ -114,6 +115,20 @@ class RunningPlatform:
                 if time.monotonic() > deadline:
                     raise TimeoutError(f"worker {w.address} did not register; log {w.log}")
                 time.sleep(0.1)
+
+
+def _die_with_parent() -> None:
+    """In the forked child: be killed when ``drlaas up`` dies (even by kill -9), so no daemon
+    outlives the platform it was started for and a restarted ``drlaas up`` never runs two
+    daemons of one worker. SIGKILL, not SIGTERM: Celery's warm shutdown would finish the whole
+    training job first; the unacknowledged job is redelivered and resumes from its checkpoint.
+    (Linux prctl PR_SET_PDEATHSIG; elsewhere the daemon's lock file still stops a second copy.)"""
+    if sys.platform != "linux":
+        return
+    import ctypes
+
+    PR_SET_PDEATHSIG = 1
+    ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
 
 
 def fund(chain: Any, address: str, amount: int = WORKER_FUNDS_WEI) -> None:

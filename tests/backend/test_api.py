@@ -6,7 +6,7 @@ from pathlib import Path
 
 from fastapi.testclient import TestClient
 
-from backend.api import API_PREFIX, create_app
+from backend.api.main import API_PREFIX, create_app
 from backend.settings import Settings, load_settings
 
 P = API_PREFIX

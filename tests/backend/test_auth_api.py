@@ -14,12 +14,12 @@ from eth_account.messages import encode_defunct
 from fastapi import APIRouter
 from fastapi.testclient import TestClient
 
-from backend.api import API_PREFIX, create_app
 from backend.api.deps import CurrentUser
-from backend.api.errors import RuleError
+from backend.api.main import API_PREFIX, create_app
 from backend.api.schemas import Address
 from backend.auth import DemoKeys, bearer_headers, issue_token, require_self
 from backend.db.models import AuthNonce
+from backend.errors import Unauthorized
 from backend.settings import Settings, load_settings
 
 from .conftest import Clock
@@ -285,6 +285,6 @@ def test_nonce_consumed_by_a_concurrent_request_is_refused(
             now=clock(),
         )
         assert verify_sign_in(winner, **kwargs) == alice.address
-        with pytest.raises(RuleError) as err:
+        with pytest.raises(Unauthorized) as err:
             verify_sign_in(loser, **kwargs)
-    assert (err.value.status_code, err.value.rule) == (401, "siwe_nonce_used")
+    assert err.value.rule == "siwe_nonce_used"

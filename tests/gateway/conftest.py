@@ -3,15 +3,19 @@ deployed state after each test; a fresh data dir, SQLite database and embedded s
 
 from __future__ import annotations
 
+import socket
+import threading
+import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
+import uvicorn
 from fastapi import FastAPI
 from fastapi.testclient import TestClient
 
-from backend.api import create_app
+from backend.api.main import create_app
 from backend.auth import bearer_headers
 from backend.services.chain import ChainService
 from backend.settings import Settings
@@ -55,6 +59,31 @@ def app(settings: Settings, service: ChainService, offers_seen: list[tuple[int, 
         on_offer=lambda task_id, worker: offers_seen.append((task_id, worker)),
         indexer_interval=None,
     )
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+@pytest.fixture
+def gateway(settings: Settings, service: ChainService) -> Iterator[str]:
+    """A real HTTP gateway (uvicorn in a thread) on the session chain; yields its base URL."""
+    app = create_app(settings, chain=service, indexer_interval=0.1)
+    port = _free_port()
+    server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning"))
+    thread = threading.Thread(target=server.run, daemon=True)
+    thread.start()
+    deadline = time.monotonic() + 20
+    while not server.started:
+        assert time.monotonic() < deadline, "gateway did not start"
+        time.sleep(0.05)
+    try:
+        yield f"http://127.0.0.1:{port}"
+    finally:
+        server.should_exit = True
+        thread.join(10)
 
 
 @pytest.fixture

@@ -4,45 +4,17 @@ indexer thread picks the events up."""
 
 from __future__ import annotations
 
-import socket
-import threading
 import time
-from collections.abc import Iterator
 
 import httpx
 import pytest
-import uvicorn
 
-from backend.api import create_app
+from backend.api.main import create_app
 from backend.chain.client import Chain
 from backend.chain.errors import ContractError
 from backend.chain.platform import TasksManager, UsersManager
 from backend.services.chain import ChainService
 from backend.settings import Settings
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
-@pytest.fixture
-def gateway(settings: Settings, service: ChainService) -> Iterator[str]:
-    app = create_app(settings, chain=service, indexer_interval=0.1)
-    port = _free_port()
-    server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning"))
-    thread = threading.Thread(target=server.run, daemon=True)
-    thread.start()
-    deadline = time.monotonic() + 20
-    while not server.started:
-        assert time.monotonic() < deadline, "gateway did not start"
-        time.sleep(0.05)
-    try:
-        yield f"http://127.0.0.1:{port}"
-    finally:
-        server.should_exit = True
-        thread.join(10)
 
 
 def test_chain_rpc_through_the_gateway(gateway: str, service: ChainService) -> None:
@@ -70,7 +42,9 @@ def test_chain_rpc_through_the_gateway(gateway: str, service: ChainService) -> N
     assert [e.name for e in remote.logs(tmc_h, rc.block_number)] == ["TaskOffered", "TaskAllocated"]
 
     before = remote.now()
-    assert remote.advance_time(700) >= before + 700  # past the 600 s accept window
+    with service.lock:  # chain time moves in process only: /rpc serves no evm_* method
+        service.chain.advance_time(700)  # past the 600 s accept window
+    assert remote.now() - before > 600  # the remote client sees the new chain time
     with pytest.raises(ContractError) as err:
         tmc.transact("acceptOffer", task_id, sender=worker.address)
     assert err.value.name == "TasksOfferExpired"
@@ -102,10 +76,48 @@ def test_rpc_refuses_node_signing_and_bad_requests(gateway: str) -> None:
     assert out[0]["result"] == hex(Settings().effective_chain_id or 0)
     assert out[1]["result"] == []  # the node holds nobody's keys
     assert "error" in out[2]
+    r = httpx.post(url, json={"jsonrpc": "2.0", "id": 4, "method": "eth_chainId", "params": [1]})
+    assert r.json()["error"]["code"] == -32602  # eth_chainId takes no params
+
+
+@pytest.mark.parametrize(
+    ("method", "params"),
+    [
+        ("evm_mine", []),
+        ("evm_increaseTime", [3_456_000]),
+        ("evm_snapshot", []),
+        ("evm_revert", ["0x1"]),
+        ("evm_setNextBlockTimestamp", ["0x7fffffff"]),
+        ("anvil_setBalance", ["0x" + "11" * 20, "0x1"]),
+        ("hardhat_setCode", ["0x" + "11" * 20, "0x00"]),
+        ("debug_traceTransaction", ["0x" + "00" * 32]),
+        ("admin_nodeInfo", []),
+        ("personal_sign", ["0x00", "0x" + "11" * 20]),
+        ("eth_sign", ["0x" + "11" * 20, "0x00"]),
+        ("eth_sendTransaction", [{}]),
+    ],
+)
+def test_rpc_serves_no_test_or_admin_method(
+    gateway: str, service: ChainService, method: str, params: list
+) -> None:
+    """Anonymous clients reach /rpc: a method that rewrites chain time, state or history (or
+    makes the node sign) is "method not found", and the chain is left exactly as it was."""
+    head = service.chain.w3.eth.get_block("latest")
     r = httpx.post(
-        url, json={"jsonrpc": "2.0", "id": 4, "method": "evm_increaseTime", "params": [-5]}
+        f"{gateway}/rpc", json={"jsonrpc": "2.0", "id": 7, "method": method, "params": params}
     )
-    assert r.json()["error"]["code"] == -32602
+    assert r.status_code == 200
+    assert r.json() == {
+        "jsonrpc": "2.0",
+        "id": 7,
+        "error": {"code": -32601, "message": f"method {method!r} is not served here"},
+    }
+    after = service.chain.w3.eth.get_block("latest")
+    assert (after["number"], after["hash"], after["timestamp"]) == (
+        head["number"],
+        head["hash"],
+        head["timestamp"],
+    )
 
 
 def test_second_gateway_in_rpc_mode_follows_the_first(

@@ -36,7 +36,8 @@ def test_killed_worker_resumes_from_its_checkpoint(data_dir: Path) -> None:
         )
         task_id, worker = created["task_id"], p.workers[0]
         assert created["offered"] == [worker.address]
-        job = p.data_dir / "workers" / worker.address / "jobs" / str(task_id)
+        ident = p.chain.platform.identity
+        job = p.data_dir / "workers" / worker.address / "jobs" / ident / str(task_id)
         ckpt = job / "run" / "checkpoint" / "state.json"
         try:
             wait_for(

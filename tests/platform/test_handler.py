@@ -100,6 +100,7 @@ def test_declines_when_at_capacity(env, tmp_path: Path) -> None:
     p, actors, store = env
     t1, offered1, _ = post_task(p, store, actors.requester)
     h = handler_for(p, offered1[0], store, tmp_path)
+    p.tmc.transact("acceptOffer", t1, sender=offered1[0])
     h._save(t1, phase="accepted")  # a job in progress
     # the same worker is offered a second task (it is the only candidate left with capacity)
     t2, offered2, _ = post_task(p, store, actors.requester, num_workers=3)
@@ -107,6 +108,43 @@ def test_declines_when_at_capacity(env, tmp_path: Path) -> None:
     out = h.handle(t2, offered1[0])
     assert out["status"] == "declined" and out["reason"] == "at capacity"
     assert p.tmc.offer(t2, offered1[0])["state"] == OfferState.DECLINED
+
+
+def test_a_job_the_chain_no_longer_holds_releases_its_capacity(env, tmp_path: Path) -> None:
+    """A job left "accepted" on disk whose offer the chain never accepted (or a task cancelled
+    or past its deadline) must not keep the worker at capacity forever."""
+    p, actors, store = env
+    t1, offered1, _ = post_task(p, store, actors.requester)
+    h = handler_for(p, offered1[0], store, tmp_path)
+    h._save(t1, phase="accepted")  # on disk only: the offer on chain is still just offered
+    t2, offered2, _ = post_task(p, store, actors.requester, num_workers=3)
+    assert offered1[0] in offered2
+    h._post_progress = lambda tid, point: None  # type: ignore[method-assign]
+    assert h.handle(t2, offered1[0])["status"] == "submitted"
+    assert h._state(t1)["phase"] == "closed"
+
+
+def test_a_task_id_of_another_deployment_is_trained_afresh(env, tmp_path: Path) -> None:
+    """Task 1 of a new deployment (a restarted dev chain counts from 1 again) must not receive
+    the model trained for task 1 of the old one, even in the same worker directory."""
+    p, actors, store = env
+    spec_a = {**TINY_SPEC, "seed": 1}
+    t_a, offered_a, _ = post_task(p, store, actors.requester, spec=spec_a)
+    h_a = handler_for(p, offered_a[0], store, tmp_path)
+    h_a._post_progress = lambda tid, point: None  # type: ignore[method-assign]
+    cid_a = h_a.handle(t_a, offered_a[0])["cid"]
+
+    q = deploy(p.chain)  # another deployment: same task ids, other identity
+    register(q, actors.requester, actors.workers)
+    t_b, offered_b, _ = post_task(q, store, actors.requester, spec={**TINY_SPEC, "seed": 2})
+    assert t_b == t_a and q.identity != p.identity
+    h_b = handler_for(q, offered_b[0], store, tmp_path)
+    assert offered_b == offered_a  # the same worker, so the same worker directory
+    h_b._post_progress = lambda tid, point: None  # type: ignore[method-assign]
+    out = h_b.handle(t_b, offered_b[0])
+    assert out["status"] == "submitted" and out["cid"] != cid_a
+    card = load_model(pull_model(store, out["cid"], tmp_path / "b")).card
+    assert card["training"]["run"]["seed"] == 2
 
 
 def test_bad_spec_is_declined_naming_the_field(env, tmp_path: Path) -> None:

@@ -89,6 +89,7 @@ def worker_command(
     from workers.daemon import job, tasks
     from workers.daemon.app import app
     from workers.daemon.keys import load_or_create_key
+    from workers.daemon.lock import hold_daemon_lock
 
     logging.getLogger("httpx").setLevel(logging.WARNING)  # one line per progress point otherwise
     settings = load_settings()
@@ -101,6 +102,7 @@ def worker_command(
     if data:
         os.environ["DRLAAS_WORKER_DATA"] = str(data)
     handler = tasks.runtime_from_env(settings)
+    lock = hold_daemon_lock(handler.data_dir)  # noqa: F841 - held until the process exits
     caps = measure()
     done = register_worker(handler.platform, caps, parse_domains(domains))
     typer.echo(

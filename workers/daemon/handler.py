@@ -28,7 +28,7 @@ import httpx
 import requests
 from eth_account.signers.local import LocalAccount
 
-from backend.auth import checksum
+from backend.chain.addresses import checksum
 from backend.chain.platform import OfferState, Platform, TaskStatus
 from backend.store import ContentStore, StoreError, StoreUnavailable
 from backend.store.bundle import read_bundle, upload_model
@@ -72,7 +72,14 @@ class OfferHandler:
         return str(self.account.address)
 
     def job_dir(self, task_id: int) -> Path:
-        return self.data_dir / "jobs" / str(task_id)
+        """``<data>/jobs/<chain identity>/<task id>``: a task id alone names different tasks on
+        different chains (a restarted dev chain counts again from 1), so a job is never resumed,
+        nor its model submitted, for a task of another chain."""
+        return self._jobs_root / str(task_id)
+
+    @property
+    def _jobs_root(self) -> Path:
+        return self.data_dir / "jobs" / self.platform.identity
 
     # -- job state -------------------------------------------------------------------------
     def _state(self, task_id: int) -> dict[str, Any]:
@@ -89,17 +96,36 @@ class OfferHandler:
         return state
 
     def active_jobs(self, exclude: int) -> list[int]:
-        """Tasks this worker accepted and has not submitted yet (other than ``exclude``)."""
-        root = self.data_dir / "jobs"
+        """Tasks of this chain that this worker accepted and has not submitted yet (other than
+        ``exclude``). A job whose offer the chain no longer holds as accepted (task cancelled,
+        closed or past its deadline) does not count, and is marked closed: capacity is never
+        held by work nobody can submit."""
+        root = self._jobs_root
         out = []
         for f in root.glob("*/state.json") if root.is_dir() else []:
             tid = int(f.parent.name) if f.parent.name.isdigit() else None
             if tid is None or tid == exclude:
                 continue
             st = json.loads(f.read_text())
-            if st.get("phase") in PHASES[:-1] and st.get("phase") != "failed":
-                out.append(tid)
+            if st.get("phase") not in PHASES[:-1]:
+                continue
+            if not self._still_accepted(tid):
+                self._save(tid, phase="closed", reason="offer no longer accepted on chain")
+                continue
+            out.append(tid)
         return out
+
+    def _still_accepted(self, task_id: int) -> bool:
+        try:
+            offer = self.platform.tmc.offer(task_id, self.address)
+            task = self.platform.tmc.task(task_id)
+        except (requests.ConnectionError, requests.Timeout, httpx.TransportError) as exc:
+            raise Transient(f"chain node unreachable: {exc}") from exc
+        return (
+            offer["state"] == OfferState.ACCEPTED
+            and task["status"] == TaskStatus.OPEN
+            and int(task["deadline"]) > self.platform.chain.now()
+        )
 
     # -- the pipeline ----------------------------------------------------------------------
     def handle(self, task_id: int, worker: str) -> dict[str, Any]:

@@ -24,8 +24,8 @@ from typing import Any
 
 from celery import Celery, shared_task
 
-from backend.auth import checksum
 from backend.celery_app import make_celery, worker_queue
+from backend.chain.addresses import checksum
 from backend.settings import Settings, load_settings
 from workers.daemon.handler import OfferHandler, Transient
 

@@ -14,6 +14,7 @@ from sqlalchemy import func, or_, select
 
 from backend.api.deps import ChainDep, CurrentUser, IndexerDep, SessionDep, SettingsDep, StoreDep
 from backend.api.errors import RuleError, rule_responses
+from backend.api.writes import catch_up, field_error, receipt_public
 from backend.chain.platform import Metric
 from backend.db import models as m
 from backend.schemas.common import MAX_DOMAIN, TxPublic, from_fixed, to_fixed
@@ -27,7 +28,6 @@ from backend.schemas.models import (
     ModelReviewCreate,
     ModelsPublic,
 )
-from backend.services.gateway import catch_up, field_error, receipt_public
 from backend.services.specs import SpecError, env_attributes, validate_env
 from backend.store import CIDMismatch, ContentTooLarge, NotFound, StoreError
 from backend.store.bundle import bundle_entry
@@ -96,7 +96,7 @@ def list_models(
     if min_reputation is not None:
         stmt = stmt.where(m.ModelRow.reputation >= to_fixed(min_reputation))
     if owner is not None:
-        from backend.auth import checksum
+        from backend.chain.addresses import checksum
 
         try:
             stmt = stmt.where(m.ModelRow.owner == checksum(owner))

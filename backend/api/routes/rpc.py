@@ -14,12 +14,12 @@ from fastapi.responses import JSONResponse
 from pydantic import BaseModel, Field
 from starlette.concurrency import run_in_threadpool
 
-from backend.api.deps import ChainDep, CurrentUser, SettingsDep
+from backend.api.deps import ChainDep, CurrentUser
 from backend.api.errors import RuleError, rule_responses
+from backend.services.faucet import Faucet, FaucetLimited
 from backend.services.rpc import INVALID_REQUEST, EmbeddedRpc
 
 router = APIRouter(tags=["rpc"])
-MAX_RPC_BYTES = 1 << 20
 
 
 @router.post(
@@ -37,11 +37,7 @@ async def rpc(request: Request) -> JSONResponse:
     server: EmbeddedRpc | None = getattr(request.app.state, "rpc", None)
     if server is None:
         raise RuleError(404, "rpc_not_embedded", "JSON-RPC is served only for the embedded chain")
-    body = await request.body()
-    if len(body) > MAX_RPC_BYTES:
-        raise RuleError(
-            413, "payload_too_large", f"JSON-RPC bodies are at most {MAX_RPC_BYTES} bytes"
-        )
+    body = await request.body()  # size and depth already bounded (backend.api.limits)
     try:
         payload: Any = json.loads(body)
     except (json.JSONDecodeError, UnicodeDecodeError):
@@ -81,45 +77,28 @@ def contracts(chain: ChainDep, request: Request) -> ContractsPublic:
     return ContractsPublic(**chain.addresses(), rpc="/rpc" if served else None)
 
 
-FAUCET_WEI = 10 * 10**18
-FAUCET_THRESHOLD_WEI = 10**18
-
-
 class FaucetPublic(BaseModel):
     address: str
     balance_wei: str
-    tx_hash: str | None
+    tx_hash: str | None = Field(description="the top-up transaction; null if none was needed")
 
 
 @contracts_router.post(
-    "/faucet", response_model=FaucetPublic, responses=rule_responses(401, 403, 503)
+    "/faucet", response_model=FaucetPublic, responses=rule_responses(401, 404, 429)
 )
-def faucet(
-    user: CurrentUser, chain: ChainDep, settings: SettingsDep, request: Request
-) -> FaucetPublic:
-    """Embedded development chain only: top the caller up to pay gas (eth-tester charges the
-    base fee, and refuses even eth_call from an account that could not pay it). Sends
-    10 ETH from the admin account when the caller holds less than 1 ETH."""
-    if getattr(request.app.state, "rpc", None) is None or not settings.demo_keys_allowed:
-        raise RuleError(403, "faucet_disabled", "the faucet exists only on the embedded dev chain")
-    w3 = chain.chain.w3
-    tx_hash = None
-    with chain.lock:
-        if w3.eth.get_balance(user.address) < FAUCET_THRESHOLD_WEI:  # type: ignore[arg-type]
-            admin = chain.chain._keys[chain.platform.admin]  # type: ignore[index]
-            base = w3.eth.get_block("latest").get("baseFeePerGas", 0) or 0
-            tx = {
-                "to": user.address,
-                "value": FAUCET_WEI,
-                "gas": 21_000,
-                "chainId": chain.chain.chain_id,
-                "nonce": w3.eth.get_transaction_count(admin.address, "pending"),
-                "maxFeePerGas": 2 * base,
-                "maxPriorityFeePerGas": 0,
-            }
-            signed = admin.sign_transaction(tx)  # type: ignore[arg-type]
-            sent = w3.eth.send_raw_transaction(signed.raw_transaction)
-            w3.eth.wait_for_transaction_receipt(sent)
-            tx_hash = "0x" + bytes(sent).hex()
-        balance = w3.eth.get_balance(user.address)  # type: ignore[arg-type]
-    return FaucetPublic(address=user.address, balance_wei=str(balance), tx_hash=tx_hash)
+def faucet(user: CurrentUser, request: Request) -> FaucetPublic:
+    """Embedded demo chain only (development mode): top the caller up to pay gas, 10 ETH when
+    it holds less than 1 ETH. Rate-limited per address and overall (429 + Retry-After);
+    answers 404 ``faucet_disabled`` anywhere else."""
+    service: Faucet | None = getattr(request.app.state, "faucet", None)
+    if service is None:
+        raise RuleError(404, "faucet_disabled", "the faucet exists only on the embedded demo chain")
+    try:
+        done = service.top_up(user.address)
+    except FaucetLimited as exc:
+        raise RuleError(
+            429, exc.rule, exc.msg, headers={"Retry-After": str(exc.retry_after)}
+        ) from None
+    return FaucetPublic(
+        address=done.address, balance_wei=str(done.balance_wei), tx_hash=done.tx_hash
+    )

@@ -12,6 +12,7 @@ from sqlalchemy.exc import IntegrityError
 from backend.api.deps import ChainDep, CurrentUser, IndexerDep, SessionDep, SettingsDep, StoreDep
 from backend.api.errors import RuleError, rule_responses
 from backend.api.schemas import Address
+from backend.api.writes import catch_up, field_error, receipt_public
 from backend.chain.platform import TaskStatus
 from backend.db import models as m
 from backend.schemas.common import MAX_DOMAIN, EventPublic, TxPublic, from_fixed, to_fixed
@@ -27,7 +28,6 @@ from backend.schemas.tasks import (
     TaskReviewCreate,
     TasksPublic,
 )
-from backend.services.gateway import catch_up, field_error, receipt_public
 from backend.services.specs import (
     SpecError,
     SpecLimitExceeded,

@@ -7,8 +7,8 @@ from pydantic import BaseModel, Field, field_validator
 
 from backend.api.deps import ChainDep, CurrentUser, IndexerDep
 from backend.api.errors import rule_responses
+from backend.api.writes import catch_up, receipt_public
 from backend.schemas.common import TxPublic
-from backend.services.gateway import catch_up, receipt_public
 
 router = APIRouter(prefix="/tx", tags=["tx"])
 

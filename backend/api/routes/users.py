@@ -10,9 +10,9 @@ from fastapi import APIRouter, status
 
 from backend.api.deps import ChainDep, CurrentUser, IndexerDep
 from backend.api.errors import RuleError, rule_responses
+from backend.api.writes import catch_up
 from backend.chain.platform import domain_mask
 from backend.schemas.users import RegistrationPublic, WorkerCreate
-from backend.services.gateway import catch_up
 
 router = APIRouter(prefix="/users", tags=["users"])
 

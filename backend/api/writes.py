@@ -1,5 +1,5 @@
-"""Small helpers shared by the resource routers (validation errors naming fields, receipts,
-read-your-writes indexing)."""
+"""Helpers of the resource routers around a write: validation errors naming fields, receipts
+as JSON, and read-your-writes indexing."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from fastapi.exceptions import RequestValidationError
 
 from backend.chain.client import Receipt
 from backend.indexer import Indexer
-from backend.indexer.indexer import _jsonable
+from backend.indexer.indexer import jsonable
 
 log = logging.getLogger(__name__)
 
@@ -38,6 +38,6 @@ def receipt_public(rc: Receipt) -> dict[str, Any]:
         "block_number": rc.block_number,
         "status": rc.status,
         "events": [
-            {"contract": e.contract, "name": e.name, "args": _jsonable(e.args)} for e in rc.events
+            {"contract": e.contract, "name": e.name, "args": jsonable(e.args)} for e in rc.events
         ],
     }

@@ -1,0 +1,188 @@
+"""The embedded chain on disk: py-evm's key-value database kept in SQLite, committed per block.
+
+eth-tester keeps its chain in a dict, so ``drlaas up`` lost every task, model and reputation
+on a restart (issue 7). Here the same eth-tester backend runs on :class:`SQLiteKV`: the whole
+store stays in memory (py-evm reads trie nodes by the thousand, so reads must not touch disk),
+and every write is also recorded until :meth:`SQLiteKV.commit` writes the batch to SQLite in
+one transaction. :class:`DurableBackend` commits after every mined block, before eth-tester
+returns to its caller, so a transaction whose receipt anyone has seen survives SIGTERM and
+kill -9 (SQLite's WAL: a committed transaction outlives the process). Nothing is pruned; the
+file grows with history (a few KB per block).
+
+The file also holds a small ``meta`` table: the platform deployment (contract addresses,
+deploy block), written by the caller once the contracts are deployed. A chain whose deployment
+was never recorded was interrupted during its first start and is started over (nothing else
+can have happened on it: the gateway serves nothing before the deployment is complete).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import sqlite3
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+from eth.db.atomic import AtomicDB
+from eth.db.backends.base import BaseDB
+from eth_tester import PyEVMBackend
+from eth_tester.backends.pyevm.main import (
+    get_default_account_keys,
+    get_default_genesis_params,
+    setup_tester_chain,
+)
+
+log = logging.getLogger(__name__)
+
+CHAIN_FILE = "chain.sqlite"
+_DELETED = None
+
+
+class SQLiteKV(BaseDB):
+    """A py-evm key-value database: a dict for reads, SQLite for durability (see module doc)."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._db = sqlite3.connect(self.path, check_same_thread=False, isolation_level=None)
+        self._db.execute("PRAGMA journal_mode=WAL")
+        self._db.execute("PRAGMA synchronous=NORMAL")  # WAL + NORMAL: survives process death
+        self._db.execute("CREATE TABLE IF NOT EXISTS kv (k BLOB PRIMARY KEY, v BLOB NOT NULL)")
+        self._db.execute("CREATE TABLE IF NOT EXISTS meta (k TEXT PRIMARY KEY, v TEXT NOT NULL)")
+        self._kv: dict[bytes, bytes] = dict(self._db.execute("SELECT k, v FROM kv"))
+        self._dirty: dict[bytes, bytes | None] = {}
+
+    # -- BaseDB -------------------------------------------------------------------------------
+    def __getitem__(self, key: bytes) -> bytes:
+        return self._kv[key]
+
+    def __setitem__(self, key: bytes, value: bytes) -> None:
+        self._kv[key] = value
+        self._dirty[key] = value
+
+    def __delitem__(self, key: bytes) -> None:
+        del self._kv[key]
+        self._dirty[key] = _DELETED
+
+    def _exists(self, key: bytes) -> bool:
+        return key in self._kv
+
+    def __iter__(self) -> Iterator[bytes]:
+        return iter(self._kv)
+
+    def __len__(self) -> int:
+        return len(self._kv)
+
+    # -- durability ---------------------------------------------------------------------------
+    @property
+    def empty(self) -> bool:
+        return not self._kv
+
+    def commit(self) -> int:
+        """Write every change since the last commit in one SQLite transaction; returns how many."""
+        if not self._dirty:
+            return 0
+        dirty, self._dirty = self._dirty, {}
+        puts = [(k, v) for k, v in dirty.items() if v is not _DELETED]
+        dels = [(k,) for k, v in dirty.items() if v is _DELETED]
+        with self._transaction():
+            self._db.executemany("INSERT OR REPLACE INTO kv (k, v) VALUES (?, ?)", puts)
+            self._db.executemany("DELETE FROM kv WHERE k = ?", dels)
+        return len(dirty)
+
+    def get_meta(self, key: str) -> Any:
+        row = self._db.execute("SELECT v FROM meta WHERE k = ?", (key,)).fetchone()
+        return None if row is None else json.loads(row[0])
+
+    def set_meta(self, key: str, value: Any) -> None:
+        """Record ``value`` durably, together with every pending chain write."""
+        self.commit()
+        with self._transaction():
+            self._db.execute(
+                "INSERT OR REPLACE INTO meta (k, v) VALUES (?, ?)", (key, json.dumps(value))
+            )
+
+    def wipe(self) -> None:
+        """Forget everything (an interrupted first start, see the module docstring)."""
+        with self._transaction():
+            self._db.execute("DELETE FROM kv")
+            self._db.execute("DELETE FROM meta")
+        self._kv.clear()
+        self._dirty.clear()
+
+    def close(self) -> None:
+        self.commit()
+        self._db.close()
+
+    def _transaction(self) -> sqlite3.Connection:
+        self._db.execute("BEGIN IMMEDIATE")
+        return _Commit(self._db)  # type: ignore[return-value]
+
+
+class _Commit:
+    """``with``: COMMIT on success, ROLLBACK on an exception (autocommit connection)."""
+
+    def __init__(self, db: sqlite3.Connection) -> None:
+        self.db = db
+
+    def __enter__(self) -> sqlite3.Connection:
+        return self.db
+
+    def __exit__(self, exc_type: object, *_: object) -> None:
+        self.db.execute("ROLLBACK" if exc_type else "COMMIT")
+
+
+def _tester_chain_class(num_accounts: int) -> type:
+    """eth-tester's chain class (defined inside ``setup_tester_chain``): built once in memory,
+    so the durable chain has exactly the VM schedule and rules of the in-memory one."""
+    _, chain = setup_tester_chain(num_accounts=num_accounts)
+    return type(chain)
+
+
+class DurableBackend(PyEVMBackend):
+    """eth-tester's py-evm backend on a :class:`SQLiteKV` file (see the module docstring).
+
+    A new file gets a fresh genesis with eth-tester's default funded accounts; an existing one
+    is reopened at its canonical head, with the same accounts."""
+
+    def __init__(self, directory: str | Path, num_accounts: int) -> None:
+        self.kv = SQLiteKV(Path(directory) / CHAIN_FILE)
+        if not self.kv.empty and self.kv.get_meta("deployment") is None:
+            log.warning(
+                "embedded chain %s: first start was interrupted; starting over", self.kv.path
+            )
+            self.kv.wipe()
+        self.reopened = not self.kv.empty
+        keys = get_default_account_keys(quantity=num_accounts)
+        self.account_keys = keys
+        chain_class = _tester_chain_class(num_accounts)
+        base_db = AtomicDB(self.kv)
+        if self.reopened:
+            self.chain = chain_class(base_db)
+        else:
+            self.chain = chain_class.from_genesis(
+                base_db,
+                # a random extra_data: two chains made in the same second differ (identity)
+                get_default_genesis_params(overrides={"extra_data": os.urandom(32)}),
+                PyEVMBackend.generate_genesis_state(num_accounts=num_accounts),
+            )
+            self.kv.commit()
+
+    def reset_to_genesis(self, *args: Any, **kwargs: Any) -> None:
+        raise RuntimeError("the durable embedded chain is never reset; delete its directory")
+
+    def mine_blocks(self, num_blocks: int = 1, coinbase: Any = None) -> tuple[bytes, ...]:
+        kwargs = {} if coinbase is None else {"coinbase": coinbase}
+        hashes = super().mine_blocks(num_blocks, **kwargs)
+        self.kv.commit()
+        return hashes
+
+    def revert_to_snapshot(self, snapshot: Any) -> None:
+        super().revert_to_snapshot(snapshot)
+        self.kv.commit()
+
+    @property
+    def genesis_hash(self) -> str:
+        return "0x" + self.chain.get_canonical_block_header_by_number(0).hash.hex()

@@ -1,0 +1,123 @@
+"""The embedded chain on disk (backend.chain.durable): reopened with every mined transaction,
+after a clean close and after kill -9 mid-stream; an interrupted first start begins again."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+from backend.chain.client import Chain
+from backend.chain.durable import CHAIN_FILE, DurableBackend
+from backend.services.chain import ChainService
+from backend.settings import load_settings
+from workers.daemon.lock import DaemonAlreadyRunning, hold_daemon_lock
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def test_reopened_service_has_the_same_deployment_state_and_identity(tmp_path: Path) -> None:
+    settings = load_settings(data_dir=str(tmp_path))
+    first = ChainService.embedded(settings)
+    p = first.platform
+    requester = first.chain.accounts[3]
+    p.umc.add_requester(requester)
+    p.umc.add_worker(first.chain.accounts[4], [0], 2, 4, 0)
+    state = (
+        first.addresses(),
+        p.identity,
+        first.chain.w3.eth.block_number,
+        first.chain.balance(requester),
+    )
+    first.chain.close()
+
+    again = ChainService.embedded(settings)
+    q = again.platform
+    assert (again.addresses(), q.identity, again.chain.w3.eth.block_number) == state[:3]
+    assert again.chain.balance(requester) == state[3]
+    assert q.umc.call("isRequester", requester) is True
+    assert q.umc.call("workerId", again.chain.accounts[4]) == 1
+    # and it goes on: a new transaction on the reopened chain, the next block
+    q.umc.add_requester(again.chain.accounts[5])
+    assert again.chain.w3.eth.block_number == state[2] + 1
+    again.chain.close()
+
+
+def test_a_different_directory_is_a_different_chain(tmp_path: Path) -> None:
+    """Even made in the same second by the same deployer (same timestamps, same addresses)."""
+    a = ChainService.embedded(load_settings(data_dir=str(tmp_path / "a")))
+    b = ChainService.embedded(load_settings(data_dir=str(tmp_path / "b")))
+    assert a.chain.genesis_hash != b.chain.genesis_hash
+    assert a.platform.identity != b.platform.identity
+    a.chain.close()
+    b.chain.close()
+
+
+SENDER = textwrap.dedent(
+    """
+    import sys
+    from backend.chain.client import Chain
+    chain = Chain.embedded(accounts=4, directory=sys.argv[1])
+    chain._tester.backend.kv.set_meta("deployment", {})  # a finished first start
+    me, to = chain.accounts[0], chain.accounts[1]
+    w3 = chain.w3
+    for i in range(10_000):
+        tx = {"to": to, "value": i + 1, "gas": 21000, "nonce": i, "chainId": chain.chain_id,
+              "maxFeePerGas": 10**10, "maxPriorityFeePerGas": 0}
+        h = w3.eth.send_raw_transaction(chain._keys[me].sign_transaction(tx).raw_transaction)
+        w3.eth.wait_for_transaction_receipt(h)
+        print(h.hex(), flush=True)
+    """
+)
+
+
+def test_every_receipt_seen_before_kill_9_survives(tmp_path: Path) -> None:
+    proc = subprocess.Popen(
+        [sys.executable, "-c", SENDER, str(tmp_path)],
+        cwd=REPO,
+        env={**os.environ, "PYTHONPATH": str(REPO)},
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    seen = []
+    for line in proc.stdout:  # type: ignore[union-attr]
+        seen.append(line.strip())
+        if len(seen) == 40:
+            proc.send_signal(signal.SIGKILL)
+            break
+    proc.wait(timeout=30)
+    chain = Chain.embedded(accounts=4, directory=tmp_path)
+    for h in seen:
+        receipt = chain.w3.eth.get_transaction_receipt(h)
+        assert receipt["status"] == 1
+    # the nonce goes on from what was mined (>= what was seen: one more may have been mined)
+    assert chain.w3.eth.get_transaction_count(chain.accounts[0]) >= len(seen)
+    chain.close()
+
+
+def test_an_interrupted_first_start_begins_again(tmp_path: Path) -> None:
+    backend = DurableBackend(tmp_path, num_accounts=2)  # no deployment recorded
+    genesis = backend.genesis_hash
+    backend.mine_blocks(3)
+    backend.kv.close()
+    assert (tmp_path / CHAIN_FILE).is_file()
+    again = DurableBackend(tmp_path, num_accounts=2)
+    assert not again.reopened and again.genesis_hash != genesis
+    assert again.chain.get_canonical_head().block_number == 0
+
+
+def test_one_daemon_per_worker_directory(tmp_path: Path) -> None:
+    held = hold_daemon_lock(tmp_path)
+    try:
+        try:
+            hold_daemon_lock(tmp_path)
+        except DaemonAlreadyRunning as exc:
+            assert str(os.getpid()) in str(exc)
+        else:
+            raise AssertionError("a second daemon got the lock")
+    finally:
+        held.close()
+    hold_daemon_lock(tmp_path).close()  # released with its holder
