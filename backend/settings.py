@@ -124,6 +124,12 @@ class Settings(BaseSettings):
     """Default TMC review window: an outcome left unreviewed past it counts as accepted."""
     max_upload_bytes: int = Field(default=256 * 2**20, gt=0)
     """Largest model/content upload the gateway and store accept."""
+    max_job_memory_gb: float = Field(default=8.0, gt=0, le=1e6)
+    """Largest estimated peak memory of one training job a task may need
+    (workers.mdrl.resources); beyond it task creation is a 422 ``spec_exceeds_memory_limit``."""
+    max_task_worker_hours: float = Field(default=200.0, gt=0, le=1e7)
+    """Largest estimated worker-hours (hours per worker x num_workers) of one task; beyond it
+    task creation is a 422 ``spec_exceeds_worker_hours_limit``."""
     max_request_bytes: int = Field(default=2**20, ge=1024, le=2**30)
     """Largest request body the gateway reads (every route, before parsing: 413 above it)."""
     max_json_depth: int = Field(default=64, ge=2, le=1000)

@@ -17,7 +17,7 @@ from typing import Any
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
-from pydantic import BaseModel
+from pydantic import BaseModel, RootModel
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from backend import errors as domain
@@ -70,9 +70,16 @@ class ValidationErrorBody(BaseModel):
     detail: list[ValidationIssue]
 
 
+class UnprocessableBody(RootModel[ValidationErrorBody | RuleErrorBody]):
+    """Body of a 422: a validation list, or a rule the valid request broke (e.g. a limit)."""
+
+
 def rule_responses(*codes: int) -> dict[int | str, dict[str, Any]]:
-    """OpenAPI ``responses=`` entries documenting rule failures for ``codes``."""
-    return {code: {"model": RuleErrorBody} for code in codes}
+    """OpenAPI ``responses=`` entries documenting rule failures for ``codes`` (a 422 may be
+    either shape: field validation or a named rule)."""
+    return {
+        code: {"model": UnprocessableBody if code == 422 else RuleErrorBody} for code in codes
+    }
 
 
 def validation_issues(errors: Sequence[Any]) -> list[dict[str, Any]]:

@@ -30,6 +30,7 @@ Address = Annotated[
         examples=["0x7E5F4552091A69125d5DfCb7b8C2659029395Bdf"],
         min_length=42,
         max_length=42,
+        pattern=r"^0x[0-9a-fA-F]{40}$",
     ),
     AfterValidator(checksum),
 ]

@@ -1,38 +1,37 @@
 from __future__ import annotations
 
-from typing import Any, Literal
+from typing import Annotated, Any
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, WithJsonSchema, model_validator
+
+from workers.mdrl.trainingspec import trainingspec_json_schema
 
 from .common import Address, Domain, EventPublic, Fraction, ListPublic, Review, Wei
 
 MAX_EXTRA_METRICS = 16
+_SPEC = trainingspec_json_schema()["properties"]
+SPEC_FIELDS = ("env", "observation", "algorithm", "budget", "seed", "experts")
+"""Fields of the body that make the TrainingSpec document (the rest are task parameters)."""
 
 
-class ObservationIn(BaseModel):
-    kind: Literal["odmtl", "dmtl", "cmtl"] = "odmtl"
-    window: int = Field(default=3, ge=3, le=63, description="odd, < min(rows, cols) for odmtl")
-
-    @field_validator("window")
-    @classmethod
-    def _odd(cls, v: int) -> int:
-        if v % 2 == 0:
-            raise ValueError("window must be odd")
-        return v
-
-
-class BudgetIn(BaseModel):
-    steps: int = Field(ge=1_000, le=100_000_000, description="environment steps to train")
-    minutes: int = Field(ge=1, le=10_080, description="wall-clock cap (at most a week)")
+def _spec_field(name: str) -> Any:
+    """A spec field: its JSON Schema is the core's (bounds included); the core's parser
+    (TrainingSpec.from_dict, in the route) checks it and names a bad field in the 422."""
+    return Annotated[Any, WithJsonSchema(_SPEC[name])]
 
 
 class TaskCreate(BaseModel):
-    """A training task (docs/platform.md): the spec goes to the content store, its CID on chain."""
+    """A training task (docs/platform.md): the spec fields (``workers.mdrl.trainingspec``) go to
+    the content store as one document, its CID on chain; the rest are the TMC's task parameters."""
 
-    env: dict[str, Any] = Field(description="EnvSpec fields (workers.mdrl.spec.EnvSpec)")
-    observation: ObservationIn = ObservationIn()
-    budget: BudgetIn
-    seed: int = Field(default=0, ge=0, le=2**32 - 1)
+    model_config = ConfigDict(extra="forbid")
+
+    env: _spec_field("env")  # type: ignore[valid-type]
+    observation: _spec_field("observation") = None  # type: ignore[valid-type]
+    algorithm: _spec_field("algorithm") = None  # type: ignore[valid-type]
+    budget: _spec_field("budget")  # type: ignore[valid-type]
+    seed: _spec_field("seed") = None  # type: ignore[valid-type]
+    experts: _spec_field("experts") = None  # type: ignore[valid-type]
     domain: Domain = 0
     num_workers: int = Field(default=1, ge=1, le=16)
     min_reputation: Fraction = 0.0
@@ -42,12 +41,9 @@ class TaskCreate(BaseModel):
     deadline_s: int = Field(default=86_400, ge=60, le=2**32 - 1)
     payment_wei: Wei(96) = Field(default=0, description="reward per worker, escrowed")  # type: ignore[valid-type]
 
-    @field_validator("env")
-    @classmethod
-    def _small(cls, v: dict[str, Any]) -> dict[str, Any]:
-        if len(v) > 32:
-            raise ValueError("env has too many fields")
-        return v
+    def spec_document(self) -> dict[str, Any]:
+        """The spec fields the caller gave (unset ones take the TrainingSpec defaults)."""
+        return {k: getattr(self, k) for k in SPEC_FIELDS if k in self.model_fields_set}
 
 
 class TaskCreatedPublic(BaseModel):
@@ -90,7 +86,14 @@ class OutcomePublic(BaseModel):
 class ProgressCreate(BaseModel):
     """A training-curve point; extra numeric metrics (at most 16) are kept as they are."""
 
-    model_config = ConfigDict(extra="allow")
+    model_config = ConfigDict(
+        extra="allow",
+        json_schema_extra={
+            "additionalProperties": {"type": "number"},
+            "propertyNames": {"maxLength": 64},
+            "maxProperties": 4 + MAX_EXTRA_METRICS,
+        },
+    )
 
     step: int = Field(ge=0, le=10**12)
     success: float | None = Field(default=None, ge=0.0, le=1.0)

@@ -1,8 +1,9 @@
 """Off-chain documents the gateway writes to the content store, and their on-chain encodings.
 
-* task spec (``drlaas-task/1``): env spec, observation spec, training budget, seed. Its CID is
-  the task's on-chain ``description`` (docs/platform.md, "Task spec"), so anyone can fetch it
-  and check it against the chain.
+* task spec (``drlaas-task/1``): a ``workers.mdrl.trainingspec.TrainingSpec`` document (the
+  core owns its rules; here are the platform limits on its resource estimate). Its CID is the
+  task's on-chain ``description`` (docs/platform.md, "Task spec"), so anyone can fetch it and
+  check it against the chain.
 * model bundle: see ``backend.store.bundle`` (the MMC stores the manifest's CID; the download
   endpoint resolves a file through it and streams its bytes verified against its own CID).
 * environment attributes (MMC ``env``, Table 5.2): ``ENV_ATTRIBUTES`` of an EnvSpec as
@@ -12,64 +13,92 @@
 from __future__ import annotations
 
 import json
+import math
+import re
 from dataclasses import dataclass
 from typing import Any
 
 from backend.store import ContentStore
+from workers.mdrl.resources import ResourceEstimate, estimate
+from workers.mdrl.spec import EnvSpec
+from workers.mdrl.trainingspec import MAX_SPEC_BYTES, TRAINING_SPEC_FORMAT, SpecError, parse_env
 
-TASK_SPEC_FORMAT = "drlaas-task/1"
-MAX_SPEC_BYTES = 64 * 1024
+__all__ = [
+    "ENV_ATTRIBUTES",
+    "MAX_SPEC_BYTES",
+    "TASK_SPEC_FORMAT",
+    "SpecError",
+    "SpecLimitExceeded",
+    "check_limits",
+    "field_loc",
+    "required_payment_wei",
+    "validate_env",
+]
+
+TASK_SPEC_FORMAT = TRAINING_SPEC_FORMAT
 ENV_ATTRIBUTES = ("rows", "cols", "agents", "moves", "walls_min", "walls_max")
 """Order of the on-chain env attribute vector (uint32 each)."""
 
-# Gateway policy bounds on what a task may ask for (the MDRL core accepts more, but a public
-# endpoint must not let one request book a worker for a year).
-ENV_BOUNDS = {"rows": (2, 64), "cols": (2, 64), "agents": (1, 16), "max_steps": (1, 10_000)}
 
+class SpecLimitExceeded(Exception):
+    """A valid spec beyond a platform limit: ``rule`` names the limit, ``msg`` the figures."""
 
-class SpecError(ValueError):
-    """A bad document field: ``field`` names it (dotted path), the message says why."""
-
-    def __init__(self, field: str, msg: str) -> None:
-        super().__init__(f"{field}: {msg}")
-        self.field = field
+    def __init__(self, rule: str, msg: str) -> None:
+        super().__init__(f"{rule}: {msg}")
+        self.rule = rule
         self.msg = msg
 
 
-def validate_env(env: dict[str, Any]) -> Any:
-    """``EnvSpec.from_dict`` with the gateway's bounds; :class:`SpecError` naming the field.
-
-    EnvSpec reports all its problems in one message; the first known field name in it is the
-    one named (unknown fields are named directly)."""
-    from workers.mdrl.spec import EnvSpec
-
-    known = list(EnvSpec.__dataclass_fields__)
-    unknown = sorted(set(env) - set(known))
-    if unknown:
-        raise SpecError(unknown[0], f"unknown environment field (known: {known})")
-    for name, (lo, hi) in ENV_BOUNDS.items():
-        if name in env:
-            v = env[name]
-            if isinstance(v, bool) or not isinstance(v, int):
-                raise SpecError(name, f"must be an integer, got {v!r}")
-            if not lo <= v <= hi:
-                raise SpecError(name, f"must be in [{lo}, {hi}], got {v}")
-    try:
-        spec = EnvSpec.from_dict(env)
-    except (ValueError, TypeError, KeyError) as exc:
-        text = str(exc)
-        field = _first_field(text, known)
-        raise SpecError(field or "env", text) from None
-    if spec.walls[1] > max(spec.rows, spec.cols):
-        raise SpecError("walls", f"at most {max(spec.rows, spec.cols)} walls, got {spec.walls}")
-    return spec
+def validate_env(env: Any) -> EnvSpec:
+    """An EnvSpec document checked against the task-spec bounds; SpecError names the field
+    relative to the env object (``rows``, ``intensity.values[0]``)."""
+    return parse_env(env, field="")
 
 
-def _first_field(text: str, names: list[str]) -> str | None:
-    hits = [(text.find(n), n) for n in names if n in text]
-    if "grid" in text and not hits:
-        return "rows"
-    return min(hits)[1] if hits else None
+def field_loc(field: str) -> tuple[str | int, ...]:
+    """``env.intensity.values[0]`` -> ("env", "intensity", "values", 0) (a 422 ``loc``)."""
+    loc: list[str | int] = []
+    for part in field.split("."):
+        m = re.fullmatch(r"([^\[]*)((?:\[\d+\])*)", part)
+        name, idx = (m.group(1), m.group(2)) if m else (part, "")
+        if name:
+            loc.append(name)
+        loc.extend(int(i) for i in re.findall(r"\d+", idx))
+    return tuple(loc)
+
+
+def check_limits(
+    spec: Any, *, num_workers: int, max_memory_bytes: int, max_worker_hours: float
+) -> ResourceEstimate:
+    """The resource estimate of ``spec``, or :class:`SpecLimitExceeded` naming the limit."""
+    est = estimate(spec)
+    if est.memory_bytes > max_memory_bytes:
+        raise SpecLimitExceeded(
+            "spec_exceeds_memory_limit",
+            f"training this spec needs about {_gib(est.memory_bytes)} of memory per worker "
+            f"(largest part: {max(est.memory_parts, key=est.memory_parts.__getitem__)}); "
+            f"the platform limit is {_gib(max_memory_bytes)}",
+        )
+    total = est.hours * num_workers
+    if total > max_worker_hours:
+        raise SpecLimitExceeded(
+            "spec_exceeds_worker_hours_limit",
+            f"the budget is about {est.hours:.3g} h per worker x {num_workers} workers = "
+            f"{total:.3g} worker-hours; the platform limit is {max_worker_hours:g}",
+        )
+    return est
+
+
+def required_payment_wei(hours_per_worker: float, min_wei_per_worker_hour: int) -> int:
+    """Smallest payment per worker for ``hours_per_worker`` at the consortium's minimum rate
+    (rounded up; at least one started hour's worth when the rate is positive)."""
+    if min_wei_per_worker_hour <= 0:
+        return 0
+    return max(1, math.ceil(hours_per_worker * min_wei_per_worker_hour))
+
+
+def _gib(n: int) -> str:
+    return f"{n / 2**30:.3g} GiB"
 
 
 def env_attributes(spec: Any) -> list[int]:

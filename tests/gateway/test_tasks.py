@@ -13,6 +13,7 @@ from fastapi.testclient import TestClient
 from backend.chain.platform import OfferState, TaskStatus
 from backend.services.chain import ChainService
 from backend.settings import Settings
+from workers.mdrl.trainingspec import TrainingSpec
 
 from .conftest import ENV, Login, P, addr, register, task_body
 
@@ -40,7 +41,9 @@ def test_create_task_offers_match_chain_and_spec_is_content_addressed(
     store = client.app.state.store  # type: ignore[attr-defined]
     spec = json.loads(store.get(created["spec_cid"]))
     assert spec["env"]["rows"] == ENV["rows"] and spec["budget"]["steps"] == 20_000
-    assert spec["observation"] == {"kind": "odmtl", "window": 3}
+    assert spec["observation"]["kind"] == "odmtl" and spec["observation"]["window"] == 3
+    # the stored document is the core type's canonical form (defaults filled in)
+    assert TrainingSpec.from_dict(spec).to_dict() == spec
 
     detail = client.get(f"{P}/tasks/{task_id}").json()
     assert detail["description"] == created["spec_cid"]
@@ -177,6 +180,19 @@ def test_cancel_refunds_and_lists_by_status(
         ({"observation": {"kind": "odmtl", "window": 4}}, ["body", "observation", "window"]),
         ({"budget": {"steps": 10**12, "minutes": 10}}, ["body", "budget", "steps"]),
         ({"budget": {"steps": 20_000, "minutes": 0}}, ["body", "budget", "minutes"]),
+        ({"budget": {}}, ["body", "budget"]),
+        ({"env": ENV | {"intensity": 1e308}}, ["body", "env", "intensity"]),
+        ({"env": ENV | {"intensity": float("nan")}}, ["body", "env", "intensity"]),
+        ({"env": ENV | {"intensity": float("inf")}}, ["body", "env", "intensity"]),
+        (
+            {"env": ENV | {"intensity": {"kind": "uniform", "values": [1e9, 1e8]}}},
+            ["body", "env", "intensity", "values"],
+        ),
+        ({"env": ENV | {"walls": [0, 9]}}, ["body", "env", "walls"]),
+        ({"algorithm": {"preset": "nope"}}, ["body", "algorithm", "preset"]),
+        ({"algorithm": {"ppo": {"num_envs": 0}}}, ["body", "algorithm", "ppo", "num_envs"]),
+        ({"experts": ["../../etc/passwd"]}, ["body", "experts", 0]),
+        ({"ppo": {"num_envs": 4}}, ["body", "ppo"]),
         ({"num_workers": 17}, ["body", "num_workers"]),
         ({"payment_wei": -1}, ["body", "payment_wei"]),
         ({"payment_wei": 2**96}, ["body", "payment_wei"]),
@@ -190,9 +206,46 @@ def test_malformed_task_is_422_naming_the_field(
 ) -> None:
     register(client, login, ["user1"], {})
     before = service.block_number()
-    r = client.post(f"{P}/tasks", json=task_body(**change), headers=login("user1"))
+    # json.dumps writes NaN/Infinity tokens (httpx refuses to), as a hostile client may
+    headers = login("user1") | {"content-type": "application/json"}
+    r = client.post(f"{P}/tasks", content=json.dumps(task_body(**change)), headers=headers)
     assert r.status_code == 422, r.text
     assert loc in [d["loc"][: len(loc)] for d in r.json()["detail"]], r.json()
+    assert service.block_number() == before  # nothing was sent
+
+
+@pytest.mark.parametrize(
+    ("change", "rule"),
+    [
+        # CMTL with 16 agents: a joint action space of 5**16 (the worker would try petabytes)
+        (
+            {"env": {"rows": 10, "cols": 10, "agents": 16}, "observation": {"kind": "cmtl"}},
+            "spec_exceeds_memory_limit",
+        ),
+        # a huge batch on the largest grid: every field in bounds, the product is not
+        (
+            {
+                "env": {"rows": 64, "cols": 64, "agents": 16},
+                "observation": {"kind": "dmtl"},
+                "algorithm": {"ppo": {"num_envs": 4096, "horizon": 1_000_000}},
+            },
+            "spec_exceeds_memory_limit",
+        ),
+        # a week on 16 workers
+        (
+            {"budget": {"minutes": 10_080}, "num_workers": 16},
+            "spec_exceeds_worker_hours_limit",
+        ),
+    ],
+)
+def test_a_spec_beyond_the_platform_limits_is_422_naming_the_limit(
+    client: TestClient, login: Login, service: ChainService, change: dict[str, Any], rule: str
+) -> None:
+    register(client, login, ["user1"], {})
+    before = service.block_number()
+    r = client.post(f"{P}/tasks", json=task_body(**change), headers=login("user1"))
+    assert r.status_code == 422, r.text
+    assert r.json()["detail"]["rule"] == rule, r.json()
     assert service.block_number() == before  # nothing was sent
 
 

@@ -78,6 +78,46 @@ def test_resume_continues_identically(tmp_path):
     np.testing.assert_array_equal(straight.env.readings, resumed.env.readings)
 
 
+@pytest.mark.parametrize("kind", ["odmtl", "cmtl"])
+@pytest.mark.parametrize("budget", [5, 17, 192 + 1, 2 * 192 + 45])
+def test_a_step_budget_is_met_exactly(tmp_path, kind, budget):
+    # SMALL_PPO collects 192 env steps per update (T = 12 x B = 16): none of these is a multiple
+    assert budget % SMALL_PPO.batch_steps
+    run = small_run(total_steps=budget, eval_every=0, checkpoint_every=1)
+    trainer = Trainer(SMALL_ENV, ObservationSpec(kind=kind), SMALL_PPO, run, out=tmp_path)
+    row = trainer.train()
+    assert row["global_step"] == trainer.global_step == budget
+    steps = [int(r["global_step"]) for r in read_metrics(tmp_path)]
+    full = [SMALL_PPO.batch_steps * (i + 1) for i in range(budget // SMALL_PPO.batch_steps)]
+    assert steps == full + [budget]
+    assert trainer.env.active.all()  # the frozen envs of the last step are live again
+    if budget < SMALL_PPO.num_envs:  # one time step in which only the first `budget` envs act
+        assert (trainer.env.t[:budget] == 1).all() and (trainer.env.t[budget:] == 0).all()
+
+
+def test_resume_after_a_short_last_rollout_continues_identically(tmp_path):
+    obs = ObservationSpec(kind="odmtl")
+    budget = 3 * SMALL_PPO.batch_steps + 70
+    straight = Trainer(SMALL_ENV, obs, SMALL_PPO, small_run(total_steps=budget),
+                       out=tmp_path / "straight")
+    straight.train()
+    split = Trainer(SMALL_ENV, obs, SMALL_PPO, small_run(total_steps=SMALL_PPO.batch_steps + 50),
+                    out=tmp_path / "split")
+    split.train()  # update 2 is short: 50 steps, 4 envs frozen in its last time step
+    assert split.global_step == SMALL_PPO.batch_steps + 50
+    resumed = Trainer.resume(tmp_path / "split", run_overrides={"total_steps": budget})
+    resumed.train()
+    assert resumed.global_step == straight.global_step == budget
+    # not the same run as the straight one (update 2 was short), but a deterministic one:
+    again = Trainer(SMALL_ENV, obs, SMALL_PPO, small_run(total_steps=SMALL_PPO.batch_steps + 50),
+                    out=tmp_path / "again")
+    again.train()
+    Trainer.resume(tmp_path / "again", run_overrides={"total_steps": budget}).train()
+    assert read_metrics(tmp_path / "split") == read_metrics(tmp_path / "again")
+    assert [int(r["global_step"]) for r in read_metrics(tmp_path / "split")] == [
+        192, 242, 434, 626, 646]
+
+
 def test_checkpoint_round_trip_restores_every_part(tmp_path):
     t = Trainer(SMALL_ENV, ObservationSpec(kind="odmtl"), SMALL_PPO, small_run(updates=1),
                 out=tmp_path / "run")

@@ -1,5 +1,6 @@
 """The worker daemon's offer pipeline against an in-process chain and an on-disk store:
-accept -> train -> upload manifest -> submitOutcome, idempotence, resume, capacity, store down."""
+accept -> train -> upload manifest -> submitOutcome, idempotence, resume, capacity (jobs and
+memory), failed jobs releasing the worker, store down."""
 
 from __future__ import annotations
 
@@ -14,8 +15,9 @@ from backend.chain.platform import OfferState
 from backend.store import EmbeddedStore, IpfsRpcStore, StoreUnavailable
 from backend.store.bundle import MODEL_FILES, pull_model, read_bundle
 from workers.daemon.handler import OfferHandler, Transient
-from workers.daemon.taskspec import parse_spec
 from workers.mdrl.modelio import load_model
+from workers.mdrl.resources import estimate
+from workers.mdrl.trainingspec import TrainingSpec
 
 from .helpers import TINY_SPEC, deploy, post_task, register
 
@@ -75,7 +77,7 @@ def test_a_crashed_job_resumes_from_its_checkpoint(env, tmp_path: Path) -> None:
     task_id, offered, _ = post_task(p, store, actors.requester)
     h = handler_for(p, offered[0], store, tmp_path, checkpoint_every=1)
 
-    class Crash(Exception):
+    class Crash(BaseException):  # the process being stopped (SystemExit-like), not a job error
         pass
 
     def crash_at_update_3(tid: int, point: dict) -> None:
@@ -91,7 +93,7 @@ def test_a_crashed_job_resumes_from_its_checkpoint(env, tmp_path: Path) -> None:
     assert out["status"] == "submitted"
     state = json.loads((h.job_dir(task_id) / "state.json").read_text())
     # the checkpoint of update 2 (not 3: it crashed before checkpointing) was the start point
-    assert state["resumed_from_step"] == 2 * parse_spec(TINY_SPEC).ppo.batch_steps
+    assert state["resumed_from_step"] == 2 * TrainingSpec.from_dict(TINY_SPEC).ppo.batch_steps
 
 
 def test_declines_when_at_capacity(env, tmp_path: Path) -> None:
@@ -168,3 +170,56 @@ def test_store_down_is_a_clear_transient_error_then_the_retry_completes(
     assert p.tmc.offer(task_id, offered[0])["state"] == OfferState.OFFERED
     h.store = store
     assert h.handle(task_id, offered[0])["status"] == "submitted"
+
+
+def test_a_spec_beyond_the_workers_memory_is_declined_without_allocating(
+    env, tmp_path: Path
+) -> None:
+    p, actors, store = env
+    # CMTL with 16 agents: a joint action space of 5**16 = 1.5e11 actions
+    brick = {
+        "env": {"rows": 10, "cols": 10, "agents": 16},
+        "observation": {"kind": "cmtl"},
+        "budget": {"steps": 1000},
+    }
+    task_id, offered, _ = post_task(p, store, actors.requester, spec=brick)
+    h = handler_for(p, offered[0], store, tmp_path)
+    out = h.handle(task_id, offered[0])
+    assert out["status"] == "declined" and out["reason"].startswith("spec_exceeds_worker_memory")
+    assert p.tmc.offer(task_id, offered[0])["state"] == OfferState.DECLINED
+    # the tiny spec fits a normal worker, but not one with a byte less than its estimate
+    need = estimate(TrainingSpec.from_dict(TINY_SPEC)).memory_bytes
+    t2, offered2, _ = post_task(p, store, actors.requester)
+    small = handler_for(p, offered2[0], store, tmp_path / "small", memory_bytes=need - 1)
+    out = small.handle(t2, offered2[0])
+    assert out["status"] == "declined" and "spec_exceeds_worker_memory" in out["reason"]
+
+
+def test_a_failing_job_releases_the_worker_and_ends_failed_on_chain(
+    env, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    p, actors, store = env
+    task_id, offered, _ = post_task(p, store, actors.requester, duration=600)
+    worker = offered[0]
+    h = handler_for(p, worker, store, tmp_path)
+
+    def broken_training(*args, **kwargs):
+        raise FloatingPointError("loss is NaN")
+
+    monkeypatch.setattr("workers.daemon.job.run_job", broken_training)
+    out = h.handle(task_id, worker)
+    assert out["status"] == "failed" and "FloatingPointError: loss is NaN" in out["reason"]
+    assert p.tmc.offer(task_id, worker)["state"] == OfferState.ACCEPTED  # until the deadline
+    assert h.active_jobs(exclude=0) == []  # capacity released at once
+    # the same worker takes (and trains) its next offer instead of declining it forever
+    monkeypatch.undo()
+    t2, offered2, _ = post_task(p, store, actors.requester, num_workers=3)
+    assert worker in offered2
+    assert h.handle(t2, worker)["status"] == "submitted"
+    # after the deadline, handling the failed job again closes the task: Failed on chain
+    p.chain.advance_time(601)
+    again = h.handle(task_id, worker)
+    assert again["status"] == "failed" and again["offer"] == "failed"
+    assert p.tmc.offer(task_id, worker)["state"] == OfferState.FAILED
+    failed = p.tmc.contract.events.OfferFailed().get_logs(from_block=0)
+    assert [(e["args"]["taskId"], e["args"]["worker"]) for e in failed] == [(task_id, worker)]

@@ -22,6 +22,12 @@ class Capabilities:
 
 def ram_gb(meminfo: str | Path = "/proc/meminfo") -> int:
     """Total RAM in whole GiB from ``/proc/meminfo`` (``MemTotal: N kB``), at least 1."""
+    return max(1, ram_bytes(meminfo) // 2**30)
+
+
+def ram_bytes(meminfo: str | Path = "/proc/meminfo") -> int:
+    """Total RAM in bytes from ``/proc/meminfo`` (``MemTotal: N kB``): what a worker's jobs
+    may use together (the offer handler splits it over its concurrent jobs)."""
     text = Path(meminfo).read_text()
     for line in text.splitlines():
         if line.startswith("MemTotal:"):
@@ -30,7 +36,7 @@ def ram_gb(meminfo: str | Path = "/proc/meminfo") -> int:
             unit = parts[2].lower() if len(parts) > 2 else "kb"
             if unit != "kb":
                 raise ValueError(f"{meminfo}: unexpected MemTotal unit {parts[2]!r}")
-            return max(1, kib // (1024 * 1024))
+            return kib * 1024
     raise ValueError(f"{meminfo}: no MemTotal line")
 
 

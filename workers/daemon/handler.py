@@ -5,6 +5,12 @@ the job's state in ``<worker data>/jobs/<task_id>/state.json`` and continues fro
 previous attempt stopped (offered -> accepted -> trained -> uploaded -> submitted). Transient
 failures (content store or chain node unreachable) raise :class:`Transient`; the Celery job
 retries those with backoff.
+
+An offer whose spec cannot be trained here (bad spec, estimated memory beyond this worker's RAM
+share) is declined. A job that fails after acceptance (an exception in training or upload, a
+spec found bad late) is marked ``failed``: it no longer holds capacity, and once the task's
+deadline has passed the handler closes the task, which turns the offer into ``Failed`` on
+chain (the TMC has no earlier way for a worker to give an accepted task back).
 """
 
 from __future__ import annotations
@@ -27,9 +33,11 @@ from backend.chain.platform import OfferState, Platform, TaskStatus
 from backend.store import ContentStore, StoreError, StoreUnavailable
 from backend.store.bundle import read_bundle, upload_model
 from workers.daemon import job as jobs
+from workers.daemon.capabilities import ram_bytes
 from workers.daemon.gateway import Gateway, GatewayError
 from workers.daemon.links import task_spec_cid
-from workers.daemon.taskspec import SpecError, TrainingSpec, parse_spec
+from workers.mdrl.resources import estimate
+from workers.mdrl.trainingspec import MAX_SPEC_BYTES, SpecError, TrainingSpec
 
 log = logging.getLogger(__name__)
 
@@ -51,6 +59,8 @@ class OfferHandler:
     data_dir: Path
     gateway: Gateway | None = None
     max_jobs: int = 1
+    memory_bytes: int = field(default_factory=ram_bytes)
+    """RAM this worker's jobs may use together (measured); each job gets memory_bytes/max_jobs."""
     checkpoint_every: int = jobs.CHECKPOINT_EVERY
     clock: Callable[[], float] = time.time
     on_first_step: Callable[[int, int], None] | None = None
@@ -141,23 +151,30 @@ class OfferHandler:
             self._save(task_id, phase="closed", offer=state.name.lower())
             return {"task_id": task_id, "status": f"offer {state.name.lower()}"}
 
+        if state == OfferState.ACCEPTED and self._state(task_id).get("phase") == "failed":
+            return self._report_failure(task_id, task)
         spec = self._fetch_spec(task_id)
         if state == OfferState.OFFERED:
-            if isinstance(spec, SpecError):
+            reason = self._cannot_take(task_id, spec)
+            if reason is not None:
                 self._transact("declineOffer", task_id)
-                self._save(task_id, phase="declined", reason=str(spec))
-                return {"task_id": task_id, "status": "declined", "reason": str(spec)}
-            busy = self.active_jobs(exclude=task_id)
-            if len(busy) >= self.max_jobs:
-                self._transact("declineOffer", task_id)
-                self._save(task_id, phase="declined", reason=f"at capacity: {busy}")
-                return {"task_id": task_id, "status": "declined", "reason": "at capacity"}
+                self._save(task_id, phase="declined", reason=reason)
+                return {"task_id": task_id, "status": "declined", "reason": reason}
             self._transact("acceptOffer", task_id)
             self._save(task_id, phase="accepted", accepted_at=self.clock())
         elif isinstance(spec, SpecError):  # accepted earlier, spec cannot be trained: give up
-            self._save(task_id, phase="failed", reason=str(spec))
-            raise spec
+            return self._fail(task_id, task, f"task spec: {spec}")
 
+        try:
+            return self._run(task_id, spec, task)  # type: ignore[arg-type]
+        except Transient:
+            raise
+        except Exception as exc:  # noqa: BLE001 - any failure of the job releases the worker
+            log.exception("task %s: job failed", task_id)
+            return self._fail(task_id, task, f"{type(exc).__name__}: {exc}")
+
+    def _run(self, task_id: int, spec: TrainingSpec, task: dict[str, Any]) -> dict[str, Any]:
+        """Train (or resume), upload and submit an accepted job."""
         st = self._state(task_id)
         model_dir = jobs.run_dir(self.job_dir(task_id)) / "model"
         if (
@@ -179,6 +196,49 @@ class OfferHandler:
         self._save(task_id, phase="submitted", tx=rc.tx_hash, submitted_at=self.clock())
         return {"task_id": task_id, "status": "submitted", "cid": cid, "tx": rc.tx_hash}
 
+    # -- capacity and failure --------------------------------------------------------------
+    def _cannot_take(self, task_id: int, spec: TrainingSpec | SpecError) -> str | None:
+        """Why this worker must decline the offer (None: it can take it)."""
+        if isinstance(spec, SpecError):
+            return str(spec)
+        busy = self.active_jobs(exclude=task_id)
+        if len(busy) >= self.max_jobs:
+            return "at capacity"
+        share = self.memory_bytes // max(1, self.max_jobs)
+        need = estimate(spec).memory_bytes  # integer arithmetic: nothing is allocated
+        if need > share:
+            return (
+                f"spec_exceeds_worker_memory: needs about {need / 2**30:.3g} GiB, this worker "
+                f"has {share / 2**30:.3g} GiB per job"
+            )
+        return None
+
+    def _fail(self, task_id: int, task: dict[str, Any], reason: str) -> dict[str, Any]:
+        """Mark an accepted job failed (it stops counting against capacity) and report it."""
+        self._save(task_id, phase="failed", reason=reason[:2000], failed_at=self.clock())
+        return self._report_failure(task_id, task)
+
+    def _report_failure(self, task_id: int, task: dict[str, Any]) -> dict[str, Any]:
+        """After the deadline, close the task: the TMC turns the accepted offer into Failed."""
+        reason = self._state(task_id).get("reason", "")
+        out = {"task_id": task_id, "status": "failed", "reason": reason}
+        try:
+            now = int(self.platform.chain.w3.eth.get_block("latest")["timestamp"])
+        except (requests.ConnectionError, requests.Timeout, httpx.TransportError) as exc:
+            raise Transient(f"chain node unreachable: {exc}") from exc
+        if now <= int(task["deadline"]):  # the TMC's clock, not ours
+            return out | {"offer": "accepted until the deadline closes the task"}
+        try:
+            self._transact("updateTaskStatus", task_id, int(TaskStatus.CLOSED))
+        except Transient:
+            raise
+        except Exception as exc:  # noqa: BLE001 - e.g. review window open: retried next time
+            log.warning("task %s: closing after the deadline failed: %s", task_id, exc)
+            return out | {"offer": f"close failed: {exc}"}
+        state = OfferState(self.platform.tmc.offer(task_id, self.address)["state"])
+        self._save(task_id, offer=state.name.lower())
+        return out | {"offer": state.name.lower()}
+
     def _fetch_spec(self, task_id: int) -> TrainingSpec | SpecError:
         """The verified spec, or the SpecError saying why it cannot be trained."""
         try:
@@ -186,13 +246,13 @@ class OfferHandler:
         except (requests.ConnectionError, requests.Timeout) as exc:
             raise Transient(f"chain node unreachable: {exc}") from exc
         try:
-            raw = self.store.get(cid, max_size=256 * 1024)
+            raw = self.store.get(cid, max_size=MAX_SPEC_BYTES)
         except StoreUnavailable as exc:
             raise Transient(f"cannot fetch task spec {cid}: {exc}") from exc
         except StoreError as exc:  # bad CID, not found, mismatch, too large
-            return SpecError(f"task spec {cid!r}: {exc}")
+            return SpecError("spec", f"task spec {cid!r}: {exc}")
         try:
-            return parse_spec(raw)
+            return TrainingSpec.from_json(raw)
         except SpecError as exc:
             return exc
 

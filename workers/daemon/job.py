@@ -16,8 +16,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any, cast
 
-from workers.daemon.taskspec import TrainingSpec
 from workers.mdrl.train import RunConfig, Trainer
+from workers.mdrl.trainingspec import TrainingSpec
 
 #: Updates between checkpoints: a killed worker loses at most this many updates of work.
 CHECKPOINT_EVERY = 2

@@ -94,6 +94,51 @@ class ObservationSpec:
         return cls(**d)
 
 
+@dataclass(frozen=True)
+class ChannelLayout:
+    """The named input maps of the actor and critic and their (C, H, W) shapes (Table 3.1)."""
+
+    actor: tuple[str, ...]
+    critic: tuple[str, ...]
+    actor_shape: tuple[int, int, int]
+    critic_shape: tuple[int, int, int]
+    walls: bool
+    full_critic: bool
+
+
+def channel_layout(env_spec: Any, obs_spec: ObservationSpec) -> ChannelLayout:
+    """Channels and shapes of an observation model, without building anything (the resource
+    model sizes networks and buffers from this)."""
+    rows, cols, agents = int(env_spec.rows), int(env_spec.cols), int(env_spec.agents)
+    kind, w = obs_spec.kind, int(obs_spec.window)
+    walls_on = bool(env_spec.walls[1] > 0) if obs_spec.walls is None else obs_spec.walls
+    others = ["others"] if agents > 1 else []
+    walls = ["walls"] if walls_on else []
+    if kind == "cmtl":
+        actor = [f"location_{i}" for i in range(agents)] + ["readings", "visits"] + walls
+        critic = list(actor)
+    elif kind == "dmtl":
+        actor = ["location"] + others + ["readings", "visits"] + walls
+        critic = ["all_locations", "readings", "visits"] + walls
+    else:
+        actor = (
+            ["win_location", "win_readings", "ds_location"]
+            + [f"ds_{o}" for o in others]
+            + ["ds_readings", "ds_visits"]
+            + (["win_walls", "ds_walls"] if walls_on else [])
+        )
+        critic = ["ds_all_locations", "ds_readings", "ds_visits"] + [f"ds_{x}" for x in walls]
+    full_critic = kind == "odmtl" and obs_spec.critic == "full"
+    if full_critic:
+        critic = ["all_locations", "readings", "visits"] + walls
+    h, wd = (w, w) if kind == "odmtl" else (rows, cols)
+    reduced_critic = kind == "odmtl" and not full_critic
+    critic_shape = (len(critic), h, wd) if reduced_critic else (len(critic), rows, cols)
+    return ChannelLayout(
+        tuple(actor), tuple(critic), (len(actor), h, wd), critic_shape, walls_on, full_critic
+    )
+
+
 # --------------------------------------------------------------------------- linear operators
 
 
@@ -207,32 +252,11 @@ class Observer:
         self.kind, self.window = obs_spec.kind, w
         self.rows, self.cols, self.agents = rows, cols, agents
         self.cells = rows * cols
-        self.walls = bool(env_spec.walls[1] > 0) if obs_spec.walls is None else obs_spec.walls
+        layout = channel_layout(env_spec, obs_spec)
+        self.walls, self.full_critic = layout.walls, layout.full_critic
         self.joint_actions = self.kind == "cmtl"
-        others = ["others"] if agents > 1 else []
-        walls = ["walls"] if self.walls else []
-        if self.kind == "cmtl":
-            actor = [f"location_{i}" for i in range(agents)] + ["readings", "visits"] + walls
-            critic = list(actor)
-        elif self.kind == "dmtl":
-            actor = ["location"] + others + ["readings", "visits"] + walls
-            critic = ["all_locations", "readings", "visits"] + walls
-        else:
-            actor = (
-                ["win_location", "win_readings", "ds_location"]
-                + [f"ds_{o}" for o in others]
-                + ["ds_readings", "ds_visits"]
-                + (["win_walls", "ds_walls"] if self.walls else [])
-            )
-            critic = ["ds_all_locations", "ds_readings", "ds_visits"] + [f"ds_{x}" for x in walls]
-        self.full_critic = self.kind == "odmtl" and obs_spec.critic == "full"
-        if self.full_critic:
-            critic = ["all_locations", "readings", "visits"] + walls
-        self.actor_channels, self.critic_channels = tuple(actor), tuple(critic)
-        h, wd = (w, w) if self.kind == "odmtl" else (rows, cols)
-        self.actor_shape = (len(actor), h, wd)
-        reduced_critic = self.kind == "odmtl" and not self.full_critic
-        self.critic_shape = (len(critic), h, wd) if reduced_critic else (len(critic), rows, cols)
+        self.actor_channels, self.critic_channels = layout.actor, layout.critic
+        self.actor_shape, self.critic_shape = layout.actor_shape, layout.critic_shape
         if self.kind == "odmtl":
             self._rt = downsize_matrix(rows, cols, w).T.astype(np.float32).copy()  # (C, w*w)
             self._win = window_index(rows, cols, w)

@@ -45,7 +45,8 @@ class RunConfig:
     seed: int = 0
     """Seeds the env layouts/noise, network init, action sampling and minibatch order."""
     total_steps: int | None = None
-    """Env-step budget (stop once reached); also the horizon of the learning-rate anneal."""
+    """Env-step budget, met exactly (the last rollout is shortened); also the horizon of the
+    learning-rate anneal."""
     minutes: float | None = None
     """Wall-clock budget in minutes (checked between updates, resumed runs count prior time)."""
     eval_every: int = 10
@@ -133,15 +134,31 @@ class Trainer:
         self.ep_return = np.zeros(ppo.num_envs, dtype=np.float64)
         self.last_metrics: dict[str, Any] = {}
         self.last_eval: dict[str, float] = {}
+        self._rollout = (ppo.rollout_steps, ppo.num_envs)  # (T', k) of the last collect()
         self._writer: Any = None
 
     # ------------------------------------------------------------------ rollout
+    def rollout_plan(self) -> tuple[int, int]:
+        """(T', k): time steps of the next rollout and how many envs act in its last step.
+
+        A full rollout is (T, B). When less than T * B steps of the step budget are left, the
+        rollout is shortened to ceil(left / B) steps and only the first k envs act in the
+        last one (the others stay frozen), so training ends at exactly ``total_steps``."""
+        t, b = self.buffer.steps, self.ppo.num_envs
+        total = self.run.total_steps
+        left = t * b if total is None else min(t * b, max(total - self.global_step, 0))
+        steps = max(1, math.ceil(left / b))
+        return steps, max(0, left - (steps - 1) * b)
+
     @torch.inference_mode()
     def collect(self) -> dict[str, float]:
-        """Run T steps of the B envs with the current policy into the buffer (Alg. 3.3 l. 3-10)."""
+        """Run T steps of the B envs with the current policy into the buffer (Alg. 3.3 l. 3-10);
+        the last rollout of a step budget is shorter (see ``rollout_plan``)."""
         env, buf, b = self.env, self.buffer, self.ppo.num_envs
+        steps, last_envs = self.rollout_plan()
+        self._rollout = (steps, last_envs)
         found, length, cost, returns = [], [], [], []
-        for t in range(buf.steps):
+        for t in range(steps):
             actor_obs, critic_obs = self.observer.observe(env)
             a_obs = buf.actor_obs[t]
             a_obs.copy_(torch.as_tensor(actor_obs))
@@ -152,7 +169,14 @@ class Trainer:
             buf.actions[t] = actions
             buf.logp[t] = logp
             buf.values[t] = self.agent.value(buf.critic_obs[t]).reshape(b)
-            res = env.step(self.head.env_actions(actions.numpy()))
+            frozen = t == steps - 1 and last_envs < b
+            if frozen:  # inactive envs do not step (their actions are not checked or applied)
+                env.active[last_envs:] = False
+            try:
+                res = env.step(self.head.env_actions(actions.numpy()))
+            finally:
+                if frozen:
+                    env.active[last_envs:] = True
             buf.rewards[t] = torch.from_numpy(np.asarray(res.reward, dtype=np.float32))
             if self.ppo.reward_scale != 1.0:
                 buf.rewards[t] *= self.ppo.reward_scale
@@ -168,7 +192,7 @@ class Trainer:
                 self.selector.episode_start(ep.index)
         _, critic_obs = self.observer.observe(env)
         self.last_value = self.agent.value(torch.as_tensor(critic_obs)).reshape(b).clone()
-        self.global_step += buf.steps * b
+        self.global_step += (steps - 1) * b + last_envs
         n = int(sum(len(x) for x in found))
         self.episodes += n
         if n == 0:
@@ -194,19 +218,25 @@ class Trainer:
         cfg, buf, agent = self.ppo, self.buffer, self.agent
         for group in self.optimizer.param_groups:
             group["lr"] = self.learning_rate()
-        advantages, returns = gae(buf.rewards, buf.values, buf.dones, self.last_value,
-                                  cfg.gamma, cfg.gae_lambda)
-        t, b, n = buf.actions.shape
-        m = t * b
+        t, k = self._rollout
+        rewards, values, dones = buf.rewards[:t], buf.values[:t], buf.dones[:t]
+        advantages, returns = gae(rewards, values, dones, self.last_value, cfg.gamma,
+                                  cfg.gae_lambda)
+        b, n = buf.actions.shape[1:]
+        if k < b:  # envs frozen in the last step end at t - 1, bootstrapped with V(s_{t-1})
+            adv_f, ret_f = gae(rewards[:t - 1, k:], values[:t - 1, k:], dones[:t - 1, k:],
+                               values[t - 1, k:], cfg.gamma, cfg.gae_lambda)
+            advantages[:t - 1, k:], returns[:t - 1, k:] = adv_f, ret_f
+        m = (t - 1) * b + k  # samples collected: time-major, the first k envs of the last step
         # flatten time and envs; agents stay together so one env step = 1 value + n actor samples
-        b_actor = buf.actor_obs.reshape(m, n, *buf.actor_obs.shape[3:])
-        b_critic = buf.critic_obs.reshape(m, *buf.critic_obs.shape[2:])
-        b_mask = buf.masks.reshape(m, n, -1)
-        b_actions = buf.actions.reshape(m, n)
-        b_logp = buf.logp.reshape(m, n)
-        b_values = buf.values.reshape(m)
-        b_adv = advantages.reshape(m)
-        b_ret = returns.reshape(m)
+        b_actor = buf.actor_obs[:t].reshape(t * b, n, *buf.actor_obs.shape[3:])[:m]
+        b_critic = buf.critic_obs[:t].reshape(t * b, *buf.critic_obs.shape[2:])[:m]
+        b_mask = buf.masks[:t].reshape(t * b, n, -1)[:m]
+        b_actions = buf.actions[:t].reshape(t * b, n)[:m]
+        b_logp = buf.logp[:t].reshape(t * b, n)[:m]
+        b_values = values.reshape(t * b)[:m]
+        b_adv = advantages.reshape(t * b)[:m]
+        b_ret = returns.reshape(t * b)[:m]
         mb_size = math.ceil(m / cfg.num_minibatches)
         sums: dict[str, float] = {}
         count = 0
@@ -240,7 +270,7 @@ class Trainer:
                 count += 1
             if cfg.target_kl is not None and float(losses.approx_kl) > cfg.target_kl:
                 break
-        var_ret = float(b_ret.var())
+        var_ret = float(b_ret.var()) if m > 1 else 0.0  # one sample has no variance
         explained = math.nan if var_ret == 0 else 1.0 - float((b_ret - b_values).var()) / var_ret
         out = {k: v / count for k, v in sums.items()}
         return {"learning_rate": self.optimizer.param_groups[0]["lr"],

@@ -32,6 +32,7 @@ from drlaas.commands.client.session import (
 )
 from workers.daemon.gateway import Gateway, GatewayError
 from workers.mdrl.spec import parse_grid, parse_walls
+from workers.mdrl.trainingspec import SpecError, TrainingSpec
 
 task_app = typer.Typer(
     help="Training tasks: submit, list, show, wait, pull, review.", no_args_is_help=True
@@ -54,15 +55,23 @@ def task_body(
     domain: int,
     spec: Path | None,
 ) -> dict[str, Any]:
-    """POST /tasks body from options, or from a JSON file (``--spec``) that options fill in."""
+    """POST /tasks body from options, or from a JSON file (``--spec``) that options fill in.
+    The spec part is checked locally with the core's TrainingSpec (the gateway's own parser)."""
     if spec is not None:
         return json.loads(spec.read_text())
     rows, cols = parse_grid(grid)
-    return {
+    doc = {
         "env": {"rows": rows, "cols": cols, "agents": agents, "walls": list(parse_walls(walls))},
         "observation": {"kind": kind, "window": window},
         "budget": {"steps": steps, "minutes": minutes},
         "seed": seed,
+    }
+    try:
+        TrainingSpec.from_dict(doc)
+    except SpecError as exc:
+        raise typer.BadParameter(exc.msg, param_hint=exc.field) from None
+    return {
+        **doc,
         "num_workers": workers,
         "payment_wei": payment_wei,
         "deadline_s": deadline_s,

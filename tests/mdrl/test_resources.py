@@ -1,0 +1,118 @@
+"""The resource model: memory and compute are functions of the spec, checked by hand."""
+
+from __future__ import annotations
+
+import math
+import tracemalloc
+
+import pytest
+import torch
+
+from workers.mdrl.networks import ActorCritic
+from workers.mdrl.observations import make_observer
+from workers.mdrl.resources import (
+    REFERENCE_PRESET,
+    REFERENCE_STEPS_PER_S,
+    estimate,
+    lenet_params,
+    worker_hours,
+)
+from workers.mdrl.trainingspec import TrainingSpec
+
+
+def spec(kind: str = "odmtl", budget: dict | None = None, ppo: dict | None = None, **env):
+    return TrainingSpec.from_dict(
+        {
+            "env": {"rows": 10, "cols": 10, "agents": 3} | env,
+            "observation": {"kind": kind},
+            "algorithm": {"ppo": ppo or {}},
+            "budget": budget or {"steps": 100_000},
+        }
+    )
+
+
+@pytest.mark.parametrize(("kind", "agents"), [("odmtl", 1), ("dmtl", 3), ("cmtl", 2)])
+def test_parameter_count_matches_the_real_networks(kind: str, agents: int) -> None:
+    s = spec(kind, agents=agents)
+    observer = make_observer(s.env, s.observation)
+    net = ActorCritic.for_observer(observer, s.env.num_actions)
+    real = sum(p.numel() for p in net.parameters())
+    outputs = observer.num_actor_outputs(s.env.num_actions)
+    model = lenet_params(observer.actor_shape, outputs) + lenet_params(observer.critic_shape, 1)
+    assert model == real
+    if kind == "odmtl" and agents == 1:
+        assert lenet_params(observer.actor_shape, outputs) == 4229  # Table 3.4
+
+
+def test_rollout_memory_by_hand() -> None:
+    # DMTL, 1 agent, 4x4 grid: actor and critic see (3, 4, 4) maps, A = 5 actions, T*B = 8
+    s = spec("dmtl", agents=1, rows=4, cols=4, ppo={"num_envs": 2, "horizon": 8})
+    t, b = 4, 2
+    per_step = 1 * 48 * 4 + 48 * 4 + 1 * 5 + 1 * (8 + 4) + 9
+    assert estimate(s).memory_parts["rollout"] == t * b * per_step
+    params = lenet_params((3, 4, 4), 5) + lenet_params((3, 4, 4), 1)
+    assert estimate(s).memory_parts["networks"] == params * 8
+    assert estimate(s).memory_parts["optimizer"] == params * 8
+
+
+def test_memory_grows_with_agents_grid_and_batch() -> None:
+    base = estimate(spec()).memory_bytes
+    assert estimate(spec(agents=6)).memory_bytes > base
+    assert estimate(spec(rows=40, cols=40)).memory_bytes > base
+    assert estimate(spec(ppo={"num_envs": 1024, "horizon": 65_536})).memory_bytes > base
+    # CMTL's joint head has 16 * A**N + A**N parameters; a 4th agent adds 5**4 - 5**3 outputs
+    # and one location map to the actor's and the critic's input (8 * 9 conv weights each)
+    m3, m4 = (estimate(spec("cmtl", agents=n)).memory_parts["networks"] for n in (3, 4))
+    assert m4 - m3 == (17 * (5**4 - 5**3) + 2 * 8 * 9) * 8  # weights + gradients, float32
+
+
+def test_cmtl_with_16_agents_is_astronomical_and_estimated_without_allocating() -> None:
+    s = spec("cmtl", agents=16)
+    tracemalloc.start()
+    est = estimate(s)
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert peak < 5 * 2**20  # a few Python objects, not 5**16 of anything
+    assert est.memory_bytes > 2**50  # petabytes: masks over 5**16 joint actions per sample
+    assert est.memory_parts["rollout"] >= 5**16 * s.ppo.batch_steps
+
+
+def test_compute_and_hours() -> None:
+    # the reference preset runs at the reference rate by construction
+    ref = TrainingSpec.from_dict(
+        {
+            "env": {"rows": 10, "cols": 10, "agents": 3},
+            "algorithm": {"preset": REFERENCE_PRESET},
+            "budget": {"steps": REFERENCE_STEPS_PER_S * 3600},
+        }
+    )
+    assert worker_hours(ref) == pytest.approx(1.0)
+    # hours are linear in steps, capped by minutes; a minutes-only budget counts its minutes
+    assert worker_hours(spec(budget={"steps": 200_000})) == pytest.approx(
+        2 * worker_hours(spec(budget={"steps": 100_000}))
+    )
+    assert worker_hours(spec(budget={"steps": 10**9, "minutes": 30})) == 0.5
+    only_minutes = estimate(spec(budget={"minutes": 60}))
+    assert only_minutes.hours == 1.0 and only_minutes.env_steps > 0
+    # more epochs and more agents cost more per step
+    base = estimate(spec()).flops_per_step
+    assert estimate(spec(ppo={"update_epochs": 20})).flops_per_step > base
+    assert estimate(spec(agents=6)).flops_per_step > base
+
+
+def test_estimate_is_not_below_a_real_small_run() -> None:
+    # the model is an upper-ish bound: torch's own tensors for a tiny run fit inside it
+    s = spec("odmtl", agents=2, rows=6, cols=6, ppo={"num_envs": 16, "horizon": 256})
+    from workers.mdrl.train import RunConfig, Trainer
+
+    trainer = Trainer(
+        s.env,
+        s.observation,
+        s.ppo,
+        RunConfig(total_steps=256, progress=False, tensorboard=False, eval_every=0),
+    )
+    buf = trainer.buffer
+    held = sum(t.numel() * t.element_size() for t in vars(buf).values() if torch.is_tensor(t))
+    est = estimate(s)
+    assert held <= est.memory_parts["rollout"]
+    assert math.isclose(held, est.memory_parts["rollout"], rel_tol=0.05)

@@ -1,0 +1,139 @@
+"""The one task-spec type: round trip, bounds named by dotted field, JSON Schema = parser."""
+
+from __future__ import annotations
+
+import ast
+import json
+from pathlib import Path
+
+import jsonschema_rs  # schemathesis' validator (a dev dependency)
+import numpy as np
+import pytest
+
+from workers.mdrl.env import TargetLocalizationEnv
+from workers.mdrl.trainingspec import (
+    INTENSITY_BOUNDS,
+    MAX_SPEC_BYTES,
+    SpecError,
+    TrainingSpec,
+    trainingspec_json_schema,
+)
+
+GOOD = {
+    "env": {"rows": 6, "cols": 6, "agents": 2},
+    "budget": {"steps": 2000},
+    "seed": 1,
+    "experts": ["bafkreigh2akiscaildcqabsyg3dfr6chu3fgpregiymsck7e7aqa4s52zy"],
+}
+
+
+def test_round_trip_and_defaults() -> None:
+    spec = TrainingSpec.from_dict(GOOD)
+    assert spec.steps == 2000 and spec.env.agents == 2 and spec.ppo.batch_steps <= 500
+    doc = spec.to_dict()
+    assert TrainingSpec.from_dict(doc) == spec
+    assert TrainingSpec.from_json(json.dumps(doc)) == spec
+    preset = TrainingSpec.from_dict(
+        {**GOOD, "algorithm": {"preset": "odmtl-3a-10x10", "ppo": {"update_epochs": 3}}}
+    )
+    assert preset.ppo.num_envs == 128 and preset.ppo.update_epochs == 3
+    assert TrainingSpec.from_dict(preset.to_dict()) == preset
+
+
+@pytest.mark.parametrize(
+    ("change", "field"),
+    [
+        ({"budget": {}}, "budget"),
+        ({"budget": {"steps": 0}}, "budget.steps"),
+        ({"budget": {"steps": 1.5}}, "budget.steps"),
+        ({"budget": {"minutes": float("inf")}}, "budget.minutes"),
+        ({"env": {"rows": 1}}, "env.rows"),
+        ({"env": {"agents": 16, "rows": 3, "cols": 5}}, "env.agents"),
+        ({"env": {"intensity": 1e308}}, "env.intensity"),
+        ({"env": {"intensity": float("nan")}}, "env.intensity"),
+        (
+            {"env": {"intensity": {"kind": "choice", "values": [1e9, -1]}}},
+            "env.intensity.values[1]",
+        ),
+        ({"env": {"walls": [0, 9]}}, "env.walls"),
+        ({"env": {"walls": [1, 1], "rows": 3}}, "env.walls"),
+        ({"env": {"moves": True}}, "env.moves"),
+        ({"env": {"colour": "red"}}, "env.colour"),
+        ({"observation": {"kind": "xyz"}}, "observation.kind"),
+        ({"observation": {"window": 7}}, "observation.window"),
+        ({"observation": {"window": 4}}, "observation.window"),
+        ({"seed": -1}, "seed"),
+        ({"algorithm": {"ppo": {"horizon": 0}}}, "algorithm.ppo.horizon"),
+        ({"algorithm": {"preset": "nope"}}, "algorithm.preset"),
+        ({"ppo": {"horizon": 64}}, "ppo"),
+        ({"experts": ["/etc/passwd"]}, "experts[0]"),
+        ({"experts": ["a/../b"]}, "experts[0]"),
+        ({"experts": ["m1", "m1"]}, "experts"),
+        ({"format": "other/2"}, "format"),
+    ],
+)
+def test_errors_name_the_dotted_field(change: dict, field: str) -> None:
+    doc = {**GOOD, **change}
+    if "env" in change:
+        doc["env"] = {**GOOD["env"], **change["env"]}
+    with pytest.raises(SpecError) as info:
+        TrainingSpec.from_dict(doc)
+    assert info.value.field == field, info.value
+
+
+def test_one_size_limit_and_bad_json() -> None:
+    with pytest.raises(SpecError, match="limit"):
+        TrainingSpec.from_json(b" " * (MAX_SPEC_BYTES + 1))
+    with pytest.raises(SpecError, match="not JSON"):
+        TrainingSpec.from_json(b"{nope")
+
+
+def test_json_schema_carries_the_parser_bounds() -> None:
+    schema = trainingspec_json_schema()
+    v = jsonschema_rs.Draft202012Validator(schema, validate_formats=True)
+    assert v.is_valid(TrainingSpec.from_dict(GOOD).to_dict())
+    env = schema["properties"]["env"]["properties"]
+    assert (env["rows"]["minimum"], env["rows"]["maximum"]) == (2, 64)
+    assert env["agents"]["maximum"] == 16
+    for bad in (
+        {**GOOD, "env": {"rows": 65}},
+        {**GOOD, "env": {"intensity": 1e13}},
+        {**GOOD, "budget": {}},
+        {**GOOD, "observation": {"window": 4}},
+        {**GOOD, "extra": 1},
+    ):
+        assert not v.is_valid(bad)
+        with pytest.raises(SpecError):
+            TrainingSpec.from_dict(bad)
+
+
+@pytest.mark.parametrize("intensity", INTENSITY_BOUNDS)
+def test_the_intensity_bounds_keep_the_env_math_finite(intensity: float) -> None:
+    # the extreme corner of the bounds: smallest cells, largest detector and dwell
+    doc = {
+        "env": {
+            "rows": 64,
+            "cols": 64,
+            "agents": 2,
+            "area_m": [10.0, 10.0],
+            "intensity": intensity,
+            "detector_area_cm2": 1e4,
+            "dwell_min": 1e3,
+        },
+        "budget": {"steps": 1},
+    }
+    spec = TrainingSpec.from_dict(doc)
+    env = TargetLocalizationEnv(spec.env, num_envs=4, seed=0)
+    for _ in range(20):
+        actions = np.array([[np.flatnonzero(m)[0] for m in env.action_mask()[b]] for b in range(4)])
+        env.step(actions)
+    assert np.isfinite(env.readings).all() and np.isfinite(env.mean_reading).all()
+
+
+def test_the_core_type_imports_nothing_from_the_platform() -> None:
+    root = Path(__file__).resolve().parents[2] / "workers" / "mdrl"
+    for name in ("trainingspec.py", "specfields.py", "resources.py"):
+        tree = ast.parse((root / name).read_text())
+        mods = [n.module or "" for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)]
+        mods += [a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names]
+        assert not [m for m in mods if m.startswith(("backend", "workers.daemon"))], name

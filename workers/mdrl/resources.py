@@ -1,0 +1,174 @@
+"""What a training spec costs: estimated peak memory (bytes) and compute (FLOPs, hours).
+
+The gateway refuses specs beyond its platform limits and a worker declines specs beyond its own
+RAM, both before anything is allocated: every figure here is integer arithmetic on the spec
+(Python ints, so the CMTL joint action space A**N of 16 agents, 5**16, is just a number).
+
+Memory counts what a run holds at its peak: the batched env's arrays (Ch. 3.2 state, the
+C x C geometry tables), the observation batch, the rollout buffer [T, B, ...] (actor and
+critic maps, masks over the policy's actions, actions, log-probs, values, rewards), the actor
+and critic parameters with their gradients and Adam moments, the activations of one minibatch
+and a fixed process overhead (Python, numpy, torch). Compute counts the LeNet forward passes of
+the rollout, forward + backward (~3x forward) per epoch of the update, and the env/observer
+work per step. Wall time is compute over a reference rate, calibrated so the ODMTL 3-agent
+10x10 preset runs at the ~7,000 env steps/s measured on one thread of a 2-core CPU
+(presets.FAST_PPO). These are estimates to refuse the absurd, not capacity planning.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from functools import cache
+
+from workers.mdrl.env import HISTORY
+from workers.mdrl.observations import channel_layout
+from workers.mdrl.trainingspec import TrainingSpec
+
+PROCESS_BASE_BYTES = 400 * 2**20
+"""Python + numpy + torch of a training process before any array (measured RSS ~350 MiB)."""
+REFERENCE_PRESET = "odmtl-3a-10x10"
+REFERENCE_STEPS_PER_S = 7_000
+"""Env steps/s of REFERENCE_PRESET on one thread of this project's 2-core CPU."""
+F32, I64 = 4, 8
+
+
+@dataclass(frozen=True)
+class ResourceEstimate:
+    memory_bytes: int
+    """Estimated peak resident memory of one training process."""
+    memory_parts: dict[str, int]
+    """memory_bytes by part (env, observations, rollout, networks, optimizer, update, process)."""
+    flops_per_step: int
+    """Estimated floating-point operations per env step (rollout + update + env)."""
+    env_steps: int
+    """Env steps the budget allows (steps, or minutes at the estimated rate)."""
+    hours: float
+    """Estimated wall-clock hours of one worker (capped by budget.minutes)."""
+
+    @property
+    def flops(self) -> int:
+        return self.flops_per_step * self.env_steps
+
+
+def lenet_params(in_shape: tuple[int, int, int], outputs: int) -> int:
+    """Parameters of networks.LeNet (Table 3.1) for ``in_shape`` (C, H, W) and ``outputs``."""
+    c, h, w = in_shape
+    flat = 16 * math.ceil(h / 2) * math.ceil(w / 2)
+    return (
+        (c * 8 * 9 + 8)
+        + (8 * 16 * 9 + 16)
+        + (flat * 32 + 32)
+        + (32 * 16 + 16)
+        + (16 * outputs + outputs)
+    )
+
+
+def lenet_flops(in_shape: tuple[int, int, int], outputs: int) -> int:
+    """Multiply-adds x 2 of one LeNet forward pass."""
+    c, h, w = in_shape
+    h2, w2 = math.ceil(h / 2), math.ceil(w / 2)
+    return 2 * (
+        9 * c * 8 * h * w + 9 * 8 * 16 * h2 * w2 + 16 * h2 * w2 * 32 + 32 * 16 + 16 * outputs
+    )
+
+
+def lenet_activations(in_shape: tuple[int, int, int], outputs: int) -> int:
+    """Floats one sample keeps for the backward pass (layer outputs incl. the logits)."""
+    c, h, w = in_shape
+    h2, w2 = math.ceil(h / 2), math.ceil(w / 2)
+    return (
+        c * h * w + 8 * h * w * 2 + 8 * h2 * w2 + 16 * h2 * w2 * 2 + 32 * 2 + 16 * 2 + outputs * 3
+    )
+
+
+def estimate(spec: TrainingSpec) -> ResourceEstimate:
+    """Memory and compute of training ``spec`` (see the module docstring)."""
+    env, obs, ppo = spec.env, spec.observation, spec.ppo
+    b, n, c, a = ppo.num_envs, env.agents, env.rows * env.cols, env.moves + 1
+    t = ppo.rollout_steps
+    joint = obs.kind == "cmtl"
+    np_, ap = (1, a**n) if joint else (n, a)  # actor samples per env step, actor outputs
+    layout = channel_layout(env, obs)
+    actor_in = math.prod(layout.actor_shape)
+    critic_in = math.prod(layout.critic_shape)
+
+    # env: static geometry (C x C distances and gains, built at start) + per-env state
+    geometry = c * c * (8 + 4 + 8 + 8) + c * a * I64
+    per_env = c * (1 + 4 + 8 + 4 + 4 + a * I64) + n * (I64 + HISTORY * I64 + a) + 7 * I64
+    env_bytes = geometry + 2 * b * per_env  # x2: the arrays a reset builds for the new episodes
+    # one observation batch, the policy mask of a step (joint: A**N per env) and its logits
+    window = obs.window * obs.window if obs.kind == "odmtl" else 0
+    obs_bytes = (
+        b * (np_ * actor_in + critic_in) * F32 + c * window * F32 + b * np_ * ap * (1 + 3 * F32)
+    )
+    rollout = t * b * (np_ * actor_in * F32 + critic_in * F32 + np_ * ap + np_ * (I64 + F32) + 9)
+    params = lenet_params(layout.actor_shape, ap) + lenet_params(layout.critic_shape, 1)
+    networks = params * F32 * 2  # weights + gradients
+    optimizer = params * F32 * 2  # Adam's two moments
+    minibatch = math.ceil(t * b / ppo.num_minibatches)
+    update = (
+        minibatch
+        * (
+            np_ * lenet_activations(layout.actor_shape, ap)
+            + lenet_activations(layout.critic_shape, 1)
+        )
+        * F32
+        * 2  # activations and their gradients
+    )
+    parts = {
+        "env": env_bytes,
+        "observations": obs_bytes,
+        "rollout": rollout,
+        "networks": networks,
+        "optimizer": optimizer,
+        "update": update,
+        "process": PROCESS_BASE_BYTES,
+    }
+
+    per_step = flops_per_step(spec)
+    rate = reference_flops_per_s()
+    if spec.budget.steps is not None:
+        steps = spec.budget.steps
+        hours = steps * per_step / rate / 3600
+        if spec.budget.minutes is not None:
+            hours = min(hours, spec.budget.minutes / 60)
+    else:
+        assert spec.budget.minutes is not None
+        hours = spec.budget.minutes / 60
+        steps = int(hours * 3600 * rate / per_step)
+    return ResourceEstimate(sum(parts.values()), parts, per_step, steps, hours)
+
+
+def worker_hours(spec: TrainingSpec) -> float:
+    """Estimated hours one worker spends on ``spec`` (what a minimum payment per
+    worker-hour is charged on)."""
+    return estimate(spec).hours
+
+
+def flops_per_step(spec: TrainingSpec) -> int:
+    """FLOPs of one env step: the rollout's forward passes, forward + backward (~3x) per update
+    epoch, and the env/observer work (maps over the C cells, ODMTL downsizing)."""
+    env, obs = spec.env, spec.observation
+    n, c, a = env.agents, env.rows * env.cols, env.moves + 1
+    np_, ap = (1, a**n) if obs.kind == "cmtl" else (n, a)
+    layout = channel_layout(env, obs)
+    forward = np_ * lenet_flops(layout.actor_shape, ap) + lenet_flops(layout.critic_shape, 1)
+    window = obs.window * obs.window if obs.kind == "odmtl" else 1
+    env_flops = 20 * c + 50 * n + 2 * np_ * c * window + np_ * ap
+    return forward * (1 + 3 * spec.ppo.update_epochs) + env_flops
+
+
+@cache
+def reference_flops_per_s() -> float:
+    """FLOPs/s of one training thread, from REFERENCE_PRESET's measured env steps/s."""
+    from workers.mdrl.presets import get_preset
+
+    p = get_preset(REFERENCE_PRESET)
+    doc = {
+        "env": {"rows": p.env.rows, "cols": p.env.cols, "agents": p.env.agents},
+        "observation": p.observation.to_dict(),
+        "algorithm": {"preset": REFERENCE_PRESET},
+        "budget": {"steps": 1},
+    }
+    return float(flops_per_step(TrainingSpec.from_dict(doc)) * REFERENCE_STEPS_PER_S)
