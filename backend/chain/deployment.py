@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import os
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -26,9 +27,16 @@ from .platform import (
 )
 
 
-def wait_for_chain(url: str, *, min_block: int = 1, timeout: float = 600.0) -> int:
+def wait_for_chain(
+    url: str,
+    *,
+    min_block: int = 1,
+    timeout: float = 600.0,
+    on_wait: Callable[[str], None] | None = None,
+) -> int:
     """Block until the node at ``url`` answers and has produced block ``min_block`` (QBFT makes
-    blocks only once a quorum of validators is connected); returns the block number."""
+    blocks only once a quorum of validators is connected); returns the block number.
+    ``on_wait`` hears once why the chain is not ready yet, so an operator sees the job wait."""
     w3 = Web3(Web3.HTTPProvider(url, request_kwargs={"timeout": 10}))
     deadline = time.monotonic() + timeout
     last: str = "no answer"
@@ -40,6 +48,9 @@ def wait_for_chain(url: str, *, min_block: int = 1, timeout: float = 600.0) -> i
             last = f"at block {block}"
         except Exception as exc:  # noqa: BLE001 - connection refused, DNS, timeouts, bad JSON
             last = f"{type(exc).__name__}: {exc}"
+        if on_wait is not None:
+            on_wait(last)
+            on_wait = None
         if time.monotonic() > deadline:
             raise TimeoutError(
                 f"the chain at {url} did not reach block {min_block} in {timeout:.0f} s ({last})"
@@ -73,12 +84,13 @@ def deploy_to_file(
     accepted_gpus: int = ALL_GPUS_BUT_NONE,
     accept_window: int = ACCEPT_WINDOW,
     review_window: int = REVIEW_WINDOW,
+    on_wait: Callable[[str], None] | None = None,
 ) -> tuple[dict[str, Any], bool]:
     """Deploy the platform from the key in ``deployer_key`` and write ``out``; returns (the
     DRLAAS_CONTRACTS document, whether this call deployed)."""
     out = Path(out)
     account = read_key(deployer_key)
-    wait_for_chain(url, min_block=min_block, timeout=timeout)
+    wait_for_chain(url, min_block=min_block, timeout=timeout, on_wait=on_wait)
     chain = Chain.rpc(url, private_keys=[bytes(account.key).hex()])
     found = existing_deployment(chain, out)
     if found is not None:

@@ -96,7 +96,15 @@ def contracts_command(
     gpus = ALL_GPUS_BUT_NONE | 1 if cpu_workers else ALL_GPUS_BUT_NONE
     try:
         doc, deployed = deploy_to_file(
-            rpc, key, out, min_block=min_block, timeout=timeout, accepted_gpus=gpus
+            rpc,
+            key,
+            out,
+            min_block=min_block,
+            timeout=timeout,
+            accepted_gpus=gpus,
+            on_wait=lambda why: typer.echo(
+                f"waiting for the chain at {rpc} to reach block {min_block} ({why})", err=True
+            ),
         )
     except (TimeoutError, FileNotFoundError, ValueError, ConnectionError) as exc:
         typer.echo(f"error: {exc}", err=True)
