@@ -11,6 +11,7 @@ import typer
 
 from backend.chain.commands import app as chain_app
 from drlaas.commands.client import model_app, requester_app, task_app, worker_app
+from drlaas.commands.deploy import app as deploy_app
 from drlaas.commands.scenario import scenario_command
 from drlaas.commands.up import up_command
 from workers.mdrl.commands.evaluate import eval_command
@@ -35,6 +36,7 @@ app.command("demo-scenario", help="Run the issue-4 scenario against a running `d
 )
 
 app.add_typer(chain_app, name="chain")
+app.add_typer(deploy_app, name="deploy")  # consortium: genesis, contracts, workers
 
 
 if __name__ == "__main__":
