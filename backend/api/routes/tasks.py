@@ -58,6 +58,21 @@ def build_spec(body: TaskCreate) -> dict:
     }
 
 
+def check_min_reward(chain: ChainDep, payment_wei: int, deadline_s: int) -> None:
+    """Anti-spam, before anything is sent: 422 ``reward_below_minimum`` on ``payment_wei``
+    when it is below the TMC's minimum for the task's duration (minRewardPerHour per
+    worker-hour, rounded up; read from the chain, so the answer is the contract's)."""
+    minimum = int(chain.call(chain.platform.tmc, "minRewardForDuration", deadline_s))
+    if payment_wei < minimum:
+        per_hour = int(chain.call(chain.platform.tmc, "minRewardPerHour"))
+        field_error(
+            ("body", "payment_wei"),
+            f"{payment_wei} wei per worker is below the minimum {minimum} wei for "
+            f"{deadline_s} s ({per_hour} wei per worker-hour, set by the consortium)",
+            "reward_below_minimum",
+        )
+
+
 @router.post(
     "",
     status_code=status.HTTP_201_CREATED,
@@ -73,6 +88,7 @@ def create_task(
     transaction; after relaying it via ``POST /tx`` the caller calls ``POST /tasks/{id}/allocate``.
     """
     spec = build_spec(body)
+    check_min_reward(chain, body.payment_wei, body.deadline_s)
     spec_cid = store.add(canonical_json(spec))
     tmc = chain.platform.tmc
     params = (
