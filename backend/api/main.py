@@ -22,8 +22,10 @@ from starlette.concurrency import run_in_threadpool
 from backend.api.errors import install_error_handlers
 from backend.api.frontend import mount_frontend
 from backend.api.routes import api_router, models, rpc, tasks, tx, users, workers
+from backend.api.shedding import LoadShedder
 from backend.api.version import VERSION
 from backend.db import make_engine, make_sessionmaker, upgrade, utcnow
+from backend.db.engine import pool_options
 from backend.indexer import Indexer, IndexerThread, OfferHook
 from backend.services.chain import ChainService, SignLocally
 from backend.services.rpc import EmbeddedRpc
@@ -65,7 +67,7 @@ def create_app(
     ``indexer_interval=None`` runs no indexer thread (writes still index synchronously).
     """
     settings = settings or load_settings()
-    engine = make_engine(settings.database_url)
+    engine = make_engine(settings.database_url, **pool_options(settings))
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
@@ -113,6 +115,9 @@ def create_app(
     app.state.rpc = None
     app.state.store = None
     install_error_handlers(app)
+    app.add_middleware(
+        LoadShedder, limit=settings.max_in_flight, retry_after=settings.retry_after_s
+    )
 
     @app.exception_handler(SignLocally)
     async def _sign_locally(_: Request, exc: SignLocally) -> JSONResponse:

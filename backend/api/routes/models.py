@@ -20,6 +20,7 @@ from sqlalchemy import func, or_, select
 
 from backend.api.deps import ChainDep, CurrentUser, IndexerDep, SessionDep, SettingsDep, StoreDep
 from backend.api.errors import RuleError, rule_responses
+from backend.api.listing import json_response
 from backend.api.schemas import Address
 from backend.chain.platform import Metric, cid_hash
 from backend.db import models as m
@@ -48,6 +49,18 @@ BundleFile = Literal["model.safetensors", "model.json"]
 MAX_CARD_BYTES = 1 << 20
 HALF = 500_000
 
+_LIST_COLUMNS = (
+    m.ModelRow.id,
+    m.ModelRow.cid,
+    m.ModelRow.owner,
+    m.ModelRow.domain,
+    m.ModelRow.env,
+    m.ModelRow.agents,
+    m.ModelRow.walls_min,
+    m.ModelRow.walls_max,
+    m.ModelRow.reputation,
+    m.ModelRow.alloc_count,
+)
 _SORT = {
     "reputation": (m.ModelRow.reputation.desc(), m.ModelRow.id),
     "newest": (m.ModelRow.id.desc(),),
@@ -166,14 +179,27 @@ def list_models(
             )
         )
     count = session.scalar(select(func.count()).select_from(stmt.subquery())) or 0
-    rows = session.scalars(stmt.order_by(*_SORT[sort]).limit(limit).offset(offset)).all()
-    owners = {
-        w.address: w
-        for w in session.scalars(
-            select(m.WorkerRow).where(m.WorkerRow.address.in_({r.owner for r in rows}))
-        )
-    }
-    return ModelsPublic(data=[model_public(r, owners.get(r.owner)) for r in rows], count=count)
+    # Listing is the hot path (issue 7, "Overload"): plain columns with the owner's rating in
+    # one query, serialised once (no ORM objects, no re-validation of the response model).
+    page = (
+        stmt.with_only_columns(*_LIST_COLUMNS, m.WorkerRow.sharing_rating)
+        .outerjoin(m.WorkerRow, m.WorkerRow.address == m.ModelRow.owner)
+        .order_by(*_SORT[sort])
+        .limit(limit)
+        .offset(offset)
+    )
+    data = [
+        {
+            **row._asdict(),
+            "reputation": from_fixed(row.reputation),
+            "allocations": row.alloc_count,
+            "rating": from_fixed(HALF if row.sharing_rating is None else row.sharing_rating),
+        }
+        for row in session.execute(page)
+    ]
+    for item in data:
+        del item["alloc_count"], item["sharing_rating"]
+    return json_response({"data": data, "count": count})  # type: ignore[return-value]
 
 
 def _model(session: SessionDep, model_id: int) -> m.ModelRow:
