@@ -346,7 +346,7 @@ def _stream_bundle_file(
     "",
     status_code=status.HTTP_201_CREATED,
     response_model=ModelPublic,
-    responses=rule_responses(401, 403, 409, 502, 503),
+    responses=rule_responses(401, 402, 403, 409, 502, 503),
 )
 def share_model(
     body: ModelCreate,
@@ -394,7 +394,7 @@ def share_model(
     "/requests",
     status_code=status.HTTP_201_CREATED,
     response_model=ModelAllocationPublic,
-    responses=rule_responses(401, 403, 409, 503),
+    responses=rule_responses(401, 402, 403, 409, 503),
 )
 def request_models(
     body: ModelRequestCreate, user: CurrentUser, chain: ChainDep, indexer: IndexerDep

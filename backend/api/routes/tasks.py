@@ -78,7 +78,7 @@ def check_min_reward(chain: ChainDep, payment_wei: int, deadline_s: int) -> None
     "",
     status_code=status.HTTP_201_CREATED,
     response_model=TaskCreatedPublic,
-    responses=rule_responses(401, 403, 409, 503),
+    responses=rule_responses(401, 402, 403, 409, 503),
 )
 def create_task(
     body: TaskCreate, user: CurrentUser, chain: ChainDep, store: StoreDep, indexer: IndexerDep
