@@ -141,6 +141,21 @@ class Settings(BaseSettings):
     log_format: Literal["text", "json"] = "text"
     """``json``: one JSON object per log line (time, level, logger, message, task_id) for log
     collectors; ``text``: readable lines."""
+    min_reward_per_hour_wei: int = Field(default=10**12, ge=0, lt=2**96)
+    """Anti-spam minimum the embedded deployment sets on the TMC (wei per worker-hour; a task
+    must pay at least this per hour of its deadline window per worker; 0 = none)."""
+
+    # -- overload (docs/platform.md, "Overload") --------------------------------------------
+    max_in_flight: int = Field(default=64, ge=1, le=10_000)
+    """Requests the gateway works on at once; beyond that it answers 503 + Retry-After."""
+    retry_after_s: int = Field(default=1, ge=1, le=3600)
+    """Retry-After (seconds) sent with every load-shedding 503."""
+    db_pool_size: int = Field(default=8, ge=1, le=1000)
+    """Database connections kept open (SQLite and PostgreSQL)."""
+    db_max_overflow: int = Field(default=8, ge=0, le=1000)
+    """Extra connections opened under load beyond ``db_pool_size``."""
+    db_pool_timeout_s: float = Field(default=5.0, gt=0, le=300)
+    """Wait for a free connection before answering 503 + Retry-After."""
 
     # -- field checks (messages name the variable) ------------------------------------------
     @field_validator("data_dir")

@@ -18,6 +18,7 @@ from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from pydantic import BaseModel, RootModel
+from sqlalchemy.exc import TimeoutError as PoolTimeout
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from backend import errors as domain
@@ -135,6 +136,10 @@ def domain_headers(exc: DomainError) -> dict[str, str]:
     return headers
 
 
+DB_BUSY_RETRY_AFTER_S = 2
+"""Retry-After of a 503 ``database_busy`` (every pooled connection stayed busy)."""
+
+
 def install_error_handlers(app: FastAPI) -> None:
     @app.exception_handler(DomainError)
     async def _domain(_: Request, exc: DomainError) -> JSONResponse:
@@ -163,6 +168,21 @@ def install_error_handlers(app: FastAPI) -> None:
             status_code=exc.status_code,
             content={"detail": {"rule": rule, "msg": str(exc.detail)}},
             headers=getattr(exc, "headers", None),
+        )
+
+    @app.exception_handler(PoolTimeout)
+    async def _pool_exhausted(request: Request, exc: PoolTimeout) -> JSONResponse:
+        # Overload, not a bug: every connection stayed busy for the pool timeout.
+        log.warning("database pool exhausted on %s %s: %s", request.method, request.url.path, exc)
+        return JSONResponse(
+            status_code=503,
+            content={
+                "detail": {
+                    "rule": "database_busy",
+                    "msg": "every database connection is busy; retry later",
+                }
+            },
+            headers={"Retry-After": str(DB_BUSY_RETRY_AFTER_S)},
         )
 
     @app.exception_handler(Exception)

@@ -23,8 +23,10 @@ from backend.api.errors import install_error_handlers
 from backend.api.frontend import mount_docs_redirects, mount_frontend
 from backend.api.limits import BodyLimits
 from backend.api.routes import api_router, blocks, local, models, rpc, tasks, tx, users, workers
+from backend.api.shedding import LoadShedder
 from backend.api.version import VERSION
 from backend.db import make_engine, make_sessionmaker, upgrade, utcnow
+from backend.db.engine import pool_options
 from backend.indexer import Indexer, IndexerThread, OfferHook
 from backend.observability.logs import configure_logging
 from backend.observability.metrics import install_metrics, instrument_web3
@@ -71,7 +73,7 @@ def create_app(
     settings = settings or load_settings()
     if settings.log_format == "json":
         configure_logging("json")  # DRLAAS_LOG_FORMAT; text leaves the host's logging alone
-    engine = make_engine(settings.database_url)
+    engine = make_engine(settings.database_url, **pool_options(settings))
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
@@ -124,6 +126,10 @@ def create_app(
     install_error_handlers(app)
     app.add_middleware(
         BodyLimits, max_bytes=settings.max_request_bytes, max_depth=settings.max_json_depth
+    )
+    # added later = further out: shedding answers before a body is read; metrics see the 503s
+    app.add_middleware(
+        LoadShedder, limit=settings.max_in_flight, retry_after=settings.retry_after_s
     )
     install_metrics(app, settings)  # GET /metrics, HTTP latency and errors (Prometheus)
 

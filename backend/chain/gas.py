@@ -72,7 +72,8 @@ def _grow_pool(p: Platform, rng: random.Random, target: int, workers: list[str])
         rc = p.umc.add_worker(
             acct, [DOMAIN], rng.randint(1, 64), rng.randint(4, 256), rng.randint(1, 8)
         )
-        p.mmc.add_model(acct, CID, DOMAIN, [rng.randint(1, 10), rng.randint(0, 10)], "ppo")
+        env = [rng.randint(1, 10), rng.randint(0, 10)]
+        p.mmc.add_model(acct, f"{CID}{len(workers)}", DOMAIN, env, "ppo")  # a CID is listed once
         workers.append(acct)
     return rc
 

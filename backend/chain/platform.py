@@ -49,6 +49,20 @@ class OfferState(enum.IntEnum):
     FAILED = 7
 
 
+class Verdict(enum.IntEnum):
+    """ITasksOutcomes.Verdict: how an outcome CID's requester judged it."""
+
+    NONE = 0  # no outcome has this CID
+    PENDING = 1
+    ACCEPTED = 2
+    REJECTED = 3
+
+
+def cid_hash(cid: str) -> bytes:
+    """The contracts' key of a CID: keccak256 of its UTF-8 bytes."""
+    return keccak(cid.encode())
+
+
 class Metric(enum.IntEnum):
     MODEL = 0  # Eq. 10-13 (thesis 5.3.1)
     SHARING = 1  # Eq. 22-23 (thesis 7.5.2)
@@ -137,8 +151,20 @@ class TasksManager(ContractHandle):
         return [e.args["worker"] for e in rc.named("TaskOffered")], rc
 
     def offer(self, task_id: int, worker: str) -> dict[str, int]:
-        state, expiry, index = self.call("getOffer", task_id, worker)
-        return {"state": OfferState(state), "expiry": expiry, "list_index": index}
+        state, expiry, index, paid = self.call("getOffer", task_id, worker)
+        return {"state": OfferState(state), "expiry": expiry, "list_index": index, "paid": paid}
+
+    def outcome_of(self, cid: str) -> tuple[str, int, Verdict]:
+        """(worker, task id, verdict) of the outcome ``cid``; (0x0.., 0, NONE) if none."""
+        worker, task_id, verdict = self.call("outcomeOf", cid_hash(cid))
+        return worker, task_id, Verdict(verdict)
+
+    def min_reward(self, duration: int) -> int:
+        """Least reward per worker (wei) addTask accepts for ``duration`` seconds."""
+        return int(self.call("minRewardForDuration", duration))
+
+    def set_min_reward_per_hour(self, sender: str, wei_per_hour: int) -> Receipt:
+        return self.transact("setMinRewardPerHour", wei_per_hour, sender=sender)
 
     def task(self, task_id: int) -> dict[str, Any]:
         t, r = self.call("getTask", task_id)
@@ -166,6 +192,10 @@ class ModelsManager(ContractHandle):
     ) -> tuple[int, Receipt]:
         rc = self.transact("addModel", cid, description, domain, list(env), sender=sender)
         return rc.one("ModelAdded").args["modelId"], rc
+
+    def model_of_cid(self, cid: str) -> int:
+        """Id of the model listing ``cid`` (0 if none)."""
+        return int(self.call("modelOfCid", cid_hash(cid)))
 
     def allocate(
         self,
@@ -254,8 +284,12 @@ def deploy_platform(
     accept_window: int = ACCEPT_WINDOW,
     review_window: int = REVIEW_WINDOW,
     accepted_gpus: int = ALL_GPUS_BUT_NONE,
+    min_reward_per_hour: int = 0,
 ) -> Platform:
-    """Deploy UMC, TMC and MMC from ``admin`` (default: first account) and wire them."""
+    """Deploy UMC, TMC and MMC from ``admin`` (default: first account) and wire them.
+
+    ``min_reward_per_hour``: the TMC's anti-spam minimum (wei per worker-hour; 0 = none),
+    set by the admin right after deployment."""
     admin = admin or chain.accounts[0]
     umc, r_umc = chain.deploy("UsersManager", admin, sender=admin)
     tmc, r_tmc = chain.deploy(
@@ -267,9 +301,11 @@ def deploy_platform(
         accepted_gpus,
         sender=admin,
     )
-    mmc, r_mmc = chain.deploy("ModelsManager", umc.address, sender=admin)
+    mmc, r_mmc = chain.deploy("ModelsManager", umc.address, tmc.address, sender=admin)
     umc.transact("setPlatform", tmc.address, True, sender=admin)
     umc.transact("setPlatform", mmc.address, True, sender=admin)
+    if min_reward_per_hour:
+        tmc.transact("setMinRewardPerHour", min_reward_per_hour, sender=admin)
     return Platform(
         chain,
         admin,

@@ -21,13 +21,29 @@ def include_name(name: str | None, type_: str, _parent: object) -> bool:
     return not (type_ == "table" and name is not None and name.startswith(FOREIGN_TABLE_PREFIXES))
 
 
+def pool_options(settings: Any) -> dict[str, Any]:
+    """Connection pool of a serving process, from settings (``db_pool_size``,
+    ``db_max_overflow``, ``db_pool_timeout_s``): a pool that is exhausted makes the waiting
+    request fail after ``pool_timeout`` (the gateway answers 503 + Retry-After), instead of
+    SQLAlchemy's 30 s wait."""
+    return {
+        "pool_size": settings.db_pool_size,
+        "max_overflow": settings.db_max_overflow,
+        "pool_timeout": settings.db_pool_timeout_s,
+    }
+
+
 def make_engine(url: str, **kwargs: Any) -> Engine:
     """An engine for ``url``; SQLite gets WAL, a busy timeout and enforced foreign keys so that
-    the gateway, indexer and workers can share one file."""
+    the gateway, indexer and workers can share one file. ``kwargs`` go to ``create_engine``
+    (pool options are dropped for in-memory SQLite, which keeps one connection)."""
     parsed = make_url(url)
     if parsed.get_backend_name() == "sqlite":
         if parsed.database and parsed.database != ":memory:":
             Path(parsed.database).expanduser().parent.mkdir(parents=True, exist_ok=True)
+        else:
+            for name in ("pool_size", "max_overflow", "pool_timeout"):
+                kwargs.pop(name, None)
         connect_args = {"check_same_thread": False, "timeout": 30.0}
         connect_args.update(kwargs.pop("connect_args", {}))
         engine = create_engine(url, connect_args=connect_args, **kwargs)

@@ -54,8 +54,56 @@ _ERROR_STATUS = {
     "NotWorker": 403,
     "NotAdmin": 403,
     "NotParticipant": 403,
+    "NotOutcomeOwner": 403,
     "UnknownTask": 404,
+    "BadPayment": 422,
+    "RewardBelowMinimum": 422,
 }
+
+# Node-side refusals (before any contract code runs), by a lower-case fragment of the message
+# of eth-tester (py-evm) or a JSON-RPC node (geth, anvil, besu): (status, rule, what to do).
+# Insufficient funds is 402 Payment Required: the account must be funded first (the embedded
+# demo's faucet, POST /api/chain/faucet, or the consortium's operator); the request itself is
+# well-formed. A stale nonce is a 409 conflict with the chain's state; a transaction built
+# wrong (gas below the intrinsic cost or above the block limit, fee below the base fee) is 422.
+_NODE_RULES: tuple[tuple[tuple[str, ...], int, str, str], ...] = (
+    (
+        ("insufficient funds", "not have enough balance", "cannot afford"),
+        402,
+        "insufficient_funds",
+        "the sender's balance does not cover the transaction's value plus gas; fund it first",
+    ),
+    (
+        ("nonce too low", "invalid transaction nonce", "nonce too high", "nonce has already"),
+        409,
+        "nonce_mismatch",
+        "the transaction's nonce is not the sender's next one; re-read it and sign again",
+    ),
+    (
+        ("intrinsic gas too low", "gas cannot be negative"),
+        422,
+        "intrinsic_gas_too_low",
+        "the gas limit is below what the transaction needs before running any code",
+    ),
+    (
+        ("exceeds block gas limit", "exceeds gas limit", "gas limit reached"),
+        422,
+        "gas_limit_exceeded",
+        "the gas limit is above the block's gas limit",
+    ),
+    (
+        ("lower than block's base fee", "less than block base fee", "fee cap less than"),
+        422,
+        "fee_too_low",
+        "the max fee per gas is below the block's base fee",
+    ),
+    (
+        ("non-payable", "nonpayable", "value mismatch"),
+        422,
+        "value_not_accepted",
+        "the called function does not take this value",
+    ),
+)
 
 
 class SignLocally(Exception):
@@ -79,6 +127,23 @@ def contract_rule_error(exc: ContractError) -> RuleError:
     suffix = next((k for k in _ERROR_STATUS if exc.name.endswith(k)), None)
     status = _ERROR_STATUS[suffix] if suffix else 409
     return RuleError(status, _snake(exc.name), f"the contract refused the transaction: {exc}")
+
+
+def node_rule_error(exc: BaseException) -> RuleError | None:
+    """A node's refusal of a transaction (balance, nonce, gas, fee) as a 4xx naming the
+    rule, or None when ``exc`` is none of those. Looks through the exception's chain: web3
+    wraps eth-tester's and the node's errors."""
+    seen: BaseException | None = exc
+    texts = []
+    while seen is not None and len(texts) < 8:
+        texts.append(str(seen).lower())
+        seen = seen.__cause__ or seen.__context__
+    text = " | ".join(texts)
+    for fragments, status, rule, what in _NODE_RULES:
+        if any(f in text for f in fragments):
+            detail = str(exc)[:300]
+            return RuleError(status, rule, f"the chain refused the transaction: {what} ({detail})")
+    return None
 
 
 def _jsonable_tx(tx: dict[str, Any]) -> dict[str, Any]:
@@ -127,6 +192,7 @@ class ChainService:
                 accept_window=settings.accept_window_s,
                 review_window=settings.review_window_s,
                 accepted_gpus=ALL_GPU_SERIES,
+                min_reward_per_hour=settings.min_reward_per_hour_wei,
             )
             deploy_block = min(r.block_number for r in platform.receipts.values())
             service = cls(chain, platform, deploy_block)
@@ -222,6 +288,13 @@ class ChainService:
                 return handle.transact(fn, *args, sender=sender, value=value)
             except ContractError as exc:
                 raise contract_rule_error(exc) from None
+            except (SignLocally, RuleError):
+                raise
+            except Exception as exc:  # node refusals: eth-tester/web3 raise several types
+                mapped = node_rule_error(exc)
+                if mapped is None:
+                    raise
+                raise mapped from None
 
     def _ensure_key(self, account: LocalAccount) -> None:
         # Chain signs only for keys it was built with; a demo key added later joins them.
@@ -274,7 +347,7 @@ class ChainService:
             try:
                 tx_hash = w3.eth.send_raw_transaction(raw)
             except Exception as exc:  # revert at inclusion (eth-tester) or node refusal
-                raise RuleError(
+                raise node_rule_error(exc) or RuleError(
                     409, "tx_rejected", f"node refused the transaction: {exc}"
                 ) from None
             raw_receipt = w3.eth.wait_for_transaction_receipt(tx_hash, timeout=120)

@@ -13,7 +13,6 @@
 from __future__ import annotations
 
 import json
-import math
 import re
 from dataclasses import dataclass
 from typing import Any
@@ -31,7 +30,6 @@ __all__ = [
     "SpecLimitExceeded",
     "check_limits",
     "field_loc",
-    "required_payment_wei",
     "validate_env",
 ]
 
@@ -87,14 +85,6 @@ def check_limits(
             f"{total:.3g} worker-hours; the platform limit is {max_worker_hours:g}",
         )
     return est
-
-
-def required_payment_wei(hours_per_worker: float, min_wei_per_worker_hour: int) -> int:
-    """Smallest payment per worker for ``hours_per_worker`` at the consortium's minimum rate
-    (rounded up; at least one started hour's worth when the rate is positive)."""
-    if min_wei_per_worker_hour <= 0:
-        return 0
-    return max(1, math.ceil(hours_per_worker * min_wei_per_worker_hour))
 
 
 def _gib(n: int) -> str:

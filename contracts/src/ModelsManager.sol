@@ -3,6 +3,7 @@ pragma solidity ^0.8.24;
 
 import {ReentrancyGuardTransient} from "@openzeppelin/contracts/utils/ReentrancyGuardTransient.sol";
 import {IUsersManager, Packed} from "./IUsersManager.sol";
+import {ITasksOutcomes} from "./ITasksOutcomes.sol";
 import {QoSMath} from "./QoSMath.sol";
 
 /**
@@ -19,6 +20,13 @@ import {QoSMath} from "./QoSMath.sol";
  * model-sharing rating. Counters (A, Ac, E of Eq. 17-18) grow by one per allocation.
  *
  * The requester's own models are never allocated to it (no self-review).
+ *
+ * Provenance (thesis 7.7): a CID is listed once. A CID that is a training outcome on the
+ * TMC may be shared only by the worker who submitted it, and only once its requester
+ * accepted it (or it was paid unreviewed at close): while the review is pending the model
+ * is the requester's to judge, and a rejected outcome stays unlisted, since the requester's
+ * review is the only quality evidence the chain holds for it. A CID that is no outcome is
+ * an owner's own upload; the gateway checks that its card matches the declared environment.
  *
  * Gas: a model is one slot: owner id, domain, attribute count, both Eq. 11 totals and its
  * first four environment attributes (uint32 each), so a candidate with d <= 4 attributes
@@ -104,6 +112,9 @@ contract ModelsManager is ReentrancyGuardTransient {
     error ModelsBadReview(uint8 review);
     error ModelsNothingToWithdraw(address account);
     error ModelsTransferFailed(address account, uint256 amount);
+    error ModelsNotOutcomeOwner(uint256 taskId, address worker);
+    error ModelsOutcomeNotAccepted(uint256 taskId, ITasksOutcomes.Verdict verdict);
+    error ModelsDuplicateModel(uint256 modelId);
 
     event ModelAdded(
         uint256 indexed modelId,
@@ -127,6 +138,8 @@ contract ModelsManager is ReentrancyGuardTransient {
     event Withdrawn(address indexed account, uint256 amount);
 
     IUsersManager public immutable umc;
+    /// The TMC whose outcomes the provenance rule checks.
+    ITasksOutcomes public immutable tmc;
     uint256 public modelCount;
     uint256 public allocCount;
 
@@ -140,16 +153,21 @@ contract ModelsManager is ReentrancyGuardTransient {
     mapping(uint256 => Allocation) internal _allocs;
     mapping(uint256 => mapping(uint256 => AllocState)) public allocState;
     mapping(address => uint256) public credits;
+    /// keccak256(cid) -> the model listing it (0 = not listed).
+    mapping(bytes32 => uint256) public modelOfCid;
 
-    constructor(IUsersManager umc_) {
+    constructor(IUsersManager umc_, ITasksOutcomes tmc_) {
         umc = umc_;
+        tmc = tmc_;
     }
 
     /**
      * @dev A worker shares a model: IPFS `cid`, textual `description`, `domain` code and
      * environment attributes `env` (Table 5.2).
-     * Requirements: caller is a registered worker; domain <= 47; non-empty CID; at most 64
-     * attributes. Emits a {ModelAdded} event.
+     * Requirements: caller is a registered worker; domain <= 47; non-empty CID not listed
+     * before; at most 64 attributes; if the CID is a TMC outcome, the caller submitted it
+     * and its verdict is Accepted (see the contract's provenance rule).
+     * Emits a {ModelAdded} event.
      */
     function addModel(string calldata cid, string calldata description, uint32 domain, uint32[] calldata env)
         external
@@ -160,7 +178,16 @@ contract ModelsManager is ReentrancyGuardTransient {
         if (domain > Packed.MAX_DOMAIN) revert ModelsBadDomain(domain);
         if (bytes(cid).length == 0) revert ModelsEmptyCid();
         if (env.length > MAX_ENV_DIMS) revert ModelsBadEnv(env.length);
+        bytes32 cidHash = keccak256(bytes(cid));
+        uint256 listed = modelOfCid[cidHash];
+        if (listed != 0) revert ModelsDuplicateModel(listed);
+        (address worker, uint256 taskId, ITasksOutcomes.Verdict verdict) = tmc.outcomeOf(cidHash);
+        if (worker != address(0)) {
+            if (worker != msg.sender) revert ModelsNotOutcomeOwner(taskId, worker);
+            if (verdict != ITasksOutcomes.Verdict.Accepted) revert ModelsOutcomeNotAccepted(taskId, verdict);
+        }
         modelId = ++modelCount;
+        modelOfCid[cidHash] = modelId;
         uint256 head;
         uint256 word;
         for (uint256 j; j < env.length; ++j) {

@@ -3,6 +3,7 @@ pragma solidity ^0.8.24;
 
 import {ReentrancyGuardTransient} from "@openzeppelin/contracts/utils/ReentrancyGuardTransient.sol";
 import {IUsersManager, Packed} from "./IUsersManager.sol";
+import {ITasksOutcomes} from "./ITasksOutcomes.sol";
 import {QoSMath} from "./QoSMath.sol";
 
 /**
@@ -19,10 +20,17 @@ import {QoSMath} from "./QoSMath.sol";
  * cancellation, slots still unfilled at close). Credits are withdrawn with {withdraw}
  * (checks-effects-interactions plus a transient reentrancy guard).
  *
+ * Anti-spam: a consortium admin sets {minRewardPerHour}, the least reward per worker-hour a
+ * task may offer ({addTask} reverts below it, so zero-reward tasks are refused whenever the
+ * minimum is positive).
+ *
+ * Provenance: every outcome CID is recorded once, with its worker and task ({outcomeOf},
+ * keyed by keccak256 of the CID); the MMC lets only that worker share it, once accepted.
+ *
  * Text (description, outcome CIDs) lives only in events: the indexer keeps it, the chain
  * keeps what the rules need (~20k gas saved per 32 bytes not stored).
  */
-contract TasksManager is ReentrancyGuardTransient {
+contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
     using Packed for uint256;
 
     uint8 internal constant TRAINING = 0;
@@ -79,6 +87,13 @@ contract TasksManager is ReentrancyGuardTransient {
         OfferState state;
         uint40 expiry;
         uint32 listIndex; // position in the UMC domain list (for exclusion on re-allocation)
+        bool paid; // Reviewed only: the outcome was accepted (or paid unreviewed at close)
+    }
+
+    /// Who submitted an outcome CID, for which task (one slot).
+    struct OutcomeRecord {
+        address worker;
+        uint64 taskId;
     }
 
     struct TaskParams {
@@ -112,6 +127,8 @@ contract TasksManager is ReentrancyGuardTransient {
     error TasksNotAssignedWorker(uint256 taskId, address worker);
     error TasksNotSubmitted(uint256 taskId, address worker);
     error TasksEmptyCid();
+    error TasksDuplicateOutcome(uint256 taskId, address worker);
+    error TasksRewardBelowMinimum(uint256 reward, uint256 minimum);
     error TasksBadReview(uint8 review);
     error TasksHasAcceptedWorkers(uint256 taskId);
     error TasksHasLiveOffers(uint256 taskId);
@@ -147,6 +164,7 @@ contract TasksManager is ReentrancyGuardTransient {
     event Withdrawn(address indexed account, uint256 amount);
     event ConfigUpdated(uint64 w1, uint32 acceptWindow, uint32 reviewWindow);
     event AcceptedGpusUpdated(uint256 mask);
+    event MinRewardPerHourUpdated(uint256 weiPerHour);
 
     IUsersManager public immutable umc;
 
@@ -157,6 +175,8 @@ contract TasksManager is ReentrancyGuardTransient {
     /// Accepted GPU series (7.5.1) as a bitmask of codes 0-255: one SLOAD for all candidates.
     uint256 public acceptedGpus;
     uint256 public taskCount;
+    /// Least reward per worker-hour (wei) a task may offer; 0 = no minimum. Admin-set.
+    uint256 public minRewardPerHour;
 
     mapping(uint256 => Task) internal _tasks;
     mapping(uint256 => Reqs) internal _reqs;
@@ -166,6 +186,8 @@ contract TasksManager is ReentrancyGuardTransient {
     mapping(uint32 => uint256[]) internal _domainTasks;
     /// Pull payments: native currency owed to each account.
     mapping(address => uint256) public credits;
+    /// Outcome provenance: keccak256(cid) -> submitting worker and task.
+    mapping(bytes32 => OutcomeRecord) internal _outcomes;
 
     constructor(IUsersManager umc_, uint64 w1_, uint32 acceptWindow_, uint32 reviewWindow_, uint256 gpus) {
         umc = umc_;
@@ -199,12 +221,26 @@ contract TasksManager is ReentrancyGuardTransient {
         emit AcceptedGpusUpdated(mask);
     }
 
+    /**
+     * @dev Sets the least reward per worker-hour (wei) that {addTask} accepts; 0 removes the
+     * minimum. Requirements: caller is a consortium admin; weiPerHour < 2^96 (rewards are
+     * uint96). Emits a {MinRewardPerHourUpdated} event.
+     */
+    function setMinRewardPerHour(uint256 weiPerHour) external {
+        _checkAdmin();
+        if (weiPerHour > type(uint96).max) revert TasksBadConfig();
+        minRewardPerHour = weiPerHour;
+        emit MinRewardPerHourUpdated(weiPerHour);
+    }
+
     // ---------------------------------------------------------------------------- requester
 
     /**
      * @dev Creates a training task and escrows `msg.value` = reward * numWorkers.
      * Requirements: caller is a registered requester; 1 <= numWorkers <= 16; domain <= 47;
-     * thresholds <= 1e6; 0 < duration < 2^32 s; msg.value a multiple of numWorkers.
+     * thresholds <= 1e6; 0 < duration < 2^32 s; msg.value a multiple of numWorkers; the
+     * reward per worker at least {minRewardForDuration}(duration), i.e. minRewardPerHour per
+     * hour of the task's duration (deadline - now), rounded up to the wei.
      * Emits a {TaskAdded} event.
      */
     function addTask(TaskParams calldata p) external payable returns (uint256 taskId) {
@@ -218,6 +254,8 @@ contract TasksManager is ReentrancyGuardTransient {
         if (reward * p.numWorkers != msg.value || reward > type(uint96).max) {
             revert TasksBadPayment(msg.value, p.numWorkers);
         }
+        uint256 minimum = minRewardForDuration(p.duration);
+        if (reward < minimum) revert TasksRewardBelowMinimum(reward, minimum);
         taskId = ++taskCount;
         uint40 deadline = uint40(block.timestamp) + p.duration;
         _tasks[taskId] = Task(msg.sender, TaskStatus.Open, p.numWorkers, 0, 0, 0, 0, deadline);
@@ -267,7 +305,7 @@ contract TasksManager is ReentrancyGuardTransient {
         uint40 expiry = uint40(block.timestamp) + acceptWindow;
         for (uint256 i; i < count; ++i) {
             address a = ws[idx[i]].addr();
-            _offers[taskId][a] = Offer(OfferState.Offered, expiry, uint32(idx[i]));
+            _offers[taskId][a] = Offer(OfferState.Offered, expiry, uint32(idx[i]), false);
             _offerees[taskId].push(a);
             umc.updateInfo(a, r.domain, TRAINING, ASSIGNED, 0);
             emit TaskOffered(taskId, a, qs[i], expiry);
@@ -292,6 +330,7 @@ contract TasksManager is ReentrancyGuardTransient {
         if (o.state != OfferState.Submitted) revert TasksNotSubmitted(taskId, worker);
         if (review > QoSMath.REVIEW_MAX) revert TasksBadReview(review);
         o.state = OfferState.Reviewed;
+        o.paid = accepted;
         Reqs storage r = _reqs[taskId];
         _credit(accepted ? worker : t.requester, taskId, r.reward);
         uint8 settled = t.settled + 1;
@@ -378,9 +417,12 @@ contract TasksManager is ReentrancyGuardTransient {
 
     /**
      * @dev An assigned worker submits the outcome's IPFS CID before the deadline; this
-     * counts as a completed task (E of Eq. 18, N of Eq. 16).
+     * counts as a completed task (E of Eq. 18, N of Eq. 16). The CID is recorded as this
+     * worker's outcome of this task ({outcomeOf}); a CID is an outcome once on this chain,
+     * so no worker can hand in a model already submitted (by itself or anyone else) for
+     * another task or slot.
      * Requirements: task open; caller accepted the task and has not submitted; before the
-     * deadline; non-empty CID. Emits an {OutcomeSubmitted} event.
+     * deadline; non-empty CID never submitted before. Emits an {OutcomeSubmitted} event.
      */
     function submitOutcome(uint256 taskId, string calldata cid) external {
         Task storage t = _tasks[taskId];
@@ -388,6 +430,9 @@ contract TasksManager is ReentrancyGuardTransient {
         Offer storage o = _offers[taskId][msg.sender];
         if (o.state != OfferState.Accepted) revert TasksNotAssignedWorker(taskId, msg.sender);
         if (bytes(cid).length == 0) revert TasksEmptyCid();
+        OutcomeRecord storage rec = _outcomes[keccak256(bytes(cid))];
+        if (rec.worker != address(0)) revert TasksDuplicateOutcome(rec.taskId, rec.worker);
+        (rec.worker, rec.taskId) = (msg.sender, uint64(taskId));
         o.state = OfferState.Submitted;
         umc.updateInfo(msg.sender, _reqs[taskId].domain, TRAINING, COMPLETED, 0);
         emit OutcomeSubmitted(taskId, msg.sender, cid);
@@ -424,6 +469,24 @@ contract TasksManager is ReentrancyGuardTransient {
 
     function domainTasks(uint32 domain) external view returns (uint256[] memory) {
         return _domainTasks[domain];
+    }
+
+    /// @inheritdoc ITasksOutcomes
+    function outcomeOf(bytes32 cidHash) external view returns (address worker, uint256 taskId, Verdict verdict) {
+        OutcomeRecord memory rec = _outcomes[cidHash];
+        if (rec.worker == address(0)) return (address(0), 0, Verdict.None);
+        Offer storage o = _offers[rec.taskId][rec.worker];
+        if (o.state == OfferState.Submitted) verdict = Verdict.Pending;
+        else verdict = o.paid ? Verdict.Accepted : Verdict.Rejected;
+        return (rec.worker, rec.taskId, verdict);
+    }
+
+    /// @dev Least reward per worker for a task of `duration` seconds:
+    /// ceil(minRewardPerHour * duration / 3600) wei (0 when no minimum is set).
+    function minRewardForDuration(uint256 duration) public view returns (uint256) {
+        uint256 perHour = minRewardPerHour;
+        if (perHour == 0) return 0;
+        return (perHour * duration + 3599) / 3600;
     }
 
     // ---------------------------------------------------------------------------- internal
@@ -523,6 +586,7 @@ contract TasksManager is ReentrancyGuardTransient {
             if (s == OfferState.Submitted) {
                 if (block.timestamp <= reviewEnd) revert TasksReviewWindowOpen(taskId, reviewEnd);
                 o.state = OfferState.Reviewed;
+                o.paid = true;
                 t.settled += 1;
                 _credit(a, taskId, reward);
                 emit OutcomeReviewed(taskId, a, 0, true);

@@ -43,7 +43,7 @@ def world(request: pytest.FixtureRequest) -> dict[str, Any]:
     assert offered == [w1, w2]
     p.tmc.transact("acceptOffer", tid, sender=w1)
     p.tmc.transact("submitOutcome", tid, CID, sender=w1)
-    mid, _ = p.mmc.add_model(w1, CID, DOMAIN, [1, 2])
+    mid, _ = p.mmc.add_model(w1, CID + "own", DOMAIN, [1, 2])  # an own upload, no outcome
     alloc, ids, _ = p.mmc.allocate(r, domain=DOMAIN, num_models=1, env=[1, 2], price=REWARD)
     assert ids == [mid]
     roles = {
@@ -76,6 +76,7 @@ def digest(chain: Chain, p: Platform, roles: dict[str, str], tid: int, mid: int)
         p.mmc.call("getModel", mid),
         tuple(p.mmc.call("ownerRep", x) for x in accts),
         (p.tmc.call("w1"), p.tmc.call("acceptWindow"), p.tmc.call("acceptedGpus")),
+        p.tmc.call("minRewardPerHour"),
         (p.tmc.call("taskCount"), p.mmc.call("modelCount"), p.mmc.call("allocCount")),
     )
 
@@ -89,6 +90,7 @@ for role in ("requester", "worker", "outsider"):
         (role, "umc", "setPlatform", lambda w: (w["roles"]["outsider"], True), "UsersNotAdmin"),
         (role, "tmc", "setConfig", lambda w: (1, 1, 1), "TasksNotAdmin"),
         (role, "tmc", "setGpuSeries", lambda w: (0, True), "TasksNotAdmin"),
+        (role, "tmc", "setMinRewardPerHour", lambda w: (10**18,), "TasksNotAdmin"),
     ]
 for role in ("admin", "requester", "worker", "outsider"):
     CASES.append(
@@ -174,6 +176,10 @@ for role in ("other_requester", "other_worker", "outsider", "worker"):
     ]
 for role in ("other_requester", "offered_worker", "outsider"):
     CASES.append((role, "mmc", "withdraw", lambda w: (), "ModelsNothingToWithdraw"))
+for role in ("offered_worker", "other_worker"):  # W1's outcome CID is W1's to share
+    CASES.append(
+        (role, "mmc", "addModel", lambda w: (CID, "", DOMAIN, [1]), "ModelsNotOutcomeOwner")
+    )
 
 
 @pytest.mark.parametrize(
@@ -206,5 +212,7 @@ def test_rightful_roles_still_can(world) -> None:
         p.mmc.transact("withdraw", sender=roles["worker"])
         p.tmc.transact("withdraw", sender=roles["worker"])
         p.tmc.transact("setGpuSeries", 0, True, sender=roles["admin"])
+        p.tmc.transact("setMinRewardPerHour", 10**12, sender=roles["admin"])
+        p.mmc.transact("addModel", CID, "", DOMAIN, [1], sender=roles["worker"])  # now accepted
     finally:
         chain.revert(snap)

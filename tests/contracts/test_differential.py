@@ -185,7 +185,7 @@ def test_allocate_model_sharing_matches_reference(fp, case, nm, min_rep, min_rat
     try:
         addrs = _register(p, actors, pool)
         ref_workers = [w for w, _ in pool]
-        ids = [p.mmc.add_model(addrs[o], "bafy", DOM, e)[0] for o, e in specs]
+        ids = [p.mmc.add_model(addrs[o], f"bafy{i}", DOM, e)[0] for i, (o, e) in enumerate(specs)]
         models = [qos.Model(o, DOM, e) for o, e in specs]
         task = qos.SharingTask(DOM, nm, env, min_rep, min_rating, weights)
         expected = qos.recruit_sharing(models, ref_workers, task)
@@ -231,7 +231,7 @@ def test_allocate_model_eq12_matches_reference(fp, case, rounds, nm, min_model_r
     snap = p.chain.snapshot()
     try:
         addrs = _register(p, actors, pool)
-        ids = [p.mmc.add_model(addrs[o], "bafy", DOM, e)[0] for o, e in specs]
+        ids = [p.mmc.add_model(addrs[o], f"bafy{i}", DOM, e)[0] for i, (o, e) in enumerate(specs)]
         # history: allocations (Eq. 11 counts) and some reviews (Eq. 10-11 totals)
         for k, reviews in rounds:
             alloc, got, _ = p.mmc.allocate(

@@ -94,7 +94,7 @@ def test_training_and_sharing_flows_conserve_payments(any_chain: Chain) -> None:
     assert offered == [w[4], w[3], w[2]]
     p.tmc.transact("acceptOffer", close_id, sender=w[4])
     p.tmc.transact("acceptOffer", close_id, sender=w[3])
-    p.tmc.transact("submitOutcome", close_id, CID, sender=w[4])  # never reviewed
+    p.tmc.transact("submitOutcome", close_id, CID + "c", sender=w[4])  # never reviewed
     chain.advance_time(2 * ACCEPT_WINDOW + 1)
     try:
         p.tmc.transact("updateTaskStatus", close_id, int(TaskStatus.CLOSED), sender=w[4])
@@ -110,9 +110,9 @@ def test_training_and_sharing_flows_conserve_payments(any_chain: Chain) -> None:
 
     # -- model sharing: both metrics, reviews ----------------------------------------------
     p.umc.update_status(w[0], WorkerStatus.ACTIVE)
-    m1, _ = p.mmc.add_model(w[0], CID, DOMAIN, [3, 3], "3A3W")
-    m2, _ = p.mmc.add_model(w[1], CID, DOMAIN, [1, 0], "1A0W")
-    m3, _ = p.mmc.add_model(w[2], CID, DOMAIN, [2, 2], "2A2W")
+    m1, _ = p.mmc.add_model(w[0], CID + "m1", DOMAIN, [3, 3], "3A3W")
+    m2, _ = p.mmc.add_model(w[1], CID + "m2", DOMAIN, [1, 0], "1A0W")
+    m3, _ = p.mmc.add_model(w[2], CID + "m3", DOMAIN, [2, 2], "2A2W")
     alloc, ids, _ = p.mmc.allocate(
         act.requester, domain=DOMAIN, num_models=2, env=[3, 3], price=REWARD, metric=Metric.SHARING
     )

@@ -58,7 +58,7 @@ def _activity(service: ChainService, first: int) -> None:
         p.umc.add_requester(req)
         for i, w in enumerate(workers):
             p.umc.add_worker(w, [0], 2 + 4 * i, 8, 0)
-        task_id, _ = p.tmc.add_task(req, domain=0, num_workers=2, reward=5, duration=600)
+        task_id, _ = p.tmc.add_task(req, domain=0, num_workers=2, reward=10**12, duration=600)
         p.tmc.allocate(req, task_id)
 
 
@@ -114,7 +114,7 @@ def test_rows_match_chain_state(service: ChainService, sessions: sessionmaker[Se
         for o in s.scalars(select(m.OfferRow)):
             assert p.tmc.offer(o.task_id, o.worker)["expiry"] == o.expiry
         t = s.get(m.TaskRow, 1)
-        assert t is not None and t.offered == 2 and t.reward_wei == "5"
+        assert t is not None and t.offered == 2 and t.reward_wei == str(10**12)
 
 
 def test_confirmations_hold_back_recent_blocks(

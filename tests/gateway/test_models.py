@@ -8,7 +8,8 @@ from pathlib import Path
 from fastapi.testclient import TestClient
 
 from backend.services.chain import ChainService
-from backend.store.bundle import add_bundle, bundle_entry
+from backend.services.specs import validate_env
+from backend.store.bundle import add_bundle, bundle_entry, canonical_json
 
 from .conftest import Login, P, addr, register
 
@@ -16,11 +17,22 @@ ENV3 = {"rows": 10, "cols": 10, "agents": 3, "walls": [0, 2]}
 ENV2 = {"rows": 10, "cols": 10, "agents": 2, "walls": [3, 3]}
 
 
+def card_of(env: dict, text: str) -> bytes:
+    """A model card as workers/mdrl/modelio.py writes it (the fields the gateway reads)."""
+    card = {
+        "format": "drlaas-model/1",
+        "env": validate_env(env).to_dict(),
+        "metrics": {"success": 0.9},
+        "name": text,
+    }
+    return canonical_json(card)
+
+
 def _share(client: TestClient, login: Login, name: str, env: dict, domain: int, text: str) -> dict:
     store = client.app.state.store  # type: ignore[attr-defined]
     weights = f"weights of {text}".encode() * 1000
-    card = f'{{"format": "drlaas-model/1", "metrics": {{"success": 0.9}}, "name": "{text}"}}'
-    cid = add_bundle(store, {"model.safetensors": weights, "model.json": card.encode()})
+    card = card_of(env, text)
+    cid = add_bundle(store, {"model.safetensors": weights, "model.json": card})
     r = client.post(
         f"{P}/models",
         json={"cid": cid, "description": text, "domain": domain, "env": env},
@@ -118,6 +130,8 @@ def test_share_validation_and_roles(client: TestClient, login: Login) -> None:
         r = client.post(f"{P}/models", json=body, headers=login("user3"))
         assert r.status_code == 422, r.text
         assert loc in [d["loc"][: len(loc)] for d in r.json()["detail"]]
+    store = client.app.state.store  # type: ignore[attr-defined]
+    cid = add_bundle(store, {"model.safetensors": b"w", "model.json": card_of(ENV3, "x")})
     r = client.post(f"{P}/models", json={"cid": cid, "env": ENV3}, headers=login("user1"))
     assert r.status_code == 403 and r.json()["detail"]["rule"] == "models_not_worker"
     r = client.post(

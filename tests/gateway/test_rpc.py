@@ -36,7 +36,9 @@ def test_chain_rpc_through_the_gateway(gateway: str, service: ChainService) -> N
     assert err.value.args_dict["account"] == requester.address
     assert umc.call("isRequester", requester.address) is True  # eth_call
 
-    task_id, _ = tmc.add_task(requester.address, domain=0, num_workers=1, reward=7, duration=86_400)
+    task_id, _ = tmc.add_task(
+        requester.address, domain=0, num_workers=1, reward=10**14, duration=86_400
+    )
     offered, rc = tmc.allocate(requester.address, task_id)
     assert offered == [worker.address]
     assert [e.name for e in remote.logs(tmc_h, rc.block_number)] == ["TaskOffered", "TaskAllocated"]

@@ -1,5 +1,11 @@
 """Shared models: search, detail (card + metrics from the bundle), verified download, share
-(MMC.addModel), model-sharing requests (MMC.allocateModel) and their reviews."""
+(MMC.addModel), model-sharing requests (MMC.allocateModel) and their reviews; and the
+download of a task's outcome by its requester before anyone shares it.
+
+Sharing checks provenance twice: the MMC refuses another worker's outcome, a pending or
+rejected outcome and a CID listed before (docs/platform.md, "Sharing a model"); the gateway
+first checks what the chain cannot read, that the declared environment is the one on the
+model's own card (model.json of the bundle, fetched verified and size-bounded)."""
 
 from __future__ import annotations
 
@@ -14,8 +20,10 @@ from sqlalchemy import func, or_, select
 
 from backend.api.deps import ChainDep, CurrentUser, IndexerDep, SessionDep, SettingsDep, StoreDep
 from backend.api.errors import RuleError, rule_responses
+from backend.api.listing import json_response
+from backend.api.schemas import Address
 from backend.api.writes import catch_up, field_error, receipt_public
-from backend.chain.platform import Metric
+from backend.chain.platform import Metric, cid_hash
 from backend.db import models as m
 from backend.schemas.common import MAX_DOMAIN, TxPublic, from_fixed, to_fixed
 from backend.schemas.models import (
@@ -29,16 +37,30 @@ from backend.schemas.models import (
     ModelsPublic,
 )
 from backend.services.specs import SpecError, env_attributes, validate_env
-from backend.store import CIDMismatch, ContentTooLarge, NotFound, StoreError
+from backend.store import CIDMismatch, ContentTooLarge, NotFound, StoreError, StoreUnavailable
 from backend.store.bundle import bundle_entry
 
 router = APIRouter(prefix="/models", tags=["models"])
 log = logging.getLogger(__name__)
 ModelId = Annotated[int, Path(ge=1, le=2**63 - 1)]
 AllocId = Annotated[int, Path(ge=1, le=2**63 - 1)]
+TaskId = Annotated[int, Path(ge=1, le=2**63 - 1)]
+BundleFile = Literal["model.safetensors", "model.json"]
 MAX_CARD_BYTES = 1 << 20
 HALF = 500_000
 
+_LIST_COLUMNS = (
+    m.ModelRow.id,
+    m.ModelRow.cid,
+    m.ModelRow.owner,
+    m.ModelRow.domain,
+    m.ModelRow.env,
+    m.ModelRow.agents,
+    m.ModelRow.walls_min,
+    m.ModelRow.walls_max,
+    m.ModelRow.reputation,
+    m.ModelRow.alloc_count,
+)
 _SORT = {
     "reputation": (m.ModelRow.reputation.desc(), m.ModelRow.id),
     "newest": (m.ModelRow.id.desc(),),
@@ -46,12 +68,58 @@ _SORT = {
 }
 
 
-def _env_attrs(env: dict[str, Any], loc: tuple[str, ...]) -> list[int]:
+def _env_spec(env: dict[str, Any], loc: tuple[str, ...]) -> Any:
     try:
-        return env_attributes(validate_env(env))
+        return validate_env(env)
     except SpecError as exc:
         field_error((*loc, exc.field), exc.msg)
         raise  # unreachable: field_error raises
+
+
+def _env_attrs(env: dict[str, Any], loc: tuple[str, ...]) -> list[int]:
+    return env_attributes(_env_spec(env, loc))
+
+
+def _check_card_env(store: StoreDep, cid: str, declared: Any) -> None:
+    """422 unless bundle ``cid`` holds a card (model.json) whose ``env`` is ``declared``:
+    ``loc`` names the bundle (``body.cid``) when the card is missing or unusable, else the
+    first environment field that differs (``body.env.<field>``)."""
+    try:
+        card_cid, size = bundle_entry(store, cid, "model.json")
+        if size > MAX_CARD_BYTES:
+            raise ValueError(f"model.json is {size} bytes, the bound is {MAX_CARD_BYTES}")
+        card = json.loads(store.get(card_cid, max_size=MAX_CARD_BYTES))
+    except NotFound:
+        field_error(
+            ("body", "cid"),
+            f"the content store does not hold {cid}: upload the bundle first",
+            "bundle_not_found",
+        )
+    except KeyError:
+        field_error(("body", "cid"), "the bundle has no model.json (its card)", "card_missing")
+    except CIDMismatch as exc:
+        raise RuleError(502, "content_corrupt", f"{cid} failed verification: {exc}") from None
+    except StoreUnavailable as exc:
+        raise RuleError(
+            503, "store_unavailable", f"content store: {exc}", headers={"Retry-After": "5"}
+        ) from None
+    except (ValueError, RecursionError, StoreError) as exc:
+        field_error(("body", "cid"), f"the bundle's card is unusable: {exc}", "card_invalid")
+    env = card.get("env") if isinstance(card, dict) else None
+    if not isinstance(env, dict):
+        field_error(("body", "cid"), "the model's card has no 'env' object", "card_invalid")
+    try:
+        carded = validate_env(env)
+    except SpecError as exc:
+        field_error(("body", "cid"), f"the card's env is invalid: {exc}", "card_invalid")
+    mine, theirs = declared.to_dict(), carded.to_dict()
+    for name in mine:
+        if mine[name] != theirs.get(name):
+            field_error(
+                ("body", "env", name),
+                f"declared {mine[name]!r}, but the model's card says {theirs.get(name)!r}",
+                "env_mismatch_card",
+            )
 
 
 def model_public(row: m.ModelRow, owner: m.WorkerRow | None) -> ModelPublic:
@@ -111,14 +179,27 @@ def list_models(
             )
         )
     count = session.scalar(select(func.count()).select_from(stmt.subquery())) or 0
-    rows = session.scalars(stmt.order_by(*_SORT[sort]).limit(limit).offset(offset)).all()
-    owners = {
-        w.address: w
-        for w in session.scalars(
-            select(m.WorkerRow).where(m.WorkerRow.address.in_({r.owner for r in rows}))
-        )
-    }
-    return ModelsPublic(data=[model_public(r, owners.get(r.owner)) for r in rows], count=count)
+    # Listing is the hot path (issue 7, "Overload"): plain columns with the owner's rating in
+    # one query, serialised once (no ORM objects, no re-validation of the response model).
+    page = (
+        stmt.with_only_columns(*_LIST_COLUMNS, m.WorkerRow.sharing_rating)
+        .outerjoin(m.WorkerRow, m.WorkerRow.address == m.ModelRow.owner)
+        .order_by(*_SORT[sort])
+        .limit(limit)
+        .offset(offset)
+    )
+    data = [
+        {
+            **row._asdict(),
+            "reputation": from_fixed(row.reputation),
+            "allocations": row.alloc_count,
+            "rating": from_fixed(HALF if row.sharing_rating is None else row.sharing_rating),
+        }
+        for row in session.execute(page)
+    ]
+    for item in data:
+        del item["alloc_count"], item["sharing_rating"]
+    return json_response({"data": data, "count": count})  # type: ignore[return-value]
 
 
 def _model(session: SessionDep, model_id: int) -> m.ModelRow:
@@ -166,23 +247,65 @@ def download_model(
     session: SessionDep,
     store: StoreDep,
     settings: SettingsDep,
-    file: Literal["model.safetensors", "model.json"] = "model.safetensors",
+    file: BundleFile = "model.safetensors",
 ) -> StreamingResponse:
     """The bytes of one bundle file, each block verified against the CID before it is sent,
     bounded by the manifest's size and the gateway's ``max_upload_bytes``."""
     row = _model(session, model_id)
+    return _stream_bundle_file(store, settings, row.cid, file, f"model {model_id}")
+
+
+@router.get(
+    "/outcomes/{task_id}/{worker}/download",
+    responses={
+        200: {"content": {"application/octet-stream": {}}},
+        **rule_responses(401, 403, 404, 413, 502),
+    },
+    response_class=StreamingResponse,
+)
+def download_outcome(
+    task_id: TaskId,
+    worker: Address,
+    user: CurrentUser,
+    session: SessionDep,
+    store: StoreDep,
+    settings: SettingsDep,
+    file: BundleFile = "model.safetensors",
+) -> StreamingResponse:
+    """A task's outcome (the bundle a worker submitted), for the task's requester or that
+    worker only, whether or not it was shared; verified as ``/models/{id}/download``."""
+    task = session.get(m.TaskRow, task_id)
+    if task is None:
+        raise RuleError(404, "task_not_found", f"no task {task_id} (or not indexed yet)")
+    if user.address not in (task.requester, worker):
+        raise RuleError(
+            403,
+            "not_task_requester",
+            f"task {task_id}'s outcomes are for its requester {task.requester} (and each "
+            f"worker its own) until shared",
+        )
+    outcome = session.get(m.OutcomeRow, (task_id, worker))
+    if outcome is None:
+        raise RuleError(
+            404, "outcome_not_found", f"{worker} submitted no outcome for task {task_id}"
+        )
+    return _stream_bundle_file(
+        store, settings, outcome.cid, file, f"task {task_id}'s outcome by {worker}"
+    )
+
+
+def _stream_bundle_file(
+    store: StoreDep, settings: SettingsDep, cid: str, file: str, what: str
+) -> StreamingResponse:
+    """Stream ``file`` of bundle ``cid``; 404/413/502 naming the rule before any byte."""
     try:
-        file_cid, size = bundle_entry(store, row.cid, file)
+        file_cid, size = bundle_entry(store, cid, file)
     except KeyError:
-        raise RuleError(
-            404, "bundle_file_missing", f"model {model_id}'s bundle has no {file}"
-        ) from None
+        raise RuleError(404, "bundle_file_missing", f"{what}'s bundle has no {file}") from None
     except NotFound:
-        raise RuleError(404, "content_not_found", f"the store does not hold {row.cid}") from None
+        raise RuleError(404, "content_not_found", f"the store does not hold {cid}") from None
     except (ValueError, StoreError) as exc:
-        raise RuleError(
-            502, "bundle_invalid", f"model {model_id}'s bundle is unusable: {exc}"
-        ) from None
+        raise RuleError(502, "bundle_invalid", f"{what}'s bundle is unusable: {exc}") from None
     if size > settings.max_upload_bytes:
         raise RuleError(
             413,
@@ -223,13 +346,26 @@ def download_model(
     "",
     status_code=status.HTTP_201_CREATED,
     response_model=ModelPublic,
-    responses=rule_responses(401, 403, 409, 503),
+    responses=rule_responses(401, 402, 403, 409, 502, 503),
 )
 def share_model(
-    body: ModelCreate, user: CurrentUser, chain: ChainDep, session: SessionDep, indexer: IndexerDep
+    body: ModelCreate,
+    user: CurrentUser,
+    chain: ChainDep,
+    session: SessionDep,
+    store: StoreDep,
+    indexer: IndexerDep,
 ) -> ModelPublic:
-    """MMC.addModel by the caller (a registered worker) for its bundle ``cid``."""
-    attrs = _env_attrs(body.env, ("body", "env"))
+    """MMC.addModel by the caller (a registered worker) for its bundle ``cid``: 422 when the
+    declared environment differs from the bundle's card, 409 ``model_already_listed``, and
+    the MMC's provenance rule (403 ``models_not_outcome_owner``, 409
+    ``models_outcome_not_accepted``)."""
+    declared = _env_spec(body.env, ("body", "env"))
+    _check_card_env(store, body.cid, declared)
+    listed = int(chain.call(chain.platform.mmc, "modelOfCid", cid_hash(body.cid)))
+    if listed:
+        raise RuleError(409, "model_already_listed", f"{body.cid} is listed as model {listed}")
+    attrs = env_attributes(declared)
     rc = chain.send(
         user.address, chain.platform.mmc, "addModel", body.cid, body.description, body.domain, attrs
     )
@@ -258,7 +394,7 @@ def share_model(
     "/requests",
     status_code=status.HTTP_201_CREATED,
     response_model=ModelAllocationPublic,
-    responses=rule_responses(401, 403, 409, 503),
+    responses=rule_responses(401, 402, 403, 409, 503),
 )
 def request_models(
     body: ModelRequestCreate, user: CurrentUser, chain: ChainDep, indexer: IndexerDep

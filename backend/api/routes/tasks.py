@@ -11,6 +11,7 @@ from sqlalchemy.exc import IntegrityError
 
 from backend.api.deps import ChainDep, CurrentUser, IndexerDep, SessionDep, SettingsDep, StoreDep
 from backend.api.errors import RuleError, rule_responses
+from backend.api.listing import json_response
 from backend.api.schemas import Address
 from backend.api.writes import catch_up, field_error, receipt_public
 from backend.chain.platform import TaskStatus
@@ -33,7 +34,6 @@ from backend.services.specs import (
     SpecLimitExceeded,
     check_limits,
     field_loc,
-    required_payment_wei,
 )
 from backend.settings import Settings
 from backend.store.bundle import canonical_json
@@ -46,11 +46,11 @@ ASSIGNED_STATES = ("accepted", "submitted", "reviewed")
 
 def build_spec(body: TaskCreate, settings: Settings) -> TrainingSpec:
     """The task's TrainingSpec, within the platform limits; 422 naming the bad field or the
-    limit (``spec_exceeds_memory_limit``, ``spec_exceeds_worker_hours_limit``,
-    ``payment_below_minimum``)."""
+    limit (``spec_exceeds_memory_limit``, ``spec_exceeds_worker_hours_limit``). The payment
+    minimum is the TMC's rule on the booked duration (:func:`check_min_reward`)."""
     try:
         spec = TrainingSpec.from_dict(body.spec_document())
-        est = check_limits(
+        check_limits(
             spec,
             num_workers=body.num_workers,
             max_memory_bytes=int(settings.max_job_memory_gb * 2**30),
@@ -60,31 +60,29 @@ def build_spec(body: TaskCreate, settings: Settings) -> TrainingSpec:
         field_error(("body", *field_loc(exc.field)), exc.msg)
     except SpecLimitExceeded as exc:
         raise RuleError(422, exc.rule, exc.msg) from None
-    minimum = required_payment_wei(est.hours, min_payment_per_worker_hour())
-    if body.payment_wei < minimum:
-        raise RuleError(
-            422,
-            "payment_below_minimum",
-            f"about {est.hours:.3g} worker-hours per worker at the consortium's minimum rate "
-            f"need payment_wei >= {minimum}, got {body.payment_wei}",
-        )
     return spec
 
 
-def min_payment_per_worker_hour() -> int:
-    """The consortium's minimum payment (wei) per worker-hour, for the pre-check above.
-
-    NOT WIRED YET: the on-chain value (TMC, set by the admin) comes with the chainrules branch;
-    until the lead wires it here (read it from ``chain.platform.tmc``), the pre-check uses 0 and
-    the TMC's own check is the authority."""
-    return 0
+def check_min_reward(chain: ChainDep, payment_wei: int, deadline_s: int) -> None:
+    """Anti-spam, before anything is sent: 422 ``reward_below_minimum`` on ``payment_wei``
+    when it is below the TMC's minimum for the task's duration (minRewardPerHour per
+    worker-hour, rounded up; read from the chain, so the answer is the contract's)."""
+    minimum = int(chain.call(chain.platform.tmc, "minRewardForDuration", deadline_s))
+    if payment_wei < minimum:
+        per_hour = int(chain.call(chain.platform.tmc, "minRewardPerHour"))
+        field_error(
+            ("body", "payment_wei"),
+            f"{payment_wei} wei per worker is below the minimum {minimum} wei for "
+            f"{deadline_s} s ({per_hour} wei per worker-hour, set by the consortium)",
+            "reward_below_minimum",
+        )
 
 
 @router.post(
     "",
     status_code=status.HTTP_201_CREATED,
     response_model=TaskCreatedPublic,
-    responses=rule_responses(400, 401, 403, 409, 422, 503),
+    responses=rule_responses(400, 401, 402, 403, 409, 422, 503),
 )
 def create_task(
     body: TaskCreate,
@@ -100,6 +98,7 @@ def create_task(
     transaction; after relaying it via ``POST /tx`` the caller calls ``POST /tasks/{id}/allocate``.
     """
     spec = build_spec(body, settings)
+    check_min_reward(chain, body.payment_wei, body.deadline_s)
     spec_cid = store.add(canonical_json(spec.to_dict()))
     tmc = chain.platform.tmc
     params = (
@@ -197,8 +196,20 @@ def list_tasks(
     if domain is not None:
         q = q.where(m.TaskRow.domain == domain)
     count = session.scalar(select(func.count()).select_from(q.subquery())) or 0
-    rows = session.scalars(q.order_by(m.TaskRow.id.desc()).limit(limit).offset(offset)).all()
-    return TasksPublic(data=[task_public(t) for t in rows], count=count)
+    # The hot path (docs/platform.md, "Overload"): plain columns, serialised once.
+    page = q.with_only_columns(*_LIST_COLUMNS).order_by(m.TaskRow.id.desc()).limit(limit)
+    data = [
+        {
+            **row._asdict(),
+            "min_reputation": from_fixed(row.min_reputation),
+            "min_rating": from_fixed(row.min_rating),
+        }
+        for row in session.execute(page.offset(offset))
+    ]
+    return json_response({"data": data, "count": count})  # type: ignore[return-value]
+
+
+_LIST_COLUMNS = tuple(getattr(m.TaskRow, name) for name in TaskPublic.model_fields)
 
 
 @router.get("/{task_id}", response_model=TaskDetailPublic, responses=rule_responses(404))

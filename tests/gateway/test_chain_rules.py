@@ -1,0 +1,98 @@
+"""Chain-side failures answered as 4xx naming the rule: the anti-spam minimum reward checked
+before sending, an unfunded sender (402), a replayed transaction (409), a contract revert."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from eth_account import Account
+from fastapi.testclient import TestClient
+
+from backend.auth import DemoKeys, bearer_headers
+from backend.services.chain import ChainService, node_rule_error
+
+from .conftest import Login, P, register, task_body
+
+
+def test_reward_below_minimum_is_422_before_sending(
+    client: TestClient, login: Login, service: ChainService
+) -> None:
+    register(client, login, ["user1"], {"user3": {}})
+    tmc = service.platform.tmc
+    per_hour = tmc.call("minRewardPerHour")
+    assert per_hour > 0  # the embedded deployment sets the settings' default
+    before, block = tmc.call("taskCount"), service.block_number()
+    minimum = tmc.min_reward(7_200)
+    assert minimum == 2 * per_hour
+    for payment in (0, minimum - 1):
+        body = task_body(payment_wei=payment, deadline_s=7_200)
+        r = client.post(f"{P}/tasks", json=body, headers=login("user1"))
+        assert r.status_code == 422, r.text
+        [issue] = r.json()["detail"]
+        assert issue["loc"] == ["body", "payment_wei"] and issue["type"] == "reward_below_minimum"
+        assert str(minimum) in issue["msg"]
+    assert tmc.call("taskCount") == before and service.block_number() == block  # nothing sent
+    body = task_body(payment_wei=minimum, deadline_s=7_200)
+    assert client.post(f"{P}/tasks", json=body, headers=login("user1")).status_code == 201
+
+
+def test_value_beyond_balance_is_402(client: TestClient, login: Login) -> None:
+    register(client, login, ["user1"], {})
+    body = task_body(payment_wei=2**96 - 1, num_workers=16)  # far above the demo balance
+    r = client.post(f"{P}/tasks", json=body, headers=login("user1"))
+    assert r.status_code == 402, r.text
+    assert r.json()["detail"]["rule"] == "insufficient_funds"
+
+
+def test_unfunded_key_and_replayed_tx(
+    client: TestClient, service: ChainService, settings: Any
+) -> None:
+    """An unfunded account gets 402 instead of a transaction it could never pay for; a relayed
+    transaction sent twice is a 409 nonce conflict."""
+    poor = Account.create()
+    own = DemoKeys(settings)
+    own.add("poor", poor)
+    headers = dict(bearer_headers(own.sign_in(client, "poor")))
+    r = client.post(f"{P}/users/requesters", headers=headers)
+    assert r.status_code == 402, r.text
+    assert r.json()["detail"]["rule"] == "insufficient_funds"
+
+    with service.lock:  # fund it, then relay its registration twice
+        admin = service.chain._keys[service.platform.admin]
+        w3 = service.chain.w3
+        tx = {
+            "to": poor.address,
+            "value": 10**18,
+            "gas": 21_000,
+            "chainId": service.chain.chain_id,
+            "nonce": w3.eth.get_transaction_count(admin.address),
+            "maxFeePerGas": 2 * w3.eth.get_block("latest")["baseFeePerGas"],
+            "maxPriorityFeePerGas": 0,
+        }
+        w3.eth.send_raw_transaction(admin.sign_transaction(tx).raw_transaction)
+    r = client.post(f"{P}/users/requesters", headers=headers)
+    assert r.status_code == 409 and r.json()["detail"]["rule"] == "sign_locally"
+    unsigned = r.json()["detail"]["tx"]
+    unsigned.pop("from")
+    raw = "0x" + bytes(poor.sign_transaction(unsigned).raw_transaction).hex()
+    assert client.post(f"{P}/tx", json={"raw": raw}, headers=headers).status_code == 200
+    r = client.post(f"{P}/tx", json={"raw": raw}, headers=headers)
+    assert r.status_code == 409, r.text
+    assert r.json()["detail"]["rule"] == "nonce_mismatch"
+
+
+def test_node_messages_map_to_rules() -> None:
+    """Messages of JSON-RPC nodes (geth/anvil wording) map like eth-tester's."""
+    cases = {
+        "insufficient funds for gas * price + value: have 0 want 10": (402, "insufficient_funds"),
+        "nonce too low: next nonce 5, tx nonce 4": (409, "nonce_mismatch"),
+        "intrinsic gas too low: have 21000, want 53000": (422, "intrinsic_gas_too_low"),
+        "max fee per gas less than block base fee": (422, "fee_too_low"),
+        "exceeds block gas limit": (422, "gas_limit_exceeded"),
+    }
+    for msg, (status, rule) in cases.items():
+        wrapped = RuntimeError("send failed")
+        wrapped.__cause__ = ValueError(msg)
+        err = node_rule_error(wrapped)
+        assert err is not None and (err.status_code, err.rule) == (status, rule), msg
+    assert node_rule_error(RuntimeError("connection reset")) is None

@@ -1,0 +1,91 @@
+"""Overload answers 503 + Retry-After naming the rule, never 500: requests beyond the in-flight
+limit are shed at once, and a request that finds every pooled database connection busy gets
+``database_busy``. Both are behaviour tests (who gets what), with no timing asserted."""
+
+from __future__ import annotations
+
+import asyncio
+from pathlib import Path
+
+import httpx
+from fastapi import FastAPI
+from fastapi.testclient import TestClient
+
+from backend.api import create_app
+from backend.api.shedding import LoadShedder
+from backend.settings import Settings
+
+from .conftest import P
+
+
+def test_requests_beyond_the_limit_are_shed_then_served_again(tmp_path: Path) -> None:
+    app = create_app(
+        Settings(data_dir=tmp_path, max_in_flight=2, retry_after_s=3),
+        chain=False,
+        indexer_interval=None,
+    )
+    release = asyncio.Event()
+    entered = asyncio.Semaphore(0)
+
+    async def slow() -> dict[str, bool]:
+        entered.release()
+        await release.wait()
+        return {"done": True}
+
+    app.add_api_route(f"{P}/test-slow", slow)
+
+    async def scenario() -> None:
+        transport = httpx.ASGITransport(app=app)
+        async with httpx.AsyncClient(transport=transport, base_url="http://gw") as client:
+            held = [asyncio.create_task(client.get(f"{P}/test-slow")) for _ in range(2)]
+            for _ in held:
+                await entered.acquire()  # both requests are inside the app
+            shed = await client.get(f"{P}/health")
+            assert shed.status_code == 503
+            assert shed.headers["retry-after"] == "3"
+            assert shed.json()["detail"]["rule"] == "overloaded"
+            release.set()
+            assert [(await t).status_code for t in held] == [200, 200]
+            assert (await client.get(f"{P}/test-slow")).status_code == 200  # room again
+
+    asyncio.run(scenario())
+
+
+def test_shedder_counts_until_the_response_is_sent() -> None:
+    """The in-flight count drops only when the inner app returns, also after an error."""
+    seen: list[int] = []
+
+    async def inner(scope: dict, receive: object, send: object) -> None:
+        seen.append(shedder.in_flight)
+        raise RuntimeError("boom")
+
+    shedder = LoadShedder(inner, limit=1, retry_after=1)
+
+    async def call() -> None:
+        try:
+            await shedder({"type": "http"}, None, None)
+        except RuntimeError:
+            pass
+
+    asyncio.run(call())
+    asyncio.run(call())
+    assert seen == [1, 1] and shedder.in_flight == 0 and shedder.shed == 0
+
+
+def test_exhausted_database_pool_is_503_database_busy(tmp_path: Path) -> None:
+    settings = Settings(
+        data_dir=tmp_path, db_pool_size=1, db_max_overflow=0, db_pool_timeout_s=0.05
+    )
+    app: FastAPI = create_app(settings, chain=False, indexer_interval=None)
+    with TestClient(app) as client:
+        assert client.get(f"{P}/models").status_code == 200
+        held = app.state.engine.connect()  # the pool's only connection
+        try:
+            for path in ("/models", "/tasks"):
+                r = client.get(f"{P}{path}")
+                assert r.status_code == 503, r.text
+                assert r.json()["detail"]["rule"] == "database_busy"
+                assert int(r.headers["retry-after"]) >= 1
+        finally:
+            held.close()
+        assert client.get(f"{P}/models").status_code == 200
