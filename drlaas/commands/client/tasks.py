@@ -92,7 +92,14 @@ def task_submit(
     minutes: Annotated[int, typer.Option(help="wall-clock cap")] = 30,
     seed: int = 0,
     workers: Annotated[int, typer.Option(min=1, help="workers to recruit")] = 1,
-    payment_wei: Annotated[int, typer.Option(min=0, help="reward per worker (escrowed)")] = 0,
+    payment_wei: Annotated[
+        int,
+        typer.Option(
+            min=0,
+            help="reward per worker, escrowed (at least the consortium minimum per worker-hour "
+            "of the deadline window; the gateway names it when too low)",
+        ),
+    ] = 10**16,
     deadline_s: Annotated[int, typer.Option(min=60)] = 86_400,
     domain: int = 0,
     spec: Annotated[Path | None, typer.Option(help="JSON body of POST /api/tasks instead")] = None,
