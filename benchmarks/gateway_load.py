@@ -57,7 +57,7 @@ TASK_QUERIES = [
 # -- server side ----------------------------------------------------------------------------
 def serve_app() -> Any:
     """uvicorn factory: the gateway from DRLAAS_* settings, no chain, no indexer thread."""
-    from backend.api import create_app
+    from backend.api.main import create_app
     from backend.settings import load_settings
 
     return create_app(load_settings(), chain=False, indexer_interval=None)
@@ -69,7 +69,7 @@ def populate(data_dir: Path, n_models: int, n_tasks: int, seed: int = 0) -> None
     from fastapi.testclient import TestClient
     from gateway_listing import populate as populate_models
 
-    from backend.api import create_app
+    from backend.api.main import create_app
     from backend.db import models as m
     from backend.settings import Settings
 

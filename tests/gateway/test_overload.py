@@ -11,7 +11,7 @@ import httpx
 from fastapi import FastAPI
 from fastapi.testclient import TestClient
 
-from backend.api import create_app
+from backend.api.main import create_app
 from backend.api.shedding import LoadShedder
 from backend.settings import Settings
 
