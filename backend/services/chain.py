@@ -32,11 +32,18 @@ from eth_account.signers.local import LocalAccount
 from hexbytes import HexBytes
 from web3 import Web3
 
-from backend.api.errors import RuleError
 from backend.auth import DemoKeys
 from backend.chain.client import GAS_MARGIN, Chain, ContractHandle, Receipt
 from backend.chain.errors import ContractError
 from backend.chain.platform import CONTRACT_NAMES, Platform, connect_platform, deploy_platform
+from backend.errors import (
+    Conflict,
+    DomainError,
+    Forbidden,
+    Invalid,
+    NotFound,
+    PaymentRequired,
+)
 from backend.settings import Settings
 
 CONTRACTS_ENV = "DRLAAS_CONTRACTS"
@@ -46,60 +53,61 @@ ALL_GPU_SERIES = (1 << 256) - 1
 """Accepted GPU series of the embedded TMC: every code including 0 (no GPU), since the MDRL core
 trains on CPUs (the deployment default accepts only workers with a GPU)."""
 
-# Contract errors a client can cause, answered with these HTTP statuses (the rest: 409).
-_ERROR_STATUS = {
-    "NotRequester": 403,
-    "NotTaskRequester": 403,
-    "NotAllocationRequester": 403,
-    "NotWorker": 403,
-    "NotAdmin": 403,
-    "NotParticipant": 403,
-    "NotOutcomeOwner": 403,
-    "UnknownTask": 404,
-    "BadPayment": 422,
-    "RewardBelowMinimum": 422,
+# Contract errors a client can cause, by the kind of failure they are (the rest: Conflict).
+_ERROR_KIND: dict[str, type[DomainError]] = {
+    "NotRequester": Forbidden,
+    "NotTaskRequester": Forbidden,
+    "NotAllocationRequester": Forbidden,
+    "NotWorker": Forbidden,
+    "NotAdmin": Forbidden,
+    "NotParticipant": Forbidden,
+    "NotOutcomeOwner": Forbidden,
+    "UnknownTask": NotFound,
+    "BadPayment": Invalid,
+    "RewardBelowMinimum": Invalid,
 }
 
 # Node-side refusals (before any contract code runs), by a lower-case fragment of the message
-# of eth-tester (py-evm) or a JSON-RPC node (geth, anvil, besu): (status, rule, what to do).
-# Insufficient funds is 402 Payment Required: the account must be funded first (the embedded
+# of eth-tester (py-evm) or a JSON-RPC node (geth, anvil, besu): (kind, rule, what to do).
+# Insufficient funds is PaymentRequired (402): the account must be funded first (the embedded
 # demo's faucet, POST /api/chain/faucet, or the consortium's operator); the request itself is
-# well-formed. A stale nonce is a 409 conflict with the chain's state; a transaction built
-# wrong (gas below the intrinsic cost or above the block limit, fee below the base fee) is 422.
-_NODE_RULES: tuple[tuple[tuple[str, ...], int, str, str], ...] = (
+# well-formed. A stale nonce is a Conflict (409) with the chain's state; a transaction built
+# wrong (gas below the intrinsic cost or above the block limit, fee below the base fee) is
+# Invalid (422).
+_NODE_RULES: tuple[tuple[tuple[str, ...], type[DomainError], str, str], ...] = (
     (
         ("insufficient funds", "not have enough balance", "cannot afford"),
-        402,
+        PaymentRequired,
         "insufficient_funds",
         "the sender's balance does not cover the transaction's value plus gas; fund it first",
     ),
     (
         ("nonce too low", "invalid transaction nonce", "nonce too high", "nonce has already"),
-        409,
+        Conflict,
         "nonce_mismatch",
         "the transaction's nonce is not the sender's next one; re-read it and sign again",
     ),
     (
         ("intrinsic gas too low", "gas cannot be negative"),
-        422,
+        Invalid,
         "intrinsic_gas_too_low",
         "the gas limit is below what the transaction needs before running any code",
     ),
     (
         ("exceeds block gas limit", "exceeds gas limit", "gas limit reached"),
-        422,
+        Invalid,
         "gas_limit_exceeded",
         "the gas limit is above the block's gas limit",
     ),
     (
         ("lower than block's base fee", "less than block base fee", "fee cap less than"),
-        422,
+        Invalid,
         "fee_too_low",
         "the max fee per gas is below the block's base fee",
     ),
     (
         ("non-payable", "nonpayable", "value mismatch"),
-        422,
+        Invalid,
         "value_not_accepted",
         "the called function does not take this value",
     ),
@@ -121,15 +129,15 @@ def _snake(name: str) -> str:
     return re.sub(r"(?<!^)(?=[A-Z])", "_", name).lower()
 
 
-def contract_rule_error(exc: ContractError) -> RuleError:
-    """A typed contract revert as a RuleError: rule = snake_case error name (e.g.
+def contract_rule_error(exc: ContractError) -> DomainError:
+    """A typed contract revert as a domain error: rule = snake_case error name (e.g.
     ``tasks_not_offered_worker``), message with the decoded arguments."""
-    suffix = next((k for k in _ERROR_STATUS if exc.name.endswith(k)), None)
-    status = _ERROR_STATUS[suffix] if suffix else 409
-    return RuleError(status, _snake(exc.name), f"the contract refused the transaction: {exc}")
+    suffix = next((k for k in _ERROR_KIND if exc.name.endswith(k)), None)
+    kind = _ERROR_KIND[suffix] if suffix else Conflict
+    return kind(_snake(exc.name), f"the contract refused the transaction: {exc}")
 
 
-def node_rule_error(exc: BaseException) -> RuleError | None:
+def node_rule_error(exc: BaseException) -> DomainError | None:
     """A node's refusal of a transaction (balance, nonce, gas, fee) as a 4xx naming the
     rule, or None when ``exc`` is none of those. Looks through the exception's chain: web3
     wraps eth-tester's and the node's errors."""
@@ -139,10 +147,10 @@ def node_rule_error(exc: BaseException) -> RuleError | None:
         texts.append(str(seen).lower())
         seen = seen.__cause__ or seen.__context__
     text = " | ".join(texts)
-    for fragments, status, rule, what in _NODE_RULES:
+    for fragments, kind, rule, what in _NODE_RULES:
         if any(f in text for f in fragments):
             detail = str(exc)[:300]
-            return RuleError(status, rule, f"the chain refused the transaction: {what} ({detail})")
+            return kind(rule, f"the chain refused the transaction: {what} ({detail})")
     return None
 
 
@@ -274,7 +282,7 @@ class ChainService:
         description: str = "",
     ) -> Receipt:
         """``handle.fn(*args)`` sent by ``sender``: signed here with its demo key, or
-        :class:`SignLocally` with the unsigned transaction. Reverts -> RuleError."""
+        :class:`SignLocally` with the unsigned transaction. Reverts -> domain errors."""
         account = self.signer(sender)
         with self.lock:
             try:
@@ -288,7 +296,7 @@ class ChainService:
                 return handle.transact(fn, *args, sender=sender, value=value)
             except ContractError as exc:
                 raise contract_rule_error(exc) from None
-            except (SignLocally, RuleError):
+            except (SignLocally, DomainError):
                 raise
             except Exception as exc:  # node refusals: eth-tester/web3 raise several types
                 mapped = node_rule_error(exc)
@@ -329,26 +337,25 @@ class ChainService:
         try:
             sender = Account.recover_transaction(raw)
         except Exception:  # eth_account raises several types for malformed transactions
-            raise RuleError(422, "tx_invalid", "not a signed Ethereum transaction") from None
+            raise Invalid("tx_invalid", "not a signed Ethereum transaction") from None
         if sender != expected_sender:
-            raise RuleError(
-                403,
+            raise Forbidden(
                 "tx_sender_mismatch",
                 f"transaction is signed by {sender}; signed in as {expected_sender}",
             )
         to = _tx_target(raw)
         targets = {h.address for h in self.platform.contracts}
         if to not in targets:
-            raise RuleError(
-                422, "tx_target", f"transaction goes to {to}; only platform contracts: {targets}"
+            raise Invalid(
+                "tx_target", f"transaction goes to {to}; only platform contracts: {targets}"
             )
         w3 = self.chain.w3
         with self.lock:
             try:
                 tx_hash = w3.eth.send_raw_transaction(raw)
             except Exception as exc:  # revert at inclusion (eth-tester) or node refusal
-                raise node_rule_error(exc) or RuleError(
-                    409, "tx_rejected", f"node refused the transaction: {exc}"
+                raise node_rule_error(exc) or Conflict(
+                    "tx_rejected", f"node refused the transaction: {exc}"
                 ) from None
             raw_receipt = w3.eth.wait_for_transaction_receipt(tx_hash, timeout=120)
             events = self.chain._decode_logs(raw_receipt["logs"])
@@ -361,7 +368,7 @@ class ChainService:
             events=events,
         )
         if receipt.status != 1:
-            raise RuleError(409, "tx_reverted", f"transaction {receipt.tx_hash} reverted")
+            raise Conflict("tx_reverted", f"transaction {receipt.tx_hash} reverted")
         return receipt
 
     # -- views ----------------------------------------------------------------------------------
@@ -388,7 +395,7 @@ def _tx_target(raw: bytes) -> str | None:
 
             to = rlp.decode(raw)[3]
     except Exception:
-        raise RuleError(422, "tx_invalid", "cannot decode the transaction") from None
+        raise Invalid("tx_invalid", "cannot decode the transaction") from None
     if not to:
         return None
     return Web3.to_checksum_address(to)

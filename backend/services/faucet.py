@@ -18,6 +18,7 @@ from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 
+from backend.errors import RateLimited
 from backend.services.chain import ChainService
 
 FAUCET_WEI = 10 * 10**18
@@ -25,12 +26,11 @@ FAUCET_THRESHOLD_WEI = 10**18
 WINDOW_S = 60.0
 
 
-class FaucetLimited(Exception):
+class FaucetLimited(RateLimited):
     """Too many top-ups: ``rule`` names the limit, ``retry_after`` is in whole seconds."""
 
     def __init__(self, rule: str, msg: str, retry_after: int) -> None:
-        super().__init__(f"{rule}: {msg}")
-        self.rule, self.msg, self.retry_after = rule, msg, retry_after
+        super().__init__(rule, msg, retry_after=retry_after)
 
 
 @dataclass(frozen=True)

@@ -416,6 +416,26 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
     }
 
     /**
+     * @dev An assigned worker gives the task back (its job failed: out of memory, a crash,
+     * a spec it cannot train after all) instead of holding the slot until the deadline. The
+     * offer becomes Failed (it stays counted as accepted and never completed, so Eq. 18
+     * lowers the worker's reputation as a missed deadline would) and the slot opens again:
+     * the requester may {allocateTask} it to the next best worker (this one stays excluded)
+     * or, with no other worker holding the task, cancel it and take the escrow back.
+     * Requirements: task open; caller accepted the task and has not submitted.
+     * Emits an {OfferFailed} event.
+     */
+    function abandonOffer(uint256 taskId) external {
+        Task storage t = _tasks[taskId];
+        _checkOpen(t, taskId);
+        Offer storage o = _offers[taskId][msg.sender];
+        if (o.state != OfferState.Accepted) revert TasksNotAssignedWorker(taskId, msg.sender);
+        o.state = OfferState.Failed;
+        t.filled -= 1;
+        emit OfferFailed(taskId, msg.sender);
+    }
+
+    /**
      * @dev An assigned worker submits the outcome's IPFS CID before the deadline; this
      * counts as a completed task (E of Eq. 18, N of Eq. 16). The CID is recorded as this
      * worker's outcome of this task ({outcomeOf}); a CID is an outcome once on this chain,

@@ -220,3 +220,30 @@ def test_cancel_waits_for_live_offers(setup) -> None:
     p.tmc.transact("declineOffer", tid, sender=ws[0])
     p.tmc.transact("updateTaskStatus", tid, int(TaskStatus.CANCELLED), sender=r)
     assert p.tmc.task(tid)["status"] == TaskStatus.CANCELLED
+
+
+def test_abandon_offer_fails_the_offer_and_reopens_the_slot(setup, actors) -> None:
+    """A worker whose job failed gives the task back at once: Failed, slot open again, the
+    requester may re-recruit (without it) or cancel; only the accepted worker may do it."""
+    p, r, ws = setup
+    tid = _task(p, r, nw=1)
+    offered, _ = p.tmc.allocate(r, tid)
+    w = offered[0]
+    reverts("TasksNotAssignedWorker", p.tmc.transact, "abandonOffer", tid, sender=w)  # offered
+    p.tmc.transact("acceptOffer", tid, sender=w)
+    for other in (r, ws[1], actors.workers[5]):
+        reverts("TasksNotAssignedWorker", p.tmc.transact, "abandonOffer", tid, sender=other)
+    counters = p.umc.counters(w, DOMAIN, 0)
+    rc = p.tmc.transact("abandonOffer", tid, sender=w)
+    assert [(e.args["taskId"], e.args["worker"]) for e in rc.named("OfferFailed")] == [(tid, w)]
+    assert p.tmc.offer(tid, w)["state"] == OfferState.FAILED
+    assert p.tmc.task(tid)["filled"] == 0
+    assert p.umc.counters(w, DOMAIN, 0) == counters  # still accepted, never completed
+    reverts("TasksNotAssignedWorker", p.tmc.transact, "abandonOffer", tid, sender=w)  # once
+    reverts("TasksNotAssignedWorker", p.tmc.transact, "submitOutcome", tid, CID, sender=w)
+    again, _ = p.tmc.allocate(r, tid)
+    assert again and w not in again
+    p.tmc.transact("declineOffer", tid, sender=again[0])
+    before = p.tmc.call("credits", r)
+    p.tmc.transact("updateTaskStatus", tid, int(TaskStatus.CANCELLED), sender=r)
+    assert p.tmc.call("credits", r) - before == REWARD

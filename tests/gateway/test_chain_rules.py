@@ -8,6 +8,7 @@ from typing import Any
 from eth_account import Account
 from fastapi.testclient import TestClient
 
+from backend.api.errors import domain_status
 from backend.auth import DemoKeys, bearer_headers
 from backend.services.chain import ChainService, node_rule_error
 
@@ -94,5 +95,5 @@ def test_node_messages_map_to_rules() -> None:
         wrapped = RuntimeError("send failed")
         wrapped.__cause__ = ValueError(msg)
         err = node_rule_error(wrapped)
-        assert err is not None and (err.status_code, err.rule) == (status, rule), msg
+        assert err is not None and (domain_status(err), err.rule) == (status, rule), msg
     assert node_rule_error(RuntimeError("connection reset")) is None

@@ -195,7 +195,7 @@ def test_a_spec_beyond_the_workers_memory_is_declined_without_allocating(
     assert out["status"] == "declined" and "spec_exceeds_worker_memory" in out["reason"]
 
 
-def test_a_failing_job_releases_the_worker_and_ends_failed_on_chain(
+def test_a_failing_job_is_given_back_on_chain_and_releases_the_worker(
     env, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     p, actors, store = env
@@ -209,17 +209,22 @@ def test_a_failing_job_releases_the_worker_and_ends_failed_on_chain(
     monkeypatch.setattr("workers.daemon.job.run_job", broken_training)
     out = h.handle(task_id, worker)
     assert out["status"] == "failed" and "FloatingPointError: loss is NaN" in out["reason"]
-    assert p.tmc.offer(task_id, worker)["state"] == OfferState.ACCEPTED  # until the deadline
+    # given back at once (TMC abandonOffer), not held until the deadline
+    assert out["offer"] == "failed"
+    assert p.tmc.offer(task_id, worker)["state"] == OfferState.FAILED
+    failed = p.tmc.contract.events.OfferFailed().get_logs(from_block=0)
+    assert [(e["args"]["taskId"], e["args"]["worker"]) for e in failed] == [(task_id, worker)]
+    assert p.tmc.task(task_id)["filled"] == 0
     assert h.active_jobs(exclude=0) == []  # capacity released at once
+    # the slot is open again: the requester re-recruits, and the failed worker is not offered
+    again, _ = p.tmc.allocate(actors.requester, task_id)
+    assert again and worker not in again
+    # handling the old job again changes nothing on chain
+    block = p.chain.w3.eth.block_number
+    assert h.handle(task_id, worker)["status"] == "offer failed"
+    assert p.chain.w3.eth.block_number == block
     # the same worker takes (and trains) its next offer instead of declining it forever
     monkeypatch.undo()
     t2, offered2, _ = post_task(p, store, actors.requester, num_workers=3)
     assert worker in offered2
     assert h.handle(t2, worker)["status"] == "submitted"
-    # after the deadline, handling the failed job again closes the task: Failed on chain
-    p.chain.advance_time(601)
-    again = h.handle(task_id, worker)
-    assert again["status"] == "failed" and again["offer"] == "failed"
-    assert p.tmc.offer(task_id, worker)["state"] == OfferState.FAILED
-    failed = p.tmc.contract.events.OfferFailed().get_logs(from_block=0)
-    assert [(e["args"]["taskId"], e["args"]["worker"]) for e in failed] == [(task_id, worker)]

@@ -29,6 +29,7 @@ import requests
 from eth_account.signers.local import LocalAccount
 
 from backend.chain.addresses import checksum
+from backend.chain.errors import ContractError
 from backend.chain.platform import OfferState, Platform, TaskStatus
 from backend.store import ContentStore, StoreError, StoreUnavailable
 from backend.store.bundle import read_bundle, upload_model
@@ -219,25 +220,20 @@ class OfferHandler:
         return self._report_failure(task_id, task)
 
     def _report_failure(self, task_id: int, task: dict[str, Any]) -> dict[str, Any]:
-        """After the deadline, close the task: the TMC turns the accepted offer into Failed."""
+        """Give the task back on chain (TMC ``abandonOffer``: the offer becomes Failed and the
+        slot opens for the requester to re-allocate), so neither the worker nor the task is
+        held until the deadline."""
         reason = self._state(task_id).get("reason", "")
         out = {"task_id": task_id, "status": "failed", "reason": reason}
         try:
-            now = int(self.platform.chain.w3.eth.get_block("latest")["timestamp"])
-        except (requests.ConnectionError, requests.Timeout, httpx.TransportError) as exc:
-            raise Transient(f"chain node unreachable: {exc}") from exc
-        if now <= int(task["deadline"]):  # the TMC's clock, not ours
-            return out | {"offer": "accepted until the deadline closes the task"}
-        try:
-            self._transact("updateTaskStatus", task_id, int(TaskStatus.CLOSED))
+            self._transact("abandonOffer", task_id)
         except Transient:
             raise
-        except Exception as exc:  # noqa: BLE001 - e.g. review window open: retried next time
-            log.warning("task %s: closing after the deadline failed: %s", task_id, exc)
-            return out | {"offer": f"close failed: {exc}"}
-        state = OfferState(self.platform.tmc.offer(task_id, self.address)["state"])
-        self._save(task_id, offer=state.name.lower())
-        return out | {"offer": state.name.lower()}
+        except ContractError as exc:  # e.g. the task was closed meanwhile: nothing to give back
+            log.warning("task %s: giving the failed job back refused: %s", task_id, exc)
+            return out | {"offer": f"not abandoned: {exc.name}"}
+        self._save(task_id, offer="failed")
+        return out | {"offer": "failed"}
 
     def _fetch_spec(self, task_id: int) -> TrainingSpec | SpecError:
         """The verified spec, or the SpecError saying why it cannot be trained."""
