@@ -104,9 +104,9 @@ export class Schema {
     return s ? boundsOf(s) : null;
   }
 
-  /** The whole schema object of `path` (first variant), e.g. for minProperties. */
+  /** The schema at `path` (its first variant), e.g. for an object's minProperties. */
   object(path) {
-    return path ? this.at(path)[0] || null : this.variants(this.root)[0] || null;
+    return this.at(path)[0] || null;
   }
 }
 
