@@ -15,6 +15,8 @@ from typing import Any
 
 import pytest
 
+from tests.frontend.fake_api import ALICE, FakeState, make_fake_app
+
 CHROMIUM = os.environ.get("DRLAAS_CHROMIUM", "/usr/bin/chromium")
 CHROMIUM_ARGS = [
     "--headless",
@@ -136,3 +138,33 @@ def screenshot(page: Any, name: str) -> None:
     if SCREENSHOTS:
         Path(SCREENSHOTS).mkdir(parents=True, exist_ok=True)
         page.screenshot(path=str(Path(SCREENSHOTS) / f"drlaas-ui-{name}.png"), full_page=True)
+
+
+# ------------------------------------------------------------------ the fake gateway
+
+
+@pytest.fixture(scope="module")
+def fake() -> Iterator[tuple[LiveServer, FakeState]]:
+    """tests/frontend/fake_api.py served once per test module."""
+    state = FakeState()
+    with LiveServer(make_fake_app(state)) as server:
+        yield server, state
+
+
+@pytest.fixture
+def server(fake: tuple[LiveServer, FakeState]) -> LiveServer:
+    fake[1].reset()
+    return fake[0]
+
+
+@pytest.fixture
+def state(fake: tuple[LiveServer, FakeState], server: LiveServer) -> FakeState:
+    return fake[1]
+
+
+def sign_in_as_alice(page: Any) -> None:
+    from playwright.sync_api import expect
+
+    page.select_option("#demo-user", label="alice")
+    page.click("#demo-sign-in")
+    expect(page.locator("#me .addr")).to_have_attribute("title", ALICE)

@@ -36,3 +36,12 @@ def test_pages_load_from_the_real_gateway(page: Any, tmp_path: Path) -> None:
             page.goto(server.url + path)
             expect(page.locator(ready).first).to_be_visible()
             expect(page.locator(".error-box")).to_have_count(0)
+        # the form reads its bounds from the real document (the page stays on /submit)
+        expect(page.locator("#task-form")).to_have_attribute("data-bounds", "openapi")
+        body = app.openapi()["components"]["schemas"]["TaskCreate"]["properties"]
+        for selector, schema in (
+            ("#f-num_workers", body["num_workers"]),
+            ("#f-env-rows", body["env"]["properties"]["rows"]),
+            ("#f-observation-window", body["observation"]["properties"]["window"]),
+        ):
+            assert float(page.locator(selector).get_attribute("max")) == schema["maximum"]

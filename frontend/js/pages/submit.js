@@ -1,43 +1,49 @@
-// Submit a training task: POST /api/tasks. The form checks what the MDRL core's EnvSpec and
-// ObservationSpec would refuse (workers/mdrl/spec.py, observations.py) before sending, and maps
-// the gateway's 422 answer ({"detail": [{loc, msg}]}) back onto the fields it names.
+// Submit a training task: POST /api/tasks. Every bound of a field (min, max, enum, odd, ...)
+// comes from the gateway's OpenAPI document (the core's TrainingSpec JSON Schema and TaskCreate,
+// read by schema.js); the form checks them before sending and maps the gateway's 422 answer
+// ({"detail": [{loc, msg}]}) back onto the fields it names. Without the document the form still
+// works: it sends what it has and shows the gateway's 422 on the field.
 
 import { api, ApiError, getToken } from "../api.js";
-import { ethToWei, h, link } from "../dom.js";
+import { ethToWei, formatWei, h, link } from "../dom.js";
+import { boundError, boundsOf, fmt, inputAttrs, requestSchema } from "../schema.js";
 
-// Bounds of the gateway's TaskCreate (backend/schemas/tasks.py) and TasksManager.MAX_WORKERS.
-const MAX_WORKERS = 16;
-const MIN_STEPS = 1000;
-const MAX_STEPS = 100_000_000;
-const MAX_MINUTES = 10_080;
-const MIN_DEADLINE_S = 60;
-const MAX_WINDOW = 63;
-const MAX_WEI = 2n ** 96n;
-const KINDS = [["odmtl", "ODMTL (windowed maps)"], ["dmtl", "DMTL (per-agent maps)"], ["cmtl", "CMTL (centralized)"]];
-
-/** name -> [label, default, input attributes, help] ; names are the JSON paths in the body. */
-const FIELDS = {
-  "env.agents": ["Agents", "3", { type: "number", min: 1, step: 1 }],
-  "env.rows": ["Grid rows", "10", { type: "number", min: 2, step: 1 }],
-  "env.cols": ["Grid columns", "10", { type: "number", min: 2, step: 1 }],
-  "env.walls_min": ["Walls (min)", "0", { type: "number", min: 0, step: 1 }],
-  "env.walls_max": ["Walls (max)", "0", { type: "number", min: 0, step: 1 }, "a count is drawn per episode in [min, max]"],
-  "env.moves": ["Moves", "4", { select: [["4", "4 (up/down/left/right)"], ["8", "8 (with diagonals)"]] }],
-  "env.intensity": ["Source intensity (photons/min)", "1e9", { type: "text" }, "1e9, a set 1e8,5e8,1e9 or a range 1e8:1e9"],
-  "observation.kind": ["Observation", "odmtl", { select: KINDS }],
-  "observation.window": ["Window w (ODMTL)", "3", { type: "number", min: 3, step: 2 }, "odd, 1 < w < min(rows, cols)"],
-  "budget.steps": ["Budget: environment steps", "20000", { type: "number", min: MIN_STEPS, step: 1 }, `at least ${MIN_STEPS.toLocaleString("en-US")}`],
-  "budget.minutes": ["Budget: minutes", "10", { type: "number", min: 1, step: 1 }, "training stops at whichever comes first"],
-  "seed": ["Seed", "0", { type: "number", min: 0, step: 1 }],
-  "domain": ["Domain", "0", { type: "number", min: 0, max: 255, step: 1 }, "domain code 0-255"],
-  "num_workers": ["Workers", "1", { type: "number", min: 1, max: MAX_WORKERS, step: 1 }, `1 to ${MAX_WORKERS}, each trains independently`],
-  "min_reputation": ["Min reputation (0-1)", "0", { type: "number", min: 0, max: 1, step: "any" }],
-  "min_rating": ["Min rating (0-1)", "0", { type: "number", min: 0, max: 1, step: "any" }],
-  "min_cpu_cores": ["Min CPU cores", "1", { type: "number", min: 0, step: 1 }],
-  "min_ram_gb": ["Min RAM (GB)", "1", { type: "number", min: 0, step: 1 }],
-  "deadline_s": ["Deadline (s)", "3600", { type: "number", min: MIN_DEADLINE_S, step: 1 }, "time the workers have to submit"],
-  "payment_eth": ["Payment per worker (ETH)", "0.01", { type: "text", inputmode: "decimal" }],
+/** Labels of enum values; the values offered are the schema's enum (these keys only when the
+ *  gateway serves no schema). */
+const LABELS = {
+  "env.moves": { 4: "4 (up/down/left/right)", 8: "8 (with diagonals)" },
+  "observation.kind": { odmtl: "ODMTL (windowed maps)", dmtl: "DMTL (per-agent maps)", cmtl: "CMTL (centralized)" },
 };
+/** "1 to 16" from a field's bounds ("" without both). */
+const range = (b) => (b && b.min !== undefined && b.max !== undefined ? `${fmt(b.min)} to ${fmt(b.max)}` : "");
+
+/** name -> [label, default, input, help]; names are the JSON paths in the body (SCHEMA_PATH for
+ *  the others). input: "int" | "real" (the schema's type wins) | "select" | "text". help: text, or
+ *  (bounds) => [parts] joined with ", ". No bounds here: they come from the schema. */
+const FIELDS = {
+  "env.agents": ["Agents", "3", "int", range],
+  "env.rows": ["Grid rows", "10", "int", range],
+  "env.cols": ["Grid columns", "10", "int", range],
+  "env.walls_min": ["Walls (min)", "0", "int"],
+  "env.walls_max": ["Walls (max)", "0", "int", () => ["a count is drawn per episode in [min, max]", "at most max(rows, cols)"]],
+  "env.moves": ["Moves", "4", "select"],
+  "env.intensity": ["Source intensity (photons/min)", "1e9", "text", () => ["1e9, a set 1e8,5e8,1e9 or a range 1e8:1e9"]],
+  "observation.kind": ["Observation", "odmtl", "select"],
+  "observation.window": ["Window w (ODMTL)", "3", "int", (b) => [b && b.odd ? "odd" : "", range(b), "w < min(rows, cols)"]],
+  "budget.steps": ["Budget: environment steps", "20000", "int", (b) => [range(b), "training stops at exactly this many"]],
+  "budget.minutes": ["Budget: minutes", "10", "real", (b) => [range(b), "training stops at whichever comes first"]],
+  "seed": ["Seed", "0", "int"],
+  "domain": ["Domain", "0", "int", (b) => [`domain code ${range(b)}`.trim()]],
+  "num_workers": ["Workers", "1", "int", (b) => [range(b), "each trains independently"]],
+  "min_reputation": ["Min reputation", "0", "real", range],
+  "min_rating": ["Min rating", "0", "real", range],
+  "min_cpu_cores": ["Min CPU cores", "1", "int"],
+  "min_ram_gb": ["Min RAM (GB)", "1", "int"],
+  "deadline_s": ["Deadline (s)", "3600", "int", () => ["time the workers have to submit"]],
+  "payment_eth": ["Payment per worker (ETH)", "0.01", "text"],
+};
+/** Form field -> its path in the request body schema, where the two differ. */
+const SCHEMA_PATH = { "env.walls_min": "env.walls[0]", "env.walls_max": "env.walls[1]", payment_eth: "payment_wei" };
 const GROUPS = [
   ["env", "Environment", ["env.agents", "env.rows", "env.cols", "env.walls_min", "env.walls_max", "env.moves", "env.intensity"]],
   ["observation", "Observation", ["observation.kind", "observation.window"]],
@@ -46,19 +52,26 @@ const GROUPS = [
 ];
 /** Server loc (after "body") -> the field showing its error. */
 const LOC_ALIASES = {
-  "env.walls": "env.walls_max", "payment_wei": "payment_eth", "env": "env", "observation": "observation",
-  "budget": "budget",
+  "env.walls.0": "env.walls_min", "env.walls.1": "env.walls_max", "env.walls": "env.walls_max",
+  "payment_wei": "payment_eth", "env": "env", "observation": "observation", "budget": "budget",
 };
 
 const fid = (name) => `f-${name.replace(/\./g, "-")}`;
 const eid = (name) => `err-${name.replace(/\./g, "-")}`;
+const boundsFor = (schema, name) => (schema ? schema.bounds(SCHEMA_PATH[name] || name) : null);
 
-function parseIntensity(text) {
+/** The values a select offers: the schema's enum, else the labelled ones. */
+function options(schema, name) {
+  const b = boundsFor(schema, name);
+  const values = b && b.enum ? b.enum : Object.keys(LABELS[name]);
+  return values.map((v) => [String(v), LABELS[name][v] || String(v)]);
+}
+
+/** Intensity text -> {kind, values}: "1e9" fixed, "1e8,5e8,1e9" a set, "1e8:1e9" a range;
+ *  each value and the count checked against the schema's variant of that kind. */
+function parseIntensity(text, schema) {
   const t = text.trim();
-  const nums = (parts) => parts.map((p) => {
-    if (!/^\s*[0-9.eE+-]+\s*$/.test(p)) return NaN;
-    return Number(p);
-  });
+  const nums = (parts) => parts.map((p) => (/^\s*[0-9.eE+-]+\s*$/.test(p) ? Number(p) : NaN));
   let kind = "fixed", values;
   if (t.includes(":")) { kind = "uniform"; values = nums(t.split(":")); }
   else if (t.includes(",")) { kind = "choice"; values = nums(t.split(",")); }
@@ -69,77 +82,90 @@ function parseIntensity(text) {
   if (kind === "uniform" && (values.length !== 2 || values[0] > values[1])) {
     throw new Error("a range is low:high with low <= high");
   }
+  if (schema) {
+    const variant = schema.at("env.intensity").find((v) => v.properties && v.properties.kind
+      && v.properties.kind.const === kind);
+    if (!variant) throw new Error(`this gateway takes no ${kind === "choice" ? "set" : kind} intensity`);
+    const list = schema.variants(variant.properties.values)[0] || {};
+    if (list.maxItems !== undefined && values.length > list.maxItems) throw new Error(`at most ${list.maxItems} values`);
+    if (list.minItems !== undefined && values.length < list.minItems) throw new Error(`at least ${list.minItems} values`);
+    const item = list.items ? schema.variants(list.items)[0] : null;
+    for (const v of values) {
+      const why = item && boundError(boundsOf(item), v);
+      if (why) throw new Error(`${v}: ${why}`);
+    }
+  }
   return { kind, values };
 }
 
-/** Form values (strings) -> {body, errors: {field: msg}}. */
-export function buildTask(v) {
+/** Form values (strings) -> {body, errors: {field: msg}}; `schema` (or null) gives the bounds. */
+export function buildTask(v, schema) {
   const errors = {};
-  const int = (name, { min, max, required = true } = {}) => {
+  const number = (name, { required = true } = {}) => {
     const raw = (v[name] ?? "").trim();
     if (raw === "") { if (required) errors[name] = "required"; return undefined; }
     const n = Number(raw);
-    if (!Number.isInteger(n)) { errors[name] = "must be a whole number"; return undefined; }
-    if (min !== undefined && n < min) { errors[name] = `must be at least ${min}`; return undefined; }
-    if (max !== undefined && n > max) { errors[name] = `must be at most ${max}`; return undefined; }
-    return n;
-  };
-  const real = (name, { min, max, required = true, positive = false } = {}) => {
-    const raw = (v[name] ?? "").trim();
-    if (raw === "") { if (required) errors[name] = "required"; return undefined; }
-    const n = Number(raw);
+    const b = boundsFor(schema, name);
+    const integer = b ? b.integer : FIELDS[name][2] === "int";
     if (!Number.isFinite(n)) { errors[name] = "must be a number"; return undefined; }
-    if (positive && !(n > 0)) { errors[name] = "must be greater than 0"; return undefined; }
-    if (min !== undefined && n < min) { errors[name] = `must be at least ${min}`; return undefined; }
-    if (max !== undefined && n > max) { errors[name] = `must be at most ${max}`; return undefined; }
+    if (integer && !Number.isInteger(n)) { errors[name] = "must be a whole number"; return undefined; }
+    const why = boundError(b, n);
+    if (why) { errors[name] = why; return undefined; }
     return n;
   };
 
-  const rows = int("env.rows", { min: 2 });
-  const cols = int("env.cols", { min: 2 });
-  const agents = int("env.agents", { min: 1 });
-  if (agents !== undefined && rows !== undefined && cols !== undefined && agents + 1 > rows * cols) {
+  // Rules across fields that JSON Schema cannot say: checked here for a quick answer, and
+  // re-checked by the gateway (TrainingSpec.from_dict), whose 422 names the same field.
+  const rows = number("env.rows");
+  const cols = number("env.cols");
+  const agents = number("env.agents");
+  const grid = rows !== undefined && cols !== undefined;
+  if (agents !== undefined && grid && agents + 1 > rows * cols) {
     errors["env.agents"] = `${agents} agents and a target do not fit on ${rows}×${cols}`;
   }
-  const wlo = int("env.walls_min", { min: 0 });
-  const whi = int("env.walls_max", { min: 0 });
+  const wlo = number("env.walls_min");
+  const whi = number("env.walls_max");
   if (wlo !== undefined && whi !== undefined && wlo > whi) errors["env.walls_max"] = "must be at least the minimum";
-  if (whi > 0 && rows !== undefined && cols !== undefined && Math.min(rows, cols) < 4) {
-    errors["env.walls_max"] = "walls need a grid of at least 4×4";
-  }
-  const moves = int("env.moves");
-  if (moves !== undefined && moves !== 4 && moves !== 8) errors["env.moves"] = "must be 4 or 8";
+  else if (whi > 0 && grid && whi > Math.max(rows, cols)) errors["env.walls_max"] = `must be at most max(rows, cols) = ${Math.max(rows, cols)}`;
+  else if (whi > 0 && grid && Math.min(rows, cols) < 4) errors["env.walls_max"] = "walls need a grid of at least 4×4";
+  const moves = number("env.moves");
   let intensity;
-  try { intensity = parseIntensity(v["env.intensity"] ?? ""); } catch (err) { errors["env.intensity"] = err.message; }
+  try { intensity = parseIntensity(v["env.intensity"] ?? "", schema); } catch (err) { errors["env.intensity"] = err.message; }
 
   const kind = (v["observation.kind"] || "").trim();
-  if (!KINDS.some(([k]) => k === kind)) errors["observation.kind"] = "choose ODMTL, DMTL or CMTL";
-  const window = int("observation.window", { min: 3, max: MAX_WINDOW, required: kind === "odmtl" });
-  if (window !== undefined && kind === "odmtl") {
-    if (window % 2 === 0) errors["observation.window"] = "must be odd";
-    else if (rows !== undefined && cols !== undefined && !(window > 1 && window < Math.min(rows, cols))) {
-      errors["observation.window"] = `must satisfy 1 < w < ${Math.min(rows, cols)} (the smaller grid side)`;
-    }
+  const kinds = options(schema, "observation.kind").map(([k]) => k);
+  if (!kinds.includes(kind)) errors["observation.kind"] = `choose one of ${kinds.join(", ")}`;
+  const window = kind === "odmtl" ? number("observation.window") : undefined;
+  if (window !== undefined && grid && !(window < Math.min(rows, cols))) {
+    errors["observation.window"] = `must be less than ${Math.min(rows, cols)} (the smaller grid side)`;
   }
 
-  const steps = int("budget.steps", { min: MIN_STEPS, max: MAX_STEPS });
-  const minutes = int("budget.minutes", { min: 1, max: MAX_MINUTES });
-  const seed = int("seed", { min: 0, max: 2 ** 32 - 1, required: false });
-  const domain = int("domain", { min: 0, max: 255 });
-  const numWorkers = int("num_workers", { min: 1, max: MAX_WORKERS });
-  const minRep = real("min_reputation", { min: 0, max: 1 });
-  const minRating = real("min_rating", { min: 0, max: 1 });
-  const minCpu = int("min_cpu_cores", { min: 0 });
-  const minRam = int("min_ram_gb", { min: 0 });
-  const deadline = int("deadline_s", { min: MIN_DEADLINE_S });
+  const steps = number("budget.steps", { required: false });
+  const minutes = number("budget.minutes", { required: false });
+  const budgetRule = schema && schema.object("budget");
+  const given = [steps, minutes].filter((x) => x !== undefined).length;
+  if (!errors["budget.steps"] && !errors["budget.minutes"] && budgetRule && given < (budgetRule.minProperties || 0)) {
+    errors.budget = "give steps and/or minutes";
+  }
+  const seed = number("seed", { required: false });
+  const domain = number("domain");
+  const numWorkers = number("num_workers");
+  const minRep = number("min_reputation");
+  const minRating = number("min_rating");
+  const minCpu = number("min_cpu_cores");
+  const minRam = number("min_ram_gb");
+  const deadline = number("deadline_s");
   let paymentWei;
   try {
     paymentWei = ethToWei(v.payment_eth ?? "");
-    if (BigInt(paymentWei) >= MAX_WEI) { errors.payment_eth = "too large (the contract stores < 2^96 wei)"; paymentWei = undefined; }
+    const why = weiError(boundsFor(schema, "payment_eth"), BigInt(paymentWei));
+    if (why) { errors.payment_eth = why; paymentWei = undefined; }
   } catch (err) { errors.payment_eth = err.message; }
 
   if (Object.keys(errors).length) return { body: null, errors };
-  const budget = { steps, minutes };
+  const budget = {};
+  if (steps !== undefined) budget.steps = steps;
+  if (minutes !== undefined) budget.minutes = minutes;
   const body = {
     env: { agents, rows, cols, walls: [wlo, whi], moves, intensity },
     observation: kind === "odmtl" ? { kind, window } : { kind },
@@ -155,6 +181,16 @@ export function buildTask(v) {
   };
   if (seed !== undefined) body.seed = seed;
   return { body, errors };
+}
+
+/** A wei amount against the schema's bounds, exactly (BigInt: wei passes 2^53). */
+function weiError(b, wei) {
+  if (!b) return null;
+  const int = (x) => BigInt(Math.ceil(x));
+  if (b.min !== undefined && wei < int(b.min)) return `must be at least ${formatWei(int(b.min))}`;
+  if (b.max !== undefined && wei > BigInt(Math.floor(b.max))) return `must be at most ${formatWei(BigInt(Math.floor(b.max)))}`;
+  if (b.exclusiveMax !== undefined && wei >= int(b.exclusiveMax)) return `too large: must be less than ${formatWei(int(b.exclusiveMax))}`;
+  return null;
 }
 
 /** JSON with payment_wei as an exact integer literal: wei amounts pass 2^53, where JS numbers
@@ -175,25 +211,36 @@ function fieldFor(loc) {
   return null;
 }
 
-export async function render(main) {
+export async function render(main, params, ctx) {
   document.title = "Submit a task · DRLaaS";
+  const schema = await requestSchema("post", "/api/tasks");
+  if (ctx && ctx.stopped) return;
   const signedIn = Boolean(getToken());
   const formError = h("div", { id: "form-error", role: "alert" });
   const result = h("div", { id: "submit-result" });
 
   const control = (name) => {
-    const [label, def, attrs, help] = FIELDS[name];
+    const [label, def, input, help] = FIELDS[name];
+    const b = boundsFor(schema, name);
     const common = { id: fid(name), name, "aria-describedby": eid(name) };
-    const input = attrs.select
-      ? h("select", { ...common, value: def }, attrs.select.map(([value, text]) => h("option", { value }, text)))
-      : h("input", { ...common, ...attrs, value: def });
+    let el;
+    if (input === "select") {
+      const opts = options(schema, name);
+      const value = opts.some(([v]) => v === def) ? def : opts[0][0];
+      el = h("select", { ...common, value }, opts.map(([v, text]) => h("option", { value: v }, text)));
+    } else if (input === "text") {
+      el = h("input", { ...common, type: "text", value: def, inputmode: name === "payment_eth" ? "decimal" : undefined });
+    } else {
+      el = h("input", { ...common, type: "number", step: input === "int" ? 1 : "any", ...inputAttrs(b), value: def });
+    }
+    const text = typeof help === "function" ? [].concat(help(b)).filter(Boolean).join(", ") : help;
     return h("div", { class: "field", "data-field": name },
-      h("label", { for: fid(name) }, label), input,
-      help ? h("small", { class: "help" }, help) : null,
+      h("label", { for: fid(name) }, label), el,
+      text ? h("small", { class: "help" }, text) : null,
       h("div", { class: "field-error", id: eid(name) }));
   };
 
-  const form = h("form", { id: "task-form", novalidate: true, class: "task-form" },
+  const form = h("form", { id: "task-form", novalidate: true, class: "task-form", "data-bounds": schema ? "openapi" : "none" },
     GROUPS.map(([key, title, names]) => h("fieldset", { "data-group": key },
       h("legend", {}, title),
       h("div", { class: "field-error group-error", id: eid(key) }),
@@ -219,7 +266,7 @@ export async function render(main) {
     return true;
   };
   const preview = () => {
-    const { body } = buildTask(values());
+    const { body } = buildTask(values(), schema);
     form.querySelector("#body-preview").textContent = body ? toJson(body) : "(fix the marked fields)";
   };
   form.addEventListener("input", preview);
@@ -231,7 +278,7 @@ export async function render(main) {
     e.preventDefault();
     clearErrors();
     result.replaceChildren();
-    const { body, errors } = buildTask(values());
+    const { body, errors } = buildTask(values(), schema);
     for (const [field, msg] of Object.entries(errors)) showError(field, msg);
     if (!body) {
       const first = form.querySelector("[aria-invalid]");
@@ -283,6 +330,8 @@ export async function render(main) {
     h("div", { class: "page-head" }, h("h1", {}, "Submit a training task")),
     h("p", { class: "muted" }, "The spec is stored in the content store and its CID goes on chain; the chain then "
       + "offers the task to the workers with the best QoS that meet your requirements."),
+    schema ? null : h("p", { class: "muted", id: "bounds-note" },
+      "The gateway's limits could not be read: they are checked when you submit."),
     form, result));
   preview();
 }
