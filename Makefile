@@ -50,10 +50,12 @@ train-demo: setup
 
 test: setup
 	$(BIN)/ruff check .
+	$(BIN)/lint-imports  # layers of .importlinter: nothing imports upward
 	$(BIN)/python -m pytest -q
 
 lint: setup
 	$(BIN)/ruff check .
+	$(BIN)/lint-imports
 
 bench-env: setup
 	$(BIN)/python benchmarks/env_throughput.py
