@@ -23,7 +23,7 @@ import httpx
 from eth_account.signers.local import LocalAccount
 
 from backend.chain.client import Chain
-from backend.chain.platform import ModelsManager, Platform, TasksManager, UsersManager
+from backend.chain.platform import Platform, connect_platform
 from backend.settings import Settings, load_settings
 from backend.store import ContentStore, make_store
 
@@ -149,20 +149,12 @@ def chain_url(settings: Settings, gateway: str | None) -> str:
     return gateway.rstrip("/") + "/rpc"
 
 
-def connect_platform(url: str, account: LocalAccount, deployment: Deployment) -> Platform:
-    """Typed UMC/TMC/MMC handles over ``url`` that can sign for ``account`` only."""
+def connect_worker(url: str, account: LocalAccount, deployment: Deployment) -> Platform:
+    """Typed UMC/TMC/MMC handles over ``url`` that can sign for ``account`` only (the
+    platform's one :func:`~backend.chain.platform.connect_platform`, as the gateway attaches)."""
     chain = Chain.rpc(url, private_keys=["0x" + bytes(account.key).hex()])
-    umc = chain.register(_NAMES["umc"], deployment.umc)
-    tmc = chain.register(_NAMES["tmc"], deployment.tmc)
-    mmc = chain.register(_NAMES["mmc"], deployment.mmc)
-    return Platform(
-        chain,
-        account.address,
-        UsersManager(chain, umc.name, umc.contract),
-        TasksManager(chain, tmc.name, tmc.contract),
-        ModelsManager(chain, mmc.name, mmc.contract),
-        receipts={},
-    )
+    names = {_NAMES[short]: address for short, address in deployment.to_dict().items()}
+    return connect_platform(chain, names, admin=account.address)
 
 
 def open_store(settings: Settings) -> ContentStore:

@@ -81,7 +81,7 @@ def runtime_from_env(settings: Settings | None = None) -> OfferHandler:
     """Build this process's handler from the environment (see module docstring)."""
     from workers.daemon.gateway import Gateway
     from workers.daemon.keys import load_key
-    from workers.daemon.links import chain_url, connect_platform, open_store, resolve_deployment
+    from workers.daemon.links import chain_url, connect_worker, open_store, resolve_deployment
 
     settings = settings or load_settings()
     key_file = os.environ.get("DRLAAS_WORKER_KEY")
@@ -89,7 +89,7 @@ def runtime_from_env(settings: Settings | None = None) -> OfferHandler:
         raise RuntimeError("DRLAAS_WORKER_KEY is not set: the daemon needs its key file")
     account = load_key(key_file)
     gateway_url = os.environ.get("DRLAAS_GATEWAY") or None
-    platform = connect_platform(
+    platform = connect_worker(
         chain_url(settings, gateway_url), account, resolve_deployment(settings, gateway_url)
     )
     data = Path(
