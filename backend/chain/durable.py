@@ -34,6 +34,8 @@ from eth_tester.backends.pyevm.main import (
     setup_tester_chain,
 )
 
+from backend.locks import hold_lock
+
 log = logging.getLogger(__name__)
 
 CHAIN_FILE = "chain.sqlite"
@@ -45,7 +47,8 @@ class SQLiteKV(BaseDB):
 
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
+        # one process per chain file: a second gateway on it would fork the chain silently
+        self._owner = hold_lock(self.path.with_suffix(".lock"), "embedded chain (drlaas up)")
         self._db = sqlite3.connect(self.path, check_same_thread=False, isolation_level=None)
         self._db.execute("PRAGMA journal_mode=WAL")
         self._db.execute("PRAGMA synchronous=NORMAL")  # WAL + NORMAL: survives process death
@@ -115,6 +118,7 @@ class SQLiteKV(BaseDB):
     def close(self) -> None:
         self.commit()
         self._db.close()
+        self._owner.close()
 
     def _transaction(self) -> sqlite3.Connection:
         self._db.execute("BEGIN IMMEDIATE")

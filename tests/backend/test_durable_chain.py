@@ -12,6 +12,7 @@ from pathlib import Path
 
 from backend.chain.client import Chain
 from backend.chain.durable import CHAIN_FILE, DurableBackend
+from backend.locks import AlreadyHeld
 from backend.services.chain import ChainService
 from backend.settings import load_settings
 from workers.daemon.lock import DaemonAlreadyRunning, hold_daemon_lock
@@ -121,3 +122,16 @@ def test_one_daemon_per_worker_directory(tmp_path: Path) -> None:
     finally:
         held.close()
     hold_daemon_lock(tmp_path).close()  # released with its holder
+
+
+def test_one_process_per_chain_file(tmp_path: Path) -> None:
+    """A second gateway on the same data directory would fork the chain: refused by name."""
+    first = Chain.embedded(accounts=2, directory=tmp_path)
+    try:
+        Chain.embedded(accounts=2, directory=tmp_path)
+    except AlreadyHeld as exc:
+        assert "embedded chain" in str(exc) and str(os.getpid()) in str(exc)
+    else:
+        raise AssertionError("a second process opened the same chain file")
+    first.close()
+    Chain.embedded(accounts=2, directory=tmp_path).close()  # free again once closed

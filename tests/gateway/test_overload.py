@@ -5,6 +5,7 @@ limit are shed at once, and a request that finds every pooled database connectio
 from __future__ import annotations
 
 import asyncio
+import threading
 from pathlib import Path
 
 import httpx
@@ -16,6 +17,25 @@ from backend.api.shedding import LoadShedder
 from backend.settings import Settings
 
 from .conftest import P
+
+
+def run_in_fresh_loop(coro_fn) -> None:
+    """asyncio.run in a thread of its own: the browser tests' Playwright keeps an event loop
+    running in the main thread, where asyncio.run refuses to start."""
+    errors: list[BaseException] = []
+
+    def target() -> None:
+        try:
+            asyncio.run(coro_fn())
+        except BaseException as exc:  # noqa: BLE001 - re-raised in the test's thread
+            errors.append(exc)
+
+    t = threading.Thread(target=target)
+    t.start()
+    t.join(timeout=120)
+    assert not t.is_alive(), "the async scenario did not finish"
+    if errors:
+        raise errors[0]
 
 
 def test_requests_beyond_the_limit_are_shed_then_served_again(tmp_path: Path) -> None:
@@ -48,7 +68,7 @@ def test_requests_beyond_the_limit_are_shed_then_served_again(tmp_path: Path) ->
             assert [(await t).status_code for t in held] == [200, 200]
             assert (await client.get(f"{P}/test-slow")).status_code == 200  # room again
 
-    asyncio.run(scenario())
+    run_in_fresh_loop(scenario)
 
 
 def test_shedder_counts_until_the_response_is_sent() -> None:
@@ -67,8 +87,8 @@ def test_shedder_counts_until_the_response_is_sent() -> None:
         except RuntimeError:
             pass
 
-    asyncio.run(call())
-    asyncio.run(call())
+    run_in_fresh_loop(call)
+    run_in_fresh_loop(call)
     assert seen == [1, 1] and shedder.in_flight == 0 and shedder.shed == 0
 
 

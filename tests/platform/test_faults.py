@@ -31,6 +31,7 @@ def test_killed_worker_resumes_from_its_checkpoint(data_dir: Path) -> None:
                 "budget": {"steps": 14_000, "minutes": 5},
                 "seed": 1,
                 "num_workers": 1,
+                "payment_wei": 10**16,
             },
             auth=True,
         )
