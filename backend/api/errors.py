@@ -12,6 +12,7 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Mapping, Sequence
+from http import HTTPStatus
 from typing import Any
 
 from fastapi import FastAPI, Request
@@ -78,8 +79,71 @@ class UnprocessableBody(RootModel[ValidationErrorBody | RuleErrorBody]):
 def rule_responses(*codes: int) -> dict[int | str, dict[str, Any]]:
     """OpenAPI ``responses=`` entries documenting rule failures for ``codes`` (a 422 may be
     either shape: field validation or a named rule)."""
+    return {code: {"model": UnprocessableBody if code == 422 else RuleErrorBody} for code in codes}
+
+
+SHARED_RESPONSES: dict[int, type[BaseModel]] = {
+    413: RuleErrorBody,  # BodyLimits: body over max_request_bytes
+    422: UnprocessableBody,  # BodyLimits json_too_deep (rule) or field validation (list)
+    503: RuleErrorBody,  # LoadShedder: overloaded, with Retry-After
+}
+"""Statuses the layers in front of every route answer, whatever the route (backend.api.limits,
+backend.api.shedding)."""
+BODY_RESPONSES: dict[int, type[BaseModel]] = {400: RuleErrorBody}
+"""Statuses of an operation that reads a JSON body: 400 ``bad_request`` when the body is not
+text FastAPI can decode (e.g. invalid UTF-8; bad JSON syntax is a 422 ``json_invalid``)."""
+RAW_BODY = "x-raw-body"
+"""``openapi_extra={RAW_BODY: True}`` marks a route that reads its body itself (``POST /rpc``
+answers undecodable bodies in its own protocol), so FastAPI's 400 does not apply to it."""
+_METHODS = frozenset({"get", "put", "post", "delete", "patch", "head", "options", "trace"})
+
+
+def document_shared_responses(app: FastAPI) -> None:
+    """Declare :data:`SHARED_RESPONSES` on every operation of ``app``'s OpenAPI document and
+    :data:`BODY_RESPONSES` on those with a request body, so the document lists every status a
+    client can get (a route's own declaration of a code is kept; FastAPI's default 422, which
+    knows only the validation list, becomes :class:`UnprocessableBody`)."""
+    build = app.openapi
+
+    def openapi() -> dict[str, Any]:
+        if app.openapi_schema is not None:
+            return app.openapi_schema
+        doc = build()
+        components = doc.setdefault("components", {}).setdefault("schemas", {})
+        for model in {*SHARED_RESPONSES.values(), *BODY_RESPONSES.values()}:
+            schema = model.model_json_schema(ref_template="#/components/schemas/{model}")
+            for name, definition in schema.pop("$defs", {}).items():
+                components.setdefault(name, definition)
+            components.setdefault(model.__name__, schema)
+        for item in doc.get("paths", {}).values():
+            for method, operation in item.items():
+                if method not in _METHODS:
+                    continue
+                responses = operation.setdefault("responses", {})
+                shared = dict(SHARED_RESPONSES)
+                if "requestBody" in operation and not operation.pop(RAW_BODY, False):
+                    shared.update(BODY_RESPONSES)
+                for code, model in shared.items():
+                    declared = responses.get(str(code))
+                    if declared is not None and not _is_fastapi_default_422(code, declared):
+                        continue
+                    responses[str(code)] = _response(code, model)
+        return doc
+
+    app.openapi = openapi  # type: ignore[method-assign]
+
+
+def _is_fastapi_default_422(code: int, declared: dict[str, Any]) -> bool:
+    schema = declared.get("content", {}).get("application/json", {}).get("schema", {})
+    return code == 422 and schema.get("$ref", "").endswith("/HTTPValidationError")
+
+
+def _response(code: int, model: type[BaseModel]) -> dict[str, Any]:
     return {
-        code: {"model": UnprocessableBody if code == 422 else RuleErrorBody} for code in codes
+        "description": HTTPStatus(code).phrase,
+        "content": {
+            "application/json": {"schema": {"$ref": f"#/components/schemas/{model.__name__}"}}
+        },
     }
 
 

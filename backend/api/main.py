@@ -19,7 +19,7 @@ from fastapi import FastAPI, Request
 from fastapi.responses import JSONResponse
 from starlette.concurrency import run_in_threadpool
 
-from backend.api.errors import install_error_handlers
+from backend.api.errors import document_shared_responses, install_error_handlers
 from backend.api.frontend import mount_docs_redirects, mount_frontend
 from backend.api.limits import BodyLimits
 from backend.api.routes import api_router, blocks, local, models, rpc, tasks, tx, users, workers
@@ -162,6 +162,7 @@ def create_app(
     app.include_router(rpc.router)  # JSON-RPC at /rpc, outside /api
     mount_docs_redirects(app)  # /docs, /redoc -> /api/docs (the UI would answer "not found")
     mount_frontend(app)  # after every router: the mount matches any remaining path
+    document_shared_responses(app)  # 400/413/422/503 of the layers in front of the routes
     return app
 
 

@@ -68,6 +68,37 @@ def test_openapi_documents_routes_errors_and_bearer_auth(settings: Settings) -> 
     assert {t["name"] for t in spec["tags"]} == {"health", "auth"}
 
 
+def test_every_operation_documents_the_statuses_of_the_layers_in_front(
+    settings: Settings,
+) -> None:
+    """413 (body size), 422 (body depth or fields), 503 (load shedding) on every operation;
+    400 (undecodable body) where FastAPI parses the body; each in the shape it is answered."""
+    with TestClient(create_app(settings)) as c:
+        spec = c.get(f"{P}/openapi.json").json()
+        undecodable = c.post(
+            f"{P}/auth/nonce", content=b"\xe9t\xe9", headers={"content-type": "application/json"}
+        )
+    assert undecodable.status_code == 400 and undecodable.json()["detail"]["rule"] == "bad_request"
+
+    def schema_ref(op: dict, code: str) -> str:
+        return op["responses"][code]["content"]["application/json"]["schema"].get("$ref", "")
+
+    operations = [
+        (f"{m.upper()} {p}", op) for p, item in spec["paths"].items() for m, op in item.items()
+    ]
+    assert len(operations) >= 30
+    for label, op in operations:
+        assert schema_ref(op, "413").endswith("/RuleErrorBody"), label
+        assert schema_ref(op, "422").endswith("/UnprocessableBody"), label
+        assert "503" in op["responses"], label
+        reads_body = "requestBody" in op and label != "POST /rpc"  # /rpc answers in JSON-RPC
+        assert ("400" in op["responses"]) == reads_body, label
+        assert "x-raw-body" not in op, label
+    health = spec["paths"][f"{P}/health"]["get"]["responses"]["503"]["content"]
+    refs = {s["$ref"].rsplit("/", 1)[1] for s in health["application/json"]["schema"]["anyOf"]}
+    assert refs == {"HealthPublic", "RuleErrorBody"}  # degraded, or shed
+
+
 def test_routing_errors_use_the_rule_shape(settings: Settings) -> None:
     with TestClient(create_app(settings)) as c:
         r404 = c.get(f"{P}/no-such-thing")

@@ -11,6 +11,7 @@ from sqlalchemy import text
 from sqlalchemy.exc import SQLAlchemyError
 
 from backend.api.deps import SessionDep, SettingsDep
+from backend.api.errors import RuleErrorBody
 from backend.api.version import VERSION
 
 router = APIRouter(prefix="/health", tags=["health"])
@@ -32,7 +33,12 @@ class HealthPublic(BaseModel):
     services: Services
 
 
-@router.get("", response_model=HealthPublic, responses={503: {"model": HealthPublic}})
+@router.get(
+    "",
+    response_model=HealthPublic,
+    # degraded (this route), or overloaded (the load shedder in front of every route)
+    responses={503: {"model": HealthPublic | RuleErrorBody}},
+)
 def health(settings: SettingsDep, session: SessionDep) -> HealthPublic | JSONResponse:
     """200 when the database answers, 503 with the same body (``degraded``) when it does not."""
     revision: str | None = None
