@@ -12,6 +12,8 @@ from backend.store import CID, InvalidCID
 
 __all__ = [
     "MAX_DOMAIN",
+    "MAX_ID",
+    "CID_PATTERN",
     "Address",
     "CidStr",
     "Domain",
@@ -51,11 +53,39 @@ def _check_cid(v: str) -> str:
     return v
 
 
-CidStr = Annotated[str, Field(min_length=1, max_length=200), AfterValidator(_check_cid)]
+CID_PATTERN = r"^b(?:afkrei|afybei)[a-h][a-z2-7]{50}[aeimquy4]$"
+"""A CID as the content store writes it: CIDv1, sha2-256, codec raw (``bafkrei``) or dag-pb
+(``bafybei``), multibase base32 lower case. The 8th character carries the digest's first 3 bits
+and the last one its final 3 bits plus 2 zero padding bits, so every string that matches is a
+CID the store can parse (and writes back identically)."""
+CID_LENGTH = 59
+
+CidStr = Annotated[
+    str,
+    Field(
+        min_length=CID_LENGTH,
+        max_length=CID_LENGTH,
+        pattern=CID_PATTERN,
+        description="CIDv1 (sha2-256, raw or dag-pb, base32 ``b...``)",
+        examples=["bafkreihdwdcefgh4dqkjv67uzcmw7ojee6xedzdetojuzjevtenxquvyku"],
+    ),
+    AfterValidator(_check_cid),
+]
+
+
+MAX_ID = 10**18
+"""Bound of a resource id (task, model, allocation): far above any id, below SQLite's int64,
+and a power of ten, which JSON tools that read numbers as doubles read exactly."""
 
 
 def Wei(upper_bits: int) -> Any:  # noqa: N802 - a type factory
-    return Annotated[int, Field(ge=0, lt=2**upper_bits, description=f"wei (< 2^{upper_bits})")]
+    """An amount of wei at most the largest power of ten below 2^``upper_bits`` (so it fits the
+    contract's uint): a bound like 2^96 becomes a rounded double in JSON tools, and clients
+    would then send values just above it as valid."""
+    bound = 10 ** (len(str(2**upper_bits - 1)) - 1)
+    return Annotated[
+        int, Field(ge=0, le=bound, description=f"wei, at most 1e{len(str(bound)) - 1}")
+    ]
 
 
 def to_fixed(x: float) -> int:

@@ -1,10 +1,23 @@
 from __future__ import annotations
 
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, Field
+from pydantic import BaseModel, Field, WithJsonSchema
 
-from .common import CidStr, Domain, Fraction, ListPublic, Review, Wei
+from workers.mdrl.trainingspec import trainingspec_json_schema
+
+from .common import MAX_ID, CidStr, Domain, Fraction, ListPublic, Review, Wei
+
+EnvDocument = Annotated[
+    dict[str, Any], WithJsonSchema(trainingspec_json_schema()["properties"]["env"])
+]
+"""An EnvSpec document: its JSON Schema is the core's (bounds included); the route parses it
+with the core's parser, which names a bad field in the 422 (and checks the cross-field rules
+JSON Schema cannot state, e.g. walls <= max(rows, cols))."""
+ENV_ATTRIBUTE_COUNT = 6
+"""Length of the MMC env vector (backend.services.specs.ENV_ATTRIBUTES)."""
+WEIGHT_ONE = 1_000_000
+"""Fixed point of the Eq. 13/22 weights: one weight per env attribute, summing to this."""
 
 
 class ModelCreate(BaseModel):
@@ -13,7 +26,7 @@ class ModelCreate(BaseModel):
     cid: CidStr
     description: str = Field(default="", max_length=1024)
     domain: Domain = 0
-    env: dict[str, Any] = Field(description="EnvSpec the model was trained on")
+    env: EnvDocument = Field(description="EnvSpec the model was trained on (its card's env)")
 
 
 class ModelPublic(BaseModel):
@@ -42,14 +55,22 @@ class ModelRequestCreate(BaseModel):
     """A model-sharing task (MMC.allocateModel)."""
 
     domain: Domain = 0
-    env: dict[str, Any]
+    env: EnvDocument = Field(description="EnvSpec the models should fit")
     num_models: int = Field(default=1, ge=1, le=16)
     metric: Literal["model", "sharing"] = "sharing"
     min_reputation: Fraction = 0.0
     min_rating: Fraction = 0.0
     min_model_reputation: Fraction = 0.0
     price_wei: Wei(80) = 0  # type: ignore[valid-type]
-    weights: list[int] = Field(default_factory=list, max_length=64)
+    weights: list[Annotated[int, Field(ge=0, le=WEIGHT_ONE)]] = Field(
+        default_factory=list,
+        max_length=ENV_ATTRIBUTE_COUNT,
+        description=f"none (equal weights) or one per env attribute, in fixed point summing to "
+        f"{WEIGHT_ONE}",
+        json_schema_extra={
+            "anyOf": [{"maxItems": 0}, {"minItems": ENV_ATTRIBUTE_COUNT}],
+        },
+    )
 
 
 class AllocatedModelPublic(BaseModel):
@@ -64,7 +85,7 @@ class ModelAllocationPublic(BaseModel):
 
 
 class ModelReviewCreate(BaseModel):
-    model_id: int = Field(ge=1, le=2**63 - 1)
+    model_id: int = Field(ge=1, le=MAX_ID)
     review: Review
 
 

@@ -2,13 +2,15 @@ from __future__ import annotations
 
 from pydantic import BaseModel, Field, field_validator
 
-from .common import Domain
+from .common import MAX_DOMAIN, Domain
 
 
 class WorkerCreate(BaseModel):
     """Register (or update the capabilities of) the caller as a worker (UMC.addWorker)."""
 
-    domains: list[Domain] = Field(min_length=1, max_length=256)
+    domains: list[Domain] = Field(
+        min_length=1, max_length=MAX_DOMAIN + 1, json_schema_extra={"uniqueItems": True}
+    )
     cpu_cores: int = Field(ge=1, le=65_535)
     ram_gb: int = Field(ge=0, le=65_535)
     gpu_series: int = Field(default=0, ge=0, le=255, description="GPU series code, 0 = no GPU")

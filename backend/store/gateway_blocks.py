@@ -39,7 +39,8 @@ class GatewayBlocks(ContentStore):
 
     def _read_block(self, cid: CID, max_bytes: int) -> bytes:
         try:
-            with self._client.stream("GET", f"/api/blocks/{cid}") as r:
+            # the canonical v1 text: the only form the route accepts (a dag-pb link may be v0)
+            with self._client.stream("GET", f"/api/blocks/{cid.v1()}") as r:
                 if r.status_code == 404:
                     raise NotFound(str(cid), f"{self.url} does not hold it")
                 if not r.is_success:

@@ -81,6 +81,16 @@ def test_errors_name_the_dotted_field(change: dict, field: str) -> None:
     assert info.value.field == field, info.value
 
 
+def test_integral_numbers_are_integers_as_in_json_schema() -> None:
+    """JSON Schema's integer and enum compare numbers by value: 8.0 is 8 (a client or a
+    language that writes every number as a double still sends a valid spec)."""
+    doc = {**GOOD, "env": {**GOOD["env"], "moves": 8.0, "rows": 6.0}}
+    spec = TrainingSpec.from_dict(doc)
+    assert spec.env.moves == 8 and type(spec.env.moves) is int and spec.env.rows == 6
+    with pytest.raises(SpecError):
+        TrainingSpec.from_dict({**GOOD, "env": {**GOOD["env"], "moves": 8.5}})
+
+
 def test_one_size_limit_and_bad_json() -> None:
     with pytest.raises(SpecError, match="limit"):
         TrainingSpec.from_json(b" " * (MAX_SPEC_BYTES + 1))

@@ -83,6 +83,9 @@ class Choice:
     doc: str = ""
 
     def check(self, v: Any, field: str) -> Any:
+        # JSON Schema's enum compares numbers by value: 8.0 is the choice 8 (as for Int)
+        if isinstance(v, float) and v.is_integer() and any(_is_int(c) for c in self.values):
+            v = int(v)
         # bool is an int in Python: 4 must not match True, True must not match 1
         if not any(v == c and type(v) is type(c) for c in self.values):
             raise SpecError(field, f"must be one of {list(self.values)}, got {v!r}")

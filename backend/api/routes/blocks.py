@@ -13,6 +13,7 @@ from fastapi.responses import Response
 
 from backend.api.deps import StoreDep
 from backend.api.errors import RuleError, rule_responses
+from backend.schemas.common import CID_LENGTH, CID_PATTERN
 from backend.store import CHUNK_SIZE, CIDMismatch, ContentTooLarge, InvalidCID, NotFound
 
 router = APIRouter(prefix="/blocks", tags=["models"])
@@ -20,7 +21,13 @@ router = APIRouter(prefix="/blocks", tags=["models"])
 #: A block is a leaf chunk or a node of at most MAX_LINKS links: far below this bound.
 MAX_BLOCK_BYTES = 4 * CHUNK_SIZE
 CidPath = Annotated[
-    str, Path(min_length=8, max_length=128, pattern=r"^[A-Za-z0-9]+$", description="a CID")
+    str,
+    Path(
+        min_length=CID_LENGTH,
+        max_length=CID_LENGTH,
+        pattern=CID_PATTERN,
+        description="CIDv1 of the block (sha2-256, raw or dag-pb, base32 ``b...``)",
+    ),
 ]
 RAW_BLOCK = "application/vnd.ipld.raw"
 

@@ -25,7 +25,7 @@ from backend.api.schemas import Address
 from backend.api.writes import catch_up, field_error, receipt_public
 from backend.chain.platform import Metric, cid_hash
 from backend.db import models as m
-from backend.schemas.common import MAX_DOMAIN, TxPublic, from_fixed, to_fixed
+from backend.schemas.common import MAX_DOMAIN, MAX_ID, TxPublic, from_fixed, to_fixed
 from backend.schemas.models import (
     AllocatedModelPublic,
     ModelAllocationPublic,
@@ -42,9 +42,9 @@ from backend.store.bundle import bundle_entry
 
 router = APIRouter(prefix="/models", tags=["models"])
 log = logging.getLogger(__name__)
-ModelId = Annotated[int, Path(ge=1, le=2**63 - 1)]
-AllocId = Annotated[int, Path(ge=1, le=2**63 - 1)]
-TaskId = Annotated[int, Path(ge=1, le=2**63 - 1)]
+ModelId = Annotated[int, Path(ge=1, le=MAX_ID)]
+AllocId = Annotated[int, Path(ge=1, le=MAX_ID)]
+TaskId = Annotated[int, Path(ge=1, le=MAX_ID)]
 BundleFile = Literal["model.safetensors", "model.json"]
 MAX_CARD_BYTES = 1 << 20
 HALF = 500_000
@@ -147,7 +147,7 @@ def list_models(
         int | None, Query(ge=0, le=64, description="models trained with this many walls in range")
     ] = None,
     min_reputation: Annotated[float | None, Query(ge=0, le=1)] = None,
-    owner: Annotated[str | None, Query(min_length=42, max_length=42)] = None,
+    owner: Address | None = None,
     q: Annotated[str | None, Query(min_length=1, max_length=100)] = None,
     sort: Literal["reputation", "newest", "allocations"] = "reputation",
     limit: Annotated[int, Query(ge=1, le=500)] = 100,
@@ -164,12 +164,7 @@ def list_models(
     if min_reputation is not None:
         stmt = stmt.where(m.ModelRow.reputation >= to_fixed(min_reputation))
     if owner is not None:
-        from backend.chain.addresses import checksum
-
-        try:
-            stmt = stmt.where(m.ModelRow.owner == checksum(owner))
-        except ValueError as exc:
-            field_error(("query", "owner"), str(exc))
+        stmt = stmt.where(m.ModelRow.owner == owner)  # checksummed by the Address type
     if q is not None:
         like = "%" + q.replace("\\", "\\\\").replace("%", "\\%").replace("_", "\\_") + "%"
         stmt = stmt.where(

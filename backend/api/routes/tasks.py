@@ -16,7 +16,7 @@ from backend.api.schemas import Address
 from backend.api.writes import catch_up, field_error, receipt_public
 from backend.chain.platform import TaskStatus
 from backend.db import models as m
-from backend.schemas.common import MAX_DOMAIN, EventPublic, TxPublic, from_fixed, to_fixed
+from backend.schemas.common import MAX_DOMAIN, MAX_ID, EventPublic, TxPublic, from_fixed, to_fixed
 from backend.schemas.tasks import (
     OfferPublic,
     OutcomePublic,
@@ -40,7 +40,7 @@ from backend.store.bundle import canonical_json
 from workers.mdrl.trainingspec import TrainingSpec
 
 router = APIRouter(prefix="/tasks", tags=["tasks"])
-TaskId = Annotated[int, Path(ge=1, le=2**63 - 1)]
+TaskId = Annotated[int, Path(ge=1, le=MAX_ID)]
 ASSIGNED_STATES = ("accepted", "submitted", "reviewed")
 
 

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from fastapi import APIRouter
-from pydantic import BaseModel, Field, field_validator
+from pydantic import BaseModel, Field
 
 from backend.api.deps import ChainDep, CurrentUser, IndexerDep
 from backend.api.errors import rule_responses
@@ -17,16 +17,9 @@ class TxCreate(BaseModel):
     raw: str = Field(
         min_length=4,
         max_length=2 + 2 * 131_072,
-        pattern=r"^0x[0-9a-fA-F]+$",
-        description="signed raw transaction, 0x-hex (at most 128 KiB)",
+        pattern=r"^0x(?:[0-9a-fA-F]{2})+$",
+        description="signed raw transaction: 0x + whole bytes in hex (at most 128 KiB)",
     )
-
-    @field_validator("raw")
-    @classmethod
-    def _even(cls, v: str) -> str:
-        if len(v) % 2:
-            raise ValueError("raw must have an even number of hex digits")
-        return v
 
 
 @router.post("", response_model=TxPublic, responses=rule_responses(401, 403, 409, 422, 503))
