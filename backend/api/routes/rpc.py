@@ -15,22 +15,92 @@ from pydantic import BaseModel, Field
 from starlette.concurrency import run_in_threadpool
 
 from backend.api.deps import ChainDep, CurrentUser
-from backend.api.errors import RuleError, rule_responses
+from backend.api.errors import RAW_BODY, RuleError, rule_responses
 from backend.services.faucet import Faucet
-from backend.services.rpc import INVALID_REQUEST, EmbeddedRpc
+from backend.services.rpc import INVALID_REQUEST, MAX_BATCH, METHODS, EmbeddedRpc
 
 router = APIRouter(tags=["rpc"])
+
+
+_REQUEST = {
+    "type": "object",
+    "properties": {
+        "jsonrpc": {"const": "2.0"},
+        "method": {"enum": sorted(METHODS), "description": "the methods served here"},
+        "params": {
+            "type": "array",
+            "maxItems": max(most for _, most in METHODS.values()),
+            "description": "positional parameters (how many depends on the method)",
+        },
+        "id": {"type": ["string", "integer", "null"]},
+    },
+    "required": ["jsonrpc", "method"],
+}
+_RESPONSE = {
+    "type": "object",
+    "properties": {
+        "jsonrpc": {"const": "2.0"},
+        "id": {"description": "the request's id, echoed (null when the request was unreadable)"},
+        "result": {},
+        "error": {
+            "type": "object",
+            "properties": {
+                "code": {"type": "integer"},
+                "message": {"type": "string"},
+                "data": {},
+            },
+            "required": ["code", "message"],
+        },
+    },
+    "required": ["jsonrpc", "id"],
+    "oneOf": [{"required": ["result"]}, {"required": ["error"]}],
+}
 
 
 @router.post(
     "/rpc",
     summary="JSON-RPC 2.0 of the embedded chain",
+    description="A request object or a batch of 1..50. As JSON-RPC 2.0 specifies, every answer "
+    "is HTTP 200, failures included: a malformed or unknown request is a response object with "
+    "an ``error`` (-32700 parse error, -32600 invalid request, -32601 method not found, -32602 "
+    "invalid params, 3 execution reverted).",
     response_model=None,
+    responses={
+        200: {
+            "description": "JSON-RPC response(s): a result or an error each",
+            "content": {
+                "application/json": {
+                    "schema": {
+                        "anyOf": [
+                            _RESPONSE,
+                            {"type": "array", "items": _RESPONSE, "minItems": 1},
+                        ]
+                    }
+                }
+            },
+        },
+        **rule_responses(404),
+    },
     openapi_extra={
+        RAW_BODY: True,  # parse errors are JSON-RPC answers (-32700), not FastAPI's 400
         "requestBody": {
             "required": True,
-            "content": {"application/json": {"schema": {"type": ["object", "array"]}}},
-        }
+            "content": {
+                "application/json": {
+                    "schema": {
+                        "anyOf": [
+                            _REQUEST,
+                            {
+                                "type": "array",
+                                "items": _REQUEST,
+                                "minItems": 1,
+                                "maxItems": MAX_BATCH,
+                            },
+                        ]
+                    }
+                }
+            },
+        },
     },
 )
 async def rpc(request: Request) -> JSONResponse:
