@@ -22,6 +22,7 @@ from starlette.concurrency import run_in_threadpool
 from backend.api.errors import document_shared_responses, install_error_handlers
 from backend.api.frontend import mount_docs_redirects, mount_frontend
 from backend.api.limits import BodyLimits
+from backend.api.pagecache import PageCache
 from backend.api.routes import api_router, blocks, local, models, rpc, tasks, tx, users, workers
 from backend.api.shedding import LoadShedder
 from backend.api.version import VERSION
@@ -123,6 +124,7 @@ def create_app(
     app.state.rpc = None
     app.state.faucet = None
     app.state.store = None
+    app.state.page_cache = PageCache()  # list pages while the index stands still
     install_error_handlers(app)
     app.add_middleware(
         BodyLimits, max_bytes=settings.max_request_bytes, max_depth=settings.max_json_depth

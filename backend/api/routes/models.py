@@ -14,13 +14,13 @@ import logging
 from collections.abc import Iterator
 from typing import Annotated, Any, Literal
 
-from fastapi import APIRouter, Path, Query, status
+from fastapi import APIRouter, Path, Query, Request, status
 from fastapi.responses import StreamingResponse
 from sqlalchemy import func, or_, select
 
 from backend.api.deps import ChainDep, CurrentUser, IndexerDep, SessionDep, SettingsDep, StoreDep
 from backend.api.errors import RuleError, rule_responses
-from backend.api.listing import json_response
+from backend.api.pagecache import cached_page
 from backend.api.schemas import Address
 from backend.api.writes import catch_up, field_error, receipt_public
 from backend.chain.platform import Metric, cid_hash
@@ -140,6 +140,7 @@ def model_public(row: m.ModelRow, owner: m.WorkerRow | None) -> ModelPublic:
 
 @router.get("", response_model=ModelsPublic)
 def list_models(
+    request: Request,
     session: SessionDep,
     domain: Annotated[int | None, Query(ge=0, le=MAX_DOMAIN)] = None,
     agents: Annotated[int | None, Query(ge=1, le=64)] = None,
@@ -154,47 +155,51 @@ def list_models(
     offset: Annotated[int, Query(ge=0, le=1_000_000)] = 0,
 ) -> ModelsPublic:
     """Models matching every given filter; ``q`` searches description and CID."""
-    stmt = select(m.ModelRow)
-    if domain is not None:
-        stmt = stmt.where(m.ModelRow.domain == domain)
-    if agents is not None:
-        stmt = stmt.where(m.ModelRow.agents == agents)
-    if walls is not None:
-        stmt = stmt.where(m.ModelRow.walls_min <= walls, m.ModelRow.walls_max >= walls)
-    if min_reputation is not None:
-        stmt = stmt.where(m.ModelRow.reputation >= to_fixed(min_reputation))
-    if owner is not None:
-        stmt = stmt.where(m.ModelRow.owner == owner)  # checksummed by the Address type
-    if q is not None:
-        like = "%" + q.replace("\\", "\\\\").replace("%", "\\%").replace("_", "\\_") + "%"
-        stmt = stmt.where(
-            or_(
-                m.ModelRow.description.ilike(like, escape="\\"),
-                m.ModelRow.cid.ilike(like, escape="\\"),
+
+    def build() -> dict[str, Any]:
+        stmt = select(m.ModelRow)
+        if domain is not None:
+            stmt = stmt.where(m.ModelRow.domain == domain)
+        if agents is not None:
+            stmt = stmt.where(m.ModelRow.agents == agents)
+        if walls is not None:
+            stmt = stmt.where(m.ModelRow.walls_min <= walls, m.ModelRow.walls_max >= walls)
+        if min_reputation is not None:
+            stmt = stmt.where(m.ModelRow.reputation >= to_fixed(min_reputation))
+        if owner is not None:
+            stmt = stmt.where(m.ModelRow.owner == owner)  # checksummed by the Address type
+        if q is not None:
+            like = "%" + q.replace("\\", "\\\\").replace("%", "\\%").replace("_", "\\_") + "%"
+            stmt = stmt.where(
+                or_(
+                    m.ModelRow.description.ilike(like, escape="\\"),
+                    m.ModelRow.cid.ilike(like, escape="\\"),
+                )
             )
+        count = session.scalar(select(func.count()).select_from(stmt.subquery())) or 0
+        # Listing is the hot path (issue 7, "Overload"): plain columns with the owner's rating in
+        # one query, serialised once (no ORM objects, no re-validation of the response model).
+        page = (
+            stmt.with_only_columns(*_LIST_COLUMNS, m.WorkerRow.sharing_rating)
+            .outerjoin(m.WorkerRow, m.WorkerRow.address == m.ModelRow.owner)
+            .order_by(*_SORT[sort])
+            .limit(limit)
+            .offset(offset)
         )
-    count = session.scalar(select(func.count()).select_from(stmt.subquery())) or 0
-    # Listing is the hot path (issue 7, "Overload"): plain columns with the owner's rating in
-    # one query, serialised once (no ORM objects, no re-validation of the response model).
-    page = (
-        stmt.with_only_columns(*_LIST_COLUMNS, m.WorkerRow.sharing_rating)
-        .outerjoin(m.WorkerRow, m.WorkerRow.address == m.ModelRow.owner)
-        .order_by(*_SORT[sort])
-        .limit(limit)
-        .offset(offset)
-    )
-    data = [
-        {
-            **row._asdict(),
-            "reputation": from_fixed(row.reputation),
-            "allocations": row.alloc_count,
-            "rating": from_fixed(HALF if row.sharing_rating is None else row.sharing_rating),
-        }
-        for row in session.execute(page)
-    ]
-    for item in data:
-        del item["alloc_count"], item["sharing_rating"]
-    return json_response({"data": data, "count": count})  # type: ignore[return-value]
+        data = [
+            {
+                **row._asdict(),
+                "reputation": from_fixed(row.reputation),
+                "allocations": row.alloc_count,
+                "rating": from_fixed(HALF if row.sharing_rating is None else row.sharing_rating),
+            }
+            for row in session.execute(page)
+        ]
+        for item in data:
+            del item["alloc_count"], item["sharing_rating"]
+        return {"data": data, "count": count}
+
+    return cached_page(request, session, build)  # type: ignore[return-value]
 
 
 def _model(session: SessionDep, model_id: int) -> m.ModelRow:

@@ -3,15 +3,15 @@ timeline/offers/outcomes/progress, progress points from assigned workers, review
 
 from __future__ import annotations
 
-from typing import Annotated, Literal
+from typing import Annotated, Any, Literal
 
-from fastapi import APIRouter, Path, Query, status
+from fastapi import APIRouter, Path, Query, Request, status
 from sqlalchemy import func, select
 from sqlalchemy.exc import IntegrityError
 
 from backend.api.deps import ChainDep, CurrentUser, IndexerDep, SessionDep, SettingsDep, StoreDep
 from backend.api.errors import RuleError, rule_responses
-from backend.api.listing import json_response
+from backend.api.pagecache import cached_page
 from backend.api.schemas import Address
 from backend.api.writes import catch_up, field_error, receipt_public
 from backend.chain.platform import TaskStatus
@@ -177,6 +177,7 @@ def task_public(t: m.TaskRow) -> TaskPublic:
 
 @router.get("", response_model=TasksPublic)
 def list_tasks(
+    request: Request,
     session: SessionDep,
     status: Literal["open", "completed", "cancelled", "closed"] | None = None,
     requester: Address | None = None,
@@ -186,27 +187,32 @@ def list_tasks(
     offset: Annotated[int, Query(ge=0, le=1_000_000)] = 0,
 ) -> TasksPublic:
     """Tasks matching every given filter, newest first; ``worker`` = offered to that worker."""
-    q = select(m.TaskRow)
-    if status is not None:
-        q = q.where(m.TaskRow.status == status)
-    if requester is not None:
-        q = q.where(m.TaskRow.requester == requester)
-    if worker is not None:
-        q = q.where(m.TaskRow.id.in_(select(m.OfferRow.task_id).where(m.OfferRow.worker == worker)))
-    if domain is not None:
-        q = q.where(m.TaskRow.domain == domain)
-    count = session.scalar(select(func.count()).select_from(q.subquery())) or 0
-    # The hot path (docs/platform.md, "Overload"): plain columns, serialised once.
-    page = q.with_only_columns(*_LIST_COLUMNS).order_by(m.TaskRow.id.desc()).limit(limit)
-    data = [
-        {
-            **row._asdict(),
-            "min_reputation": from_fixed(row.min_reputation),
-            "min_rating": from_fixed(row.min_rating),
-        }
-        for row in session.execute(page.offset(offset))
-    ]
-    return json_response({"data": data, "count": count})  # type: ignore[return-value]
+
+    def build() -> dict[str, Any]:
+        q = select(m.TaskRow)
+        if status is not None:
+            q = q.where(m.TaskRow.status == status)
+        if requester is not None:
+            q = q.where(m.TaskRow.requester == requester)
+        if worker is not None:
+            offered = select(m.OfferRow.task_id).where(m.OfferRow.worker == worker)
+            q = q.where(m.TaskRow.id.in_(offered))
+        if domain is not None:
+            q = q.where(m.TaskRow.domain == domain)
+        count = session.scalar(select(func.count()).select_from(q.subquery())) or 0
+        # The hot path (docs/platform.md, "Overload"): plain columns, serialised once.
+        page = q.with_only_columns(*_LIST_COLUMNS).order_by(m.TaskRow.id.desc()).limit(limit)
+        data = [
+            {
+                **row._asdict(),
+                "min_reputation": from_fixed(row.min_reputation),
+                "min_rating": from_fixed(row.min_rating),
+            }
+            for row in session.execute(page.offset(offset))
+        ]
+        return {"data": data, "count": count}
+
+    return cached_page(request, session, build)  # type: ignore[return-value]
 
 
 _LIST_COLUMNS = tuple(getattr(m.TaskRow, name) for name in TaskPublic.model_fields)
