@@ -46,6 +46,20 @@ def start_up(data_dir: Path, workers: int = 3) -> tuple[subprocess.Popen[str], d
     return proc, json.loads(line)
 
 
+def task_body(*, steps: int, minutes: float, seed: int) -> dict[str, Any]:
+    """POST /tasks body: one worker, the scenario's small environment."""
+    return {
+        "env": SCENARIO_ENV,
+        "observation": {"kind": "odmtl", "window": 3},
+        "budget": {"steps": steps, "minutes": minutes},
+        "seed": seed,
+        "num_workers": 1,
+        "payment_wei": 10**16,
+        "deadline_s": 3600,
+        "domain": 0,
+    }
+
+
 def rpc(url: str, method: str, *params: Any) -> Any:
     r = httpx.post(
         url + "/rpc", json={"jsonrpc": "2.0", "id": 1, "method": method, "params": list(params)}
@@ -95,20 +109,7 @@ def test_restart_after_sigterm_and_kill_9_keeps_the_whole_record(data_dir: Path)
         report = run_scenario(url, data_dir, steps=2000, say=lambda s: None)
         # one more task still training when the platform goes down
         req = Gateway(url, Account.from_key(DEMO_REQUESTER_KEYS[0]))
-        created = req.post(
-            "/tasks",
-            {
-                "env": SCENARIO_ENV,
-                "observation": {"kind": "odmtl", "window": 3},
-                "budget": {"steps": 40_000, "minutes": 10},
-                "seed": 11,
-                "num_workers": 1,
-                "payment_wei": 10**16,
-                "deadline_s": 3600,
-                "domain": 0,
-            },
-            auth=True,
-        )
+        created = req.post("/tasks", task_body(steps=40_000, minutes=10, seed=11), auth=True)
         training, worker = created["task_id"], created["offered"][0]
         wait_for(
             "training progress",
@@ -166,20 +167,7 @@ def test_restart_after_sigterm_and_kill_9_keeps_the_whole_record(data_dir: Path)
         assert done["outcomes"][0]["cid"] != report["cid"]
         # a new task gets the next id and a fresh job: never the model of an earlier task
         req3 = Gateway(url3, Account.from_key(DEMO_REQUESTER_KEYS[0]))
-        fresh = req3.post(
-            "/tasks",
-            {
-                "env": SCENARIO_ENV,
-                "observation": {"kind": "odmtl", "window": 3},
-                "budget": {"steps": 2000, "minutes": 2},
-                "seed": 7,
-                "num_workers": 1,
-                "payment_wei": 10**16,
-                "deadline_s": 3600,
-                "domain": 0,
-            },
-            auth=True,
-        )
+        fresh = req3.post("/tasks", task_body(steps=2000, minutes=2, seed=7), auth=True)
         assert fresh["task_id"] == training + 1
     finally:
         stop(proc, signal.SIGTERM)
