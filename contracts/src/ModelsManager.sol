@@ -32,6 +32,10 @@ import {QoSMath} from "./QoSMath.sol";
  * upload is never sold twice in one allocation. Byte-different copies of the same weights
  * under another CID are not detectable on chain (docs/chain.md, "Duplicate models").
  *
+ * Eq. 12 uses 1 + D_m (smoothing, as Eq. 23), which can reorder models against the thesis's
+ * Rep_i * Rep_m / D_m when D_m > 0; the decided ranking (exact matches first, then
+ * Rep_i * Rep_m / D_m) is documented in docs/chain.md and not applied yet.
+ *
  * Public models: a model's CID is readable by anyone ({getModel}, {ModelAdded}); the decided
  * design (docs/chain.md, "Outcomes are public before payment") encrypts the weights and
  * releases the key to buyers, so the CID alone gives nothing away.

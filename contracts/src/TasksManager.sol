@@ -45,7 +45,17 @@ import {QoSMath} from "./QoSMath.sol";
  *
  * Public outcomes: an outcome CID is public once submitted, before the requester pays. The
  * decided design (docs/chain.md, "Outcomes are public before payment") is that workers upload
- * outcomes encrypted to the requester's key; the plaintext CID never reaches the chain.
+ * outcomes encrypted to the requester's key, so the CID on chain opens nothing for anyone
+ * else; the key release against payment is documented there, not implemented yet.
+ *
+ * Recruitment decisions (docs/chain.md): the accepted GPU series are one consortium policy
+ * ({acceptedGpus}: which hardware the consortium trusts), while a task's own compute needs
+ * are its minCpuCores / minRamGb; capabilities are self-declared by workers (overclaiming
+ * makes jobs fail, which Eq. 18 punishes); Eq. 16 is as in the thesis here (a new worker's
+ * expertise is 0 once anyone completed a task; the decided pseudo-count is documented).
+ *
+ * EVM: {withdraw}'s reentrancy guard uses transient storage (EIP-1153), so the chain must
+ * run Cancun or later (genesis cancunTime / Besu "cancunTime": 0; the deploy/ genesis must enable it).
  *
  * Provenance: every outcome CID is recorded once, with its worker and task ({outcomeOf},
  * keyed by keccak256 of the CID); the MMC lets only that worker share it, once accepted.
