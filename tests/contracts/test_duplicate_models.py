@@ -38,7 +38,9 @@ def test_a_cid_is_listed_once_by_anyone(setup) -> None:
 def test_a_lone_model_fills_one_slot_and_is_paid_once(setup, metric) -> None:
     p, r, ws = setup
     mid, _ = p.mmc.add_model(ws[0], CID, DOMAIN, [2, 2])
-    _, ids, rc = p.mmc.allocate(r, domain=DOMAIN, num_models=3, env=[2, 2], price=PRICE, metric=metric)
+    _, ids, rc = p.mmc.allocate(
+        r, domain=DOMAIN, num_models=3, env=[2, 2], price=PRICE, metric=metric
+    )
     assert ids == [mid]
     assert p.mmc.call("credits", ws[0]) == PRICE
     assert p.mmc.call("credits", r) == 2 * PRICE  # the two unfilled slots
@@ -51,6 +53,8 @@ def test_allocations_never_repeat_a_model(setup, metric) -> None:
     p, r, ws = setup
     mine = [p.mmc.add_model(ws[0], f"{CID}{c}", DOMAIN, [2, 2])[0] for c in "abc"]
     theirs, _ = p.mmc.add_model(ws[1], CID + "z", DOMAIN, [2, 3])
-    _, ids, _ = p.mmc.allocate(r, domain=DOMAIN, num_models=8, env=[2, 2], price=PRICE, metric=metric)
+    _, ids, _ = p.mmc.allocate(
+        r, domain=DOMAIN, num_models=8, env=[2, 2], price=PRICE, metric=metric
+    )
     assert sorted(ids) == sorted([*mine, theirs])
     assert p.mmc.call("credits", ws[0]) == 3 * PRICE and p.mmc.call("credits", ws[1]) == PRICE

@@ -70,7 +70,12 @@ def test_unfilled_slots_are_refunded_while_accepted_workers_keep_theirs(setup, a
     assert cancelled == 1 and rc.one("OfferExpired").args["worker"] == ws[2]
     assert p.tmc.offer(tid, ws[2])["state"] == OfferState.EXPIRED
     t = p.tmc.task(tid)
-    assert (t["num_workers"], t["filled"], t["live_offers"], t["status"]) == (1, 1, 0, TaskStatus.OPEN)
+    assert (t["num_workers"], t["filled"], t["live_offers"], t["status"]) == (
+        1,
+        1,
+        0,
+        TaskStatus.OPEN,
+    )
     assert p.tmc.call("credits", r) == 2 * REWARD
     _escrow_held(p, everyone)
     # the accepted worker still delivers and is paid; the task completes on its review

@@ -57,7 +57,13 @@ def test_minimum_price_is_an_admin_setting(setup, actors) -> None:
     reverts("ModelsBadConfig", p.mmc.set_min_model_price, actors.admin, 0)
     reverts("ModelsBadConfig", p.mmc.set_min_model_price, actors.admin, 2**80)
     err = reverts(
-        "ModelsPriceBelowMinimum", p.mmc.allocate, r, domain=DOMAIN, num_models=2, env=[2, 2], price=PRICE - 1
+        "ModelsPriceBelowMinimum",
+        p.mmc.allocate,
+        r,
+        domain=DOMAIN,
+        num_models=2,
+        env=[2, 2],
+        price=PRICE - 1,
     )
     assert err.args_dict == {"price": PRICE - 1, "minimum": PRICE}
 

@@ -35,7 +35,9 @@ def test_rejection_after_the_review_window_reverts_and_the_worker_is_paid(submit
     p, r, w, tid = submitted
     deadline = p.tmc.task(tid)["deadline"]
     p.chain.advance_time(DAY + REVIEW_WINDOW + MARGIN)
-    err = reverts("TasksReviewWindowClosed", p.tmc.transact, "reviewOutcome", tid, w, 0, False, sender=r)
+    err = reverts(
+        "TasksReviewWindowClosed", p.tmc.transact, "reviewOutcome", tid, w, 0, False, sender=r
+    )
     assert err.args_dict == {"taskId": tid, "reviewEnd": deadline + REVIEW_WINDOW}
     assert p.tmc.call("credits", r) == 0
     p.tmc.transact("updateTaskStatus", tid, int(TaskStatus.CLOSED), sender=w)
