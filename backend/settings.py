@@ -144,6 +144,9 @@ class Settings(BaseSettings):
     min_reward_per_hour_wei: int = Field(default=10**12, ge=0, lt=2**96)
     """Anti-spam minimum the embedded deployment sets on the TMC (wei per worker-hour; a task
     must pay at least this per hour of its deadline window per worker; 0 = none)."""
+    min_model_price_wei: int = Field(default=10**12, ge=1, lt=2**80)
+    """Least price per allocated model the embedded deployment sets on the MMC (wei): every
+    allocation counts in the model's reputation (Eq. 10-11), so none may be free."""
 
     # -- overload (docs/platform.md, "Overload") --------------------------------------------
     max_in_flight: int = Field(default=64, ge=1, le=10_000)

@@ -146,7 +146,7 @@ def gas_report(workers: int = 50, scaling: Sequence[int] = (50, 200, 600), seed:
     f["TMC.allocateTask"] = _entry(
         "TMC.allocateTask", rc, candidates=workers, num_workers=NUM_WORKERS, offers=len(offered)
     )
-    one, _ = p.tmc.add_task(requester, domain=DOMAIN, num_workers=1, reward=reward, duration=600)
+    one, _ = p.tmc.add_task(requester, domain=DOMAIN, num_workers=1, reward=reward, duration=86_400)
     f["TMC.allocateTask(NW=1)"] = _entry(
         "TMC.allocateTask(NW=1)",
         p.tmc.allocate(requester, one)[1],

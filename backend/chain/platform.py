@@ -166,6 +166,20 @@ class TasksManager(ContractHandle):
     def set_min_reward_per_hour(self, sender: str, wei_per_hour: int) -> Receipt:
         return self.transact("setMinRewardPerHour", wei_per_hour, sender=sender)
 
+    def set_task_limits(self, sender: str, min_work_time: int, max_duration: int) -> Receipt:
+        """setTaskLimits: least work time after the acceptance window, longest duration (s)."""
+        return self.transact("setTaskLimits", min_work_time, max_duration, sender=sender)
+
+    def duration_bounds(self) -> tuple[int, int]:
+        """(shortest, longest) task duration addTask accepts now, in seconds."""
+        shortest = int(self.call("acceptWindow")) + int(self.call("minWorkTime"))
+        return shortest, int(self.call("maxDuration"))
+
+    def cancel_open_slots(self, sender: str, task_id: int) -> tuple[int, Receipt]:
+        """cancelOpenSlots; returns (slots cancelled, receipt)."""
+        rc = self.transact("cancelOpenSlots", task_id, sender=sender)
+        return rc.one("SlotsCancelled").args["cancelled"], rc
+
     def task(self, task_id: int) -> dict[str, Any]:
         t, r = self.call("getTask", task_id)
         keys_t = (
@@ -193,6 +207,9 @@ class ModelsManager(ContractHandle):
         rc = self.transact("addModel", cid, description, domain, list(env), sender=sender)
         return rc.one("ModelAdded").args["modelId"], rc
 
+    def set_min_model_price(self, sender: str, wei_per_model: int) -> Receipt:
+        return self.transact("setMinModelPrice", wei_per_model, sender=sender)
+
     def model_of_cid(self, cid: str) -> int:
         """Id of the model listing ``cid`` (0 if none)."""
         return int(self.call("modelOfCid", cid_hash(cid)))
@@ -204,14 +221,15 @@ class ModelsManager(ContractHandle):
         domain: int,
         num_models: int,
         env: Sequence[int],
-        price: int = 0,
+        price: int = 1,
         metric: Metric = Metric.SHARING,
         min_reputation: int = 0,
         min_rating: int = 0,
         min_model_reputation: int = 0,
         weights: Sequence[int] = (),
     ) -> tuple[int, list[int], Receipt]:
-        """allocateModel; returns (allocation id, model ids best first, receipt)."""
+        """allocateModel paying ``price`` per model (default: the contract's default minimum,
+        1 wei); returns (allocation id, model ids best first, receipt)."""
         req = (
             domain,
             num_models,
@@ -285,11 +303,15 @@ def deploy_platform(
     review_window: int = REVIEW_WINDOW,
     accepted_gpus: int = ALL_GPUS_BUT_NONE,
     min_reward_per_hour: int = 0,
+    min_model_price: int = 0,
+    task_limits: tuple[int, int] | None = None,
 ) -> Platform:
     """Deploy UMC, TMC and MMC from ``admin`` (default: first account) and wire them.
 
-    ``min_reward_per_hour``: the TMC's anti-spam minimum (wei per worker-hour; 0 = none),
-    set by the admin right after deployment."""
+    Set by the admin right after deployment when given (0 / None = the contract default):
+    ``min_reward_per_hour``, the TMC's anti-spam minimum (wei per worker-hour);
+    ``min_model_price``, the MMC's least price per model (wei; the contract default is 1);
+    ``task_limits``, the TMC's (minWorkTime, maxDuration) in seconds."""
     admin = admin or chain.accounts[0]
     umc, r_umc = chain.deploy("UsersManager", admin, sender=admin)
     tmc, r_tmc = chain.deploy(
@@ -306,6 +328,10 @@ def deploy_platform(
     umc.transact("setPlatform", mmc.address, True, sender=admin)
     if min_reward_per_hour:
         tmc.transact("setMinRewardPerHour", min_reward_per_hour, sender=admin)
+    if min_model_price:
+        mmc.transact("setMinModelPrice", min_model_price, sender=admin)
+    if task_limits is not None:
+        tmc.transact("setTaskLimits", *task_limits, sender=admin)
     return Platform(
         chain,
         admin,

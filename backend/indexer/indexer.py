@@ -409,6 +409,12 @@ class Indexer:
         if o is not None:
             o.review, o.accepted = int(a["review"]), bool(a["accepted"])
 
+    def _on_SlotsCancelled(self, s: Session, a: dict[str, Any], block: int) -> None:
+        t = s.get(m.TaskRow, int(a["taskId"]))
+        if t is not None:
+            t.num_workers = int(a["numWorkers"])
+            t.updated_block = block
+
     def _on_TaskStatusUpdated(self, s: Session, a: dict[str, Any], block: int) -> None:
         t = s.get(m.TaskRow, int(a["taskId"]))
         if t is not None:

@@ -61,7 +61,11 @@ class ModelRequestCreate(BaseModel):
     min_reputation: Fraction = 0.0
     min_rating: Fraction = 0.0
     min_model_reputation: Fraction = 0.0
-    price_wei: Wei(80) = 0  # type: ignore[valid-type]
+    price_wei: Wei(80) | None = Field(  # type: ignore[valid-type]
+        default=None,
+        description="wei paid per model to its owner; none = the MMC's minimum price "
+        "(minModelPrice, set by the consortium; a lower price is a 422 price_below_minimum)",
+    )
     weights: list[Annotated[int, Field(ge=0, le=WEIGHT_ONE)]] = Field(
         default_factory=list,
         max_length=ENV_ATTRIBUTE_COUNT,

@@ -65,6 +65,8 @@ _ERROR_KIND: dict[str, type[DomainError]] = {
     "UnknownTask": NotFound,
     "BadPayment": Invalid,
     "RewardBelowMinimum": Invalid,
+    "PriceBelowMinimum": Invalid,
+    "BadDuration": Invalid,
 }
 
 # Node-side refusals (before any contract code runs), by a lower-case fragment of the message
@@ -201,6 +203,7 @@ class ChainService:
                 review_window=settings.review_window_s,
                 accepted_gpus=ALL_GPU_SERIES,
                 min_reward_per_hour=settings.min_reward_per_hour_wei,
+                min_model_price=settings.min_model_price_wei,
             )
             deploy_block = min(r.block_number for r in platform.receipts.values())
             service = cls(chain, platform, deploy_block)

@@ -21,6 +21,25 @@ import {QoSMath} from "./QoSMath.sol";
  *
  * The requester's own models are never allocated to it (no self-review).
  *
+ * Paid allocations only: every allocation counts in Eq. 10 and Eq. 11 (its model is judged
+ * by it, reviewed or not, as in the thesis), so a free allocation would let anyone drive any
+ * model's and owner's reputation to 0. The price per model must be at least
+ * {minModelPrice} (admin-set, never below 1 wei); every allocation that counts against a
+ * model pays its owner (docs/chain.md, "Paid model allocations").
+ *
+ * One model, one slot: a model id appears at most once in an allocation (the greedy top-N
+ * runs over the domain's list, where each model is once) and a CID is listed once, so one
+ * upload is never sold twice in one allocation. Byte-different copies of the same weights
+ * under another CID are not detectable on chain (docs/chain.md, "Duplicate models").
+ *
+ * Eq. 12 uses 1 + D_m (smoothing, as Eq. 23), which can reorder models against the thesis's
+ * Rep_i * Rep_m / D_m when D_m > 0; the decided ranking (exact matches first, then
+ * Rep_i * Rep_m / D_m) is documented in docs/chain.md and not applied yet.
+ *
+ * Public models: a model's CID is readable by anyone ({getModel}, {ModelAdded}); the decided
+ * design (docs/chain.md, "Outcomes are public before payment") encrypts the weights and
+ * releases the key to buyers, so the CID alone gives nothing away.
+ *
  * Provenance (thesis 7.7): a CID is listed once. A CID that is a training outcome on the
  * TMC may be shared only by the worker who submitted it, and only once its requester
  * accepted it (or it was paid unreviewed at close): while the review is pending the model
@@ -115,6 +134,9 @@ contract ModelsManager is ReentrancyGuardTransient {
     error ModelsNotOutcomeOwner(uint256 taskId, address worker);
     error ModelsOutcomeNotAccepted(uint256 taskId, ITasksOutcomes.Verdict verdict);
     error ModelsDuplicateModel(uint256 modelId);
+    error ModelsNotAdmin(address account);
+    error ModelsBadConfig();
+    error ModelsPriceBelowMinimum(uint256 price, uint256 minimum);
 
     event ModelAdded(
         uint256 indexed modelId,
@@ -136,12 +158,15 @@ contract ModelsManager is ReentrancyGuardTransient {
     event ModelReviewed(uint256 indexed allocId, uint256 indexed modelId, uint8 review);
     event PaymentCredited(address indexed account, uint256 indexed allocId, uint256 amount);
     event Withdrawn(address indexed account, uint256 amount);
+    event MinModelPriceUpdated(uint256 weiPerModel);
 
     IUsersManager public immutable umc;
     /// The TMC whose outcomes the provenance rule checks.
     ITasksOutcomes public immutable tmc;
     uint256 public modelCount;
     uint256 public allocCount;
+    /// Least price per allocated model (wei, >= 1): allocations count in Eq. 10-11.
+    uint256 public minModelPrice;
 
     mapping(uint256 => Model) internal _models;
     /// Attributes 4.. of a model, eight uint32 per word: word k holds attributes 4+8k..11+8k.
@@ -159,6 +184,20 @@ contract ModelsManager is ReentrancyGuardTransient {
     constructor(IUsersManager umc_, ITasksOutcomes tmc_) {
         umc = umc_;
         tmc = tmc_;
+        minModelPrice = 1;
+        emit MinModelPriceUpdated(1);
+    }
+
+    /**
+     * @dev Sets the least price per allocated model (wei) that {allocateModel} accepts.
+     * Requirements: caller is a consortium admin; 1 <= weiPerModel < 2^80 (prices are
+     * uint80). Emits a {MinModelPriceUpdated} event.
+     */
+    function setMinModelPrice(uint256 weiPerModel) external {
+        if (!umc.isAdmin(msg.sender)) revert ModelsNotAdmin(msg.sender);
+        if (weiPerModel == 0 || weiPerModel > type(uint80).max) revert ModelsBadConfig();
+        minModelPrice = weiPerModel;
+        emit MinModelPriceUpdated(weiPerModel);
     }
 
     /**
@@ -213,7 +252,8 @@ contract ModelsManager is ReentrancyGuardTransient {
      * unfilled slots are refunded to the requester's credit.
      * Requirements: caller is a registered requester; 1 <= numModels <= 16; domain <= 47;
      * thresholds <= 1e6; <= 64 attributes; weights empty or one per attribute summing to 1e6;
-     * msg.value a multiple of numModels; at least one eligible model.
+     * msg.value a multiple of numModels; price per model (msg.value / numModels) at least
+     * {minModelPrice}; at least one eligible model.
      * Emits {ModelsRequested}, one {ModelAllocated} and {PaymentCredited} per model.
      */
     function allocateModel(ModelRequest calldata r) external payable returns (uint256 allocId) {
@@ -227,6 +267,8 @@ contract ModelsManager is ReentrancyGuardTransient {
         if (price * r.numModels != msg.value || price > type(uint80).max) {
             revert ModelsBadPayment(msg.value, r.numModels);
         }
+        uint256 minimum = minModelPrice;
+        if (price < minimum) revert ModelsPriceBelowMinimum(price, minimum);
         uint256[] memory weights = _weights(r.env.length, r.weights);
 
         // No self-dealing: the requester's own models are skipped (owner id 0 never exists).

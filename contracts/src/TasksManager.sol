@@ -21,8 +21,41 @@ import {QoSMath} from "./QoSMath.sol";
  * (checks-effects-interactions plus a transient reentrancy guard).
  *
  * Anti-spam: a consortium admin sets {minRewardPerHour}, the least reward per worker-hour a
- * task may offer ({addTask} reverts below it, so zero-reward tasks are refused whenever the
- * minimum is positive).
+ * task may offer ({addTask} reverts below it). A task always pays at least 1 wei per worker,
+ * even with no minimum set: a zero-reward task costs its requester nothing (the escrow comes
+ * back at close) yet its offers count in every offered worker's reputation (docs/chain.md,
+ * "Offers a worker can take").
+ *
+ * Offers a worker can take (anti-griefing): an offer counts as assigned (A of Eq. 17) when it
+ * is made, so no offer may be made that the worker could not accept and complete. {addTask}
+ * requires duration >= acceptWindow + {minWorkTime}, and {allocateTask} refuses once
+ * now + acceptWindow + minWorkTime > deadline: a worker accepting at the very end of its
+ * window still has minWorkTime to train.
+ *
+ * Bounded escrow: duration <= {maxDuration} (admin-set), and the requester may cancel the
+ * slots nobody holds at any time ({cancelOpenSlots}); only the slots of workers who accepted
+ * stay escrowed until the deadline. An accepted worker who never submits keeps its slot until
+ * the deadline the requester chose (there is no on-chain evidence of progress that would let
+ * a requester take it back without letting requesters grief workers); it can give the slot
+ * back with {abandonOffer}, and at close the slot is refunded and the worker's reputation
+ * drops (accepted, never completed).
+ *
+ * Reviews: the requester reviews each outcome until deadline + reviewWindow; after that the
+ * outcome is the worker's (paid at close) and {reviewOutcome} reverts.
+ *
+ * Public outcomes: an outcome CID is public once submitted, before the requester pays. The
+ * decided design (docs/chain.md, "Outcomes are public before payment") is that workers upload
+ * outcomes encrypted to the requester's key, so the CID on chain opens nothing for anyone
+ * else; the key release against payment is documented there, not implemented yet.
+ *
+ * Recruitment decisions (docs/chain.md): the accepted GPU series are one consortium policy
+ * ({acceptedGpus}: which hardware the consortium trusts), while a task's own compute needs
+ * are its minCpuCores / minRamGb; capabilities are self-declared by workers (overclaiming
+ * makes jobs fail, which Eq. 18 punishes); Eq. 16 is as in the thesis here (a new worker's
+ * expertise is 0 once anyone completed a task; the decided pseudo-count is documented).
+ *
+ * EVM: {withdraw}'s reentrancy guard uses transient storage (EIP-1153), so the chain must
+ * run Cancun or later (genesis cancunTime / Besu "cancunTime": 0; the deploy/ genesis must enable it).
  *
  * Provenance: every outcome CID is recorded once, with its worker and task ({outcomeOf},
  * keyed by keccak256 of the CID); the MMC lets only that worker share it, once accepted.
@@ -41,6 +74,8 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
     uint256 public constant MAX_WORKERS = 16; // NW fits uint8 and keeps the top-k array tiny
     uint256 public constant MAX_OFFERS = 64; // bounds the per-task offer loops
     uint256 internal constant ELIGIBLE = 1 << 255;
+    uint32 public constant DEFAULT_MIN_WORK_TIME = 60; // a floor; the consortium sets its own
+    uint40 public constant DEFAULT_MAX_DURATION = 30 days;
 
     enum TaskStatus {
         None,
@@ -115,7 +150,9 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
     error TasksBadWorkerCount(uint8 numWorkers);
     error TasksBadDomain(uint32 domain);
     error TasksBadThreshold(uint32 value);
-    error TasksBadDuration(uint40 duration);
+    error TasksBadDuration(uint40 duration, uint256 minimum, uint256 maximum);
+    error TasksTooLateToOffer(uint256 taskId, uint40 deadline);
+    error TasksReviewWindowClosed(uint256 taskId, uint256 reviewEnd);
     error TasksBadPayment(uint256 value, uint8 numWorkers);
     error TasksNotOpen(uint256 taskId, TaskStatus status);
     error TasksDeadlinePassed(uint256 taskId, uint40 deadline);
@@ -165,6 +202,8 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
     event ConfigUpdated(uint64 w1, uint32 acceptWindow, uint32 reviewWindow);
     event AcceptedGpusUpdated(uint256 mask);
     event MinRewardPerHourUpdated(uint256 weiPerHour);
+    event TaskLimitsUpdated(uint32 minWorkTime, uint40 maxDuration);
+    event SlotsCancelled(uint256 indexed taskId, uint8 cancelled, uint8 numWorkers);
 
     IUsersManager public immutable umc;
 
@@ -172,6 +211,11 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
     uint64 public w1;
     uint32 public acceptWindow;
     uint32 public reviewWindow;
+    /// Least time (s) an offered worker has to train after its acceptance window ends.
+    uint32 public minWorkTime;
+    /// Longest task duration (s) {addTask} accepts: bounds how long escrow can stay locked.
+    /// Packed with w1 and the windows: {allocateTask} reads all four in one SLOAD.
+    uint40 public maxDuration;
     /// Accepted GPU series (7.5.1) as a bitmask of codes 0-255: one SLOAD for all candidates.
     uint256 public acceptedGpus;
     uint256 public taskCount;
@@ -191,6 +235,8 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
 
     constructor(IUsersManager umc_, uint64 w1_, uint32 acceptWindow_, uint32 reviewWindow_, uint256 gpus) {
         umc = umc_;
+        (minWorkTime, maxDuration) = (DEFAULT_MIN_WORK_TIME, DEFAULT_MAX_DURATION);
+        emit TaskLimitsUpdated(DEFAULT_MIN_WORK_TIME, DEFAULT_MAX_DURATION);
         _setConfig(w1_, acceptWindow_, reviewWindow_);
         acceptedGpus = gpus;
         emit AcceptedGpusUpdated(gpus);
@@ -200,8 +246,8 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
 
     /**
      * @dev Sets w1 (Eq. 20, scaled by 1e6, in [1, 1e12]) and the acceptance and review
-     * windows (seconds, > 0). Requirements: caller is a consortium admin.
-     * Emits a {ConfigUpdated} event.
+     * windows (seconds, > 0). Requirements: caller is a consortium admin;
+     * acceptWindow + minWorkTime <= maxDuration. Emits a {ConfigUpdated} event.
      */
     function setConfig(uint64 w1_, uint32 acceptWindow_, uint32 reviewWindow_) external {
         _checkAdmin();
@@ -222,8 +268,23 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
     }
 
     /**
-     * @dev Sets the least reward per worker-hour (wei) that {addTask} accepts; 0 removes the
-     * minimum. Requirements: caller is a consortium admin; weiPerHour < 2^96 (rewards are
+     * @dev Sets the task time limits: `minWorkTime_` (s, > 0), the least time a worker has
+     * after its acceptance window before the deadline, and `maxDuration_` (s, < 2^32), the
+     * longest duration {addTask} accepts. Tasks already posted keep their deadline; an
+     * {allocateTask} checks the limits in force when it runs.
+     * Requirements: caller is a consortium admin; acceptWindow + minWorkTime_ <= maxDuration_.
+     * Emits a {TaskLimitsUpdated} event.
+     */
+    function setTaskLimits(uint32 minWorkTime_, uint40 maxDuration_) external {
+        _checkAdmin();
+        _checkLimits(acceptWindow, minWorkTime_, maxDuration_);
+        (minWorkTime, maxDuration) = (minWorkTime_, maxDuration_);
+        emit TaskLimitsUpdated(minWorkTime_, maxDuration_);
+    }
+
+    /**
+     * @dev Sets the least reward per worker-hour (wei) that {addTask} accepts; 0 leaves only
+     * the floor of 1 wei per worker. Requirements: caller is a consortium admin; weiPerHour < 2^96 (rewards are
      * uint96). Emits a {MinRewardPerHourUpdated} event.
      */
     function setMinRewardPerHour(uint256 weiPerHour) external {
@@ -238,9 +299,10 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
     /**
      * @dev Creates a training task and escrows `msg.value` = reward * numWorkers.
      * Requirements: caller is a registered requester; 1 <= numWorkers <= 16; domain <= 47;
-     * thresholds <= 1e6; 0 < duration < 2^32 s; msg.value a multiple of numWorkers; the
-     * reward per worker at least {minRewardForDuration}(duration), i.e. minRewardPerHour per
-     * hour of the task's duration (deadline - now), rounded up to the wei.
+     * thresholds <= 1e6; acceptWindow + minWorkTime <= duration <= maxDuration (s);
+     * msg.value a multiple of numWorkers; the reward per worker at least
+     * {minRewardForDuration}(duration), i.e. minRewardPerHour per hour of the task's duration
+     * (deadline - now), rounded up to the wei, and at least 1 wei.
      * Emits a {TaskAdded} event.
      */
     function addTask(TaskParams calldata p) external payable returns (uint256 taskId) {
@@ -249,7 +311,10 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
         if (p.domain > Packed.MAX_DOMAIN) revert TasksBadDomain(p.domain);
         if (p.minReputation > QoSMath.ONE) revert TasksBadThreshold(p.minReputation);
         if (p.minRating > QoSMath.ONE) revert TasksBadThreshold(p.minRating);
-        if (p.duration == 0 || p.duration > type(uint32).max) revert TasksBadDuration(p.duration);
+        uint256 shortest = uint256(acceptWindow) + minWorkTime;
+        if (p.duration < shortest || p.duration > maxDuration) {
+            revert TasksBadDuration(p.duration, shortest, maxDuration);
+        }
         uint256 reward = msg.value / p.numWorkers;
         if (reward * p.numWorkers != msg.value || reward > type(uint96).max) {
             revert TasksBadPayment(msg.value, p.numWorkers);
@@ -282,14 +347,18 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
      * acceptance window, then offers the task to the best eligible workers by Eq. 21 QoS,
      * excluding everyone offered this task before (the "next best" after an expiry) and
      * the requester itself.
-     * Requirements: caller is the task's requester or an admin; task open; before deadline;
-     * at least one open slot; fewer than MAX_OFFERS offers made.
+     * Requirements: caller is the task's requester or an admin; task open;
+     * now + acceptWindow + minWorkTime <= deadline (an offered worker can accept and still
+     * has minWorkTime to train); at least one open slot; fewer than MAX_OFFERS offers made.
      * Emits {OfferExpired}, {TaskOffered} per offer and one {TaskAllocated} event.
      */
     function allocateTask(uint256 taskId) external returns (uint256 offered) {
         Task storage t = _tasks[taskId];
         if (t.requester != msg.sender && !umc.isAdmin(msg.sender)) _checkRequester(t, taskId);
         _checkOpen(t, taskId);
+        if (block.timestamp + acceptWindow + minWorkTime > t.deadline) {
+            revert TasksTooLateToOffer(taskId, t.deadline);
+        }
         Reqs memory r = _reqs[taskId];
         (uint256[] memory ws, uint256[] memory cs) = umc.candidates(r.domain, TRAINING);
         bool[] memory excluded = new bool[](ws.length);
@@ -320,7 +389,8 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
      * @dev The requester reviews a submitted outcome once: `review` in [0, 5] feeds the
      * worker's rating; `accepted` releases the slot's reward to the worker, otherwise it is
      * refunded. Requirements: caller is the task's requester; the worker's outcome is
-     * submitted and not yet reviewed; review <= 5.
+     * submitted and not yet reviewed; now <= deadline + reviewWindow (afterwards the outcome
+     * is the worker's: paid at close); review <= 5.
      * Emits {OutcomeReviewed}, {PaymentCredited} and, on the last slot, {TaskStatusUpdated}.
      */
     function reviewOutcome(uint256 taskId, address worker, uint8 review, bool accepted) external {
@@ -328,6 +398,8 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
         _checkRequester(t, taskId);
         Offer storage o = _offers[taskId][worker];
         if (o.state != OfferState.Submitted) revert TasksNotSubmitted(taskId, worker);
+        uint256 reviewEnd = uint256(t.deadline) + reviewWindow;
+        if (block.timestamp > reviewEnd) revert TasksReviewWindowClosed(taskId, reviewEnd);
         if (review > QoSMath.REVIEW_MAX) revert TasksBadReview(review);
         o.state = OfferState.Reviewed;
         o.paid = accepted;
@@ -347,7 +419,8 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
      * @dev Task status changes (thesis updateTaskStatus):
      * - Cancelled: by the requester while open, before any worker accepted and with no offer
      *   inside its acceptance window (an offered worker keeps its chance to accept: its
-     *   offer already counts in A of Eq. 17); refunds all.
+     *   offer already counts in A of Eq. 17); refunds all. With workers holding slots, use
+     *   {cancelOpenSlots} to refund the rest.
      * - Closed: after the deadline, by the requester, an admin or any worker offered the
      *   task. Outcomes submitted but not reviewed are paid (if the review window is over;
      *   otherwise the call reverts), accepted offers without outcome become Failed, pending
@@ -378,6 +451,35 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
         t.settled = t.numWorkers;
         if (unsettled != 0) _credit(t.requester, taskId, unsettled * _reqs[taskId].reward);
         emit TaskStatusUpdated(taskId, status);
+    }
+
+    /**
+     * @dev The requester gives up the slots nobody holds: offers past their acceptance window
+     * expire, then every slot neither accepted nor inside a live offer is removed from the
+     * task (numWorkers shrinks) and its reward refunded. Workers who accepted keep their
+     * slots and rewards. With no slot left the task is Cancelled; with every remaining slot
+     * reviewed it is Completed.
+     * Requirements: caller is the task's requester; task open; before the deadline; at least
+     * one slot neither accepted nor offered. Emits {OfferExpired} per stale offer, a
+     * {SlotsCancelled}, a {PaymentCredited} and possibly a {TaskStatusUpdated} event.
+     */
+    function cancelOpenSlots(uint256 taskId) external returns (uint256 cancelled) {
+        Task storage t = _tasks[taskId];
+        _checkRequester(t, taskId);
+        _checkOpen(t, taskId);
+        uint256 live = _expireOffers(taskId, new bool[](0));
+        cancelled = t.numWorkers - live - t.filled;
+        if (cancelled == 0) revert TasksNoOpenSlot(taskId);
+        uint8 left = uint8(t.numWorkers - cancelled);
+        t.numWorkers = left;
+        t.liveOffers = uint8(live);
+        emit SlotsCancelled(taskId, uint8(cancelled), left);
+        _credit(t.requester, taskId, cancelled * _reqs[taskId].reward);
+        if (left == 0 || t.settled == left) {
+            TaskStatus s = left == 0 ? TaskStatus.Cancelled : TaskStatus.Completed;
+            t.status = s;
+            emit TaskStatusUpdated(taskId, s);
+        }
     }
 
     // ---------------------------------------------------------------------------- worker
@@ -502,11 +604,10 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
     }
 
     /// @dev Least reward per worker for a task of `duration` seconds:
-    /// ceil(minRewardPerHour * duration / 3600) wei (0 when no minimum is set).
+    /// ceil(minRewardPerHour * duration / 3600) wei, and at least 1 wei (no free tasks).
     function minRewardForDuration(uint256 duration) public view returns (uint256) {
-        uint256 perHour = minRewardPerHour;
-        if (perHour == 0) return 0;
-        return (perHour * duration + 3599) / 3600;
+        uint256 minimum = (minRewardPerHour * duration + 3599) / 3600;
+        return minimum == 0 ? 1 : minimum;
     }
 
     // ---------------------------------------------------------------------------- internal
@@ -629,8 +730,16 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
 
     function _setConfig(uint64 w1_, uint32 acceptWindow_, uint32 reviewWindow_) internal {
         if (w1_ == 0 || w1_ > 1e12 || acceptWindow_ == 0 || reviewWindow_ == 0) revert TasksBadConfig();
+        _checkLimits(acceptWindow_, minWorkTime, maxDuration);
         (w1, acceptWindow, reviewWindow) = (w1_, acceptWindow_, reviewWindow_);
         emit ConfigUpdated(w1_, acceptWindow_, reviewWindow_);
+    }
+
+    /// @dev A task must be able to last acceptWindow + minWorkTime within maxDuration.
+    function _checkLimits(uint256 acceptWindow_, uint256 minWorkTime_, uint256 maxDuration_) internal pure {
+        if (minWorkTime_ == 0 || maxDuration_ > type(uint32).max || acceptWindow_ + minWorkTime_ > maxDuration_) {
+            revert TasksBadConfig();
+        }
     }
 
     function _checkAdmin() internal view {

@@ -121,7 +121,7 @@ def test_allocate_task_matches_reference(fp, pool, nw, min_rep, min_rating, min_
             actors.requester,
             domain=DOM,
             num_workers=nw,
-            reward=0,
+            reward=1,  # the least reward a task may offer
             duration=86_400,
             min_reputation=min_rep,
             min_rating=min_rating,
@@ -192,7 +192,7 @@ def test_allocate_model_sharing_matches_reference(fp, case, nm, min_rep, min_rat
         req = (DOM, nm, int(Metric.SHARING), min_rep, min_rating, 0, list(env), list(weights or ()))
         if not expected:
             try:
-                p.mmc.transact("allocateModel", req, sender=actors.requester)
+                p.mmc.transact("allocateModel", req, sender=actors.requester, value=nm)
                 raise AssertionError("no eligible model must revert")
             except errors.get("ModelsNoEligibleModel"):
                 return

@@ -41,13 +41,16 @@ def test_minimum_rounds_up_to_the_wei(tmc, actors) -> None:
     tmc.set_min_reward_per_hour(actors.admin, 1_000)
     assert tmc.min_reward(1) == 1  # 1000 / 3600 = 0.28 wei -> 1
     assert tmc.min_reward(3_600) == 1_000 and tmc.min_reward(3_601) == 1_001
-    add = {"domain": DOMAIN, "num_workers": 1, "duration": 1}
-    reverts("TasksRewardBelowMinimum", tmc.add_task, actors.requester, reward=0, **add)
-    tmc.add_task(actors.requester, reward=1, **add)
+    add = {"domain": DOMAIN, "num_workers": 1, "duration": 3_601}
+    reverts("TasksRewardBelowMinimum", tmc.add_task, actors.requester, reward=1_000, **add)
+    tmc.add_task(actors.requester, reward=1_001, **add)
 
 
-def test_zero_minimum_allows_free_tasks(tmc, actors) -> None:
+def test_zero_minimum_leaves_a_one_wei_floor(tmc, actors) -> None:
+    """No minimum set still refuses free tasks (issue 8, finding 2)."""
     tmc.set_min_reward_per_hour(actors.admin, PER_HOUR)
     tmc.set_min_reward_per_hour(actors.admin, 0)
-    assert tmc.min_reward(86_400) == 0
-    tmc.add_task(actors.requester, domain=DOMAIN, num_workers=1, reward=0, duration=86_400)
+    assert tmc.min_reward(86_400) == 1
+    add = {"domain": DOMAIN, "num_workers": 1, "duration": 86_400}
+    reverts("TasksRewardBelowMinimum", tmc.add_task, actors.requester, reward=0, **add)
+    tmc.add_task(actors.requester, reward=1, **add)

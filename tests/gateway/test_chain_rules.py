@@ -12,7 +12,7 @@ from backend.api.errors import domain_status
 from backend.auth import DemoKeys, bearer_headers
 from backend.services.chain import ChainService, node_rule_error
 
-from .conftest import Login, P, register, task_body
+from .conftest import Login, P, addr, register, task_body
 
 
 def test_reward_below_minimum_is_422_before_sending(
@@ -97,3 +97,55 @@ def test_node_messages_map_to_rules() -> None:
         err = node_rule_error(wrapped)
         assert err is not None and (domain_status(err), err.rule) == (status, rule), msg
     assert node_rule_error(RuntimeError("connection reset")) is None
+
+
+def test_model_price_below_minimum_is_422_before_sending(
+    client: TestClient, login: Login, service: ChainService
+) -> None:
+    """Issue 8, finding 4: no free model allocations; no price given pays the minimum."""
+    register(client, login, ["user1"], {})
+    mmc = service.platform.mmc
+    minimum = mmc.call("minModelPrice")
+    assert minimum > 1  # the embedded deployment sets the settings' default
+    before, block = mmc.call("allocCount"), service.block_number()
+    env = task_body()["env"]
+    for price in (0, minimum - 1):
+        body = {"domain": 0, "env": env, "num_models": 1, "price_wei": price}
+        r = client.post(f"{P}/models/requests", json=body, headers=login("user1"))
+        assert r.status_code == 422, r.text
+        [issue] = r.json()["detail"]
+        assert issue["loc"] == ["body", "price_wei"] and issue["type"] == "price_below_minimum"
+        assert str(minimum) in issue["msg"]
+    assert mmc.call("allocCount") == before and service.block_number() == block  # nothing sent
+
+
+def test_deadline_too_short_to_accept_and_work_is_422(
+    client: TestClient, login: Login, service: ChainService
+) -> None:
+    """Issue 8, finding 2: a task no offered worker could accept and complete is refused."""
+    register(client, login, ["user1"], {})
+    shortest, longest = service.platform.tmc.duration_bounds()
+    for deadline_s in (shortest - 1, longest + 1):
+        r = client.post(f"{P}/tasks", json=task_body(deadline_s=deadline_s), headers=login("user1"))
+        assert r.status_code == 422, r.text
+        assert r.json()["detail"]["rule"] == "tasks_bad_duration"
+
+
+def test_cancel_open_slots_refunds_them_and_keeps_accepted_ones(
+    client: TestClient, login: Login, service: ChainService
+) -> None:
+    """Issue 8, finding 6: the requester gives up slots nobody holds; the index follows."""
+    register(client, login, ["user1"], {"user3": {}})
+    r = client.post(f"{P}/tasks", json=task_body(num_workers=3), headers=login("user1"))
+    assert r.status_code == 201, r.text
+    task_id, offered = r.json()["task_id"], r.json()["offered"]
+    assert offered == [addr(service, "user3")]  # one worker for three slots
+    service.platform.tmc.transact("acceptOffer", task_id, sender=offered[0])  # the daemon's call
+    r = client.post(f"{P}/tasks/{task_id}/cancel-open-slots", headers=login("user3"))
+    assert r.status_code == 403, r.text
+    r = client.post(f"{P}/tasks/{task_id}/cancel-open-slots", headers=login("user1"))
+    assert r.status_code == 200, r.text
+    detail = client.get(f"{P}/tasks/{task_id}").json()
+    assert detail["num_workers"] == 1 and detail["status"] == "open"
+    r = client.post(f"{P}/tasks/{task_id}/cancel-open-slots", headers=login("user1"))
+    assert r.status_code == 409 and r.json()["detail"]["rule"] == "tasks_no_open_slot"

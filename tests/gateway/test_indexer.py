@@ -58,7 +58,7 @@ def _activity(service: ChainService, first: int) -> None:
         p.umc.add_requester(req)
         for i, w in enumerate(workers):
             p.umc.add_worker(w, [0], 2 + 4 * i, 8, 0)
-        task_id, _ = p.tmc.add_task(req, domain=0, num_workers=2, reward=10**12, duration=600)
+        task_id, _ = p.tmc.add_task(req, domain=0, num_workers=2, reward=10**12, duration=3_600)
         p.tmc.allocate(req, task_id)
 
 

@@ -74,7 +74,7 @@ def test_search_allocate_review_download(
     # allocation: the requester asks for one model like ENV2 in domain 0, then reviews it 5/5
     r = client.post(
         f"{P}/models/requests",
-        json={"domain": 0, "env": ENV2, "num_models": 1, "price_wei": 1000},
+        json={"domain": 0, "env": ENV2, "num_models": 1},  # price: the minimum
         headers=login("user1"),
     )
     assert r.status_code == 201, r.text

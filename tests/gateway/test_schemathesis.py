@@ -81,7 +81,11 @@ UNSCHEMATIC_REJECTIONS: dict[str, tuple[str, ...]] = {
         *_ENV_RELATIONS,
         r"^(bundle_not_found|card_missing|card_invalid|env_mismatch_card) ",  # the store
     ),
-    "POST /api/models/requests": (*_ENV_RELATIONS, r"must sum to 1e6"),
+    "POST /api/models/requests": (
+        *_ENV_RELATIONS,
+        r"must sum to 1e6",
+        r"^price_below_minimum ",  # minimum price per model, read from the chain
+    ),
     "POST /api/tx": (r"^tx_invalid$",),  # RLP and a recoverable signature
     "POST /api/auth/token": (r"^siwe_message_malformed$",),  # EIP-4361 grammar
 }

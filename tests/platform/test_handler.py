@@ -199,7 +199,7 @@ def test_a_failing_job_is_given_back_on_chain_and_releases_the_worker(
     env, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     p, actors, store = env
-    task_id, offered, _ = post_task(p, store, actors.requester, duration=600)
+    task_id, offered, _ = post_task(p, store, actors.requester, duration=1_800)
     worker = offered[0]
     h = handler_for(p, worker, store, tmp_path)
 

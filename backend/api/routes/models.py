@@ -394,7 +394,7 @@ def share_model(
     "/requests",
     status_code=status.HTTP_201_CREATED,
     response_model=ModelAllocationPublic,
-    responses=rule_responses(401, 402, 403, 409, 503),
+    responses=rule_responses(401, 402, 403, 409, 422, 503),
 )
 def request_models(
     body: ModelRequestCreate, user: CurrentUser, chain: ChainDep, indexer: IndexerDep
@@ -415,12 +415,13 @@ def request_models(
         attrs,
         list(body.weights),
     )
+    price = model_price(chain, body.price_wei)
     rc = chain.send(
         user.address,
         chain.platform.mmc,
         "allocateModel",
         req,
-        value=body.price_wei * body.num_models,
+        value=price * body.num_models,
     )
     alloc_id = int(rc.one("ModelsRequested").args["allocId"])
     models = []
@@ -431,6 +432,22 @@ def request_models(
         )
     catch_up(indexer)
     return ModelAllocationPublic(alloc_id=alloc_id, models=models)
+
+
+def model_price(chain: ChainDep, price_wei: int | None) -> int:
+    """The price per model to pay: the given one, or the MMC's minimum when none is given; 422
+    ``price_below_minimum`` on ``price_wei`` below that minimum (read from the chain: every
+    allocation counts in the model's reputation, so none is free)."""
+    minimum = int(chain.call(chain.platform.mmc, "minModelPrice"))
+    if price_wei is None:
+        return minimum
+    if price_wei < minimum:
+        field_error(
+            ("body", "price_wei"),
+            f"{price_wei} wei per model is below the minimum {minimum} wei (set by the consortium)",
+            "price_below_minimum",
+        )
+    return price_wei
 
 
 @router.post(

@@ -359,3 +359,20 @@ def cancel_task(
     )
     catch_up(indexer)
     return TxPublic(**receipt_public(rc))
+
+
+@router.post(
+    "/{task_id}/cancel-open-slots",
+    response_model=TxPublic,
+    responses=rule_responses(401, 403, 404, 409),
+)
+def cancel_open_slots(
+    task_id: TaskId, user: CurrentUser, session: SessionDep, chain: ChainDep, indexer: IndexerDep
+) -> TxPublic:
+    """Give up the slots no worker holds (TMC.cancelOpenSlots): their rewards are refunded to
+    the requester's credit, workers who accepted keep theirs; 409 ``tasks_no_open_slot`` when
+    every slot is accepted or inside a live offer."""
+    _require_requester(_task(session, task_id), user.address)
+    rc = chain.send(user.address, chain.platform.tmc, "cancelOpenSlots", task_id)
+    catch_up(indexer)
+    return TxPublic(**receipt_public(rc))
