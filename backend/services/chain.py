@@ -201,6 +201,8 @@ class ChainService:
                 review_window=settings.review_window_s,
                 accepted_gpus=ALL_GPU_SERIES,
                 min_reward_per_hour=settings.min_reward_per_hour_wei,
+                # development chain: registration makes a worker a candidate at once
+                worker_approval=False,
             )
             deploy_block = min(r.block_number for r in platform.receipts.values())
             service = cls(chain, platform, deploy_block)
