@@ -134,9 +134,7 @@ def _chain_worker(p: Platform, addr: str, w: qos.Worker) -> qos.Worker:
     min_ram=st.sampled_from([0, 16]),
     size=POOL_SIZES,
 )
-def test_allocate_task_matches_reference(
-    fp, pool, nw, min_rep, min_rating, min_cpu, min_ram, size
-):
+def test_allocate_task_matches_reference(fp, pool, nw, min_rep, min_rating, min_cpu, min_ram, size):
     p = fp
     actors = actors_of(p.chain)
     snap = p.chain.snapshot()
