@@ -33,8 +33,8 @@ from backend.chain.platform import (
 
 DOMAIN = 5
 BLOCK_GAS = 30_000_000
-SEED_WORKERS_PER_TX = 250  # ~75k gas per seeded worker: ~19M gas per transaction
-SEED_MODELS_PER_TX = 300
+SEED_WORKERS_PER_TX = 150  # ~75k gas each: ~11M gas, below the 15M EIP-1559 target (base fee falls)
+SEED_MODELS_PER_TX = 150
 FIRST_ADDRESS = 0x10_0000  # synthetic worker addresses 0x..100000, 0x..100001, ...
 NUM_WORKERS = 5
 MAX_POOL_SIZE = 128  # UMC.MAX_POOL_SIZE
@@ -118,6 +118,8 @@ def scaling(sizes: Sequence[int], pool_size: int | None = None) -> dict[int, dic
     for n in sorted(sizes):
         seed(p, n)
         figures[n] = measure(p)
+        cells = "  ".join(f"{k} {v:>9,}" for k, v in figures[n].items())
+        print(f"N={n:>6,} registered workers (one model each): {cells}", flush=True)
     return figures
 
 
@@ -137,9 +139,6 @@ def main() -> None:
     sizes = [int(s) for s in args.sizes.split(",")]
     t0 = time.monotonic()
     figures = scaling(sizes)
-    for n, row in figures.items():
-        cells = "  ".join(f"{k} {v:>9,}" for k, v in row.items())
-        print(f"N={n:>6,} registered workers (one model each): {cells}")
     report: dict = {"pool_size": 64, "gas_used": {str(n): r for n, r in figures.items()}}
     if not args.no_worst_case:
         worst = worst_case()
