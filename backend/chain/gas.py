@@ -90,7 +90,7 @@ def gas_report(workers: int = 50, scaling: Sequence[int] = (50, 200, 600), seed:
         raise ValueError(f"every scaling pool size must be >= {NUM_WORKERS}, got {scaling}")
     rng = random.Random(seed)
     chain = Chain.embedded(accounts=FIRST_WORKER + max(workers, *scaling))
-    p = deploy_platform(chain)
+    p = deploy_platform(chain, worker_approval=False)
     admin, requester = chain.accounts[0], chain.accounts[1]
     f: dict[str, dict[str, Any]] = {}
     f["UMC.deployment"] = _entry("UMC.deployment", p.receipts["UsersManager"], True)

@@ -21,13 +21,16 @@ W1_DEFAULT = 100_000  # Eq. 20 weight 0.1 scaled by 1e6 (= qos.W1_DEFAULT)
 ACCEPT_WINDOW = 3_600  # seconds a worker has to accept an offer
 REVIEW_WINDOW = 7 * 86_400  # seconds a requester has to review after the deadline
 MAX_DOMAIN = 47  # UMC keeps a worker's domains as a 48-bit mask
+MAX_WORKER_DOMAINS = 4  # UMC.MAX_WORKER_DOMAINS: domains one worker may cover
 ALL_GPUS_BUT_NONE = (1 << 256) - 2  # every GPU series code 1-255 accepted; 0 = no GPU
 
 
 class WorkerStatus(enum.IntEnum):
     NONE = 0
-    ACTIVE = 1
-    IDLE = 2
+    ACTIVE = 1  # approved, takes offers (in its domains' candidate queues)
+    IDLE = 2  # approved, takes no offers
+    PENDING = 3  # registered, waiting for an admin's approval
+    REMOVED = 4  # removed by itself or an admin
 
 
 class TaskStatus(enum.IntEnum):
@@ -104,6 +107,31 @@ class UsersManager(ContractHandle):
     def update_status(self, sender: str, status: WorkerStatus) -> Receipt:
         return self.transact("updateStatus", int(status), sender=sender)
 
+    def status(self, worker: str) -> WorkerStatus:
+        return WorkerStatus(self.call("getWorker", worker)[1])
+
+    def approve_worker(self, sender: str, worker: str) -> Receipt:
+        """An admin approves a Pending worker (it becomes Active, a candidate)."""
+        return self.transact("approveWorker", worker, sender=sender)
+
+    def remove_worker(self, sender: str, worker: str) -> Receipt:
+        """The worker itself or an admin removes ``worker`` for good."""
+        return self.transact("removeWorker", worker, sender=sender)
+
+    def set_approval_required(self, sender: str, required: bool) -> Receipt:
+        return self.transact("setApprovalRequired", required, sender=sender)
+
+    def set_pool_size(self, sender: str, size: int) -> Receipt:
+        return self.transact("setPoolSize", size, sender=sender)
+
+    def pool(self, domain: int) -> list[str]:
+        """The domain's candidate pool (first ``poolSize`` of its Active queue), in order."""
+        return list(self.call("pool", domain))
+
+    def queue(self, domain: int) -> list[str]:
+        """The domain's whole Active queue (pool first, then the waiting workers)."""
+        return list(self.call("queue", domain))
+
     def counters(self, worker: str, domain: int, task_type: int) -> dict[str, int]:
         c = self.call("counters", worker, domain, task_type)
         names = ("assigned", "accepted", "completed", "rating_sum", "rating_count")
@@ -151,8 +179,8 @@ class TasksManager(ContractHandle):
         return [e.args["worker"] for e in rc.named("TaskOffered")], rc
 
     def offer(self, task_id: int, worker: str) -> dict[str, int]:
-        state, expiry, index, paid = self.call("getOffer", task_id, worker)
-        return {"state": OfferState(state), "expiry": expiry, "list_index": index, "paid": paid}
+        state, expiry, worker_id, paid = self.call("getOffer", task_id, worker)
+        return {"state": OfferState(state), "expiry": expiry, "worker_id": worker_id, "paid": paid}
 
     def outcome_of(self, cid: str) -> tuple[str, int, Verdict]:
         """(worker, task id, verdict) of the outcome ``cid``; (0x0.., 0, NONE) if none."""
@@ -209,6 +237,9 @@ class ModelsManager(ContractHandle):
 
     def set_min_model_price(self, sender: str, wei_per_model: int) -> Receipt:
         return self.transact("setMinModelPrice", wei_per_model, sender=sender)
+
+    def set_max_models_per_owner(self, sender: str, limit: int) -> Receipt:
+        return self.transact("setMaxModelsPerOwner", limit, sender=sender)
 
     def model_of_cid(self, cid: str) -> int:
         """Id of the model listing ``cid`` (0 if none)."""
@@ -305,13 +336,20 @@ def deploy_platform(
     min_reward_per_hour: int = 0,
     min_model_price: int = 0,
     task_limits: tuple[int, int] | None = None,
+    worker_approval: bool = True,
+    pool_size: int | None = None,
+    max_models_per_owner: int | None = None,
 ) -> Platform:
     """Deploy UMC, TMC and MMC from ``admin`` (default: first account) and wire them.
 
     Set by the admin right after deployment when given (0 / None = the contract default):
     ``min_reward_per_hour``, the TMC's anti-spam minimum (wei per worker-hour);
     ``min_model_price``, the MMC's least price per model (wei; the contract default is 1);
-    ``task_limits``, the TMC's (minWorkTime, maxDuration) in seconds."""
+    ``task_limits``, the TMC's (minWorkTime, maxDuration) in seconds; ``pool_size`` /
+    ``max_models_per_owner``, the UMC candidate pool size per domain and the MMC's models per
+    owner. ``worker_approval``: new workers wait for an admin's approval (the contract's
+    default); a development chain switches it off so that registration makes a worker a
+    candidate at once."""
     admin = admin or chain.accounts[0]
     umc, r_umc = chain.deploy("UsersManager", admin, sender=admin)
     tmc, r_tmc = chain.deploy(
@@ -332,6 +370,12 @@ def deploy_platform(
         mmc.transact("setMinModelPrice", min_model_price, sender=admin)
     if task_limits is not None:
         tmc.transact("setTaskLimits", *task_limits, sender=admin)
+    if not worker_approval:
+        umc.transact("setApprovalRequired", False, sender=admin)
+    if pool_size is not None:
+        umc.transact("setPoolSize", pool_size, sender=admin)
+    if max_models_per_owner is not None:
+        mmc.transact("setMaxModelsPerOwner", max_models_per_owner, sender=admin)
     return Platform(
         chain,
         admin,

@@ -81,6 +81,13 @@ Decisions where the thesis is vague (also in the issue report)
 10. Ties: equal QoS -> lower index (earlier registration) wins, in greedy selection and in
     the "next best" after an expired offer (``exclude`` argument of :func:`greedy_top`).
 11. Thresholds (min reputation, min rating) are compared in fixed point (``>=``), as on chain.
+12. Candidate pools (issue 8, allocation that scales): the candidates of a domain are its
+    *pool*, the first ``pool_size`` (UMC ``poolSize``, default :data:`POOL_SIZE`) available
+    workers covering the domain in the order they last became available (registration order
+    when nobody changed status) -- :func:`domain_pool`. Training recruitment ranks pool
+    members only; model sharing and the MMC (Eq. 12) rank only models whose owner is a pool
+    member of the model's domain. N_max (Eq. 16) is taken over the eligible pool members.
+    Ties still go to the lower index (the lower worker / model id), whatever the pool order.
 """
 
 from __future__ import annotations
@@ -102,6 +109,8 @@ MAX_COUNTER = 2**64 - 1
 MAX_ATTR = 2**32 - 1
 MAX_W1 = 10**12
 MAX_ENV_DIMS = 64
+POOL_SIZE = 64
+"""UMC.DEFAULT_POOL_SIZE: candidates per domain (decision 12)."""
 ATAN_MAX_ERR = 1.2e-5
 """Bound on |atan_fixed(x)/ONE - (2/pi) atan(x/ONE)| for every x >= 0 (test: dense grid)."""
 QOS_TRAINING_MAX_ERR = ATAN_MAX_ERR + 4 / ONE
@@ -632,14 +641,39 @@ def training_eligible(w: Worker, task: TrainingTask) -> bool:
     return rating_fixed(c.rating_sum, c.rating_count) >= task.min_rating
 
 
+def domain_pool(
+    workers: Sequence[Worker],
+    domain: int,
+    pool_size: int = POOL_SIZE,
+    order: Sequence[int] | None = None,
+) -> frozenset[int]:
+    """Decision 12: indices of the workers in ``domain``'s candidate pool (UMC ``pool``).
+
+    The first ``pool_size`` available workers covering ``domain`` in ``order``, the worker
+    indices in the order they last became available (default: list order, i.e. registration
+    order when no worker changed status since).
+    """
+    _check_uint("pool_size", pool_size, MAX_ATTR)
+    seq = range(len(workers)) if order is None else order
+    members = [i for i in seq if workers[i].available and domain in workers[i].domains]
+    return frozenset(members[:pool_size])
+
+
 def training_qos_all(
-    workers: Sequence[Worker], task: TrainingTask, w1: int = W1_DEFAULT
+    workers: Sequence[Worker],
+    task: TrainingTask,
+    w1: int = W1_DEFAULT,
+    pool: frozenset[int] | None = None,
 ) -> tuple[list[bool], list[int]]:
     """Eligibility and fixed-point Eq. 21 QoS of every worker (0 where not eligible).
 
-    Two passes, as on chain: N_max over eligible workers (Eq. 16), then the QoS.
+    Only members of the domain's candidate ``pool`` are eligible (default: :func:`domain_pool`
+    with the default size). Two passes, as on chain: N_max over eligible workers (Eq. 16),
+    then the QoS.
     """
-    eligible = [training_eligible(w, task) for w in workers]
+    if pool is None:
+        pool = domain_pool(workers, task.domain)
+    eligible = [i in pool and training_eligible(w, task) for i, w in enumerate(workers)]
     n_max = 0
     for w, ok in zip(workers, eligible, strict=True):
         if ok:
@@ -662,10 +696,15 @@ def training_qos_all(
 
 
 def training_qos_float(
-    workers: Sequence[Worker], task: TrainingTask, w1: float = W1_DEFAULT / ONE
+    workers: Sequence[Worker],
+    task: TrainingTask,
+    w1: float = W1_DEFAULT / ONE,
+    pool: frozenset[int] | None = None,
 ) -> list[float]:
     """Float Eq. 16-21 QoS (thesis as written) of every worker eligible under the fixed filter."""
-    eligible = [training_eligible(w, task) for w in workers]
+    if pool is None:
+        pool = domain_pool(workers, task.domain)
+    eligible = [i in pool and training_eligible(w, task) for i, w in enumerate(workers)]
     stats = [w.stats(task.domain, TaskType.TRAINING) for w in workers]
     n_max = max((c.completed for c, ok in zip(stats, eligible, strict=True) if ok), default=0)
     return [
@@ -686,9 +725,12 @@ def recruit_training(
     task: TrainingTask,
     w1: int = W1_DEFAULT,
     exclude: frozenset[int] | set[int] = frozenset(),
+    pool: frozenset[int] | None = None,
 ) -> list[int]:
-    """7.6: the NW eligible workers with the highest Eq. 21 QoS, best first (TMC.allocateTask)."""
-    eligible, qos = training_qos_all(workers, task, w1)
+    """7.6: the NW eligible workers with the highest Eq. 21 QoS, best first (TMC.allocateTask).
+
+    Candidates: the domain's ``pool`` (decision 12; default :func:`domain_pool`)."""
+    eligible, qos = training_qos_all(workers, task, w1, pool)
     return greedy_top(qos, task.num_workers, eligible, exclude)
 
 
@@ -711,11 +753,19 @@ def sharing_eligible(m: Model, workers: Sequence[Worker], task: SharingTask) -> 
 
 
 def sharing_qos_all(
-    models: Sequence[Model], workers: Sequence[Worker], task: SharingTask
+    models: Sequence[Model],
+    workers: Sequence[Worker],
+    task: SharingTask,
+    pool: frozenset[int] | None = None,
 ) -> tuple[list[bool], list[int]]:
-    """Eligibility and fixed-point Eq. 23 QoS of every model (0 where not eligible)."""
+    """Eligibility and fixed-point Eq. 23 QoS of every model (0 where not eligible).
+
+    Only models whose owner is in the domain's candidate ``pool`` are eligible (decision 12;
+    default :func:`domain_pool`)."""
     weights = task.env_weights if task.env_weights is not None else default_weights(len(task.env))
-    eligible = [sharing_eligible(m, workers, task) for m in models]
+    if pool is None:
+        pool = domain_pool(workers, task.domain)
+    eligible = [m.owner in pool and sharing_eligible(m, workers, task) for m in models]
     n_max = 0
     for m, ok in zip(models, eligible, strict=True):
         if ok:
@@ -738,12 +788,15 @@ def sharing_qos_all(
 
 
 def sharing_qos_float(
-    models: Sequence[Model], workers: Sequence[Worker], task: SharingTask
+    models: Sequence[Model],
+    workers: Sequence[Worker],
+    task: SharingTask,
+    pool: frozenset[int] | None = None,
 ) -> list[float]:
     """Float Eq. 22-23 QoS of every model eligible under the fixed filter (0.0 otherwise)."""
     weights = task.env_weights if task.env_weights is not None else default_weights(len(task.env))
     wf = [w / ONE for w in weights]
-    eligible = [sharing_eligible(m, workers, task) for m in models]
+    eligible, _ = sharing_qos_all(models, workers, task, pool)
     stats = [workers[m.owner].stats(task.domain, TaskType.SHARING) for m in models]
     n_max = max((c.completed for c, ok in zip(stats, eligible, strict=True) if ok), default=0)
     return [
@@ -764,9 +817,10 @@ def recruit_sharing(
     workers: Sequence[Worker],
     task: SharingTask,
     exclude: frozenset[int] | set[int] = frozenset(),
+    pool: frozenset[int] | None = None,
 ) -> list[int]:
     """7.6 for model sharing: indices of the NW eligible models with the highest Eq. 23 QoS."""
-    eligible, qos = sharing_qos_all(models, workers, task)
+    eligible, qos = sharing_qos_all(models, workers, task, pool)
     return greedy_top(qos, task.num_workers, eligible, exclude)
 
 
@@ -779,11 +833,15 @@ def owner_totals(models: Sequence[Model]) -> dict[int, tuple[int, int]]:
     return tot
 
 
-def model_qos_all(models: Sequence[Model], req: ModelRequest) -> tuple[list[bool], list[int]]:
+def model_qos_all(
+    models: Sequence[Model], req: ModelRequest, pool: frozenset[int] | None = None
+) -> tuple[list[bool], list[int]]:
     """Eligibility and fixed-point Eq. 12 QoS of every model for an MMC request.
 
     Eligible: same domain (application), same number of environment attributes,
-    Rep_m >= min model reputation, Rep_i >= min owner reputation (5.3.1).
+    Rep_m >= min model reputation, Rep_i >= min owner reputation (5.3.1), and the owner in the
+    domain's candidate ``pool`` (decision 12: :func:`domain_pool` of the owners; None = every
+    owner is a pool member, for callers without worker records).
     """
     weights = req.env_weights if req.env_weights is not None else default_weights(len(req.env))
     owners = owner_totals(models)
@@ -792,7 +850,8 @@ def model_qos_all(models: Sequence[Model], req: ModelRequest) -> tuple[list[bool
         rep_m = mmc_reputation_fixed(m.total_review, m.alloc_count)
         rep_i = mmc_reputation_fixed(*owners[m.owner])
         ok = (
-            m.domain == req.domain
+            (pool is None or m.owner in pool)
+            and m.domain == req.domain
             and len(m.env) == len(req.env)
             and rep_m >= req.min_model_reputation
             and rep_i >= req.min_owner_reputation
@@ -804,12 +863,14 @@ def model_qos_all(models: Sequence[Model], req: ModelRequest) -> tuple[list[bool
     return eligible, qos
 
 
-def model_qos_float(models: Sequence[Model], req: ModelRequest) -> list[float]:
+def model_qos_float(
+    models: Sequence[Model], req: ModelRequest, pool: frozenset[int] | None = None
+) -> list[float]:
     """Float Eq. 10-13 QoS of every model eligible under the fixed filter (0.0 otherwise)."""
     weights = req.env_weights if req.env_weights is not None else default_weights(len(req.env))
     wf = [w / ONE for w in weights]
     owners = owner_totals(models)
-    eligible, _ = model_qos_all(models, req)
+    eligible, _ = model_qos_all(models, req, pool)
     return [
         qos_model(
             mmc_reputation(*owners[m.owner]),
@@ -823,8 +884,12 @@ def model_qos_float(models: Sequence[Model], req: ModelRequest) -> list[float]:
 
 
 def allocate_models(
-    models: Sequence[Model], req: ModelRequest, exclude: frozenset[int] | set[int] = frozenset()
+    models: Sequence[Model],
+    req: ModelRequest,
+    exclude: frozenset[int] | set[int] = frozenset(),
+    pool: frozenset[int] | None = None,
 ) -> list[int]:
-    """MMC ``allocateModel`` (5.3.1): indices of the best ``num_models`` models by Eq. 12."""
-    eligible, qos = model_qos_all(models, req)
+    """MMC ``allocateModel`` (5.3.1): indices of the best ``num_models`` models by Eq. 12
+    among the models of the domain's pool owners (decision 12)."""
+    eligible, qos = model_qos_all(models, req, pool)
     return greedy_top(qos, req.num_models, eligible, exclude)

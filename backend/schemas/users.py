@@ -2,14 +2,17 @@ from __future__ import annotations
 
 from pydantic import BaseModel, Field, field_validator
 
-from .common import MAX_DOMAIN, Domain
+from .common import Domain
+
+MAX_WORKER_DOMAINS = 4
+"""UMC.MAX_WORKER_DOMAINS: one registration joins at most four domains' candidate queues."""
 
 
 class WorkerCreate(BaseModel):
     """Register (or update the capabilities of) the caller as a worker (UMC.addWorker)."""
 
     domains: list[Domain] = Field(
-        min_length=1, max_length=MAX_DOMAIN + 1, json_schema_extra={"uniqueItems": True}
+        min_length=1, max_length=MAX_WORKER_DOMAINS, json_schema_extra={"uniqueItems": True}
     )
     cpu_cores: int = Field(ge=1, le=65_535)
     ram_gb: int = Field(ge=0, le=65_535)
@@ -28,3 +31,8 @@ class RegistrationPublic(BaseModel):
     role: str
     tx_hash: str | None
     created: bool = Field(description="false when only capabilities were updated")
+    status: str | None = Field(
+        default=None,
+        description="worker status after the call: active, idle, pending (waiting for a "
+        "consortium admin's approval) or removed; null for requesters",
+    )

@@ -62,6 +62,10 @@ _ERROR_KIND: dict[str, type[DomainError]] = {
     "NotAdmin": Forbidden,
     "NotParticipant": Forbidden,
     "NotOutcomeOwner": Forbidden,
+    "NotSelfOrAdmin": Forbidden,
+    "NotApproved": Forbidden,
+    "TooManyDomains": Invalid,
+    "OwnerNotInDomain": Invalid,
     "UnknownTask": NotFound,
     "BadPayment": Invalid,
     "RewardBelowMinimum": Invalid,
@@ -204,6 +208,8 @@ class ChainService:
                 accepted_gpus=ALL_GPU_SERIES,
                 min_reward_per_hour=settings.min_reward_per_hour_wei,
                 min_model_price=settings.min_model_price_wei,
+                # development chain: registration makes a worker a candidate at once
+                worker_approval=False,
             )
             deploy_block = min(r.block_number for r in platform.receipts.values())
             service = cls(chain, platform, deploy_block)

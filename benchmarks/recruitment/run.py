@@ -94,7 +94,11 @@ def main(argv: list[str] | None = None) -> dict:
         rng = np.random.default_rng(seed)
         pool = synthetic_pool(args.workers, rng)
         task = Q.TrainingTask(DOMAIN, 1, accepted_gpu_series=frozenset(GPU_SERIES))
-        (eligible, qfixed), t_qos = time_call(partial(Q.training_qos_all, pool, task))
+        # the whole synthetic population ranks (thesis 7.9), not only an on-chain pool
+        everyone = frozenset(range(len(pool)))
+        (eligible, qfixed), t_qos = time_call(
+            partial(Q.training_qos_all, pool, task, pool=everyone)
+        )
         qos_times.append(t_qos)
         assert all(eligible)
         qvec = np.asarray(qfixed, dtype=float) / Q.ONE

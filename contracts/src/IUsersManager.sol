@@ -6,6 +6,7 @@ interface IUsersManager {
     function isAdmin(address account) external view returns (bool);
     function isRequester(address account) external view returns (bool);
     function workerId(address account) external view returns (uint32);
+    function workerRecord(address account) external view returns (uint32 id, uint256 word);
     function updateInfo(address worker, uint32 domain, uint8 taskType, uint8 flags, uint8 review) external;
     function candidates(uint32 domain, uint8 taskType)
         external
@@ -21,6 +22,7 @@ interface IUsersManager {
 library Packed {
     uint256 internal constant MEMBER_BIT = 1 << 255;
     uint256 internal constant ACTIVE = 1;
+    uint256 internal constant IDLE = 2;
     uint256 internal constant MAX_DOMAIN = 47; // UsersManager.MAX_DOMAIN
 
     function addr(uint256 w) internal pure returns (address) {
@@ -41,6 +43,16 @@ library Packed {
 
     function ram(uint256 w) internal pure returns (uint256) {
         return uint16(w >> 192);
+    }
+
+    /// @dev Worker id of a candidate word ({IUsersManager.candidates}).
+    function id(uint256 w) internal pure returns (uint32) {
+        return uint32(w >> 208);
+    }
+
+    /// @dev Whether a storage word ({IUsersManager.workerRecord}) covers `domain`.
+    function covers(uint256 w, uint256 domain) internal pure returns (bool) {
+        return domain <= MAX_DOMAIN && (w >> (208 + domain)) & 1 == 1;
     }
 
     function assigned(uint256 c) internal pure returns (uint256) {

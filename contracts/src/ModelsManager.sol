@@ -39,6 +39,13 @@ import {QoSMath} from "./QoSMath.sol";
  * Public models: a model's CID is readable by anyone ({getModel}, {ModelAdded}); the decided
  * design (docs/chain.md, "Outcomes are public before payment") encrypts the weights and
  * releases the key to buyers, so the CID alone gives nothing away.
+ * Candidates (issue 8, allocation that scales): only the models of the owners in the
+ * domain's UMC candidate pool (at most UMC.MAX_POOL_SIZE approved Active workers) are
+ * considered, and an owner lists at most {maxModelsPerOwner} models (admin setting, at most
+ * MAX_MODELS_PER_OWNER) in the domains it covers, so {allocateModel} reads at most
+ * MAX_POOL_SIZE * MAX_MODELS_PER_OWNER models whatever the number of models listed. Equal
+ * QoS goes to the lower model id. backend/chain/qos.py applies the same rule (`pool`
+ * arguments); docs/chain.md, "Candidate pools".
  *
  * Provenance (thesis 7.7): a CID is listed once. A CID that is a training outcome on the
  * TMC may be shared only by the worker who submitted it, and only once its requester
@@ -61,6 +68,10 @@ contract ModelsManager is ReentrancyGuardTransient {
     uint8 internal constant REVIEWED = 8;
     uint256 public constant MAX_MODELS = 16;
     uint256 public constant MAX_ENV_DIMS = 64;
+    /// Upper bound of {maxModelsPerOwner}.
+    uint256 public constant MAX_MODELS_PER_OWNER = 16;
+    uint32 public constant DEFAULT_MODELS_PER_OWNER = 8;
+    uint256 internal constant ID_MASK = (1 << 32) - 1;
     uint256 internal constant ONE = QoSMath.ONE;
     uint256 internal constant ELIGIBLE = 1 << 255;
 
@@ -117,6 +128,11 @@ contract ModelsManager is ReentrancyGuardTransient {
     }
 
     error ModelsNotWorker(address account);
+    error ModelsNotApproved(address account);
+    error ModelsOwnerNotInDomain(address account, uint32 domain);
+    error ModelsOwnerLimit(address account, uint256 limit);
+    error ModelsNotAdmin(address account);
+    error ModelsBadLimit(uint256 limit);
     error ModelsNotRequester(address account);
     error ModelsBadDomain(uint32 domain);
     error ModelsEmptyCid();
@@ -134,7 +150,6 @@ contract ModelsManager is ReentrancyGuardTransient {
     error ModelsNotOutcomeOwner(uint256 taskId, address worker);
     error ModelsOutcomeNotAccepted(uint256 taskId, ITasksOutcomes.Verdict verdict);
     error ModelsDuplicateModel(uint256 modelId);
-    error ModelsNotAdmin(address account);
     error ModelsBadConfig();
     error ModelsPriceBelowMinimum(uint256 price, uint256 minimum);
 
@@ -159,6 +174,7 @@ contract ModelsManager is ReentrancyGuardTransient {
     event PaymentCredited(address indexed account, uint256 indexed allocId, uint256 amount);
     event Withdrawn(address indexed account, uint256 amount);
     event MinModelPriceUpdated(uint256 weiPerModel);
+    event MaxModelsPerOwnerUpdated(uint256 limit);
 
     IUsersManager public immutable umc;
     /// The TMC whose outcomes the provenance rule checks.
@@ -167,6 +183,8 @@ contract ModelsManager is ReentrancyGuardTransient {
     uint256 public allocCount;
     /// Least price per allocated model (wei, >= 1): allocations count in Eq. 10-11.
     uint256 public minModelPrice;
+    /// Models one owner may list (all domains together). Admin setting.
+    uint32 public maxModelsPerOwner;
 
     mapping(uint256 => Model) internal _models;
     /// Attributes 4.. of a model, eight uint32 per word: word k holds attributes 4+8k..11+8k.
@@ -180,12 +198,18 @@ contract ModelsManager is ReentrancyGuardTransient {
     mapping(address => uint256) public credits;
     /// keccak256(cid) -> the model listing it (0 = not listed).
     mapping(bytes32 => uint256) public modelOfCid;
+    /// Models of an owner in a domain: key = owner id << 8 | domain.
+    mapping(uint256 => uint32[]) internal _ownerModels;
+    /// Models listed by an owner (UMC worker id), all domains.
+    mapping(uint32 => uint256) internal _ownerModelCount;
 
     constructor(IUsersManager umc_, ITasksOutcomes tmc_) {
         umc = umc_;
         tmc = tmc_;
         minModelPrice = 1;
         emit MinModelPriceUpdated(1);
+        maxModelsPerOwner = DEFAULT_MODELS_PER_OWNER;
+        emit MaxModelsPerOwnerUpdated(DEFAULT_MODELS_PER_OWNER);
     }
 
     /**
@@ -201,20 +225,39 @@ contract ModelsManager is ReentrancyGuardTransient {
     }
 
     /**
+     * @dev Sets how many models one owner may list (all domains together); owners already
+     * above a lowered limit keep their models but list no more.
+     * Requirements: caller is a consortium admin; 1 <= limit <= MAX_MODELS_PER_OWNER.
+     * Emits a {MaxModelsPerOwnerUpdated} event.
+     */
+    function setMaxModelsPerOwner(uint256 limit) external {
+        if (!umc.isAdmin(msg.sender)) revert ModelsNotAdmin(msg.sender);
+        if (limit == 0 || limit > MAX_MODELS_PER_OWNER) revert ModelsBadLimit(limit);
+        maxModelsPerOwner = uint32(limit);
+        emit MaxModelsPerOwnerUpdated(limit);
+    }
+
+    /**
      * @dev A worker shares a model: IPFS `cid`, textual `description`, `domain` code and
      * environment attributes `env` (Table 5.2).
-     * Requirements: caller is a registered worker; domain <= 47; non-empty CID not listed
-     * before; at most 64 attributes; if the CID is a TMC outcome, the caller submitted it
-     * and its verdict is Accepted (see the contract's provenance rule).
+     * Requirements: caller is an approved worker (Active or Idle: not Pending, not removed)
+     * covering `domain` (<= 47) and listing fewer than {maxModelsPerOwner} models; non-empty
+     * CID not listed before; at most 64 attributes; if the CID is a TMC outcome, the caller
+     * submitted it and its verdict is Accepted (see the contract's provenance rule).
      * Emits a {ModelAdded} event.
      */
     function addModel(string calldata cid, string calldata description, uint32 domain, uint32[] calldata env)
         external
         returns (uint256 modelId)
     {
-        uint32 ownerId = umc.workerId(msg.sender);
+        (uint32 ownerId, uint256 record) = umc.workerRecord(msg.sender);
         if (ownerId == 0) revert ModelsNotWorker(msg.sender);
+        uint256 status = record.status();
+        if (status != Packed.ACTIVE && status != Packed.IDLE) revert ModelsNotApproved(msg.sender);
         if (domain > Packed.MAX_DOMAIN) revert ModelsBadDomain(domain);
+        if (!record.covers(domain)) revert ModelsOwnerNotInDomain(msg.sender, domain);
+        uint256 owned = _ownerModelCount[ownerId];
+        if (owned >= maxModelsPerOwner) revert ModelsOwnerLimit(msg.sender, maxModelsPerOwner);
         if (bytes(cid).length == 0) revert ModelsEmptyCid();
         if (env.length > MAX_ENV_DIMS) revert ModelsBadEnv(env.length);
         bytes32 cidHash = keccak256(bytes(cid));
@@ -227,6 +270,8 @@ contract ModelsManager is ReentrancyGuardTransient {
         }
         modelId = ++modelCount;
         modelOfCid[cidHash] = modelId;
+        _ownerModelCount[ownerId] = owned + 1;
+        _ownerModels[(uint256(ownerId) << 8) | domain].push(uint32(modelId));
         uint256 head;
         uint256 word;
         for (uint256 j; j < env.length; ++j) {
@@ -248,7 +293,8 @@ contract ModelsManager is ReentrancyGuardTransient {
 
     /**
      * @dev Allocates up to `numModels` models of `domain` with the highest QoS (greedy,
-     * ties to the earlier model) and pays their owners `msg.value / numModels` each;
+     * ties to the lower model id) among the models of the domain's UMC candidate pool
+     * owners, and pays their owners `msg.value / numModels` each;
      * unfilled slots are refunded to the requester's credit.
      * Requirements: caller is a registered requester; 1 <= numModels <= 16; domain <= 47;
      * thresholds <= 1e6; <= 64 attributes; weights empty or one per attribute summing to 1e6;
@@ -273,8 +319,10 @@ contract ModelsManager is ReentrancyGuardTransient {
 
         // No self-dealing: the requester's own models are skipped (owner id 0 never exists).
         uint32 selfId = umc.workerId(msg.sender);
-        (uint256[] memory idx, uint256[] memory qs, uint256 count, uint32[] memory ids) =
-            r.metric == Metric.Model ? _selectModel(r, weights, selfId) : _selectSharing(r, weights, selfId);
+        (uint256[] memory ws, uint256[] memory cs) = umc.candidates(r.domain, SHARING);
+        (uint256[] memory idx, uint256[] memory qs, uint256 count) = r.metric == Metric.Model
+            ? _selectModel(r, weights, selfId, ws)
+            : _selectSharing(r, weights, selfId, ws, cs);
         if (count == 0) revert ModelsNoEligibleModel(r.domain);
 
         allocId = ++allocCount;
@@ -282,18 +330,18 @@ contract ModelsManager is ReentrancyGuardTransient {
         emit ModelsRequested(allocId, msg.sender, r.domain, r.metric, r.numModels, uint80(price));
         uint32[] memory owners = new uint32[](count);
         for (uint256 i; i < count; ++i) {
-            owners[i] = _models[ids[idx[i]]].ownerId;
+            owners[i] = _models[idx[i]].ownerId;
         }
         (uint256[] memory words,) = umc.profiles(owners, r.domain, SHARING);
         for (uint256 i; i < count; ++i) {
-            uint256 modelId = ids[idx[i]];
+            uint256 modelId = idx[i];
             Model storage m = _models[modelId];
             address owner = words[i].addr();
             m.allocCount += 1;
             _ownerRep[owners[i]].allocCount += 1;
             allocState[allocId][modelId] = AllocState.Allocated;
             umc.updateInfo(owner, r.domain, SHARING, SHARED, 0);
-            emit ModelAllocated(allocId, modelId, owner, qs[i]);
+            emit ModelAllocated(allocId, modelId, owner, qs[i] >> 32);
             _credit(owner, allocId, price);
         }
         _credit(msg.sender, allocId, (r.numModels - count) * price);
@@ -369,69 +417,83 @@ contract ModelsManager is ReentrancyGuardTransient {
 
     // ---------------------------------------------------------------------------- internal
 
-    /// @dev Eq. 10-13: Rep_i (owner totals) and Rep_m (model totals) filter and rank.
-    function _selectModel(ModelRequest calldata r, uint256[] memory weights, uint32 selfId)
+    /// @dev Eq. 10-13 over the models of the pool owners `ws`: Rep_i (owner totals) and Rep_m
+    /// (model totals) filter and rank. Returns model ids and keys (QoS << 32 | ~id).
+    function _selectModel(ModelRequest calldata r, uint256[] memory weights, uint32 selfId, uint256[] memory ws)
         internal
         view
-        returns (uint256[] memory idx, uint256[] memory qs, uint256 count, uint32[] memory ids)
+        returns (uint256[] memory idx, uint256[] memory qs, uint256 count)
     {
-        ids = _domainModels[r.domain];
         idx = new uint256[](r.numModels);
         qs = new uint256[](r.numModels);
         uint256 d = r.env.length;
-        for (uint256 i; i < ids.length; ++i) {
-            Model memory m = _models[ids[i]];
-            if (m.envLen != d || m.ownerId == selfId) continue;
-            uint256 repM = QoSMath.rating(m.totalReview, m.allocCount);
-            if (repM < r.minModelReputation) continue;
-            OwnerRep memory o = _ownerRep[m.ownerId];
+        for (uint256 i; i < ws.length; ++i) {
+            uint32 ownerId = ws[i].id();
+            if (ownerId == selfId) continue;
+            OwnerRep memory o = _ownerRep[ownerId];
             uint256 repI = QoSMath.rating(o.totalReview, o.allocCount);
             if (repI < r.minReputation) continue;
-            uint256 q = (repI * repM) / (ONE + _distance(ids[i], m.envHead, r.env, weights));
-            count = QoSMath.insertTop(idx, qs, count, i, q);
+            uint32[] storage list = _ownerModels[(uint256(ownerId) << 8) | r.domain];
+            for (uint256 j; j < list.length; ++j) {
+                uint256 mid = list[j];
+                Model memory m = _models[mid];
+                if (m.envLen != d) continue;
+                uint256 repM = QoSMath.rating(m.totalReview, m.allocCount);
+                if (repM < r.minModelReputation) continue;
+                uint256 q = (repI * repM) / (ONE + _distance(mid, m.envHead, r.env, weights));
+                count = QoSMath.insertTop(idx, qs, count, mid, (q << 32) | (ID_MASK - mid));
+            }
         }
     }
 
-    /// @dev Eq. 16-19, 22-23 with the owners' model-sharing counters from the UMC. N_max
-    /// (Eq. 16) is taken over the eligible models' owners.
-    function _selectSharing(ModelRequest calldata r, uint256[] memory weights, uint32 selfId)
-        internal
-        view
-        returns (uint256[] memory idx, uint256[] memory qs, uint256 count, uint32[] memory ids)
-    {
-        ids = _domainModels[r.domain];
-        uint256 n = ids.length;
-        uint32[] memory owners = new uint32[](n);
-        uint256[] memory dist = new uint256[](n);
-        for (uint256 i; i < n; ++i) {
-            Model memory m = _models[ids[i]];
-            if (m.envLen != r.env.length || m.ownerId == selfId) continue; // owner id 0: ineligible
-            owners[i] = m.ownerId;
-            dist[i] = _distance(ids[i], m.envHead, r.env, weights);
-        }
-        (uint256[] memory ws, uint256[] memory cs) = umc.profiles(owners, r.domain, SHARING);
+    /// @dev Eq. 16-19, 22-23 over the models of the pool owners `ws` (their model-sharing
+    /// counters `cs`). N_max (Eq. 16) is taken over the owners with an eligible model.
+    function _selectSharing(
+        ModelRequest calldata r,
+        uint256[] memory weights,
+        uint32 selfId,
+        uint256[] memory ws,
+        uint256[] memory cs
+    ) internal view returns (uint256[] memory idx, uint256[] memory qs, uint256 count) {
+        uint256 n = ws.length;
+        uint256 d = r.env.length;
         uint256 nMax;
+        uint256[] memory part = new uint256[](n);
         for (uint256 i; i < n; ++i) {
-            uint256 w = ws[i];
-            ws[i] = 0; // from here on ws[i] holds the eligibility word (0 = not eligible)
-            if (w.status() != Packed.ACTIVE || w & Packed.MEMBER_BIT == 0) continue;
+            uint32 ownerId = ws[i].id();
+            if (ownerId == selfId) continue;
             uint256 c = cs[i];
             uint256 rep = QoSMath.reputation(c.assigned(), c.accepted(), c.completed());
             uint256 rat = QoSMath.rating(c.ratingSum(), c.ratingCount());
             if (rep < r.minReputation || rat < r.minRating) continue;
+            if (!_hasModelOfDims(_ownerModels[(uint256(ownerId) << 8) | r.domain], d)) continue;
             uint256 e = c.completed();
             if (e > nMax) nMax = e;
-            // eligible flag | E << 64 | Rep * R (< 1e12); S stays in dist[i]
-            ws[i] = ELIGIBLE | (e << 64) | (rep * rat);
+            // eligible flag | E << 64 | Rep * R (< 1e12)
+            part[i] = ELIGIBLE | (e << 64) | (rep * rat);
         }
         idx = new uint256[](r.numModels);
         qs = new uint256[](r.numModels);
         for (uint256 i; i < n; ++i) {
-            uint256 p = ws[i];
-            if (p & ELIGIBLE == 0) continue;
-            uint256 q = (QoSMath.expertise(uint48(p >> 64), nMax) * uint64(p)) / ((ONE + dist[i]) * ONE);
-            count = QoSMath.insertTop(idx, qs, count, i, q);
+            uint256 p = part[i];
+            if (p == 0) continue;
+            uint256 top = QoSMath.expertise(uint48(p >> 64), nMax) * uint64(p);
+            uint32[] storage list = _ownerModels[(uint256(ws[i].id()) << 8) | r.domain];
+            for (uint256 j; j < list.length; ++j) {
+                uint256 mid = list[j];
+                Model memory m = _models[mid];
+                if (m.envLen != d) continue;
+                uint256 q = top / ((ONE + _distance(mid, m.envHead, r.env, weights)) * ONE);
+                count = QoSMath.insertTop(idx, qs, count, mid, (q << 32) | (ID_MASK - mid));
+            }
         }
+    }
+
+    function _hasModelOfDims(uint32[] storage list, uint256 d) internal view returns (bool) {
+        for (uint256 j; j < list.length; ++j) {
+            if (_models[list[j]].envLen == d) return true;
+        }
+        return false;
     }
 
     /// @dev Eq. 13 / Eq. 22: sum_n w_n |F_n^m - F_n^r| (exact; weights scaled by 1e6).

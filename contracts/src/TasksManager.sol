@@ -76,6 +76,7 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
     uint256 internal constant ELIGIBLE = 1 << 255;
     uint32 public constant DEFAULT_MIN_WORK_TIME = 60; // a floor; the consortium sets its own
     uint40 public constant DEFAULT_MAX_DURATION = 30 days;
+    uint256 internal constant ID_MASK = (1 << 32) - 1;
 
     enum TaskStatus {
         None,
@@ -121,7 +122,7 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
     struct Offer {
         OfferState state;
         uint40 expiry;
-        uint32 listIndex; // position in the UMC domain list (for exclusion on re-allocation)
+        uint32 workerId; // the offeree's UMC worker id
         bool paid; // Reviewed only: the outcome was accepted (or paid unreviewed at close)
     }
 
@@ -346,7 +347,10 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
      * @dev Recruits workers for the open slots (thesis 7.6): expires offers past their
      * acceptance window, then offers the task to the best eligible workers by Eq. 21 QoS,
      * excluding everyone offered this task before (the "next best" after an expiry) and
-     * the requester itself.
+     * the requester itself. The candidates are the domain's candidate pool of the UMC (at
+     * most UMC.MAX_POOL_SIZE approved Active workers, see UsersManager), so the cost does not
+     * grow with the number of registered workers; equal QoS goes to the lower worker id
+     * (earlier registration).
      * Requirements: caller is the task's requester or an admin; task open;
      * now + acceptWindow + minWorkTime <= deadline (an offered worker can accept and still
      * has minWorkTime to train); at least one open slot; fewer than MAX_OFFERS offers made.
@@ -361,23 +365,22 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
         }
         Reqs memory r = _reqs[taskId];
         (uint256[] memory ws, uint256[] memory cs) = umc.candidates(r.domain, TRAINING);
-        bool[] memory excluded = new bool[](ws.length);
-        uint256 live = _expireOffers(taskId, excluded);
+        (uint256 live, address[] memory skip) = _expireOffers(taskId, t.requester);
         uint256 open = t.numWorkers - live - t.filled;
         if (open == 0) revert TasksNoOpenSlot(taskId);
         uint256 room = MAX_OFFERS - t.offerCount;
         if (room == 0) revert TasksOfferLimitReached(taskId);
         if (open > room) open = room;
 
-        _excludeSelf(ws, excluded, t.requester);
-        (uint256[] memory idx, uint256[] memory qs, uint256 count) = _select(r, ws, cs, excluded, open);
+        (uint256[] memory idx, uint256[] memory qs, uint256 count) = _select(r, ws, cs, skip, open);
         uint40 expiry = uint40(block.timestamp) + acceptWindow;
         for (uint256 i; i < count; ++i) {
-            address a = ws[idx[i]].addr();
-            _offers[taskId][a] = Offer(OfferState.Offered, expiry, uint32(idx[i]), false);
+            uint256 w = ws[idx[i]];
+            address a = w.addr();
+            _offers[taskId][a] = Offer(OfferState.Offered, expiry, w.id(), false);
             _offerees[taskId].push(a);
             umc.updateInfo(a, r.domain, TRAINING, ASSIGNED, 0);
-            emit TaskOffered(taskId, a, qs[i], expiry);
+            emit TaskOffered(taskId, a, qs[i] >> 32, expiry);
         }
         t.liveOffers = uint8(live + count);
         t.offerCount += uint8(count);
@@ -467,7 +470,7 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
         Task storage t = _tasks[taskId];
         _checkRequester(t, taskId);
         _checkOpen(t, taskId);
-        uint256 live = _expireOffers(taskId, new bool[](0));
+        (uint256 live,) = _expireOffers(taskId, t.requester);
         cancelled = t.numWorkers - live - t.filled;
         if (cancelled == 0) revert TasksNoOpenSlot(taskId);
         uint8 left = uint8(t.numWorkers - cancelled);
@@ -615,10 +618,12 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
     /**
      * @dev Eq. 16-21 over the candidates, then greedy top-k. Pass 1 applies the constraints
      * of 7.5.1 and keeps Rep*R*CC (exact product, < 1e18) and E per eligible worker, and
-     * N_max over all eligible workers (excluded ones included, as qos.py); pass 2 forms
-     * QoS = floor(Exp * Rep * R * CC / 1e18) and keeps the k best (ties: earlier index).
+     * N_max over all eligible workers (skipped ones included, as qos.py); pass 2 forms
+     * QoS = floor(Exp * Rep * R * CC / 1e18) and keeps the k best by the key QoS << 32 |
+     * (2^32 - 1 - worker id): ties go to the lower worker id whatever the pool order. The
+     * returned `qs` are keys (QoS = key >> 32).
      */
-    function _select(Reqs memory r, uint256[] memory ws, uint256[] memory cs, bool[] memory excluded, uint256 k)
+    function _select(Reqs memory r, uint256[] memory ws, uint256[] memory cs, address[] memory skip, uint256 k)
         internal
         view
         returns (uint256[] memory idx, uint256[] memory qs, uint256 count)
@@ -647,32 +652,35 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
         qs = new uint256[](k);
         for (uint256 i; i < n; ++i) {
             uint256 p = part[i];
-            if (p == 0 || excluded[i]) continue;
+            if (p == 0 || _contains(skip, ws[i].addr())) continue;
             uint256 q = (QoSMath.expertise(uint48(p >> 64), nMax) * uint64(p)) / 1e18;
-            count = QoSMath.insertTop(idx, qs, count, i, q);
+            count = QoSMath.insertTop(idx, qs, count, i, (q << 32) | (ID_MASK - ws[i].id()));
         }
     }
 
-    /// @dev No self-dealing: a requester who is also a worker is never offered its own task
-    /// (it could otherwise review itself up). Excluded workers still count for N_max.
-    function _excludeSelf(uint256[] memory ws, bool[] memory excluded, address requester) internal pure {
-        for (uint256 i; i < ws.length; ++i) {
-            if (ws[i].addr() == requester) {
-                excluded[i] = true;
-                return;
-            }
+    function _contains(address[] memory list, address a) internal pure returns (bool) {
+        for (uint256 j; j < list.length; ++j) {
+            if (list[j] == a) return true;
         }
+        return false;
     }
 
-    /// @dev Marks offers past their window Expired, flags every offeree as excluded and
-    /// returns the number of live offers. Bounded by MAX_OFFERS.
-    function _expireOffers(uint256 taskId, bool[] memory excluded) internal returns (uint256 live) {
+    /// @dev Marks offers past their window Expired and returns the number of live offers and
+    /// the addresses to skip: every offeree (the "next best" rule) and, no self-dealing, the
+    /// requester (a requester who is also a worker could otherwise review itself up).
+    /// Skipped workers still count for N_max. Bounded by MAX_OFFERS.
+    function _expireOffers(uint256 taskId, address requester)
+        internal
+        returns (uint256 live, address[] memory skip)
+    {
         address[] storage list = _offerees[taskId];
         uint256 m = list.length;
+        skip = new address[](m + 1);
+        skip[m] = requester;
         for (uint256 j; j < m; ++j) {
             address a = list[j];
+            skip[j] = a;
             Offer storage o = _offers[taskId][a];
-            if (o.listIndex < excluded.length) excluded[o.listIndex] = true;
             if (o.state != OfferState.Offered) continue;
             if (block.timestamp > o.expiry) {
                 o.state = OfferState.Expired;

@@ -16,6 +16,22 @@ import {Math} from "@openzeppelin/contracts/utils/math/Math.sol";
  * Domains are codes 0-47 kept as a 48-bit mask inside the worker slot (O(1) membership
  * test); GPU series are codes 0-255 (0 = no GPU); cores and RAM (GB) are uint16.
  *
+ * Registration that a stranger cannot flood (issue 8): a new worker is Pending until a
+ * consortium admin approves it ({approveWorker}) while {approvalRequired} is on (the default;
+ * a development chain may switch it off, then registration approves at once); a worker covers
+ * at most {MAX_WORKER_DOMAINS} domains; the worker itself or an admin removes it for good
+ * ({removeWorker}). Pending, Idle and Removed workers are never candidates.
+ *
+ * Candidate pools (allocation whose gas does not grow with everyone who ever registered):
+ * per domain, the approved Active workers form a queue in the order they last became Active
+ * (a doubly linked list: joining appends, leaving unlinks, both O(1)); the domain's candidate
+ * pool is the first {poolSize} workers of that queue (admin setting, at most
+ * {MAX_POOL_SIZE}). {candidates} returns the pool only, so the TMC's and MMC's allocation
+ * cost is bounded by the pool size, not by the number of registered workers. A worker behind
+ * the pool enters it when a worker ahead goes Idle or is removed; an admin removes (or a
+ * worker idles) an unresponsive pool member. backend/chain/qos.py models the same rule
+ * (`domain_pool`); docs/chain.md, "Candidate pools".
+ *
  * Gas: a worker is one storage slot (address, status, GPU, cores, RAM, domains) and each
  * counter set is one slot (five uint48: 2.8e14 tasks before overflow); domain lists hold
  * uint32 ids, eight per slot, so a candidate scan costs two cold SLOADs per worker and
@@ -37,11 +53,20 @@ contract UsersManager {
     uint256 public constant MAX_DOMAIN = 47;
     uint256 internal constant DOMAINS_SHIFT = 208;
     uint256 internal constant WORKER_FIELDS = (1 << DOMAINS_SHIFT) - 1; // all but the domains
+    uint256 internal constant ID_SHIFT = 208; // candidate words carry the worker id here
+    /// A worker covers at most this many domains (one registration joins at most 4 pools).
+    uint256 public constant MAX_WORKER_DOMAINS = 4;
+    /// Upper bound of {poolSize}: allocation reads at most this many candidates per call.
+    uint256 public constant MAX_POOL_SIZE = 128;
+    uint32 public constant DEFAULT_POOL_SIZE = 64;
+    uint256 internal constant ID_MASK = (1 << 32) - 1;
 
     enum Status {
         None,
-        Active, // takes offers ("available" in qos.py)
-        Idle // registered, takes no offers
+        Active, // takes offers ("available" in qos.py); in its domains' queues
+        Idle, // approved, takes no offers
+        Pending, // registered, waiting for an admin's approval
+        Removed // removed by itself or an admin; never a candidate again
     }
 
     struct Worker {
@@ -67,6 +92,11 @@ contract UsersManager {
     error UsersAlreadyRegistered(address account);
     error UsersNotWorker(address account);
     error UsersBadDomains(uint256 domains);
+    error UsersTooManyDomains(uint256 domains, uint256 maximum);
+    error UsersNotPending(address account, Status status);
+    error UsersNotApproved(address account, Status status);
+    error UsersNotSelfOrAdmin(address account, address worker);
+    error UsersBadPoolSize(uint256 size);
     error UsersBadDomain(uint256 domain);
     error UsersBadStatus(uint8 status);
     error UsersBadTaskType(uint8 taskType);
@@ -80,6 +110,10 @@ contract UsersManager {
         address indexed worker, uint32 indexed id, uint256 domains, uint16 cpuCores, uint16 ramGb, uint8 gpuSeries
     );
     event RequesterAdded(address indexed requester);
+    event WorkerApproved(address indexed worker, address indexed admin);
+    event WorkerRemoved(address indexed worker, address indexed by);
+    event ApprovalRequiredUpdated(bool required);
+    event PoolSizeUpdated(uint256 size);
     event WorkerStatusUpdated(address indexed worker, Status status);
     event WorkerCapabilitiesUpdated(address indexed worker, uint16 cpuCores, uint16 ramGb, uint8 gpuSeries);
     event WorkerInfoUpdated(
@@ -107,6 +141,15 @@ contract UsersManager {
     mapping(address => bool) public isPlatform;
     uint256 public adminCount;
 
+    /// New workers wait for an admin's approval (Pending) while true. Admin setting.
+    bool public approvalRequired;
+    /// Candidates per domain: the first `poolSize` workers of the domain's Active queue.
+    uint32 public poolSize;
+    /// Active queue links per (domain << 32 | id): prev | next << 32 (ids; 0 = none).
+    mapping(uint256 => uint256) internal _links;
+    /// Active queue ends per domain: head | tail << 32 | length << 64.
+    mapping(uint256 => uint256) internal _queues;
+
     modifier onlyAdmin() {
         _checkAdmin();
         _;
@@ -116,6 +159,10 @@ contract UsersManager {
         isAdmin[admin] = true;
         adminCount = 1;
         emit AdminUpdated(admin, true);
+        approvalRequired = true;
+        emit ApprovalRequiredUpdated(true);
+        poolSize = DEFAULT_POOL_SIZE;
+        emit PoolSizeUpdated(DEFAULT_POOL_SIZE);
     }
 
     // ---------------------------------------------------------------------------- admin
@@ -142,19 +189,81 @@ contract UsersManager {
         emit PlatformUpdated(account, on);
     }
 
+    /**
+     * @dev Switches the approval of new workers on or off. Off (a development chain), a new
+     * worker is Active at registration. Workers already Pending stay Pending.
+     * Requirements: caller is an admin. Emits an {ApprovalRequiredUpdated} event.
+     */
+    function setApprovalRequired(bool required) external onlyAdmin {
+        approvalRequired = required;
+        emit ApprovalRequiredUpdated(required);
+    }
+
+    /**
+     * @dev Sets the candidate pool size per domain (the first `size` workers of each domain's
+     * Active queue are candidates). Requirements: caller is an admin; 1 <= size <=
+     * MAX_POOL_SIZE. Emits a {PoolSizeUpdated} event.
+     */
+    function setPoolSize(uint256 size) external onlyAdmin {
+        if (size == 0 || size > MAX_POOL_SIZE) revert UsersBadPoolSize(size);
+        poolSize = uint32(size);
+        emit PoolSizeUpdated(size);
+    }
+
+    /**
+     * @dev Approves a Pending worker: it becomes Active and joins the tail of each of its
+     * domains' queues. Requirements: caller is an admin; `worker` is Pending.
+     * Emits {WorkerApproved} and {WorkerStatusUpdated} events.
+     */
+    function approveWorker(address worker) external onlyAdmin {
+        uint32 id = _workerIdOf(worker);
+        Worker storage w = _workers[id];
+        if (w.status != Status.Pending) revert UsersNotPending(worker, w.status);
+        w.status = Status.Active;
+        _join(id, w.domains);
+        emit WorkerApproved(worker, msg.sender);
+        emit WorkerStatusUpdated(worker, Status.Active);
+    }
+
+    /**
+     * @dev Removes a worker for good: it leaves its domains' queues and is never offered a
+     * task or a model again (offers already made stay valid). Its address cannot register
+     * again. Requirements: caller is the worker itself or an admin; `worker` is registered
+     * and not yet removed. Emits {WorkerRemoved} and {WorkerStatusUpdated} events.
+     */
+    function removeWorker(address worker) external {
+        if (msg.sender != worker && !isAdmin[msg.sender]) revert UsersNotSelfOrAdmin(msg.sender, worker);
+        uint32 id = _workerIdOf(worker);
+        Worker storage w = _workers[id];
+        Status old = w.status;
+        if (old == Status.Removed) revert UsersNotApproved(worker, old);
+        if (old == Status.Active) _leave(id, w.domains);
+        w.status = Status.Removed;
+        emit WorkerRemoved(worker, msg.sender);
+        emit WorkerStatusUpdated(worker, Status.Removed);
+    }
+
     // ---------------------------------------------------------------------------- users
 
     /**
      * @dev Registers msg.sender as a worker covering the domains set in `domains` (bit d =
      * domain code d, thesis Domains uint[]) with the given computational capabilities
-     * (Table 7.2). Requirements: not yet a worker; at least one domain, all codes <= 47.
-     * Emits a {WorkerAdded} event.
+     * (Table 7.2). The worker is Pending (no offers) until an admin approves it, or Active
+     * at once (joining its domains' queues) when {approvalRequired} is off.
+     * Requirements: not yet a worker (a removed address cannot come back); 1 to
+     * MAX_WORKER_DOMAINS domains, all codes <= 47.
+     * Emits a {WorkerAdded} event, and a {WorkerStatusUpdated} event when Pending.
      */
     function addWorker(uint256 domains, uint16 cpuCores, uint16 ramGb, uint8 gpuSeries) external {
         if (workerId[msg.sender] != 0) revert UsersAlreadyRegistered(msg.sender);
         if (domains == 0 || domains >> (MAX_DOMAIN + 1) != 0) revert UsersBadDomains(domains);
+        uint256 count;
+        for (uint256 rest = domains; rest != 0; rest &= rest - 1) ++count;
+        if (count > MAX_WORKER_DOMAINS) revert UsersTooManyDomains(domains, MAX_WORKER_DOMAINS);
+        bool pending = approvalRequired;
+        Status status = pending ? Status.Pending : Status.Active;
         uint32 id = ++workerCount;
-        _workers[id] = Worker(msg.sender, Status.Active, gpuSeries, cpuCores, ramGb, uint48(domains));
+        _workers[id] = Worker(msg.sender, status, gpuSeries, cpuCores, ramGb, uint48(domains));
         workerId[msg.sender] = id;
         uint256 rest = domains;
         while (rest != 0) {
@@ -162,7 +271,9 @@ contract UsersManager {
             _domainWorkers[Math.log2(low)].push(id);
             rest ^= low;
         }
+        if (!pending) _join(id, domains);
         emit WorkerAdded(msg.sender, id, domains, cpuCores, ramGb, gpuSeries);
+        if (pending) emit WorkerStatusUpdated(msg.sender, Status.Pending);
     }
 
     /**
@@ -176,14 +287,23 @@ contract UsersManager {
     }
 
     /**
-     * @dev A worker switches between Active (takes offers) and Idle.
-     * Requirements: caller is a worker; `status` is Active or Idle.
-     * Emits a {WorkerStatusUpdated} event.
+     * @dev An approved worker switches between Active (takes offers) and Idle. Going Idle
+     * leaves its domains' queues; going Active joins them at the tail (so the worker enters
+     * a full pool behind the workers already waiting).
+     * Requirements: caller is a worker, Active or Idle (approved, not removed); `status` is
+     * Active or Idle. Emits a {WorkerStatusUpdated} event.
      */
     function updateStatus(Status status) external {
         uint32 id = _workerIdOf(msg.sender);
-        if (status == Status.None) revert UsersBadStatus(uint8(status));
-        _workers[id].status = status;
+        if (status != Status.Active && status != Status.Idle) revert UsersBadStatus(uint8(status));
+        Worker storage w = _workers[id];
+        Status old = w.status;
+        if (old != Status.Active && old != Status.Idle) revert UsersNotApproved(msg.sender, old);
+        if (old != status) {
+            w.status = status;
+            if (status == Status.Active) _join(id, w.domains);
+            else _leave(id, w.domains);
+        }
         emit WorkerStatusUpdated(msg.sender, status);
     }
 
@@ -261,27 +381,52 @@ contract UsersManager {
     }
 
     /**
-     * @dev Candidate scan input for the TMC: for every worker of `domain` (registration
-     * order), the packed worker word and the packed counters of (`domain`, `taskType`).
-     * Packing (low bits first): worker = addr | status << 160 | gpu << 168 | cores << 176 |
-     * ram << 192 | 1 << 255 (domain member); counters = five 48-bit fields
-     * (assigned, accepted, completed, ratingSum, ratingCount). Two words per candidate keep
-     * the ABI copy cheap (a struct array would be ten).
+     * @dev Candidate input for the TMC and MMC: for the workers of `domain`'s candidate pool
+     * (the first {poolSize} of its Active queue, queue order), the packed worker word and
+     * the packed counters of (`domain`, `taskType`). Packing (low bits first): worker = addr |
+     * status << 160 | gpu << 168 | cores << 176 | ram << 192 | id << 208 | 1 << 255 (domain
+     * member); counters = five 48-bit fields (assigned, accepted, completed, ratingSum,
+     * ratingCount). Cost: at most MAX_POOL_SIZE candidates, whatever the number registered.
      */
     function candidates(uint32 domain, uint8 taskType)
         external
         view
         returns (uint256[] memory workers, uint256[] memory stats)
     {
-        uint32[] memory ids = _domainWorkers[domain]; // one SLOAD per eight ids
-        uint256 n = ids.length;
+        uint256 q = _queues[domain];
+        uint256 n = q >> 64;
+        uint256 size = poolSize;
+        if (n > size) n = size;
         workers = new uint256[](n);
         stats = new uint256[](n);
+        uint256 id = q & ID_MASK;
         for (uint256 i; i < n; ++i) {
-            uint32 id = ids[i];
-            workers[i] = (_rawWorker(id) & WORKER_FIELDS) | MEMBER_BIT;
-            stats[i] = _rawCounters(_key(id, domain, taskType));
+            workers[i] = (_rawWorker(uint32(id)) & WORKER_FIELDS) | (id << ID_SHIFT) | MEMBER_BIT;
+            stats[i] = _rawCounters(_key(uint32(id), domain, taskType));
+            id = _links[(uint256(domain) << 32) | id] >> 32;
         }
+    }
+
+    /// @dev Addresses of `domain`'s candidate pool (the first {poolSize} of its queue).
+    function pool(uint32 domain) external view returns (address[] memory out) {
+        return _queue(domain, poolSize);
+    }
+
+    /// @dev The whole Active queue of `domain` (pool first, then the waiting workers).
+    function queue(uint32 domain) external view returns (address[] memory out) {
+        return _queue(domain, type(uint256).max);
+    }
+
+    /// @dev Number of workers in `domain`'s Active queue (pool and waiting).
+    function queueLength(uint32 domain) external view returns (uint256) {
+        return _queues[domain] >> 64;
+    }
+
+    /// @dev The worker id of `account` and its storage word (addr | status << 160 | gpu << 168
+    /// | cores << 176 | ram << 192 | domains << 208); zeros for unknown addresses.
+    function workerRecord(address account) external view returns (uint32 id, uint256 word) {
+        id = workerId[account];
+        word = _rawWorker(id);
     }
 
     /**
@@ -308,6 +453,58 @@ contract UsersManager {
     }
 
     // ---------------------------------------------------------------------------- internal
+
+    /// @dev Appends worker `id` to the tail of the queue of every domain in `domains`.
+    function _join(uint32 id, uint256 domains) internal {
+        uint256 rest = domains;
+        while (rest != 0) {
+            uint256 low = rest & (~rest + 1);
+            rest ^= low;
+            uint256 d = Math.log2(low);
+            uint256 q = _queues[d];
+            uint256 tail = (q >> 32) & ID_MASK;
+            _links[(d << 32) | id] = tail; // prev = old tail, next = none
+            if (tail == 0) {
+                q = id | (uint256(id) << 32) | (1 << 64);
+            } else {
+                _links[(d << 32) | tail] |= uint256(id) << 32;
+                q = (q & ~(ID_MASK << 32)) + (uint256(id) << 32) + (1 << 64);
+            }
+            _queues[d] = q;
+        }
+    }
+
+    /// @dev Unlinks worker `id` from the queue of every domain in `domains`.
+    function _leave(uint32 id, uint256 domains) internal {
+        uint256 rest = domains;
+        while (rest != 0) {
+            uint256 low = rest & (~rest + 1);
+            rest ^= low;
+            uint256 d = Math.log2(low);
+            uint256 node = _links[(d << 32) | id];
+            uint256 prev = node & ID_MASK;
+            uint256 next = (node >> 32) & ID_MASK;
+            uint256 q = _queues[d];
+            if (prev == 0) q = (q & ~ID_MASK) | next;
+            else _links[(d << 32) | prev] = (_links[(d << 32) | prev] & ID_MASK) | (next << 32);
+            if (next == 0) q = (q & ~(ID_MASK << 32)) | (prev << 32);
+            else _links[(d << 32) | next] = (_links[(d << 32) | next] & ~ID_MASK) | prev;
+            delete _links[(d << 32) | id];
+            _queues[d] = q - (1 << 64);
+        }
+    }
+
+    function _queue(uint32 domain, uint256 limit) internal view returns (address[] memory out) {
+        uint256 q = _queues[domain];
+        uint256 n = q >> 64;
+        if (n > limit) n = limit;
+        out = new address[](n);
+        uint256 id = q & ID_MASK;
+        for (uint256 i; i < n; ++i) {
+            out[i] = _workers[uint32(id)].addr;
+            id = _links[(uint256(domain) << 32) | id] >> 32;
+        }
+    }
 
     function _checkAdmin() internal view {
         if (!isAdmin[msg.sender]) revert UsersNotAdmin(msg.sender);

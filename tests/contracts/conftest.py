@@ -50,6 +50,7 @@ def make_platform(chain: Chain) -> Platform:
         accept_window=ACCEPT_WINDOW,
         review_window=REVIEW_WINDOW,
         accepted_gpus=gpu_mask(ACCEPTED_GPUS),
+        worker_approval=False,
     )
 
 

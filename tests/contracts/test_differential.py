@@ -1,6 +1,8 @@
 """Differential tests: on random pools the contracts pick the same workers / models, in the
 same order and with the same integer QoS, as the pure-Python reference backend/chain/qos.py
-(Eq. 10-13, 16-23, greedy top-NW with ties to the earlier registration)."""
+(Eq. 10-13, 16-23, greedy top-NW with ties to the earlier registration), including the
+bounded candidate pool of each domain (qos decision 12: small pool sizes put some workers
+behind the pool)."""
 
 from __future__ import annotations
 
@@ -60,6 +62,30 @@ def workers(draw: st.DrawFn, max_size: int = 7) -> list[tuple[qos.Worker, list[i
 
 
 THRESHOLDS = st.sampled_from([0, 0, 250_000, 500_000, 700_000])
+POOL_SIZES = st.sampled_from([None, None, 1, 2, 3])  # None: the contract's default (64)
+
+
+def _set_pool(p: Platform, actors: Actors, workers: list[qos.Worker], size: int | None):
+    """Set the UMC pool size (None: default) and return the reference pool of DOM."""
+    if size is not None:
+        p.umc.set_pool_size(actors.admin, size)
+    return qos.domain_pool(workers, DOM, qos.POOL_SIZE if size is None else size)
+
+
+def _add_models(p: Platform, addrs: list[str], workers: list[qos.Worker], specs) -> tuple:
+    """List the models on chain; a model whose owner does not cover DOM is refused (the
+    owner-domain rule of addModel) and left out of the reference list too."""
+    ids, models = [], []
+    for i, (o, e) in enumerate(specs):
+        if DOM not in workers[o].domains:
+            try:
+                p.mmc.add_model(addrs[o], f"bafy{i}", DOM, e)
+                raise AssertionError("a model outside the owner's domains must revert")
+            except errors.get("ModelsOwnerNotInDomain"):
+                continue
+        ids.append(p.mmc.add_model(addrs[o], f"bafy{i}", DOM, e)[0])
+        models.append(qos.Model(o, DOM, e))
+    return ids, models
 
 
 def _register(p: Platform, actors: Actors, pool: list[tuple[qos.Worker, list[int]]]) -> list[str]:
@@ -106,14 +132,17 @@ def _chain_worker(p: Platform, addr: str, w: qos.Worker) -> qos.Worker:
     min_rating=THRESHOLDS,
     min_cpu=st.sampled_from([0, 0, 4]),
     min_ram=st.sampled_from([0, 16]),
+    size=POOL_SIZES,
 )
-def test_allocate_task_matches_reference(fp, pool, nw, min_rep, min_rating, min_cpu, min_ram):
+def test_allocate_task_matches_reference(fp, pool, nw, min_rep, min_rating, min_cpu, min_ram, size):
     p = fp
     actors = actors_of(p.chain)
     snap = p.chain.snapshot()
     try:
         addrs = _register(p, actors, pool)
         ref_workers = [w for w, _ in pool]
+        members = _set_pool(p, actors, ref_workers, size)
+        assert set(p.umc.pool(DOM)) == {addrs[i] for i in members}
         task = qos.TrainingTask(
             DOM, nw, min_rep, min_rating, min_cpu, min_ram, frozenset(ACCEPTED_GPUS)
         )
@@ -129,9 +158,9 @@ def test_allocate_task_matches_reference(fp, pool, nw, min_rep, min_rating, min_
             min_ram_gb=min_ram,
         )
         offered, rc = p.tmc.allocate(actors.requester, tid)
-        expected = qos.recruit_training(ref_workers, task, p.tmc.call("w1"))
+        expected = qos.recruit_training(ref_workers, task, p.tmc.call("w1"), pool=members)
         assert offered == [addrs[i] for i in expected]
-        _, ref_qos = qos.training_qos_all(ref_workers, task, p.tmc.call("w1"))
+        _, ref_qos = qos.training_qos_all(ref_workers, task, p.tmc.call("w1"), members)
         assert [e.args["qos"] for e in rc.named("TaskOffered")] == [ref_qos[i] for i in expected]
 
         if offered:  # the first offeree declines: the next best (by current counters) follows
@@ -142,6 +171,7 @@ def test_allocate_task_matches_reference(fp, pool, nw, min_rep, min_rating, min_
                 dataclasses.replace(task, num_workers=1),
                 p.tmc.call("w1"),
                 exclude={addrs.index(a) for a in offered},
+                pool=members,
             )
             again, _ = p.tmc.allocate(actors.requester, tid)
             assert again == [addrs[i] for i in refill]
@@ -176,8 +206,14 @@ def sharing_case(draw: st.DrawFn):
 
 
 @SETTINGS
-@given(case=sharing_case(), nm=st.integers(1, 4), min_rep=THRESHOLDS, min_rating=THRESHOLDS)
-def test_allocate_model_sharing_matches_reference(fp, case, nm, min_rep, min_rating):
+@given(
+    case=sharing_case(),
+    nm=st.integers(1, 4),
+    min_rep=THRESHOLDS,
+    min_rating=THRESHOLDS,
+    size=POOL_SIZES,
+)
+def test_allocate_model_sharing_matches_reference(fp, case, nm, min_rep, min_rating, size):
     pool, specs, env, weights = case
     p = fp
     actors = actors_of(p.chain)
@@ -185,10 +221,10 @@ def test_allocate_model_sharing_matches_reference(fp, case, nm, min_rep, min_rat
     try:
         addrs = _register(p, actors, pool)
         ref_workers = [w for w, _ in pool]
-        ids = [p.mmc.add_model(addrs[o], f"bafy{i}", DOM, e)[0] for i, (o, e) in enumerate(specs)]
-        models = [qos.Model(o, DOM, e) for o, e in specs]
+        members = _set_pool(p, actors, ref_workers, size)
+        ids, models = _add_models(p, addrs, ref_workers, specs)
         task = qos.SharingTask(DOM, nm, env, min_rep, min_rating, weights)
-        expected = qos.recruit_sharing(models, ref_workers, task)
+        expected = qos.recruit_sharing(models, ref_workers, task, pool=members)
         req = (DOM, nm, int(Metric.SHARING), min_rep, min_rating, 0, list(env), list(weights or ()))
         if not expected:
             try:
@@ -207,7 +243,7 @@ def test_allocate_model_sharing_matches_reference(fp, case, nm, min_rep, min_rat
             metric=Metric.SHARING,
         )
         assert got == [ids[i] for i in expected]
-        _, ref_qos = qos.sharing_qos_all(models, ref_workers, task)
+        _, ref_qos = qos.sharing_qos_all(models, ref_workers, task, members)
         assert [e.args["qos"] for e in rc.named("ModelAllocated")] == [ref_qos[i] for i in expected]
     finally:
         p.chain.revert(snap)
@@ -223,25 +259,34 @@ def test_allocate_model_sharing_matches_reference(fp, case, nm, min_rep, min_rat
     nm=st.integers(1, 4),
     min_model_rep=THRESHOLDS,
     min_owner_rep=THRESHOLDS,
+    size=POOL_SIZES,
 )
-def test_allocate_model_eq12_matches_reference(fp, case, rounds, nm, min_model_rep, min_owner_rep):
+def test_allocate_model_eq12_matches_reference(
+    fp, case, rounds, nm, min_model_rep, min_owner_rep, size
+):
     pool, specs, env, weights = case
     p = fp
     actors = actors_of(p.chain)
     snap = p.chain.snapshot()
     try:
         addrs = _register(p, actors, pool)
-        ids = [p.mmc.add_model(addrs[o], f"bafy{i}", DOM, e)[0] for i, (o, e) in enumerate(specs)]
+        ref_workers = [w for w, _ in pool]
+        members = _set_pool(p, actors, ref_workers, size)
+        ids, listed = _add_models(p, addrs, ref_workers, specs)
+        specs = [(m.owner, m.env) for m in listed]
         # history: allocations (Eq. 11 counts) and some reviews (Eq. 10-11 totals)
         for k, reviews in rounds:
-            alloc, got, _ = p.mmc.allocate(
-                actors.requester,
-                domain=DOM,
-                num_models=k,
-                env=env,
-                weights=weights or (),
-                metric=Metric.MODEL,
-            )
+            try:
+                alloc, got, _ = p.mmc.allocate(
+                    actors.requester,
+                    domain=DOM,
+                    num_models=k,
+                    env=env,
+                    weights=weights or (),
+                    metric=Metric.MODEL,
+                )
+            except errors.get("ModelsNoEligibleModel"):
+                break  # nobody in the pool lists a model of these dimensions
             for m, r in zip(got, reviews, strict=False):
                 p.mmc.transact("updateModelRep", alloc, m, r, sender=actors.requester)
         models = []
@@ -250,7 +295,7 @@ def test_allocate_model_eq12_matches_reference(fp, case, rounds, nm, min_model_r
             assert owner == addrs[o] and tuple(env_onchain) == e
             models.append(qos.Model(o, DOM, e, alloc_count, total_review))
         req = qos.ModelRequest(DOM, nm, env, min_model_rep, min_owner_rep, weights)
-        expected = qos.allocate_models(models, req)
+        expected = qos.allocate_models(models, req, pool=members)
         args = dict(
             domain=DOM,
             num_models=nm,
@@ -268,7 +313,7 @@ def test_allocate_model_eq12_matches_reference(fp, case, rounds, nm, min_model_r
                 return
         _, got, rc = p.mmc.allocate(actors.requester, **args)
         assert got == [ids[i] for i in expected]
-        _, ref_qos = qos.model_qos_all(models, req)
+        _, ref_qos = qos.model_qos_all(models, req, members)
         assert [e.args["qos"] for e in rc.named("ModelAllocated")] == [ref_qos[i] for i in expected]
     finally:
         p.chain.revert(snap)

@@ -133,4 +133,5 @@ def test_candidate_packing_matches_storage(p, actors) -> None:
     assert stats == [0]
     ws, _ = p.umc.call("profiles", [1, 0], DOMAIN + 1, 1)
     assert ws[0] >> 255 == 0 and ws[1] == 0  # not in that domain; id 0 (nobody)
-    assert p.umc.call("profiles", [1], DOMAIN, 0)[0][0] == word
+    assert (word >> 208) & 0xFFFFFFFF == 1  # candidate words carry the worker id
+    assert p.umc.call("profiles", [1], DOMAIN, 0)[0][0] == word & ~(0xFFFFFFFF << 208)

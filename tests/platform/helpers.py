@@ -24,7 +24,9 @@ TINY_SPEC: dict[str, Any] = {
 
 
 def deploy(chain: Chain) -> Platform:
-    return deploy_platform(chain, accept_window=600, review_window=3600, accepted_gpus=ALL_GPUS)
+    return deploy_platform(
+        chain, accept_window=600, review_window=3600, accepted_gpus=ALL_GPUS, worker_approval=False
+    )
 
 
 @dataclass

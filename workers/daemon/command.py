@@ -18,14 +18,18 @@ from workers.daemon.capabilities import Capabilities, measure
 
 log = logging.getLogger(__name__)
 
-#: Domains a worker serves when none are given: every code the UMC accepts (0-47).
-DEFAULT_DOMAINS = tuple(range(48))
+#: Every code the UMC accepts (0-47), for 'all'.
+ALL_DOMAINS = tuple(range(48))
+#: A worker covers at most this many domains (UMC.MAX_WORKER_DOMAINS).
+MAX_WORKER_DOMAINS = 4
+#: Domains a worker serves when none are given (tasks default to domain 0).
+DEFAULT_DOMAINS = "0-3"
 
 
 def parse_domains(text: str) -> tuple[int, ...]:
     """'0,3,5-7' -> (0, 3, 5, 6, 7); 'all' -> every UMC domain code."""
     if text.strip() == "all":
-        return DEFAULT_DOMAINS
+        return ALL_DOMAINS
     out: set[int] = set()
     for part in text.split(","):
         part = part.strip()
@@ -47,7 +51,16 @@ def parse_domains(text: str) -> tuple[int, ...]:
 
 
 def register_worker(platform: Any, caps: Capabilities, domains: tuple[int, ...]) -> str:
-    """Add the worker record (or update its capabilities); returns what was done."""
+    """Add the worker record (or update its capabilities); returns what was done. On a chain
+    where registration needs a consortium admin's approval, the new worker is pending (it is
+    offered nothing until approved); a removed worker cannot serve again."""
+    if not 1 <= len(domains) <= MAX_WORKER_DOMAINS:
+        raise ValueError(
+            f"--domains: a worker covers 1 to {MAX_WORKER_DOMAINS} domains (the UMC's limit), "
+            f"got {len(domains)}"
+        )
+    from backend.chain.platform import WorkerStatus
+
     umc, me = platform.umc, platform.admin
     if platform.chain.balance(me) == 0 and platform.chain.w3.eth.gas_price > 0:
         raise RuntimeError(
@@ -56,8 +69,12 @@ def register_worker(platform: Any, caps: Capabilities, domains: tuple[int, ...])
         )
     if umc.call("workerId", me) == 0:
         umc.add_worker(me, domains, caps.cpu_cores, caps.ram_gb, caps.gpu_series)
+        if umc.call("getWorker", me)[1] == WorkerStatus.PENDING:
+            return "registered, pending a consortium admin's approval"
         return "registered"
     w = umc.call("getWorker", me)
+    if w[1] == WorkerStatus.REMOVED:
+        raise RuntimeError(f"worker {me} was removed from the platform; use another key")
     current = (int(w[3]), int(w[4]), int(w[2]))  # cpuCores, ramGb, gpuSeries
     if current != (caps.cpu_cores, caps.ram_gb, caps.gpu_series):
         umc.transact("updateCapabilities", caps.cpu_cores, caps.ram_gb, caps.gpu_series, sender=me)
@@ -78,7 +95,7 @@ def worker_command(
     ] = None,
     domains: Annotated[
         str, typer.Option(help="domain codes served, e.g. '0,3,5-7' or 'all'")
-    ] = "all",
+    ] = DEFAULT_DOMAINS,
     max_jobs: Annotated[int, typer.Option(min=1, help="jobs at once before declining offers")] = 1,
     checkpoint_every: Annotated[int, typer.Option(min=1, help="updates between checkpoints")] = 2,
     data: Annotated[

@@ -6,12 +6,15 @@ the caller's demo key in development, else answers 409 ``sign_locally`` with the
 
 from __future__ import annotations
 
-from fastapi import APIRouter, status
+from typing import Annotated
+
+from fastapi import APIRouter, Path, status
 
 from backend.api.deps import ChainDep, CurrentUser, IndexerDep
 from backend.api.errors import RuleError, rule_responses
+from backend.api.schemas import Address
 from backend.api.writes import catch_up
-from backend.chain.platform import domain_mask
+from backend.chain.platform import WorkerStatus, domain_mask
 from backend.schemas.users import RegistrationPublic, WorkerCreate
 
 router = APIRouter(prefix="/users", tags=["users"])
@@ -44,7 +47,10 @@ def register_worker(
     body: WorkerCreate, user: CurrentUser, chain: ChainDep, indexer: IndexerDep
 ) -> RegistrationPublic:
     """UMC.addWorker, or UMC.updateCapabilities when the caller is already a worker (its
-    domains are fixed at registration: 409 ``worker_domains_fixed`` if they differ)."""
+    domains are fixed at registration: 409 ``worker_domains_fixed`` if they differ). At most
+    four domains. On a consortium chain the new worker is ``pending`` until an admin approves
+    it (``POST /users/workers/{address}/approval``); a removed worker gets 403
+    ``users_not_approved``."""
     umc = chain.platform.umc
     if chain.call(umc, "workerId", user.address) == 0:
         rc = chain.send(
@@ -71,8 +77,50 @@ def register_worker(
         created = False
     catch_up(indexer)
     return RegistrationPublic(
-        address=user.address, role="worker", tx_hash=rc.tx_hash, created=created
+        address=user.address,
+        role="worker",
+        tx_hash=rc.tx_hash,
+        created=created,
+        status=_status(chain, user.address),
     )
+
+
+@router.post(
+    "/workers/{address}/approval",
+    response_model=RegistrationPublic,
+    responses=rule_responses(401, 403, 409, 503),
+)
+def approve_worker(
+    address: Annotated[Address, Path()], user: CurrentUser, chain: ChainDep, indexer: IndexerDep
+) -> RegistrationPublic:
+    """UMC.approveWorker by a consortium admin: the pending worker becomes a candidate (403
+    ``users_not_admin`` for anyone else, 409 ``users_not_pending`` if it is not pending)."""
+    rc = chain.send(user.address, chain.platform.umc, "approveWorker", address)
+    catch_up(indexer)
+    return RegistrationPublic(
+        address=address, role="worker", tx_hash=rc.tx_hash, created=False, status="active"
+    )
+
+
+@router.delete(
+    "/workers/{address}",
+    response_model=RegistrationPublic,
+    responses=rule_responses(401, 403, 409, 503),
+)
+def remove_worker(
+    address: Annotated[Address, Path()], user: CurrentUser, chain: ChainDep, indexer: IndexerDep
+) -> RegistrationPublic:
+    """UMC.removeWorker by the worker itself or an admin: it is never offered a task or a
+    model again (403 ``users_not_self_or_admin`` for anyone else)."""
+    rc = chain.send(user.address, chain.platform.umc, "removeWorker", address)
+    catch_up(indexer)
+    return RegistrationPublic(
+        address=address, role="worker", tx_hash=rc.tx_hash, created=False, status="removed"
+    )
+
+
+def _status(chain: ChainDep, address: str) -> str:
+    return WorkerStatus(int(chain.call(chain.platform.umc, "getWorker", address)[1])).name.lower()
 
 
 def _registered_domains(chain: ChainDep, address: str) -> int:

@@ -69,7 +69,7 @@ def _domains(session: SessionDep, addresses: list[str]) -> dict[str, list[int]]:
 def list_workers(
     session: SessionDep,
     domain: Annotated[int | None, Query(ge=0, le=MAX_DOMAIN)] = None,
-    status: Literal["active", "idle"] | None = None,
+    status: Literal["active", "idle", "pending", "removed"] | None = None,
     min_reputation: Annotated[float | None, Query(ge=0, le=1)] = None,
     sort: Literal["reputation", "rating", "registered"] = "reputation",
     limit: Annotated[int, Query(ge=1, le=500)] = 100,

@@ -1,0 +1,36 @@
+// SPDX-License-Identifier: MIT
+pragma solidity ^0.8.24;
+
+import {ModelsManager} from "../ModelsManager.sol";
+import {IUsersManager} from "../IUsersManager.sol";
+import {ITasksOutcomes} from "../ITasksOutcomes.sol";
+
+/**
+ * @title ModelsManagerHarness (test only, never deployed by the platform)
+ * @dev The MMC plus a bulk listing for the allocation scaling tests and benchmark: the
+ * storage {addModel} leaves (model slot, domain and owner lists, owner count), without the
+ * CID text and the event.
+ */
+contract ModelsManagerHarness is ModelsManager {
+    constructor(IUsersManager umc_, ITasksOutcomes tmc_) ModelsManager(umc_, tmc_) {}
+
+    /**
+     * @dev Lists `perOwner` models in `domain` for each worker id in [firstOwner, firstOwner
+     * + owners), with two environment attributes (i % 7, i % 5) for the i-th model.
+     * Requirements: caller is a consortium admin.
+     */
+    function seedModels(uint32 firstOwner, uint256 owners, uint256 perOwner, uint32 domain) external {
+        if (!umc.isAdmin(msg.sender)) revert ModelsNotAdmin(msg.sender);
+        for (uint256 o; o < owners; ++o) {
+            uint32 ownerId = firstOwner + uint32(o);
+            for (uint256 k; k < perOwner; ++k) {
+                uint256 modelId = ++modelCount;
+                uint256 head = (modelId % 7) | ((modelId % 5) << 32);
+                _models[modelId] = Model(ownerId, uint8(domain), 2, 0, 0, uint128(head));
+                _domainModels[domain].push(uint32(modelId));
+                _ownerModels[(uint256(ownerId) << 8) | domain].push(uint32(modelId));
+            }
+            _ownerModelCount[ownerId] += perOwner;
+        }
+    }
+}

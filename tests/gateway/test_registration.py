@@ -1,0 +1,48 @@
+"""Worker registration through the gateway (issue 8): at most four domains; with approval on
+(a consortium chain) a new worker is pending until an admin approves it; the worker itself or
+an admin removes it."""
+
+from __future__ import annotations
+
+from fastapi.testclient import TestClient
+
+from backend.services.chain import ChainService
+
+from .conftest import P, Login, addr
+
+CAPS = {"cpu_cores": 4, "ram_gb": 8, "gpu_series": 0}
+
+
+def test_development_chain_registers_workers_active(client: TestClient, login: Login) -> None:
+    r = client.post(
+        f"{P}/users/workers", json={"domains": [0, 1, 2, 3]} | CAPS, headers=login("user1")
+    )
+    assert r.status_code == 201 and r.json()["status"] == "active", r.text
+    r = client.post(
+        f"{P}/users/workers", json={"domains": [0, 1, 2, 3, 4]} | CAPS, headers=login("user2")
+    )
+    assert r.status_code == 422 and "domains" in r.text
+
+
+def test_approval_and_removal(client: TestClient, login: Login, service: ChainService) -> None:
+    umc = service.platform.umc
+    umc.set_approval_required(service.platform.admin, True)
+    r = client.post(f"{P}/users/workers", json={"domains": [0]} | CAPS, headers=login("user3"))
+    assert r.status_code == 201 and r.json()["status"] == "pending", r.text
+    me = addr(service, "user3")
+    assert umc.pool(0) == []
+    pending = client.get(f"{P}/workers", params={"status": "pending"}).json()["data"]
+    assert [w["address"] for w in pending] == [me]
+
+    r = client.post(f"{P}/users/workers/{me}/approval", headers=login("user4"))
+    assert r.status_code == 403 and "not_admin" in r.json()["detail"]["rule"], r.text
+    r = client.post(f"{P}/users/workers/{me}/approval", headers=login("admin"))
+    assert r.status_code == 200 and r.json()["status"] == "active", r.text
+    assert umc.pool(0) == [me]
+
+    r = client.delete(f"{P}/users/workers/{me}", headers=login("user4"))
+    assert r.status_code == 403 and "not_self_or_admin" in r.json()["detail"]["rule"], r.text
+    r = client.delete(f"{P}/users/workers/{me}", headers=login("user3"))
+    assert r.status_code == 200 and r.json()["status"] == "removed", r.text
+    assert umc.pool(0) == []
+    assert client.get(f"{P}/workers/{me}").json()["status"] == "removed"
