@@ -8,7 +8,7 @@ from fastapi.testclient import TestClient
 
 from backend.services.chain import ChainService
 
-from .conftest import P, Login, addr
+from .conftest import Login, P, addr
 
 CAPS = {"cpu_cores": 4, "ram_gb": 8, "gpu_series": 0}
 
