@@ -14,7 +14,9 @@ from .helpers import CID, reverts
 
 
 def _task(p, requester, nw=3):
-    tid, _ = p.tmc.add_task(requester, domain=DOMAIN, num_workers=nw, reward=10**15, duration=86_400)
+    tid, _ = p.tmc.add_task(
+        requester, domain=DOMAIN, num_workers=nw, reward=10**15, duration=86_400
+    )
     return tid
 
 
