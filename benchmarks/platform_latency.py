@@ -49,6 +49,7 @@ def main() -> None:
                     "observation": {"kind": "odmtl", "window": 3},
                     "budget": {"steps": args.steps, "minutes": 1},
                     "num_workers": 1,
+                    "payment_wei": 10**16,
                 },
                 auth=True,
             )

@@ -102,14 +102,7 @@ def deploy_to_file(
         accept_window=accept_window,
         review_window=review_window,
     )
-    doc = {
-        "UsersManager": platform.umc.address,
-        "TasksManager": platform.tmc.address,
-        "ModelsManager": platform.mmc.address,
-        "admin": account.address,
-        "deploy_block": min(r.block_number for r in platform.receipts.values()),
-        "chain_id": chain.chain_id,
-    }
+    doc = platform.record(platform.deployed_at)
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.with_name(out.name + ".tmp")
     tmp.write_text(json.dumps(doc, indent=2) + "\n")

@@ -49,7 +49,8 @@ class SQLiteKV(BaseDB):
         self.path = Path(path)
         # one process per chain file: a second gateway on it would fork the chain silently
         self._owner = hold_lock(self.path.with_suffix(".lock"), "embedded chain (drlaas up)")
-        self._db = sqlite3.connect(self.path, check_same_thread=False, isolation_level=None)
+        # ``with self._db:`` is one transaction: committed on success, rolled back on error
+        self._db = sqlite3.connect(self.path, check_same_thread=False)
         self._db.execute("PRAGMA journal_mode=WAL")
         self._db.execute("PRAGMA synchronous=NORMAL")  # WAL + NORMAL: survives process death
         self._db.execute("CREATE TABLE IF NOT EXISTS kv (k BLOB PRIMARY KEY, v BLOB NOT NULL)")
@@ -90,7 +91,7 @@ class SQLiteKV(BaseDB):
         dirty, self._dirty = self._dirty, {}
         puts = [(k, v) for k, v in dirty.items() if v is not _DELETED]
         dels = [(k,) for k, v in dirty.items() if v is _DELETED]
-        with self._transaction():
+        with self._db:
             self._db.executemany("INSERT OR REPLACE INTO kv (k, v) VALUES (?, ?)", puts)
             self._db.executemany("DELETE FROM kv WHERE k = ?", dels)
         return len(dirty)
@@ -102,14 +103,14 @@ class SQLiteKV(BaseDB):
     def set_meta(self, key: str, value: Any) -> None:
         """Record ``value`` durably, together with every pending chain write."""
         self.commit()
-        with self._transaction():
+        with self._db:
             self._db.execute(
                 "INSERT OR REPLACE INTO meta (k, v) VALUES (?, ?)", (key, json.dumps(value))
             )
 
     def wipe(self) -> None:
         """Forget everything (an interrupted first start, see the module docstring)."""
-        with self._transaction():
+        with self._db:
             self._db.execute("DELETE FROM kv")
             self._db.execute("DELETE FROM meta")
         self._kv.clear()
@@ -119,23 +120,6 @@ class SQLiteKV(BaseDB):
         self.commit()
         self._db.close()
         self._owner.close()
-
-    def _transaction(self) -> sqlite3.Connection:
-        self._db.execute("BEGIN IMMEDIATE")
-        return _Commit(self._db)  # type: ignore[return-value]
-
-
-class _Commit:
-    """``with``: COMMIT on success, ROLLBACK on an exception (autocommit connection)."""
-
-    def __init__(self, db: sqlite3.Connection) -> None:
-        self.db = db
-
-    def __enter__(self) -> sqlite3.Connection:
-        return self.db
-
-    def __exit__(self, exc_type: object, *_: object) -> None:
-        self.db.execute("ROLLBACK" if exc_type else "COMMIT")
 
 
 def _tester_chain_class(num_accounts: int) -> type:
@@ -186,7 +170,3 @@ class DurableBackend(PyEVMBackend):
     def revert_to_snapshot(self, snapshot: Any) -> None:
         super().revert_to_snapshot(snapshot)
         self.kv.commit()
-
-    @property
-    def genesis_hash(self) -> str:
-        return "0x" + self.chain.get_canonical_block_header_by_number(0).hash.hex()

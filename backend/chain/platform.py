@@ -293,6 +293,24 @@ class Platform:
         return (self.umc, self.tmc, self.mmc)
 
     @property
+    def deployed_at(self) -> int:
+        """Block of the first deployment transaction (where an indexer starts); only for a
+        platform this process deployed (attached ones have no receipts)."""
+        return min(r.block_number for r in self.receipts.values())
+
+    def record(self, deploy_block: int) -> dict[str, Any]:
+        """The deployment as a ``DRLAAS_CONTRACTS`` document: what another process attaches with
+        (``connect_platform``) and an indexer starts from."""
+        return {
+            "UsersManager": self.umc.address,
+            "TasksManager": self.tmc.address,
+            "ModelsManager": self.mmc.address,
+            "admin": self.admin,
+            "deploy_block": deploy_block,
+            "chain_id": self.chain.chain_id,
+        }
+
+    @property
     def identity(self) -> str:
         """This deployment on this chain: a hash of the genesis block and the three contract
         addresses. Anything kept per task off chain (a worker's job directory, a queued job) is

@@ -31,8 +31,9 @@ from backend.chain.platform import OfferState, TaskStatus, WorkerStatus
 from backend.chain.qos import mmc_reputation_fixed, rating_fixed, reputation_fixed
 from backend.db import models as m
 from backend.services.chain import ChainService
-from backend.services.specs import MAX_SPEC_BYTES, TASK_SPEC_FORMAT, load_json_doc, summarize_env
+from backend.services.specs import load_json_doc, summarize_env
 from backend.store import ContentStore
+from workers.mdrl.trainingspec import MAX_SPEC_BYTES, TRAINING_SPEC_FORMAT
 
 log = logging.getLogger(__name__)
 
@@ -348,7 +349,7 @@ class Indexer:
         if self.store is None or not cid:
             return None
         try:
-            return load_json_doc(self.store, cid, max_size=MAX_SPEC_BYTES, fmt=TASK_SPEC_FORMAT)
+            return load_json_doc(self.store, cid, max_size=MAX_SPEC_BYTES, fmt=TRAINING_SPEC_FORMAT)
         except Exception as exc:  # not a CID, not stored here, not a spec: keep the raw text
             log.info("indexer: task description %r is not a readable task spec: %s", cid, exc)
             return None

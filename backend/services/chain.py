@@ -211,8 +211,7 @@ class ChainService:
                 # development chain: registration makes a worker a candidate at once
                 worker_approval=False,
             )
-            deploy_block = min(r.block_number for r in platform.receipts.values())
-            service = cls(chain, platform, deploy_block)
+            service = cls(chain, platform, platform.deployed_at)
             backend.kv.set_meta("deployment", service.addresses())
         if settings.demo_keys_allowed:
             service.demo_keys = DemoKeys(settings)
@@ -260,15 +259,7 @@ class ChainService:
 
     def addresses(self) -> dict[str, Any]:
         """The deployment as DRLAAS_CONTRACTS JSON (other processes attach with it)."""
-        p = self.platform
-        return {
-            "UsersManager": p.umc.address,
-            "TasksManager": p.tmc.address,
-            "ModelsManager": p.mmc.address,
-            "admin": p.admin,
-            "deploy_block": self.deploy_block,
-            "chain_id": self.chain.chain_id,
-        }
+        return self.platform.record(self.deploy_block)
 
     # -- signing --------------------------------------------------------------------------------
     def signer(self, address: str) -> LocalAccount | None:

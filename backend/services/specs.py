@@ -20,12 +20,10 @@ from typing import Any
 from backend.store import ContentStore
 from workers.mdrl.resources import ResourceEstimate, estimate
 from workers.mdrl.spec import EnvSpec
-from workers.mdrl.trainingspec import MAX_SPEC_BYTES, TRAINING_SPEC_FORMAT, SpecError, parse_env
+from workers.mdrl.trainingspec import SpecError, parse_env
 
 __all__ = [
     "ENV_ATTRIBUTES",
-    "MAX_SPEC_BYTES",
-    "TASK_SPEC_FORMAT",
     "SpecError",
     "SpecLimitExceeded",
     "check_limits",
@@ -33,7 +31,6 @@ __all__ = [
     "validate_env",
 ]
 
-TASK_SPEC_FORMAT = TRAINING_SPEC_FORMAT
 ENV_ATTRIBUTES = ("rows", "cols", "agents", "moves", "walls_min", "walls_max")
 """Order of the on-chain env attribute vector (uint32 each)."""
 

@@ -73,17 +73,7 @@ def test_scenario_on_real_services(
     chain = Chain.rpc(anvil)
     platform = deploy(chain)
     contracts = tmp_path / "contracts.json"
-    contracts.write_text(
-        json.dumps(
-            {
-                "UsersManager": platform.umc.address,
-                "TasksManager": platform.tmc.address,
-                "ModelsManager": platform.mmc.address,
-                "admin": platform.admin,
-                "deploy_block": min(r.block_number for r in platform.receipts.values()),
-            }
-        )
-    )
+    contracts.write_text(json.dumps(platform.record(platform.deployed_at)))
     for var, value in {
         "DRLAAS_CHAIN": anvil,
         "DRLAAS_CONTRACTS": str(contracts),

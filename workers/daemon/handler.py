@@ -1,16 +1,16 @@
 """The offer pipeline of a worker, free of Celery so it can be called and tested directly.
 
 ``OfferHandler.handle(task_id, worker)`` is idempotent: it reads the offer's state on chain and
-the job's state in ``<worker data>/jobs/<task_id>/state.json`` and continues from where a
-previous attempt stopped (offered -> accepted -> trained -> uploaded -> submitted). Transient
-failures (content store or chain node unreachable) raise :class:`Transient`; the Celery job
-retries those with backoff.
+the job's state in ``<worker data>/jobs/<chain identity>/<task_id>/state.json`` and continues
+from where a previous attempt stopped (offered -> accepted -> trained -> uploaded ->
+submitted). Transient failures (content store or chain node unreachable) raise
+:class:`Transient`; the Celery job retries those with backoff.
 
 An offer whose spec cannot be trained here (bad spec, estimated memory beyond this worker's RAM
 share) is declined. A job that fails after acceptance (an exception in training or upload, a
-spec found bad late) is marked ``failed``: it no longer holds capacity, and once the task's
-deadline has passed the handler closes the task, which turns the offer into ``Failed`` on
-chain (the TMC has no earlier way for a worker to give an accepted task back).
+spec found bad late) is marked ``failed``: it no longer holds capacity, and the task is given
+back on chain at once (TMC ``abandonOffer``: the offer becomes ``Failed`` and the slot opens
+for the requester to re-allocate).
 """
 
 from __future__ import annotations
@@ -153,7 +153,7 @@ class OfferHandler:
             return {"task_id": task_id, "status": f"offer {state.name.lower()}"}
 
         if state == OfferState.ACCEPTED and self._state(task_id).get("phase") == "failed":
-            return self._report_failure(task_id, task)
+            return self._report_failure(task_id)
         spec = self._fetch_spec(task_id)
         if state == OfferState.OFFERED:
             reason = self._cannot_take(task_id, spec)
@@ -164,7 +164,7 @@ class OfferHandler:
             self._transact("acceptOffer", task_id)
             self._save(task_id, phase="accepted", accepted_at=self.clock())
         elif isinstance(spec, SpecError):  # accepted earlier, spec cannot be trained: give up
-            return self._fail(task_id, task, f"task spec: {spec}")
+            return self._fail(task_id, f"task spec: {spec}")
 
         try:
             return self._run(task_id, spec, task)  # type: ignore[arg-type]
@@ -172,7 +172,7 @@ class OfferHandler:
             raise
         except Exception as exc:  # noqa: BLE001 - any failure of the job releases the worker
             log.exception("task %s: job failed", task_id)
-            return self._fail(task_id, task, f"{type(exc).__name__}: {exc}")
+            return self._fail(task_id, f"{type(exc).__name__}: {exc}")
 
     def _run(self, task_id: int, spec: TrainingSpec, task: dict[str, Any]) -> dict[str, Any]:
         """Train (or resume), upload and submit an accepted job."""
@@ -214,12 +214,12 @@ class OfferHandler:
             )
         return None
 
-    def _fail(self, task_id: int, task: dict[str, Any], reason: str) -> dict[str, Any]:
+    def _fail(self, task_id: int, reason: str) -> dict[str, Any]:
         """Mark an accepted job failed (it stops counting against capacity) and report it."""
         self._save(task_id, phase="failed", reason=reason[:2000], failed_at=self.clock())
-        return self._report_failure(task_id, task)
+        return self._report_failure(task_id)
 
-    def _report_failure(self, task_id: int, task: dict[str, Any]) -> dict[str, Any]:
+    def _report_failure(self, task_id: int) -> dict[str, Any]:
         """Give the task back on chain (TMC ``abandonOffer``: the offer becomes Failed and the
         slot opens for the requester to re-allocate), so neither the worker nor the task is
         held until the deadline."""

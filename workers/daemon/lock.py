@@ -7,13 +7,12 @@ from __future__ import annotations
 from pathlib import Path
 from typing import IO
 
-from backend.locks import AlreadyHeld, hold_lock
+from backend.locks import hold_lock
 
 LOCK_FILE = "daemon.lock"
-DaemonAlreadyRunning = AlreadyHeld
 
 
 def hold_daemon_lock(data_dir: str | Path) -> IO[str]:
-    """Lock ``<data_dir>/daemon.lock`` or raise :class:`DaemonAlreadyRunning`; keep the
+    """Lock ``<data_dir>/daemon.lock`` or raise :class:`backend.locks.AlreadyHeld`; keep the
     returned file open for as long as the daemon runs."""
     return hold_lock(Path(data_dir) / LOCK_FILE, "worker daemon")
