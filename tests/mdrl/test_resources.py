@@ -11,6 +11,7 @@ import torch
 from workers.mdrl.networks import ActorCritic
 from workers.mdrl.observations import make_observer
 from workers.mdrl.resources import (
+    REFERENCE_OBSERVATION,
     REFERENCE_PRESET,
     REFERENCE_STEPS_PER_S,
     estimate,
@@ -82,6 +83,7 @@ def test_compute_and_hours() -> None:
     ref = TrainingSpec.from_dict(
         {
             "env": {"rows": 10, "cols": 10, "agents": 3},
+            "observation": REFERENCE_OBSERVATION,
             "algorithm": {"preset": REFERENCE_PRESET},
             "budget": {"steps": REFERENCE_STEPS_PER_S * 3600},
         }

@@ -24,6 +24,8 @@ from scipy.optimize import linear_sum_assignment
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import shortest_path
 
+from workers.mdrl.belief import BeliefFilter
+
 #: all-pairs distance of cells that cannot reach each other (fits int16, never summed).
 FAR = 30000
 
@@ -266,30 +268,12 @@ def _subset_distances(env, envs: np.ndarray) -> np.ndarray:
 # ---------------------------------------------------------------------------- bayes
 
 
-def intensity_hypotheses(spec, levels: int = 8) -> tuple[np.ndarray, np.ndarray]:
-    """Intensities the Bayesian searcher considers and their prior weights.
-
-    fixed: the value; choice: each value, equal odds; uniform(lo, hi): the mid-points of
-    ``levels`` equal-width bins, equal odds (a discretised uniform prior).
-    """
-    it = spec.intensity
-    if it.kind == "uniform":
-        lo, hi = it.values
-        edges = np.linspace(lo, hi, levels + 1)
-        vals = (edges[:-1] + edges[1:]) / 2 if hi > lo else np.array([lo])
-    else:
-        vals = np.unique(np.asarray(it.values, dtype=np.float64))
-    return vals, np.full(len(vals), 1.0 / len(vals))
-
-
 class BayesPolicy:
     """Cooperative Bayesian search ([11, 15], thesis Sec. 3.7.6 (3)) on a shared grid posterior.
 
-    Posterior: over hypotheses (target cell c, intensity I_k). Prior: uniform over free cells
-    reachable by some agent, times ``intensity_hypotheses``. Every reading r taken at cell x by
-    any agent multiplies it by the Poisson likelihood ``mu^r e^-mu`` with ``mu = I_k g(c, x)``,
-    the env's own expected count (Eq. 6 with wall attenuation, ``g`` = count per unit intensity).
-    Cells visited without finding the target get probability 0.
+    Posterior: ``belief.BeliefFilter`` (the same filter the belief-map observation shows the
+    policy networks): hypotheses (target cell c, intensity I_k), every reading of the team
+    folded in with the Poisson likelihood of the env's own expected count, visited cells out.
 
     Decision rule: one-step lookahead on the posterior expected team distance
     ``J = E_P[min_i D(p_i', c)] + move_cost * #moving agents`` (D: BFS steps). Agents choose
@@ -315,64 +299,23 @@ class BayesPolicy:
 
     def reset(self, env) -> None:
         self._tracker = _EpisodeTracker(env.pos.shape[0])
+        self.belief = BeliefFilter(env.spec, self.intensity_levels)
         self._init(env, np.arange(env.pos.shape[0]))
 
     def _init(self, env, envs: np.ndarray) -> None:
         B, N = env.pos.shape
         C = env.walls.shape[1]
-        vals, prior = intensity_hypotheses(env.spec, self.intensity_levels)
-        K = len(vals)
-        if (
-            not hasattr(self, "_logp")
-            or self._logp.shape != (B, K, C)
-            or self._goal.shape != (B, N)
-        ):
+        if not hasattr(self, "_D") or self._D.shape != (B, C, C) or self._goal.shape != (B, N):
             self._D = np.zeros((B, C, C), dtype=np.int16)
-            self._G = np.zeros((B, C, C), dtype=np.float32)
-            self._logp = np.zeros((B, K, C), dtype=np.float64)
-            self._I = vals
             self._goal = np.full((B, N), -1, dtype=np.int64)  # committed walks (see act)
-        D = all_pairs_distances(env) if len(envs) == B else _subset_distances(env, envs)
-        self._D[envs] = D
-        self._G[envs] = unit_count_matrix(env, envs)
-        reach = (D[np.arange(len(envs))[:, None], env.pos[envs]] < FAR).any(axis=1)  # (E, C)
-        ok = reach & ~np.asarray(env.walls)[envs]
-        self._logp[envs] = np.where(ok[:, None, :], np.log(prior)[None, :, None], -np.inf)
+        self._D[envs] = all_pairs_distances(env) if len(envs) == B else _subset_distances(env, envs)
         self._goal[envs] = -1
-
-    def _update(self, env) -> None:
-        """Fold in the readings the agents are taking at their current cells (shared)."""
-        B, N = env.pos.shape
-        b = np.arange(B)
-        readings = np.asarray(env.readings, dtype=np.float64)
-        for i in range(N):
-            cell = env.pos[:, i]
-            dup = np.zeros(B, dtype=bool)
-            for j in range(i):
-                dup |= env.pos[:, j] == cell
-            r = readings[b, cell]  # (B,)
-            g = self._G[b, :, cell].astype(np.float64)  # (B, C): unit count at cell from each c
-            mu = self._I[None, :, None] * np.maximum(g, 1e-30)[:, None, :]  # (B, K, C)
-            ll = r[:, None, None] * np.log(mu) - mu
-            self._logp += np.where(dup[:, None, None], 0.0, ll)
-        visited = np.asarray(env.visits) > 0
-        self._logp[np.broadcast_to(visited[:, None, :], self._logp.shape)] = -np.inf
-
-    def posterior(self) -> np.ndarray:
-        """P(target = c | readings), (B, C)."""
-        lp = self._logp
-        top = lp.max(axis=(1, 2), keepdims=True)
-        top = np.where(np.isfinite(top), top, 0.0)
-        p = np.exp(lp - top).sum(axis=1)
-        s = p.sum(axis=1, keepdims=True)
-        return np.divide(p, s, out=np.zeros_like(p), where=s > 0)
 
     def act(self, env) -> np.ndarray:
         fresh = np.flatnonzero(self._tracker.fresh(env))
         if len(fresh):
             self._init(env, fresh)
-        self._update(env)
-        P = self.posterior()
+        P = self.belief.posterior(env)
         mask = env.action_mask()
         B, N, A = mask.shape
         b = np.arange(B)
@@ -415,21 +358,6 @@ class BayesPolicy:
             walk = step_toward(env, D, goal, mask)
             actions[b[stuck], mover[stuck]] = walk[b[stuck], mover[stuck]]
         return _fallback_valid(valid, actions)
-
-
-def unit_count_matrix(env, envs: np.ndarray) -> np.ndarray:
-    """``G[e, c, x]``: expected count at cell x per unit intensity if the target were at c.
-
-    Uses the env's own ``expected_counts`` (Eq. 6 times wall transmission), so the searcher's
-    likelihood is exactly the model that generates the readings.
-    """
-    C = env.walls.shape[1]
-    hyp = np.arange(C)
-    out = np.empty((len(envs), C, C), dtype=np.float32)
-    for k, e in enumerate(envs):
-        walls = np.broadcast_to(np.asarray(env.walls)[e], (C, C))
-        out[k] = env.expected_counts(hyp, walls, np.ones(C))
-    return out
 
 
 # ---------------------------------------------------------------------------- registry

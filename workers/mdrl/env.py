@@ -89,7 +89,9 @@ class TargetLocalizationEnv:
         self.dist = np.zeros((B, C), dtype=np.int32)
         self.mean_reading = np.zeros((B, C), dtype=np.float64)
         self.readings = np.zeros((B, C), dtype=np.float32)
+        self.reading_sum = np.zeros((B, C), dtype=np.float64)
         self.visits = np.zeros((B, C), dtype=np.float32)
+        self.episode_id = np.zeros(B, dtype=np.int64)
         self.t = np.zeros(B, dtype=np.int64)
         self.idle_streak = np.zeros(B, dtype=np.int64)
         self.intensity = np.zeros(B, dtype=np.float64)
@@ -111,8 +113,8 @@ class TargetLocalizationEnv:
         self.noise_rng = np.random.Generator(np.random.PCG64(noise))
 
     _STATE = (
-        "pos target walls dist mean_reading readings visits t idle_streak intensity cost "
-        "next_cell active history _mask"
+        "pos target walls dist mean_reading readings reading_sum visits episode_id t idle_streak "
+        "intensity cost next_cell active history _mask"
     ).split()
 
     def state_dict(self) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
@@ -184,6 +186,8 @@ class TargetLocalizationEnv:
         self.active[rows] = True
         self.visits[rows] = 0
         self.readings[rows] = 0
+        self.reading_sum[rows] = 0
+        self.episode_id[rows] += 1
         self._take_readings(rows, start)
         self._mask[rows] = self._masks(rows)
 
@@ -327,15 +331,20 @@ class TargetLocalizationEnv:
         return self.history[self._rows, slot]
 
     def _take_readings(self, rows: np.ndarray, cells: np.ndarray) -> None:
-        """Poisson readings (Eq. 6) at ``cells`` (R, N); last reading per cell, visit counts."""
+        """Poisson readings (Eq. 6) at ``cells`` (R, N): last reading per cell, the sum of all
+        readings per cell (with ``visits``, the sufficient statistic of the Poisson likelihood)
+        and visit counts."""
         C = self.spec.num_cells
         flat = rows[:, None] * C + cells
         lam = self.mean_reading.reshape(-1)[flat]
         noisy = self.spec.readings == "poisson"
-        self.readings.reshape(-1)[flat] = self.noise_rng.poisson(lam) if noisy else lam
+        taken = self.noise_rng.poisson(lam) if noisy else lam
+        self.readings.reshape(-1)[flat] = taken
         visits = self.visits.reshape(-1)
+        total = self.reading_sum.reshape(-1)
         for i in range(flat.shape[1]):  # one agent at a time: indices unique, so += counts all
             visits[flat[:, i]] += 1.0
+            total[flat[:, i]] += taken[:, i]
 
     def step(self, actions: np.ndarray) -> StepResult:
         """Apply one joint action per env; returns team rewards (Eq. 5/8 or Eq. 9) and endings."""

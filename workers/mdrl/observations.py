@@ -18,8 +18,22 @@ Channel order (``Observer.actor_channels`` / ``critic_channels`` name them):
   all-agent counts, readings, visits [, downsized walls].
 
 Wall maps are included iff ``ObservationSpec.walls`` is True, or it is None and the env can
-have walls (``spec.walls[1] > 0``). Chapter 4 embeds walls with a CAE; here the (windowed /
-downsized) walls map stands in for it, so the actor sees walls without a pretrained encoder.
+have walls (``spec.walls[1] > 0``). Belief maps (``ObservationSpec.belief``) come last: DMTL and
+CMTL add the full posterior map to actor and critic; ODMTL adds a windowed and a downsized
+belief to the actor and a downsized (or, with the full critic, full) belief to the critic.
+
+Options beyond the thesis (issue 9: what the thesis-faithful input throws away):
+
+* ``readings="mean"``: each cell shows the mean of all readings taken there, not the last one
+  (with the visit counts beside it, the sufficient statistic of the Poisson readings).
+* ``scale="fixed"``: readings are ``log(1 + r) / log(1 + r_ref)``, with ``r_ref`` the expected
+  count one cell away from a source of the spec's strongest intensity, instead of dividing by
+  the episode's (noisy) maximum, which throws away the absolute level that carries distance.
+* ``belief=True``: the team posterior over the target cell (``belief.BeliefFilter``, the
+  Bayesian searcher's filter), divided by its maximum.
+
+Chapter 4 embeds walls with a CAE; here the (windowed / downsized) walls map stands in for it,
+so the actor sees walls without a pretrained encoder.
 
 Choices the thesis leaves open (ours):
 
@@ -40,11 +54,13 @@ Choices the thesis leaves open (ours):
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, fields
 from typing import Any
 
 import numpy as np
 from scipy import ndimage
+
+from workers.mdrl.belief import BeliefFilter
 
 KINDS = ("odmtl", "dmtl", "cmtl")
 GAUSSIAN_SIGMA = 1.0
@@ -65,7 +81,23 @@ class ObservationSpec:
     maps, as DMTL's critic). The critic only trains the actor (CLDE), so the deployed actor
     and its Table 3.4 parameter count are the same either way."""
 
+    readings: str = "last"
+    """Readings map: 'last' reading per cell (thesis) or 'mean' of every reading there."""
+    scale: str = "max"
+    """Readings scale: 'max' (divide by the map's maximum, thesis line 712) or 'fixed'
+    (log-compressed counts relative to a physical reference count; see the module doc)."""
+    belief: bool = False
+    """Add the team's posterior map of the target cell (``belief.BeliefFilter``)."""
+
     def __post_init__(self) -> None:
+        if self.readings not in ("last", "mean"):
+            raise ValueError(
+                f"ObservationSpec.readings must be 'last' or 'mean', got {self.readings!r}"
+            )
+        if self.scale not in ("max", "fixed"):
+            raise ValueError(f"ObservationSpec.scale must be 'max' or 'fixed', got {self.scale!r}")
+        if not isinstance(self.belief, bool):
+            raise ValueError(f"ObservationSpec.belief must be true or false, got {self.belief!r}")
         if self.kind not in KINDS:
             raise ValueError(f"ObservationSpec.kind must be one of {KINDS}, got {self.kind!r}")
         if isinstance(self.window, bool) or not isinstance(self.window, (int, np.integer)):
@@ -88,7 +120,7 @@ class ObservationSpec:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> ObservationSpec:
-        unknown = set(d) - {"kind", "window", "walls", "critic"}
+        unknown = set(d) - {f.name for f in fields(cls)}
         if unknown:
             raise ValueError(f"unknown ObservationSpec fields: {sorted(unknown)}")
         return cls(**d)
@@ -131,6 +163,9 @@ def channel_layout(env_spec: Any, obs_spec: ObservationSpec) -> ChannelLayout:
     full_critic = kind == "odmtl" and obs_spec.critic == "full"
     if full_critic:
         critic = ["all_locations", "readings", "visits"] + walls
+    if obs_spec.belief:
+        actor += ["win_belief", "ds_belief"] if kind == "odmtl" else ["belief"]
+        critic += ["ds_belief"] if kind == "odmtl" and not full_critic else ["belief"]
     h, wd = (w, w) if kind == "odmtl" else (rows, cols)
     reduced_critic = kind == "odmtl" and not full_critic
     critic_shape = (len(critic), h, wd) if reduced_critic else (len(critic), rows, cols)
@@ -265,6 +300,9 @@ class Observer:
         self._pair_i, self._pair_j = np.divmod(np.arange(agents * agents), agents)
         self._arange_ww = np.arange(w * w)
         self._buffers: dict[tuple, np.ndarray] = {}  # scratch space per batch size
+        self._belief = BeliefFilter(env_spec) if obs_spec.belief else None
+        if obs_spec.scale == "fixed":
+            self._log_ref = np.float32(np.log1p(reference_count(env_spec)))
 
     def num_actor_outputs(self, num_actions_per_agent: int) -> int:
         """A for the shared CLDE actor (DMTL/ODMTL), A**N for the joint CMTL actor."""
@@ -312,17 +350,45 @@ class Observer:
         pos, b = self._check(env)
         if out is not None:
             self._check_out(out, b)
-        readings = np.asarray(env.readings, dtype=np.float32)
+        readings = self._readings_map(env)
         visits = np.asarray(env.visits, dtype=np.float32)
         # the walls map is binary, so it is already normalised
         walls = np.asarray(env.walls, dtype=np.float32) if self.walls else None
         if self.kind == "odmtl":
             actor, critic = self._observe_odmtl(env, pos, b, readings, visits, walls, out)
         else:
-            actor, critic = self._observe_full(
-                pos, b, _normalise(readings), _normalise(visits), walls, out
-            )
+            shown = readings if self.obs_spec.scale == "fixed" else _normalise(readings)
+            actor, critic = self._observe_full(pos, b, shown, _normalise(visits), walls, out)
+        if self._belief is not None:
+            self._write_belief(env, actor, critic)
         return (actor.reshape((b, -1) + self.actor_shape), critic.reshape((b,) + self.critic_shape))
+
+    def _readings_map(self, env: Any) -> np.ndarray:
+        """(B, C) float32 readings as the options say: last or mean per cell, raw or fixed-scale
+        (``log(1 + r) / log(1 + r_ref)``; the 'max' scale is applied by the builders)."""
+        if self.obs_spec.readings == "mean":
+            visits = np.asarray(env.visits, dtype=np.float64)
+            total = np.asarray(env.reading_sum, dtype=np.float64)
+            maps = np.divide(total, visits, out=np.zeros_like(total), where=visits > 0)
+        else:
+            maps = np.asarray(env.readings, dtype=np.float64)
+        if self.obs_spec.scale == "fixed":
+            maps = np.log1p(maps) / self._log_ref
+        return maps.astype(np.float32)
+
+    def _write_belief(self, env: Any, actor: np.ndarray, critic: np.ndarray) -> None:
+        """Posterior map / its maximum into the last actor and critic channels (cells flat)."""
+        post = self._belief.posterior(env).astype(np.float32)
+        post *= _inverse_max(post)[:, None]
+        if self.kind == "odmtl":
+            centre = np.asarray(env.past_pos(self._pad))
+            actor[:, :, -2] = self._gather_windows(post, centre, 2)
+            ds = post @ self._rt
+            actor[:, :, -1] = ds[:, None]
+            critic[:, -1] = post if self.full_critic else ds
+        else:
+            actor[:, :, -1] = post[:, None]
+            critic[:, -1] = post
 
     def _check_out(self, out: tuple[np.ndarray, np.ndarray], b: int) -> None:
         n = 1 if self.joint_actions else self.agents
@@ -358,7 +424,9 @@ class Observer:
         n, c = self.agents, self.cells
         tail = [readings, visits] + ([walls] if walls is not None else [])
         if self.kind == "cmtl":
-            actor, critic = self._outputs(out, (b, 1, n + len(tail), c), (b, n + len(tail), c))
+            actor, critic = self._outputs(
+                out, (b, 1, self.actor_shape[0], c), (b, self.critic_shape[0], c)
+            )
             own = actor[:, 0, :n]  # (B, N, C) one-hot location maps, max 1
             own[...] = 0.0
             np.put_along_axis(own, pos[:, :, None], 1.0, axis=-1)
@@ -398,7 +466,8 @@ class Observer:
         )
         # Normalising then windowing/downsizing equals windowing/downsizing then scaling by
         # 1 / max (both are linear), which avoids writing normalised copies of the full maps.
-        inv_r = _inverse_max(readings)
+        inv_r = (np.ones(b, np.float32) if self.obs_spec.scale == "fixed"
+                 else _inverse_max(readings))
         inv_v = _inverse_max(visits)
         # windowed own location: the current cell relative to the window centre
         dr = pos // cols - centre // cols + p
@@ -439,6 +508,15 @@ class Observer:
             actor[:, :, k + 3] = ds_walls[:, None]
             critic[:, 3] = walls if self.full_critic else ds_walls
         return actor, critic
+
+
+def reference_count(env_spec: Any) -> float:
+    """Expected count one cell side away from a source of the spec's strongest intensity
+    (Eq. 6, no walls): the physical unit of the 'fixed' readings scale."""
+    cell_cm = min(float(a) / n for a, n in zip(env_spec.area_m, (env_spec.rows, env_spec.cols),
+                                              strict=True)) * 100.0
+    strongest = max(env_spec.intensity.values)
+    return strongest * env_spec.dwell_min * env_spec.detector_area_cm2 / (4 * np.pi * cell_cm**2)
 
 
 def make_observer(env_spec: Any, obs_spec: ObservationSpec) -> Observer:

@@ -1,9 +1,10 @@
 """Named training set-ups (EnvSpec + ObservationSpec + PPOConfig) and config files.
 
 Presets cover the Ch. 3 experiments (10 x 10, 1 km x 1 km, I = 1e9, 4 moves + idle):
-`odmtl-Na-10x10` and `dmtl-Na-10x10` for N = 1..4, `cmtl-Na-10x10` for N = 1..3.
+`odmtl-Na-10x10` and `dmtl-Na-10x10` for N = 1, 2, 3, 4, 10, `cmtl-Na-10x10` for N = 1..3.
 PPOConfig's defaults stay Table 3.2; presets use faster-learning settings measured on a 2-core
-CPU (see `FAST_PPO`); `table32` variants (`...-t32`) keep Table 3.2 exactly.
+CPU (see `FAST_PPO`) and the product observations (`PRODUCT_OBSERVATION`); `table32` variants
+(`...-t32`) keep the thesis observations and Table 3.2 exactly.
 
 A config file (JSON or TOML) has the same fields, optionally on top of a preset:
 
@@ -27,6 +28,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from workers.mdrl.imitation import WarmStart
 from workers.mdrl.observations import ObservationSpec
 from workers.mdrl.ppo import PPOConfig
 from workers.mdrl.spec import EnvSpec
@@ -43,11 +45,14 @@ class Preset:
     description: str = ""
     run: dict[str, Any] = field(default_factory=dict)
     """RunConfig overrides that belong to the set-up (e.g. evaluation cadence)."""
+    warm_start: WarmStart | None = None
+    """Clone a searcher before PPO (imitation.py); None = PPO from scratch."""
 
     def to_dict(self) -> dict[str, Any]:
         return {"name": self.name, "description": self.description, "env": self.env.to_dict(),
                 "observation": self.observation.to_dict(), "ppo": self.ppo.to_dict(),
-                "run": dict(self.run)}
+                "run": dict(self.run),
+                "warm_start": self.warm_start.to_dict() if self.warm_start else None}
 
 
 FAST_PPO = dict(learning_rate=1e-3, horizon=8192, num_envs=128, update_epochs=6,
@@ -59,19 +64,31 @@ steps runs at 6-9k env steps/s on one thread of a shared 2-core CPU (3.8M steps 
 reward_scale 0.1 keeps the value targets O(1) so the critic does not lag."""
 
 
+PRODUCT_OBSERVATION = dict(readings="mean", scale="fixed", belief=True)
+"""What the product presets show the networks beyond the thesis maps (docs/learning.md): the
+per-cell mean of the readings on a fixed log scale, and the team's posterior map of the target
+(the Bayesian searcher's filter). ODMTL also widens its windows to 5 x 5."""
+
+
 def _make(kind: str, agents: int, fast: bool = True) -> Preset:
     env = EnvSpec(rows=10, cols=10, agents=agents)
-    obs = ObservationSpec(kind=kind, window=3)
+    if fast:
+        obs = ObservationSpec(kind=kind, window=5 if kind == "odmtl" else 3,
+                              **PRODUCT_OBSERVATION)
+    else:
+        obs = ObservationSpec(kind=kind, window=3)
     ppo = PPOConfig(**FAST_PPO) if fast else PPOConfig()
     name = f"{kind}-{agents}a-10x10" + ("" if fast else "-t32")
     desc = (f"{kind.upper()}, {agents} agent(s), 10x10 grid over 1 km x 1 km, I = 1e9, "
             f"4 moves + idle, shaped team reward (Eq. 5); "
-            + ("fast PPO settings" if fast else "PPO exactly as Table 3.2"))
+            + ("belief map, mean readings on a fixed scale, fast PPO settings" if fast
+               else "thesis observations, PPO exactly as Table 3.2"))
     return Preset(name, env, obs, ppo, desc)
 
 
 PRESETS: dict[str, Preset] = {}
-for _kind, _agents in ([("odmtl", n) for n in range(1, 5)] + [("dmtl", n) for n in range(1, 5)]
+for _kind, _agents in ([("odmtl", n) for n in (1, 2, 3, 4, 10)]
+                       + [("dmtl", n) for n in (1, 2, 3, 4, 10)]
                        + [("cmtl", n) for n in range(1, 4)]):
     for _fast in (True, False):
         _p = _make(_kind, _agents, _fast)
@@ -94,7 +111,7 @@ def _merge(base: dict[str, Any], changes: dict[str, Any], what: str) -> dict[str
 
 def preset_from_dict(doc: dict[str, Any], name: str = "custom") -> Preset:
     """Build a preset from a config document (sections env/observation/ppo/run, optional base)."""
-    allowed = {"preset", "name", "description", "env", "observation", "ppo", "run"}
+    allowed = {"preset", "name", "description", "env", "observation", "ppo", "run", "warm_start"}
     unknown = sorted(set(doc) - allowed)
     if unknown:
         raise ValueError(f"config: unknown top-level key(s) {unknown}; allowed: {sorted(allowed)}")
@@ -104,10 +121,15 @@ def preset_from_dict(doc: dict[str, Any], name: str = "custom") -> Preset:
                  "observation")
     ppo = _merge(base.ppo.to_dict() if base else {}, doc.get("ppo", {}), "ppo")
     run = _merge(dict(base.run) if base else {}, doc.get("run", {}), "run")
+    warm = base.warm_start if base else None
+    if "warm_start" in doc:  # a table of WarmStart fields, or false/null to switch it off
+        section = doc["warm_start"]
+        warm = (None if section in (None, False) else WarmStart.from_dict(
+            _merge(warm.to_dict() if warm else {}, section, "warm_start")))
     return Preset(name=doc.get("name", name), env=EnvSpec.from_dict(env),
                   observation=ObservationSpec.from_dict(obs), ppo=PPOConfig.from_dict(ppo),
                   description=doc.get("description", base.description if base else ""),
-                  run=run)
+                  run=run, warm_start=warm)
 
 
 def load_config(path: str | Path) -> Preset:

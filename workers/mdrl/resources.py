@@ -29,7 +29,9 @@ PROCESS_BASE_BYTES = 400 * 2**20
 """Python + numpy + torch of a training process before any array (measured RSS ~350 MiB)."""
 REFERENCE_PRESET = "odmtl-3a-10x10"
 REFERENCE_STEPS_PER_S = 7_000
-"""Env steps/s of REFERENCE_PRESET on one thread of this project's 2-core CPU."""
+"""Env steps/s of REFERENCE_PRESET's PPO with REFERENCE_OBSERVATION on one thread of this
+project's 2-core CPU (measured before the presets took the belief map)."""
+REFERENCE_OBSERVATION = {"kind": "odmtl", "window": 3}
 F32, I64 = 4, 8
 
 
@@ -116,6 +118,11 @@ def estimate(spec: TrainingSpec) -> ResourceEstimate:
         * F32
         * 2  # activations and their gradients
     )
+    # belief filter (workers/mdrl/belief.py): unit counts and their logs, C x C float64 shared
+    # without walls, per env float32 with walls; the (B, K, C) log-likelihood of a step
+    if obs.belief:
+        gains = 2 * c * c * (b * F32 if env.walls[1] > 0 else 8)
+        obs_bytes += gains + 3 * b * 8 * c * 8
     parts = {
         "env": env_bytes,
         "observations": obs_bytes,
@@ -156,6 +163,8 @@ def flops_per_step(spec: TrainingSpec) -> int:
     forward = np_ * lenet_flops(layout.actor_shape, ap) + lenet_flops(layout.critic_shape, 1)
     window = obs.window * obs.window if obs.kind == "odmtl" else 1
     env_flops = 20 * c + 50 * n + 2 * np_ * c * window + np_ * ap
+    if obs.belief:  # two (C,) x (C, C) products per env step (belief.py), then K-way logsumexp
+        env_flops += 4 * c * c + 30 * c
     return forward * (1 + 3 * spec.ppo.update_epochs) + env_flops
 
 
@@ -167,7 +176,7 @@ def reference_flops_per_s() -> float:
     p = get_preset(REFERENCE_PRESET)
     doc = {
         "env": {"rows": p.env.rows, "cols": p.env.cols, "agents": p.env.agents},
-        "observation": p.observation.to_dict(),
+        "observation": REFERENCE_OBSERVATION,
         "algorithm": {"preset": REFERENCE_PRESET},
         "budget": {"steps": 1},
     }

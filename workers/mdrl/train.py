@@ -25,6 +25,7 @@ import torch
 from workers.mdrl import checkpoint as ckpt
 from workers.mdrl.env import TargetLocalizationEnv
 from workers.mdrl.evaluate import evaluate
+from workers.mdrl.imitation import WarmStart, warm_start
 from workers.mdrl.networks import ActorCritic
 from workers.mdrl.observations import ObservationSpec, make_observer
 from workers.mdrl.ppo import PPOConfig, entropy_from_log_probs, gae, masked_log_probs, ppo_losses
@@ -103,8 +104,11 @@ class Trainer:
 
     def __init__(self, env_spec: EnvSpec, obs_spec: ObservationSpec, ppo: PPOConfig,
                  run: RunConfig, out: str | Path | None = None,
-                 selector: ActionSelector | None = None):
+                 selector: ActionSelector | None = None, warm: WarmStart | None = None):
         self.env_spec, self.obs_spec, self.ppo, self.run = env_spec, obs_spec, ppo, run
+        self.warm = warm
+        """Clone a searcher before the first PPO update (imitation.py); None = PPO only."""
+        self.warm_done = False
         self.out = Path(out) if out is not None else None
         torch.set_num_threads(run.threads)
         # environment: B envs stepped together as arrays
@@ -311,6 +315,8 @@ class Trainer:
         bar = self._progress_bar()
         t0, elapsed0 = time.perf_counter(), self.elapsed
         try:
+            if self.warm is not None and not self.warm_done:
+                self._warm_start(t0, elapsed0)
             while self.budget_left():
                 u0 = time.perf_counter()
                 step0 = self.global_step
@@ -346,6 +352,20 @@ class Trainer:
         if self.out is not None:
             self.save_model(self.out / "model")
         return self.last_metrics
+
+    def _warm_start(self, t0: float, elapsed0: float) -> None:
+        """Clone the searcher (imitation.py); its env steps count in the budget."""
+        stats = warm_start(self, self.warm)
+        self.global_step += int(stats.pop("warm_steps"))
+        self.warm_done = True
+        self.elapsed = elapsed0 + (time.perf_counter() - t0)
+        self.last_eval = self.evaluate()
+        row = {"update": 0, "global_step": self.global_step, "wall_time": self.elapsed,
+               "sps": math.nan, **self.last_eval}
+        self._log(row)
+        self.warm_stats = stats
+        if self.out is not None:
+            self.save_checkpoint(self.out / "checkpoint")
 
     # ------------------------------------------------------------------ outputs
     def _open_outputs(self) -> None:
@@ -388,7 +408,8 @@ class Trainer:
             step = self.global_step
             for k in ("loss", "policy_loss", "value_loss", "entropy", "approx_kl", "clipfrac",
                       "explained_variance"):
-                self._writer.add_scalar(f"losses/{k}", row[k], step)
+                if k in row:  # the warm-start row has no PPO losses
+                    self._writer.add_scalar(f"losses/{k}", row[k], step)
             for k in ("learning_rate", "sps", "success", "episode_length", "episode_cost",
                       "episode_return", "eval_success", "eval_time", "eval_cost"):
                 if k in row and not (isinstance(row[k], float) and math.isnan(row[k])):
@@ -396,7 +417,8 @@ class Trainer:
 
     def config_dict(self) -> dict[str, Any]:
         return {"env": self.env_spec.to_dict(), "observation": self.obs_spec.to_dict(),
-                "ppo": self.ppo.to_dict(), "run": self.run.to_dict()}
+                "ppo": self.ppo.to_dict(), "run": self.run.to_dict(),
+                "warm_start": self.warm.to_dict() if self.warm is not None else None}
 
     def save_model(self, path: str | Path) -> Path:
         from workers.mdrl.modelio import save_model
@@ -406,7 +428,9 @@ class Trainer:
         return save_model(path, self.agent, self.env_spec, self.obs_spec, self.ppo,
                           metrics=metrics, observer=self.observer,
                           training={"run": self.run.to_dict(), "env_steps": self.global_step,
-                                    "updates": self.update_idx, "wall_time_s": self.elapsed})
+                                    "updates": self.update_idx, "wall_time_s": self.elapsed,
+                                    "warm_start": (self.warm.to_dict() if self.warm is not None
+                                                   else None)})
 
     # ------------------------------------------------------------------ checkpoints
     def save_checkpoint(self, path: str | Path) -> Path:
@@ -419,7 +443,8 @@ class Trainer:
         env_arrays, env_meta = ckpt.env_state(self.env)
         meta = {**self.config_dict(),
                 "counters": {"update": self.update_idx, "global_step": self.global_step,
-                             "episodes": self.episodes, "elapsed": self.elapsed},
+                             "episodes": self.episodes, "elapsed": self.elapsed,
+                             "warm_done": self.warm_done},
                 "last_eval": self.last_eval, "optimizer": opt_meta, "env_state": env_meta}
         if hasattr(self.selector, "state_dict"):  # e.g. an expert selector's per-episode flags
             meta["selector"] = self.selector.state_dict()  # must be JSON-able
@@ -437,6 +462,7 @@ class Trainer:
         c = meta["counters"]
         self.update_idx, self.global_step = c["update"], c["global_step"]
         self.episodes, self.elapsed = c["episodes"], c["elapsed"]
+        self.warm_done = bool(c.get("warm_done", False))
         self.last_eval = meta.get("last_eval", {})
         if "selector" in meta:
             if not hasattr(self.selector, "load_state_dict"):
@@ -456,8 +482,9 @@ class Trainer:
         run = RunConfig.from_dict({**meta["run"], **(run_overrides or {})})
         env_spec, ppo = EnvSpec.from_dict(meta["env"]), PPOConfig.from_dict(meta["ppo"])
         obs_spec = ObservationSpec.from_dict(meta["observation"])
+        warm = WarmStart.from_dict(meta["warm_start"]) if meta.get("warm_start") else None
         trainer = cls(env_spec, obs_spec, ppo, run,
-                      out=out if out is not None else path.parent, selector=selector)
+                      out=out if out is not None else path.parent, selector=selector, warm=warm)
         trainer.load_state(tensors, env_arrays, meta)
         return trainer
 

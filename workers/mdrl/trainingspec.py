@@ -94,6 +94,9 @@ OBSERVATION_RULES: dict[str, Any] = {
     "window": Int(3, 31, odd=True, doc="odd; odmtl needs window < min(rows, cols)"),
     "walls": Nullable(Bool(doc="wall maps; null = iff the env can have walls")),
     "critic": Choice(("reduced", "full")),
+    "readings": Choice(("last", "mean"), doc="last reading per cell (thesis) or the mean"),
+    "scale": Choice(("max", "fixed"), doc="readings / episode max (thesis) or log physical"),
+    "belief": Bool(doc="add the team's posterior map of the target cell"),
 }
 PPO_RULES: dict[str, Any] = {
     "learning_rate": Real(1e-7, 1.0),

@@ -22,6 +22,7 @@ _FLAGS = {
     "walls": "--walls",
     "intensity": "--intensity",
     "moves": "--moves",
+    "readings": "--readings",
 }
 
 
@@ -32,6 +33,7 @@ def build_spec(
     walls: str | None = None,
     intensity: str | None = None,
     moves: int | None = None,
+    readings: str | None = None,
 ) -> EnvSpec:
     """``base`` with the flags applied; bad values raise ``typer.BadParameter`` naming the flag."""
     changes: dict[str, Any] = {}
@@ -68,6 +70,12 @@ def build_spec(
         if moves not in (4, 8):
             raise typer.BadParameter(f"must be 4 or 8, got {moves}", param_hint="--moves")
         changes["moves"] = moves
+    if readings is not None:
+        if readings not in ("poisson", "expected"):
+            raise typer.BadParameter(
+                f"must be poisson or expected, got {readings!r}", param_hint="--readings"
+            )
+        changes["readings"] = readings
     try:
         return base.replace(**changes)
     except ValueError as exc:  # combinations (agents vs grid, walls vs grid size)
@@ -128,11 +136,12 @@ def _field(spec: EnvSpec, key: str) -> Any:
 
 
 def resolve_policy(
-    name: str, agents=None, grid=None, walls=None, intensity=None, moves=None, seed: int = 0
+    name: str, agents=None, grid=None, walls=None, intensity=None, moves=None, seed: int = 0,
+    readings: str | None = None,
 ) -> tuple[Any, EnvSpec, str]:
     """(policy, env spec, label) for a baseline name or a model directory plus flags."""
     if name in BASELINES:
-        spec = build_spec(EnvSpec(), agents, grid, walls, intensity, moves)
+        spec = build_spec(EnvSpec(), agents, grid, walls, intensity, moves, readings)
         return make_baseline(name, seed=seed), spec, name
     path = Path(name)
     if not path.is_dir():
@@ -149,7 +158,7 @@ def resolve_policy(
             f"cannot load model {name!r}: {exc}", param_hint="--policy"
         ) from None
     card_spec = policy.env_spec
-    spec = build_spec(card_spec, agents, grid, walls, intensity, moves)
+    spec = build_spec(card_spec, agents, grid, walls, intensity, moves, readings)
     return model_policy_for(path, spec, card_spec, policy), spec, str(path)
 
 
@@ -189,10 +198,15 @@ def eval_command(
     seed: Annotated[int, typer.Option(min=0, help="seed of the episode layouts")] = 0,
     moves: Annotated[int | None, typer.Option(help="4 or 8 directions (+ idle)")] = None,
     batch: Annotated[int | None, typer.Option(min=1, help="environments stepped together")] = None,
+    readings: Annotated[
+        str | None,
+        typer.Option(help="reading model: poisson (product default) or expected (noise-free "
+                     "counts, what thesis Tables 3.5/3.6 compare with); default: the model's"),
+    ] = None,
     json_out: Annotated[bool, typer.Option("--json", help="print one JSON object")] = False,
 ) -> None:
     """Evaluate a model directory or a baseline on seeded episodes, next to the oracle."""
-    pol, spec, label = resolve_policy(policy, agents, grid, walls, intensity, moves, seed)
+    pol, spec, label = resolve_policy(policy, agents, grid, walls, intensity, moves, seed, readings)
     report = evaluate(pol, spec, episodes, seed=seed, batch=batch, name=label)
     oracle = evaluate(OraclePolicy(), spec, episodes, seed=seed, batch=batch, name="oracle")
     ratios = compare(report, oracle)
@@ -210,7 +224,8 @@ def eval_command(
         return
     typer.echo(
         f"{episodes} episodes, seed {seed}: {spec.agents} agents, {spec.rows}x{spec.cols}, "
-        f"{spec.moves} moves, walls {spec.walls[0]}-{spec.walls[1]}, intensity {spec.intensity}"
+        f"{spec.moves} moves, walls {spec.walls[0]}-{spec.walls[1]}, intensity {spec.intensity}, "
+        f"{spec.readings} readings"
     )
     for line in _lines(label, report) + _lines("oracle", oracle):
         typer.echo(line)

@@ -25,6 +25,8 @@ def train(
     resume: Annotated[Path | None, typer.Option(help="Continue the run in this directory (or "
                                                      "checkpoint directory).")] = None,
     num_envs: Annotated[int | None, typer.Option(help="Override PPO num_envs.")] = None,
+    readings: Annotated[str | None, typer.Option(help="Reading model of the training env: "
+                                                     "poisson (default) or expected.")] = None,
     eval_every: Annotated[int | None, typer.Option(help="Greedy evaluation every K updates.")
                           ] = None,
     eval_episodes: Annotated[int | None, typer.Option(help="Evaluation episodes.")] = None,
@@ -54,18 +56,24 @@ def train(
         if val is not None:
             run_changes[key] = val
     if resume is not None:
-        if num_envs is not None or config is not None:
-            raise typer.BadParameter("--resume continues a run as configured; drop --config and "
-                                     "--num-envs")
+        if num_envs is not None or config is not None or readings is not None:
+            raise typer.BadParameter("--resume continues a run as configured; drop --config, "
+                                     "--num-envs and --readings")
         trainer = Trainer.resume(resume, out=out, run_overrides=run_changes)
     else:
         chosen = load_config(config) if config is not None else get_preset(preset)
         ppo = chosen.ppo
         if num_envs is not None:
             ppo = dataclasses.replace(ppo, num_envs=num_envs)
+        if readings is not None:
+            if readings not in ("poisson", "expected"):
+                raise typer.BadParameter(f"must be poisson or expected, got {readings!r}",
+                                         param_hint="--readings")
+            chosen = dataclasses.replace(chosen, env=chosen.env.replace(readings=readings))
         run = RunConfig.from_dict({**chosen.run, **run_changes, "seed": seed})
         out = out if out is not None else Path("runs") / f"{chosen.name}-s{seed}"
-        trainer = Trainer(chosen.env, chosen.observation, ppo, run, out=out)
+        trainer = Trainer(chosen.env, chosen.observation, ppo, run, out=out,
+                          warm=chosen.warm_start)
     summary = trainer.train()
     result = {"out": str(trainer.out), "model": str(trainer.out / "model"),
               "env_steps": trainer.global_step, "updates": trainer.update_idx,

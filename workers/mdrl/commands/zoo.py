@@ -1,0 +1,53 @@
+"""`drlaas zoo`: list and retrain the shipped models of `models/` (workers/mdrl/zoo.py)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+app = typer.Typer(no_args_is_help=True, help="The model zoo: one trained model per thesis row.")
+
+
+@app.command("list")
+def list_command(
+    models: Annotated[Path, typer.Option(help="Zoo directory.")] = Path("models"),
+) -> None:
+    """Each zoo model: preset, budget, and its card's held-out figures if trained."""
+    from workers.mdrl.zoo import ZOO
+
+    for name, entry in ZOO.items():
+        card = models / name / "model.json"
+        figures = ""
+        if card.is_file():
+            zoo = json.loads(card.read_text()).get("zoo", {})
+            held = zoo.get("heldout", {})
+            figures = "  ".join(
+                f"{r}: time {held[r]['time']:.2f} cost {held[r]['cost']:.2f}"
+                for r in ("poisson", "expected") if r in held)
+        typer.echo(f"{name:12s} {entry.preset:18s} {entry.minutes:5.1f} min  {figures}")
+
+
+@app.command("train")
+def train_command(
+    names: Annotated[list[str] | None, typer.Argument(help="Zoo models (default: all).")] = None,
+    models: Annotated[Path, typer.Option(help="Where the trained models go.")] = Path("models"),
+    runs: Annotated[Path, typer.Option(help="Run directories (checkpoints; resumable).")
+                    ] = Path("runs/zoo"),
+    minutes: Annotated[float | None, typer.Option(help="Override each model's budget.")] = None,
+    progress: Annotated[bool, typer.Option(help="Show progress bars.")] = True,
+) -> None:
+    """Train (or resume) zoo models and write them with their held-out figures."""
+    from workers.mdrl.zoo import ZOO, train_entry
+
+    chosen = names or list(ZOO)
+    unknown = [n for n in chosen if n not in ZOO]
+    if unknown:
+        raise typer.BadParameter(f"unknown zoo model(s) {unknown}; known: {', '.join(ZOO)}")
+    for name in chosen:
+        target = train_entry(name, models, runs, minutes=minutes, progress=progress)
+        held = json.loads((target / "model.json").read_text())["zoo"]["heldout"]
+        typer.echo(json.dumps({"model": str(target), **{r: {k: held[r][k] for k in
+                   ("success", "time", "cost", "oracle_time")} for r in ("poisson", "expected")}}))

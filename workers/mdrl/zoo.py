@@ -1,0 +1,97 @@
+"""The model zoo: one trained model per thesis row, shipped in ``models/`` (issue 9).
+
+Each entry names a preset, a seed and a budget; ``train_entry`` trains it (resumable: a
+killed run continues from its checkpoint in ``runs/zoo/NAME``), evaluates the greedy policy
+on held-out episodes under both reading models, and writes ``models/NAME`` (safetensors +
+card, a few KB). The card's ``zoo`` section records what a buyer wants to know: preset, seed,
+env steps, wall-clock, and the held-out success / time / cost with 95% CIs next to the oracle.
+
+``drlaas zoo train [NAME ...]`` (``make zoo``) retrains them; ``drlaas eval --policy
+models/NAME`` evaluates one; ``benchmarks/policy_table.py`` compares them with the thesis.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from workers.mdrl.baselines import OraclePolicy
+from workers.mdrl.evaluate import EvalReport, evaluate
+from workers.mdrl.modelio import CARD, load_model
+from workers.mdrl.presets import get_preset
+
+HELDOUT_SEED = 20_261_124
+"""Seed of the held-out episodes in the cards (training evaluates on RunConfig.eval_seed)."""
+HELDOUT_EPISODES = 1000
+READING_MODELS = ("poisson", "expected")
+
+
+@dataclass(frozen=True)
+class ZooEntry:
+    """One shipped model: which preset, which seed, how long."""
+
+    preset: str
+    minutes: float
+    seed: int = 0
+    steps: int | None = None
+
+
+ZOO: dict[str, ZooEntry] = {
+    **{f"odmtl-{n}a": ZooEntry(f"odmtl-{n}a-10x10", minutes=6) for n in (1, 2, 3, 4, 10)},
+    **{f"dmtl-{n}a": ZooEntry(f"dmtl-{n}a-10x10", minutes=6) for n in (1, 2, 3, 4, 10)},
+    **{f"cmtl-{n}a": ZooEntry(f"cmtl-{n}a-10x10", minutes=6) for n in (1, 2, 3)},
+}
+
+
+def heldout(policy: Any, spec: Any, episodes: int = HELDOUT_EPISODES,
+            seed: int = HELDOUT_SEED) -> dict[str, Any]:
+    """Greedy held-out figures of ``policy`` under each reading model, with the oracle's."""
+    out: dict[str, Any] = {"episodes": episodes, "seed": seed}
+    for readings in READING_MODELS:
+        s = spec.replace(readings=readings)
+        report = evaluate(policy, s, episodes, seed=seed)
+        oracle = evaluate(OraclePolicy(), s, episodes, seed=seed)
+        out[readings] = summary(report) | {"oracle_time": oracle.time_mean}
+    return out
+
+
+def summary(report: EvalReport) -> dict[str, Any]:
+    """The card's figures of one evaluation."""
+    s = report.summary
+    return {"success": s["success_rate"], "time": s["time_mean"], "time_ci": s["time_ci"],
+            "cost": s["cost_mean"], "cost_ci": s["cost_ci"]}
+
+
+def train_entry(name: str, models: Path, runs: Path, minutes: float | None = None,
+                progress: bool = False) -> Path:
+    """Train (or resume) zoo entry ``name``; writes ``models/NAME``; returns that directory."""
+    from workers.mdrl.train import RunConfig, Trainer
+
+    if name not in ZOO:
+        raise ValueError(f"unknown zoo model {name!r}; known: {', '.join(ZOO)}")
+    entry = ZOO[name]
+    preset = get_preset(entry.preset)
+    budget = {"minutes": minutes if minutes is not None else entry.minutes,
+              "total_steps": entry.steps}
+    run_dir = runs / name
+    if (run_dir / "checkpoint").is_dir():
+        trainer = Trainer.resume(run_dir, run_overrides={**budget, "progress": progress})
+    else:
+        run = RunConfig.from_dict({**preset.run, **budget, "seed": entry.seed,
+                                   "progress": progress, "tensorboard": False})
+        trainer = Trainer(preset.env, preset.observation, preset.ppo, run, out=run_dir,
+                          warm=preset.warm_start)
+    trainer.train()
+    target = models / name
+    if target.exists():
+        shutil.rmtree(target)
+    shutil.copytree(run_dir / "model", target)
+    card = json.loads((target / CARD).read_text())
+    card["zoo"] = {"name": name, "preset": entry.preset, "seed": entry.seed,
+                   "env_steps": trainer.global_step, "wall_clock_s": round(trainer.elapsed, 1),
+                   "heldout": heldout(load_model(target), preset.env)}
+    (target / CARD).write_text(json.dumps(card, indent=1))
+    return target
