@@ -17,6 +17,11 @@ A config file (JSON or TOML) has the same fields, optionally on top of a preset:
     learning_rate = 1e-3
     [run]                          # RunConfig fields (train.py), optional
     eval_every = 5
+    [experts]                      # DC / MEDC (medc.DemonstrationConfig), optional
+    models = ["oracle", "runs/a1w0/model"]
+    qos = [0.6, 0.9]               # R_S weights; default equal
+    rate = 0.1                     # R_E; default 0.2 for one expert, 0.1 for several
+    threshold = 0.05               # l
 """
 
 from __future__ import annotations
@@ -29,6 +34,7 @@ from pathlib import Path
 from typing import Any
 
 from workers.mdrl.imitation import WarmStart
+from workers.mdrl.medc import DemonstrationConfig
 from workers.mdrl.observations import ObservationSpec
 from workers.mdrl.ppo import PPOConfig
 from workers.mdrl.spec import EnvSpec
@@ -47,12 +53,15 @@ class Preset:
     """RunConfig overrides that belong to the set-up (e.g. evaluation cadence)."""
     warm_start: WarmStart | None = None
     """Clone a searcher before PPO (imitation.py); None = PPO from scratch."""
+    experts: DemonstrationConfig | None = None
+    """Expert guidance (DC / MEDC, medc.py), from a config file's [experts] section."""
 
     def to_dict(self) -> dict[str, Any]:
         return {"name": self.name, "description": self.description, "env": self.env.to_dict(),
                 "observation": self.observation.to_dict(), "ppo": self.ppo.to_dict(),
                 "run": dict(self.run),
-                "warm_start": self.warm_start.to_dict() if self.warm_start else None}
+                "warm_start": self.warm_start.to_dict() if self.warm_start else None,
+                **({"experts": self.experts.to_dict()} if self.experts else {})}
 
 
 FAST_PPO = dict(learning_rate=1e-3, horizon=8192, num_envs=128, update_epochs=6,
@@ -111,7 +120,8 @@ def _merge(base: dict[str, Any], changes: dict[str, Any], what: str) -> dict[str
 
 def preset_from_dict(doc: dict[str, Any], name: str = "custom") -> Preset:
     """Build a preset from a config document (sections env/observation/ppo/run, optional base)."""
-    allowed = {"preset", "name", "description", "env", "observation", "ppo", "run", "warm_start"}
+    allowed = {"preset", "name", "description", "env", "observation", "ppo", "run",
+               "warm_start", "experts"}
     unknown = sorted(set(doc) - allowed)
     if unknown:
         raise ValueError(f"config: unknown top-level key(s) {unknown}; allowed: {sorted(allowed)}")
@@ -126,10 +136,11 @@ def preset_from_dict(doc: dict[str, Any], name: str = "custom") -> Preset:
         section = doc["warm_start"]
         warm = (None if section in (None, False) else WarmStart.from_dict(
             _merge(warm.to_dict() if warm else {}, section, "warm_start")))
+    experts = DemonstrationConfig.from_dict(doc["experts"]) if "experts" in doc else None
     return Preset(name=doc.get("name", name), env=EnvSpec.from_dict(env),
                   observation=ObservationSpec.from_dict(obs), ppo=PPOConfig.from_dict(ppo),
                   description=doc.get("description", base.description if base else ""),
-                  run=run, warm_start=warm)
+                  run=run, warm_start=warm, experts=experts)
 
 
 def load_config(path: str | Path) -> Preset:

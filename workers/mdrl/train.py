@@ -125,6 +125,8 @@ class Trainer:
                                           eps=ppo.adam_eps)
         self.generator = torch.Generator().manual_seed(run.seed + 1)
         self.selector = selector if selector is not None else SampleSelector(self.generator)
+        if hasattr(self.selector, "bind"):  # an expert selector samples with our generator
+            self.selector.bind(self.generator)
         self.selector.episode_start(np.arange(ppo.num_envs))
         # rollout storage, time first
         self.buffer = RolloutBuffer.allocate(
@@ -425,12 +427,13 @@ class Trainer:
 
         metrics = {k: self.last_metrics.get(k) for k in METRIC_COLUMNS if k in self.last_metrics}
         metrics.update(self.last_eval)
+        training = {"run": self.run.to_dict(), "env_steps": self.global_step,
+                    "updates": self.update_idx, "wall_time_s": self.elapsed,
+                    "warm_start": self.warm.to_dict() if self.warm is not None else None}
+        if hasattr(self.selector, "card"):  # expert-guided training (medc.py) lists its experts
+            training["experts"] = self.selector.card()
         return save_model(path, self.agent, self.env_spec, self.obs_spec, self.ppo,
-                          metrics=metrics, observer=self.observer,
-                          training={"run": self.run.to_dict(), "env_steps": self.global_step,
-                                    "updates": self.update_idx, "wall_time_s": self.elapsed,
-                                    "warm_start": (self.warm.to_dict() if self.warm is not None
-                                                   else None)})
+                          metrics=metrics, observer=self.observer, training=training)
 
     # ------------------------------------------------------------------ checkpoints
     def save_checkpoint(self, path: str | Path) -> Path:

@@ -121,6 +121,15 @@ BUDGET_RULES: dict[str, Any] = {
     "steps": Int(1, MAX_STEPS, doc="env steps to train (training stops at exactly this many)"),
     "minutes": Real(0.1, MAX_MINUTES, doc="wall-clock cap in minutes"),
 }
+DEMONSTRATION_RULES: dict[str, Any] = {
+    "rate": Nullable(Real(0.0, 1.0, doc="R_E: share of expert-guided episodes; null = 0.2 for "
+                          "one expert (Table 4.1), 0.1 for several (Table 5.3)")),
+    "threshold": Real(0.0, 0.99, doc="l: follow an expert's action only if its probability "
+                      "under the learner's policy exceeds l (Tables 4.1, 5.3: 0.05)"),
+}
+"""``algorithm.demonstration``: how the ``experts`` guide training (DC / MEDC, medc.py)."""
+EXPERT_QOS = Real(0.0, 1e6, doc="QoS weight; the expert is picked with R_S = QoS / sum QoS "
+                  "(Table 5.3); default 1")
 # an expert is a model CID (v0 or base32 v1) or a relative path without '.'-segments
 EXPERT_PATTERN = (
     r"^(Qm[1-9A-HJ-NP-Za-km-z]{44}|b[a-z2-7]{50,120}"
@@ -176,6 +185,8 @@ class AlgorithmSpec:
 
     preset: str | None = None
     ppo: dict[str, Any] = dataclasses.field(default_factory=dict)
+    demonstration: dict[str, Any] = dataclasses.field(default_factory=dict)
+    """DC / MEDC settings (``DEMONSTRATION_RULES``); they apply when the spec names experts."""
 
     def config(self, steps: int | None) -> PPOConfig:
         """The PPOConfig to train with (a small step budget gets a small default batch)."""
@@ -183,7 +194,10 @@ class AlgorithmSpec:
         return PPOConfig.from_dict({**base, **self.ppo})
 
     def to_dict(self) -> dict[str, Any]:
-        return {"preset": self.preset, "ppo": dict(self.ppo)}
+        doc = {"preset": self.preset, "ppo": dict(self.ppo)}
+        if self.demonstration:
+            doc["demonstration"] = dict(self.demonstration)
+        return doc
 
 
 @dataclass(frozen=True)
@@ -215,6 +229,8 @@ class TrainingSpec:
     budget: BudgetSpec
     seed: int = 0
     experts: tuple[str, ...] = ()
+    expert_qos: tuple[float, ...] = ()
+    """QoS weight per expert (R_S = QoS_i / sum QoS, Table 5.3); empty = equal weights."""
 
     @property
     def ppo(self) -> PPOConfig:
@@ -223,6 +239,16 @@ class TrainingSpec:
     @property
     def steps(self) -> int | None:
         return self.budget.steps
+
+    def demonstration(self) -> Any:
+        """The run's ``medc.DemonstrationConfig``, or None when the spec names no experts."""
+        if not self.experts:
+            return None
+        from workers.mdrl.medc import DemonstrationConfig
+
+        d = self.algorithm.demonstration
+        return DemonstrationConfig(self.experts, self.expert_qos, d.get("rate"),
+                                   d.get("threshold", DemonstrationConfig.threshold))
 
     @property
     def minutes(self) -> float | None:
@@ -255,21 +281,23 @@ class TrainingSpec:
             if key not in doc:
                 raise SpecError(key, "required")
         obs = check_object(doc.get("observation", {}), OBSERVATION_RULES, "observation")
-        algo = check_object(
-            doc.get("algorithm", {}), {"preset": _PRESET, "ppo": _PPO_OBJECT}, "algorithm"
-        )
+        algo = check_object(doc.get("algorithm", {}), _ALGORITHM_RULES, "algorithm")
         budget = check_object(doc["budget"], BUDGET_RULES, "budget")
         if not budget:
             raise SpecError("budget", "give steps and/or minutes")
         seed = _SEED.check(doc.get("seed", 0), "seed")
-        experts = _check_experts(doc.get("experts", []))
+        experts, qos = _check_experts(doc.get("experts", []))
+        demonstration = algo.get("demonstration") or {}
+        if demonstration and not experts:
+            raise SpecError("algorithm.demonstration", "applies only when experts are named")
         spec = cls(
             env=parse_env(doc["env"]),
             observation=ObservationSpec(**obs),
-            algorithm=AlgorithmSpec(algo.get("preset"), algo.get("ppo") or {}),
+            algorithm=AlgorithmSpec(algo.get("preset"), algo.get("ppo") or {}, demonstration),
             budget=BudgetSpec(budget.get("steps"), budget.get("minutes")),
             seed=seed,
             experts=experts,
+            expert_qos=qos,
         )
         spec._check_cross_fields()
         return spec
@@ -296,7 +324,11 @@ class TrainingSpec:
             "algorithm": self.algorithm.to_dict(),
             "budget": self.budget.to_dict(),
             "seed": self.seed,
-            "experts": list(self.experts),
+            "experts": (
+                [{"model": m, "qos": q} for m, q in zip(self.experts, self.expert_qos, strict=True)]
+                if self.expert_qos
+                else list(self.experts)
+            ),
         }
 
 
@@ -343,20 +375,58 @@ class _PPOObject:
         return object_schema(PPO_RULES, "PPOConfig overrides (workers.mdrl.ppo)")
 
 
+class _Demonstration:
+    def check(self, v: Any, field: str) -> dict[str, Any]:
+        return check_object(v, DEMONSTRATION_RULES, field)
+
+    def schema(self) -> dict[str, Any]:
+        return object_schema(DEMONSTRATION_RULES, "DC / MEDC settings (medc.py)")
+
+
 _PRESET = _PresetName()
 _PPO_OBJECT = _PPOObject()
+_ALGORITHM_RULES = {"preset": _PRESET, "ppo": _PPO_OBJECT, "demonstration": _Demonstration()}
 _SEED = Int(0, 2**32 - 1)
 
 
-def _check_experts(v: Any) -> tuple[str, ...]:
+def _check_experts(v: Any) -> tuple[tuple[str, ...], tuple[float, ...]]:
+    """-> (model references, QoS weights); the weights are () when every item is a plain
+    reference (equal weights), else one per expert (1 for plain references)."""
     if not isinstance(v, list) or len(v) > MAX_EXPERTS:
         raise SpecError("experts", f"expected a list of at most {MAX_EXPERTS} model CIDs/paths")
+    models, qos = [], []
     for i, x in enumerate(v):
-        if not isinstance(x, str) or not re.match(EXPERT_PATTERN, x):
-            raise SpecError(f"experts[{i}]", f"expected a model CID or relative path, got {x!r}")
-    if len(set(v)) != len(v):
+        field = f"experts[{i}]"
+        if isinstance(x, dict):
+            item = check_object(x, {"model": _EXPERT_REF, "qos": EXPERT_QOS}, field)
+            if "model" not in item:
+                raise SpecError(join(field, "model"), "required")
+            models.append(item["model"])
+            qos.append(item.get("qos", 1.0))
+        else:
+            models.append(_EXPERT_REF.check(x, field))
+            qos.append(None)
+    if len(set(models)) != len(models):
         raise SpecError("experts", "duplicate expert")
-    return tuple(v)
+    if all(q is None for q in qos):
+        return tuple(models), ()
+    weights = tuple(1.0 if q is None else q for q in qos)
+    if sum(weights) <= 0:
+        raise SpecError("experts", "the QoS weights are all 0: no expert could be picked")
+    return tuple(models), weights
+
+
+class _ExpertRef:
+    def check(self, v: Any, field: str) -> str:
+        if not isinstance(v, str) or not re.match(EXPERT_PATTERN, v):
+            raise SpecError(field, f"expected a model CID or relative path, got {v!r}")
+        return v
+
+    def schema(self) -> dict[str, Any]:
+        return {"type": "string", "pattern": EXPERT_PATTERN, "maxLength": 600}
+
+
+_EXPERT_REF = _ExpertRef()
 
 
 def trainingspec_json_schema() -> dict[str, Any]:
@@ -365,15 +435,18 @@ def trainingspec_json_schema() -> dict[str, Any]:
     Cross-field rules (window < min(rows, cols), walls <= max(rows, cols), agents fit the grid,
     the resource limits) cannot be written as JSON Schema; the parser reports them by field."""
     budget = object_schema(BUDGET_RULES, "steps and/or minutes", minProperties=1)
+    weighted = object_schema({"model": _EXPERT_REF, "qos": EXPERT_QOS}, "an expert and its "
+                             "QoS weight", required=["model"])
     experts = {
         "type": "array",
-        "items": {"type": "string", "pattern": EXPERT_PATTERN, "maxLength": 600},
+        "items": {"anyOf": [_EXPERT_REF.schema(), weighted]},
         "maxItems": MAX_EXPERTS,
         "uniqueItems": True,
-        "description": "expert models (CIDs or relative paths), may be empty",
+        "description": "expert models guiding training (DC / MEDC): CIDs or relative paths, "
+        "or {model, qos} objects; may be empty",
     }
     algorithm = object_schema(
-        {"preset": _PRESET, "ppo": _PPO_OBJECT}, "PPO: a preset's settings plus overrides"
+        _ALGORITHM_RULES, "PPO: a preset's settings plus overrides; DC / MEDC settings"
     )
     return {
         "type": "object",

@@ -36,6 +36,19 @@ def train(
                        ] = 1,
     progress: Annotated[bool, typer.Option(help="Show a progress bar.")] = True,
     tensorboard: Annotated[bool, typer.Option(help="Write TensorBoard event files.")] = True,
+    experts: Annotated[str | None, typer.Option(help="DC / MEDC experts, comma-separated: model "
+                                                     "directories or built-ins (oracle, bayes, "
+                                                     "random, biased:K, malicious:REF).")] = None,
+    expert_qos: Annotated[str | None, typer.Option(help="QoS weight per expert, comma-separated "
+                                                        "(R_S = QoS / sum QoS); default equal.")
+                          ] = None,
+    expert_rate: Annotated[float | None, typer.Option(help="R_E: share of expert-guided "
+                                                           "episodes; default 0.2 for one expert "
+                                                           "(Table 4.1), 0.1 for several (5.3).")
+                           ] = None,
+    expert_threshold: Annotated[float | None, typer.Option(help="l: follow the expert only on "
+                                                                "actions with own probability "
+                                                                "> l (default 0.05).")] = None,
 ) -> None:
     """Train with PPO (Alg. 3.3); writes metrics, TensorBoard, checkpoints and model files."""
     import dataclasses
@@ -55,11 +68,14 @@ def train(
                      ("checkpoint_every", checkpoint_every)):
         if val is not None:
             run_changes[key] = val
+    expert_options = (experts, expert_qos, expert_rate, expert_threshold)
     if resume is not None:
-        if num_envs is not None or config is not None or readings is not None:
+        if num_envs is not None or config is not None or readings is not None or any(
+                o is not None for o in expert_options):
             raise typer.BadParameter("--resume continues a run as configured; drop --config, "
-                                     "--num-envs and --readings")
-        trainer = Trainer.resume(resume, out=out, run_overrides=run_changes)
+                                     "--num-envs, --readings and the --expert* options")
+        trainer = Trainer.resume(resume, out=out, run_overrides=run_changes,
+                                 selector=_resume_selector(resume))
     else:
         chosen = load_config(config) if config is not None else get_preset(preset)
         ppo = chosen.ppo
@@ -72,7 +88,8 @@ def train(
             chosen = dataclasses.replace(chosen, env=chosen.env.replace(readings=readings))
         run = RunConfig.from_dict({**chosen.run, **run_changes, "seed": seed})
         out = out if out is not None else Path("runs") / f"{chosen.name}-s{seed}"
-        trainer = Trainer(chosen.env, chosen.observation, ppo, run, out=out,
+        selector = _selector(chosen, seed, *expert_options)
+        trainer = Trainer(chosen.env, chosen.observation, ppo, run, out=out, selector=selector,
                           warm=chosen.warm_start)
     summary = trainer.train()
     result = {"out": str(trainer.out), "model": str(trainer.out / "model"),
@@ -80,3 +97,50 @@ def train(
               "wall_time_s": round(trainer.elapsed, 1), **trainer.last_eval,
               "train_success": summary.get("success")}
     typer.echo(json.dumps(result))
+
+
+# ------------------------------------------------------------------ experts (DC / MEDC)
+def _selector(chosen, seed, experts, qos, rate, threshold):
+    """The DC / MEDC selector from the config's [experts] section and the --expert* options
+    (--experts replaces the section's models and their QoS), or None without experts."""
+    import dataclasses
+
+    from workers.mdrl.experts import ExpertError
+    from workers.mdrl.medc import DemonstrationConfig, DemonstrationSelector, parse_list
+
+    demo = chosen.experts
+    try:
+        if experts is not None:
+            demo = DemonstrationConfig(tuple(parse_list(experts, "--experts")), (),
+                                       demo.rate if demo else None,
+                                       demo.threshold if demo else 0.05)
+        if demo is None:
+            if any(o is not None for o in (qos, rate, threshold)):
+                raise typer.BadParameter("--expert-qos/--expert-rate/--expert-threshold need "
+                                         "--experts (or an [experts] section in --config)")
+            return None
+        changes = {}
+        if qos is not None:
+            try:
+                changes["qos"] = tuple(float(q) for q in parse_list(qos, "--expert-qos"))
+            except ValueError as exc:
+                raise ValueError(f"--expert-qos: expected numbers, got {qos!r} ({exc})") from None
+        if rate is not None:
+            changes["rate"] = rate
+        if threshold is not None:
+            changes["threshold"] = threshold
+        demo = dataclasses.replace(demo, **changes)
+        return DemonstrationSelector.from_config(demo, chosen.env, seed=seed)
+    except (ValueError, ExpertError) as exc:
+        raise typer.BadParameter(str(exc)) from None
+
+
+def _resume_selector(path: Path):
+    """Rebuild the expert selector a checkpointed run used (its state is restored after)."""
+    from workers.mdrl.medc import resume_selector
+
+    path = path / "checkpoint" if (path / "checkpoint").is_dir() else path
+    meta_file = path / "state.json"
+    if not meta_file.is_file():
+        return None  # Trainer.resume reports the missing checkpoint
+    return resume_selector(json.loads(meta_file.read_text()))

@@ -1,0 +1,304 @@
+"""Demonstration Cloning (DC, Alg. 4.1) and Multi-Expert DC (MEDC, Alg. 5.1) as an action
+selector for the trainer (``rollout.ActionSelector``).
+
+Per episode (drawn at ``episode_start`` from a seeded generator): with probability R_E the
+episode is guided by one expert, picked by roulette wheel over R_S = QoS_i / sum QoS (Table
+5.3); otherwise the agents act on their own. In a guided episode the expert ranks every
+agent's actions from the same state, and each agent takes the best-ranked action whose
+probability under its OWN policy exceeds l (Alg. 5.1 lines 10-14); an agent with no such
+action samples its own (the issue's fallback; Alg. 4.1 line 10 would take a zeroed argmax).
+PPO then learns from that experience with the team's reward and the agent's own
+log-probability of the action taken (``rollout.policy_step`` gathers it from the learner's
+distribution), which is what keeps DC on-policy: the threshold l keeps taken actions probable.
+
+Alg. 5.1 draws the roulette wheel at line 8, inside the step loop; we draw it once per
+episode with ExpertCheck (line 3), as the thesis' text describes it ("one of the experts is
+selected ... to guide the episode"), so an episode follows one consistent expert. DC (Alg.
+4.1) is the one-expert case with E in place of R_E.
+
+Defaults: l = 0.05 (Tables 4.1 and 5.3); the rate is E = 0.2 with one expert (Table 4.1) and
+R_E = 0.1 with several (Table 5.3) unless given.
+
+Sampling (unguided agents and the fallback) is the trainer's own ``SampleSelector`` draw with
+the trainer's generator (``bind``), taken for every agent at every step, so that the random
+stream does not depend on the experts: with rate 0 training is bit-for-bit plain PPO.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import torch
+
+from workers.mdrl.rollout import SampleSelector
+
+DC_RATE = 0.2
+"""Expert rate E of DC with one expert (Table 4.1)."""
+MEDC_RATE = 0.1
+"""Expert rate R_E of MEDC with several experts (Table 5.3)."""
+THRESHOLD = 0.05
+"""Action probability threshold l (Tables 4.1 and 5.3)."""
+MAX_EXPERTS = 16
+SEED_SALT = 0x4D454443  # "MEDC": the selector's stream differs from the trainer's for a seed
+
+
+@dataclass(frozen=True)
+class DemonstrationConfig:
+    """Which experts guide a training run and how (the ``experts`` section of a config file)."""
+
+    experts: tuple[str, ...]
+    """Expert references: model directories, CIDs (resolved by the platform) or built-ins
+    (``experts.BUILTINS``)."""
+    qos: tuple[float, ...] = ()
+    """QoS weight of each expert; R_S = QoS_i / sum QoS (Table 5.3). Empty = equal weights."""
+    rate: float | None = None
+    """R_E, probability that an episode is expert-guided; None = E = 0.2 for one expert
+    (Table 4.1), R_E = 0.1 for several (Table 5.3)."""
+    threshold: float = THRESHOLD
+    """l: an agent follows the expert only on actions with probability > l under its policy."""
+
+    def __post_init__(self) -> None:
+        e = self.experts
+        if not e or not all(isinstance(x, str) and x for x in e):
+            raise ValueError(f"experts: give 1-{MAX_EXPERTS} expert references, got {list(e)}")
+        if len(e) > MAX_EXPERTS:
+            raise ValueError(f"experts: at most {MAX_EXPERTS}, got {len(e)}")
+        if self.qos:
+            if len(self.qos) != len(e):
+                raise ValueError(f"expert qos: {len(self.qos)} weight(s) for {len(e)} expert(s)")
+            if not all(_finite(q) and q >= 0 for q in self.qos) or sum(self.qos) <= 0:
+                raise ValueError(f"expert qos: weights must be finite, >= 0 and not all 0, "
+                                 f"got {list(self.qos)}")
+        if self.rate is not None and not (_finite(self.rate) and 0 <= self.rate <= 1):
+            raise ValueError(f"expert rate must lie in [0, 1], got {self.rate!r}")
+        if not (_finite(self.threshold) and 0 <= self.threshold < 1):
+            raise ValueError(f"expert threshold l must lie in [0, 1), got {self.threshold!r}")
+
+    @property
+    def resolved_rate(self) -> float:
+        """The rate in force (see ``rate``)."""
+        if self.rate is not None:
+            return float(self.rate)
+        return DC_RATE if len(self.experts) == 1 else MEDC_RATE
+
+    @property
+    def weights(self) -> tuple[float, ...]:
+        """QoS weights with the equal default filled in."""
+        return tuple(float(q) for q in self.qos) or (1.0,) * len(self.experts)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"models": list(self.experts), "qos": list(self.weights),
+                "rate": self.resolved_rate, "threshold": self.threshold}
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> DemonstrationConfig:
+        """From a config file's ``experts`` section: ``models`` (list), optional ``qos``,
+        ``rate``, ``threshold``."""
+        if not isinstance(d, dict):
+            raise ValueError(f"config section [experts] must be a table/object, got {d!r}")
+        known = {"models", "qos", "rate", "threshold"}
+        unknown = sorted(set(d) - known)
+        if unknown:
+            raise ValueError(f"[experts]: unknown key(s) {unknown}; known: {sorted(known)}")
+        models = d.get("models")
+        if not isinstance(models, list):
+            raise ValueError(f"[experts] models: expected a list of references, got {models!r}")
+        qos = d.get("qos") or ()
+        if not isinstance(qos, (list, tuple)):
+            raise ValueError(f"[experts] qos: expected a list of numbers, got {qos!r}")
+        return cls(tuple(models), tuple(qos), d.get("rate"), d.get("threshold", THRESHOLD))
+
+
+def _finite(x: Any) -> bool:
+    return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+
+
+def parse_list(text: str, what: str) -> list[str]:
+    """``"a,b"`` -> ``["a", "b"]`` (command-line lists); empty items are an error."""
+    items = [s.strip() for s in text.split(",")]
+    if not all(items):
+        raise ValueError(f"{what}: empty item in {text!r}")
+    return items
+
+
+class DemonstrationSelector:
+    """The DC / MEDC action selector (module docstring); an ``ActionSelector`` for ``Trainer``.
+
+    ``experts``: objects with ``name``, ``scores(env, rows) -> (k, N, A)`` and ``every_step``
+    (``experts.load_experts``). Attributes ``episodes`` (episodes each expert guided),
+    ``own_episodes``, ``decisions`` (agent decisions in guided episodes per expert) and
+    ``followed`` (how many of them took the expert's action) are what the card reports.
+    """
+
+    def __init__(self, experts: Sequence[Any], qos: Sequence[float] | None = None,
+                 rate: float | None = None, threshold: float = THRESHOLD, seed: int = 0,
+                 generator: torch.Generator | None = None):
+        if not experts:
+            raise ValueError("DemonstrationSelector needs at least one expert")
+        config = DemonstrationConfig(tuple(e.name for e in experts), tuple(qos or ()), rate,
+                                     threshold)
+        self.config, self.experts = config, list(experts)
+        self.rate, self.threshold = config.resolved_rate, float(config.threshold)
+        w = np.asarray(config.weights, dtype=np.float64)
+        self.wheel = np.cumsum(w / w.sum())  # roulette wheel, R_S = QoS_i / sum QoS
+        self.wheel[-1] = 1.0
+        self.rng = np.random.default_rng([seed, SEED_SALT])
+        self._sampler = SampleSelector(generator or torch.Generator().manual_seed(seed))
+        self.current = np.full(0, -1, dtype=np.int64)  # per env: guiding expert, -1 = own
+        k = len(self.experts)
+        self.episodes = np.zeros(k, dtype=np.int64)
+        self.decisions = np.zeros(k, dtype=np.int64)
+        self.followed = np.zeros(k, dtype=np.int64)
+        self.own_episodes = 0
+
+    @classmethod
+    def from_config(cls, config: DemonstrationConfig, task: Any, seed: int = 0,
+                    generator: torch.Generator | None = None) -> DemonstrationSelector:
+        """Load the configured experts for a task (EnvSpec) and build the selector."""
+        from workers.mdrl.experts import load_experts
+
+        experts = load_experts(config.experts, task, seed=seed)
+        return cls(experts, config.qos, config.rate, config.threshold, seed, generator)
+
+    def bind(self, generator: torch.Generator) -> None:
+        """Sample with the trainer's generator (``Trainer`` calls this), so rate 0 is plain PPO."""
+        self._sampler = SampleSelector(generator)
+
+    # ------------------------------------------------------------------ per episode
+    def episode_start(self, env_ids: np.ndarray) -> None:
+        """ExpertCheck < R_E (Alg. 5.1 line 3), then the roulette wheel over R_S (line 8)."""
+        env_ids = np.asarray(env_ids, dtype=np.int64)
+        if not len(env_ids):
+            return
+        if env_ids.max() >= len(self.current):
+            grown = np.full(env_ids.max() + 1, -1, dtype=np.int64)
+            grown[:len(self.current)] = self.current
+            self.current = grown
+        check = self.rng.random(len(env_ids))
+        spin = self.rng.random(len(env_ids))
+        pick = np.minimum(np.searchsorted(self.wheel, spin, side="right"), len(self.wheel) - 1)
+        chosen = np.where(check < self.rate, pick, -1)
+        self.current[env_ids] = chosen
+        self.episodes += np.bincount(chosen[chosen >= 0], minlength=len(self.experts))
+        self.own_episodes += int((chosen < 0).sum())
+
+    # ------------------------------------------------------------------ per step
+    def select(self, logp: torch.Tensor, mask: torch.Tensor, env: Any) -> torch.Tensor:
+        """Policy actions (B, Np): own samples, replaced in guided episodes by each agent's
+        best-ranked expert action with P(a) > l (Alg. 5.1 lines 9-14)."""
+        own = self._sampler.select(logp, mask, env)
+        b = logp.shape[0]
+        if len(self.current) < b:
+            raise ValueError(f"DemonstrationSelector: episode_start was not called for all "
+                             f"{b} envs")
+        current = self.current[:b]
+        for i, expert in enumerate(self.experts):
+            rows = np.flatnonzero(current == i)
+            if not len(rows):
+                if expert.every_step:  # stateful: keep it up to date with every step
+                    expert.scores(env, None)
+                continue
+            if expert.every_step:
+                scores = expert.scores(env, None)[rows]
+            else:
+                scores = expert.scores(env, rows)
+            own = self._follow(own, logp, mask, rows, torch.from_numpy(scores), i, env)
+        return own
+
+    def _follow(self, own: torch.Tensor, logp: torch.Tensor, mask: torch.Tensor,
+                rows: np.ndarray, scores: torch.Tensor, i: int, env: Any) -> torch.Tensor:
+        idx = torch.from_numpy(rows)
+        k, n, a = scores.shape
+        joint = logp.shape[1] != n or logp.shape[2] != a
+        if joint:  # CMTL: the agents' marginals of the joint policy, own joint sample decoded
+            p = _marginals(logp[idx].exp(), n, a)
+            agent_mask = torch.from_numpy(np.asarray(env.action_mask())[rows])
+            mine = _decode(own[idx, 0], n, a)
+        else:
+            p, agent_mask, mine = logp[idx].exp(), mask[idx], own[idx]
+        eligible = agent_mask & (p > self.threshold) & torch.isfinite(scores)
+        best = torch.where(eligible, scores, torch.full_like(scores, -torch.inf)).argmax(-1)
+        has = eligible.any(-1)
+        chosen = torch.where(has, best, mine)
+        self.decisions[i] += has.numel()
+        self.followed[i] += int(has.sum())
+        own = own.clone()
+        own[idx] = _encode(chosen, a).unsqueeze(-1) if joint else chosen
+        return own
+
+    # ------------------------------------------------------------------ state and card
+    def state_dict(self) -> dict[str, Any]:
+        """JSON-able state (the trainer checkpoints it): RNG, per-env guide, counters, config."""
+        experts = {str(i): e.state_dict() for i, e in enumerate(self.experts)
+                   if hasattr(e, "state_dict")}
+        return {"config": self.config.to_dict(), "rng": self.rng.bit_generator.state,
+                "current": self.current.tolist(), "episodes": self.episodes.tolist(),
+                "own_episodes": self.own_episodes, "decisions": self.decisions.tolist(),
+                "followed": self.followed.tolist(), "experts": experts}
+
+    def load_state_dict(self, d: dict[str, Any]) -> None:
+        if d["config"]["models"] != list(self.config.experts):
+            raise ValueError(f"checkpoint's experts {d['config']['models']} differ from this "
+                             f"selector's {list(self.config.experts)}")
+        self.rng.bit_generator.state = d["rng"]
+        self.current = np.asarray(d["current"], dtype=np.int64)
+        self.episodes = np.asarray(d["episodes"], dtype=np.int64)
+        self.own_episodes = int(d["own_episodes"])
+        self.decisions = np.asarray(d["decisions"], dtype=np.int64)
+        self.followed = np.asarray(d["followed"], dtype=np.int64)
+        for i, s in d.get("experts", {}).items():
+            self.experts[int(i)].load_state_dict(s)
+
+    def card(self) -> dict[str, Any]:
+        """What the trained model's card lists under ``training.experts`` (Alg. 5.1 inputs and
+        how much each expert was used)."""
+        w = np.asarray(self.config.weights)
+        return {
+            "method": "DC (Alg. 4.1)" if len(self.experts) == 1 else "MEDC (Alg. 5.1)",
+            "rate": self.rate, "threshold": self.threshold,
+            "own_episodes": self.own_episodes,
+            "experts": [
+                {"ref": e.name, "qos": float(w[i]), "selection_probability": float(w[i] / w.sum()),
+                 "episodes": int(self.episodes[i]), "decisions": int(self.decisions[i]),
+                 "followed": int(self.followed[i])}
+                for i, e in enumerate(self.experts)
+            ],
+        }
+
+
+def _marginals(p_joint: torch.Tensor, n: int, a: int) -> torch.Tensor:
+    """(k, 1, A**N) joint probabilities -> (k, N, A) per-agent marginals (agent 0 = most
+    significant digit, ``observations.encode_joint``)."""
+    grid = p_joint.reshape(p_joint.shape[0], *([a] * n))
+    dims = range(1, n + 1)
+    return torch.stack([grid.sum(dim=tuple(d for d in dims if d != i)) if n > 1 else grid
+                        for i in dims], dim=1)
+
+
+def _decode(joint: torch.Tensor, n: int, a: int) -> torch.Tensor:
+    weights = a ** torch.arange(n - 1, -1, -1)
+    return (joint.unsqueeze(-1) // weights) % a
+
+
+def _encode(actions: torch.Tensor, a: int) -> torch.Tensor:
+    n = actions.shape[-1]
+    return (actions * a ** torch.arange(n - 1, -1, -1)).sum(-1)
+
+
+def resume_selector(meta: dict[str, Any]) -> DemonstrationSelector | None:
+    """The selector of a checkpointed run (``checkpoint.load_checkpoint`` meta), rebuilt from
+    the config it saved (None if the run had no experts); ``Trainer.resume`` then restores
+    its state."""
+    state = meta.get("selector")
+    if not state or "config" not in state:
+        return None
+    from workers.mdrl.spec import EnvSpec
+
+    c = state["config"]
+    config = DemonstrationConfig(tuple(c["models"]), tuple(c["qos"]), c["rate"], c["threshold"])
+    return DemonstrationSelector.from_config(config, EnvSpec.from_dict(meta["env"]),
+                                             seed=int(meta["run"]["seed"]))
