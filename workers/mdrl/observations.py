@@ -88,6 +88,9 @@ class ObservationSpec:
     (log-compressed counts relative to a physical reference count; see the module doc)."""
     belief: bool = False
     """Add the team's posterior map of the target cell (``belief.BeliefFilter``)."""
+    others: bool | None = None
+    """DMTL/ODMTL map of the other agents; None = iff the team has more than one agent (Table
+    3.4). True keeps it (all zeros) for one agent, so one actor can serve any team size."""
 
     def __post_init__(self) -> None:
         if self.readings not in ("last", "mean"):
@@ -109,6 +112,10 @@ class ObservationSpec:
         if self.critic not in ("reduced", "full"):
             raise ValueError(
                 f"ObservationSpec.critic must be 'reduced' or 'full', got {self.critic!r}"
+            )
+        if self.others is not None and not isinstance(self.others, bool):
+            raise ValueError(
+                f"ObservationSpec.others must be True, False or None, got {self.others!r}"
             )
         if self.walls is not None and not isinstance(self.walls, bool):
             raise ValueError(
@@ -144,7 +151,8 @@ def channel_layout(env_spec: Any, obs_spec: ObservationSpec) -> ChannelLayout:
     rows, cols, agents = int(env_spec.rows), int(env_spec.cols), int(env_spec.agents)
     kind, w = obs_spec.kind, int(obs_spec.window)
     walls_on = bool(env_spec.walls[1] > 0) if obs_spec.walls is None else obs_spec.walls
-    others = ["others"] if agents > 1 else []
+    keep_others = agents > 1 if obs_spec.others is None else obs_spec.others
+    others = ["others"] if keep_others else []
     walls = ["walls"] if walls_on else []
     if kind == "cmtl":
         actor = [f"location_{i}" for i in range(agents)] + ["readings", "visits"] + walls
@@ -289,6 +297,7 @@ class Observer:
         self.cells = rows * cols
         layout = channel_layout(env_spec, obs_spec)
         self.walls, self.full_critic = layout.walls, layout.full_critic
+        self.has_others = any(c.endswith("others") for c in layout.actor)
         self.joint_actions = self.kind == "cmtl"
         self.actor_channels, self.critic_channels = layout.actor, layout.critic
         self.actor_shape, self.critic_shape = layout.actor_shape, layout.critic_shape
@@ -443,7 +452,7 @@ class Observer:
         counts = own.sum(axis=1)  # (B, C) agents per cell
         at_cell, top_others = self._occupancy(pos, b)
         k = 1
-        if n > 1:
+        if self.has_others:
             np.subtract(counts[:, None, :], own, out=actor[:, :, 1])
             actor[:, :, 1] *= (1.0 / top_others)[:, :, None]
             k = 2
@@ -480,7 +489,7 @@ class Observer:
         ds_all = ds_loc.sum(axis=1)  # (B, w*w) downsized agent counts, not yet normalised
         at_cell, top_others = self._occupancy(pos, b)
         k = 3
-        if n > 1:
+        if self.has_others:
             others = np.maximum(ds_all[:, None, :] - ds_loc, 0.0)  # clip float round-off
             actor[:, :, k] = others / top_others[:, :, None]
             k += 1

@@ -97,6 +97,7 @@ OBSERVATION_RULES: dict[str, Any] = {
     "readings": Choice(("last", "mean"), doc="last reading per cell (thesis) or the mean"),
     "scale": Choice(("max", "fixed"), doc="readings / episode max (thesis) or log physical"),
     "belief": Bool(doc="add the team's posterior map of the target cell"),
+    "others": Nullable(Bool(doc="others map; null = iff more than one agent")),
 }
 PPO_RULES: dict[str, Any] = {
     "learning_rate": Real(1e-7, 1.0),

@@ -21,6 +21,7 @@ from typing import Any
 from workers.mdrl.baselines import OraclePolicy
 from workers.mdrl.evaluate import EvalReport, evaluate
 from workers.mdrl.modelio import CARD, load_model
+from workers.mdrl.ppo import PPOConfig
 from workers.mdrl.presets import get_preset
 
 HELDOUT_SEED = 20_261_124
@@ -34,6 +35,7 @@ class ZooEntry:
     """One shipped model: which preset, which seed, how long."""
 
     preset: str
+    """A preset name, or 'generalist' (generalist.py: one ODMTL actor over many set-ups)."""
     minutes: float
     seed: int = 0
     steps: int | None = None
@@ -43,6 +45,7 @@ ZOO: dict[str, ZooEntry] = {
     **{f"odmtl-{n}a": ZooEntry(f"odmtl-{n}a-10x10", minutes=6) for n in (1, 2, 3, 4, 10)},
     **{f"dmtl-{n}a": ZooEntry(f"dmtl-{n}a-10x10", minutes=6) for n in (1, 2, 3, 4, 10)},
     **{f"cmtl-{n}a": ZooEntry(f"cmtl-{n}a-10x10", minutes=6) for n in (1, 2, 3)},
+    "odmtl-generalist": ZooEntry("generalist", minutes=20),
 }
 
 
@@ -68,15 +71,46 @@ def summary(report: EvalReport) -> dict[str, Any]:
 def train_entry(name: str, models: Path, runs: Path, minutes: float | None = None,
                 progress: bool = False) -> Path:
     """Train (or resume) zoo entry ``name``; writes ``models/NAME``; returns that directory."""
-    from workers.mdrl.train import RunConfig, Trainer
-
     if name not in ZOO:
         raise ValueError(f"unknown zoo model {name!r}; known: {', '.join(ZOO)}")
     entry = ZOO[name]
-    preset = get_preset(entry.preset)
     budget = {"minutes": minutes if minutes is not None else entry.minutes,
               "total_steps": entry.steps}
     run_dir = runs / name
+    if entry.preset == "generalist":
+        trainer, spec = _generalist(entry, run_dir, budget), None
+    else:
+        trainer, spec = _trainer(entry, run_dir, budget, progress), get_preset(entry.preset).env
+    trainer.train()
+    target = models / name
+    if target.exists():
+        shutil.rmtree(target)
+    shutil.copytree(run_dir / "model", target)
+    policy = load_model(target)
+    card = json.loads((target / CARD).read_text())
+    card["zoo"] = {"name": name, "preset": entry.preset, "seed": entry.seed,
+                   "env_steps": trainer.global_step, "wall_clock_s": round(trainer.elapsed, 1),
+                   "heldout": heldout(policy, spec if spec is not None else policy.env_spec)}
+    (target / CARD).write_text(json.dumps(card, indent=1))
+    return target
+
+
+def _generalist(entry: ZooEntry, run_dir: Path, budget: dict[str, Any]) -> Any:
+    from workers.mdrl.generalist import GeneralistTrainer
+    from workers.mdrl.presets import FAST_PPO
+    from workers.mdrl.train import RunConfig
+
+    if (run_dir / "checkpoint" / "generalist.json").is_file():
+        return GeneralistTrainer.resume(run_dir, run_overrides=budget)
+    run = RunConfig(seed=entry.seed, tensorboard=False, progress=False, **budget)
+    ppo = PPOConfig(**{**FAST_PPO, "num_envs": 64, "horizon": 4096})
+    return GeneralistTrainer(ppo, run, run_dir)
+
+
+def _trainer(entry: ZooEntry, run_dir: Path, budget: dict[str, Any], progress: bool) -> Any:
+    from workers.mdrl.train import RunConfig, Trainer
+
+    preset = get_preset(entry.preset)
     if (run_dir / "checkpoint").is_dir():
         trainer = Trainer.resume(run_dir, run_overrides={**budget, "progress": progress})
     else:
@@ -84,14 +118,4 @@ def train_entry(name: str, models: Path, runs: Path, minutes: float | None = Non
                                    "progress": progress, "tensorboard": False})
         trainer = Trainer(preset.env, preset.observation, preset.ppo, run, out=run_dir,
                           warm=preset.warm_start)
-    trainer.train()
-    target = models / name
-    if target.exists():
-        shutil.rmtree(target)
-    shutil.copytree(run_dir / "model", target)
-    card = json.loads((target / CARD).read_text())
-    card["zoo"] = {"name": name, "preset": entry.preset, "seed": entry.seed,
-                   "env_steps": trainer.global_step, "wall_clock_s": round(trainer.elapsed, 1),
-                   "heldout": heldout(load_model(target), preset.env)}
-    (target / CARD).write_text(json.dumps(card, indent=1))
-    return target
+    return trainer

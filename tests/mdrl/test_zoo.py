@@ -1,0 +1,45 @@
+"""The shipped zoo (models/): every model loads, runs, and its card's held-out figures hold
+on fresh episodes."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import pytest
+
+from workers.mdrl.evaluate import evaluate
+from workers.mdrl.modelio import load_model
+from workers.mdrl.zoo import HELDOUT_SEED, READING_MODELS, ZOO
+
+MODELS = Path(__file__).resolve().parents[2] / "models"
+SHIPPED = sorted(p.parent.name for p in MODELS.glob("*/model.json"))
+FRESH_SEED = HELDOUT_SEED + 1  # other episodes than the card's
+
+
+def test_every_zoo_entry_is_shipped():
+    assert set(ZOO) <= set(SHIPPED), f"missing from models/: {sorted(set(ZOO) - set(SHIPPED))}"
+
+
+@pytest.mark.parametrize("name", SHIPPED)
+def test_card_figures_hold_on_200_fresh_episodes(name):
+    policy = load_model(MODELS / name)
+    card = json.loads((MODELS / name / "model.json").read_text())
+    zoo = card["zoo"]
+    assert zoo["env_steps"] > 0 and zoo["wall_clock_s"] > 0 and zoo["preset"]
+    for readings in READING_MODELS:
+        claimed = zoo["heldout"][readings]
+        spec = policy.env_spec.replace(readings=readings)
+        fresh = evaluate(policy, spec, 200, seed=FRESH_SEED).summary
+        for key in ("time", "cost"):
+            # 95% interval of the difference of two independent means (card: 1000 episodes,
+            # fresh: 200): the card's claim must be consistent with what the model does now
+            lo, hi = fresh[f"{key}_ci"]
+            c_lo, c_hi = claimed[f"{key}_ci"]
+            half = math.hypot((hi - lo) / 2, (c_hi - c_lo) / 2)
+            assert abs(claimed[key] - fresh[f"{key}_mean"]) <= half, (
+                f"{name} {readings} {key}: card {claimed[key]:.2f}, fresh "
+                f"{fresh[f'{key}_mean']:.2f} ± {half:.2f}"
+            )
+        assert abs(claimed["success"] - fresh["success_rate"]) <= 0.05
