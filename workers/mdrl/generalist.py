@@ -133,7 +133,7 @@ class GeneralistTrainer:
         save_file(tensors, str(path / "generalist.safetensors"))
         meta = {"update": self.update_idx, "global_step": self.global_step,
                 "elapsed": self.elapsed, "optimizer": opt_meta, "ppo": self.ppo.to_dict(),
-                "run": self.run.to_dict()}
+                "run": self.run.to_dict(), "setups": [s.to_dict() for s in self.setups]}
         (path / "generalist.json").write_text(json.dumps(meta))
 
     @classmethod
@@ -142,7 +142,8 @@ class GeneralistTrainer:
         path = Path(out) / "checkpoint"
         meta = json.loads((path / "generalist.json").read_text())
         run = RunConfig.from_dict({**meta["run"], **(run_overrides or {})})
-        trainer = cls(PPOConfig.from_dict(meta["ppo"]), run, out)
+        setups = [EnvSpec.from_dict(d) for d in meta["setups"]]
+        trainer = cls(PPOConfig.from_dict(meta["ppo"]), run, out, setups=setups)
         tensors = load_file(str(path / "generalist.safetensors"))
         trainer.agent.load_state_dict(
             {k[len("agent/"):]: v for k, v in tensors.items() if k.startswith("agent/")})
