@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 DEMO_OUT ?= runs/demo
 
-.PHONY: setup demo train-demo test lint bench-env bench-train bench-table bench-recruitment clean
+.PHONY: setup demo train-demo test lint bench-env bench-train bench-table bench-ablations bench-recruitment zoo clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
@@ -65,6 +65,14 @@ bench-train: setup
 
 bench-table: setup
 	$(BIN)/python benchmarks/policy_table.py
+
+bench-ablations: setup
+	$(BIN)/python benchmarks/ablations.py
+
+# Retrain every model of models/ (long: about 6 minutes each, the generalist 20; not in CI).
+# Resumable: an interrupted run continues from runs/zoo/NAME/checkpoint.
+zoo: setup
+	$(BIN)/drlaas zoo train --models models --runs runs/zoo
 
 bench-recruitment: setup
 	$(BIN)/python benchmarks/recruitment/run.py

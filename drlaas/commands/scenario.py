@@ -5,7 +5,9 @@ A requester and three workers register; a training task is submitted; the chain 
 worker trains with a short budget while its progress shows; the model's manifest goes to the
 content store and its CID on chain; the requester reviews it; reputations change; the model
 owner shares it and it shows in the listing; a second requester asks for experts (a
-model-sharing task) and receives that model's CID.
+model-sharing task) and receives that model's CID. Finally the workers publish the model zoo
+(``models/``: one trained model per thesis row, uploaded with its card), so the listing shows
+what the platform sells.
 
 The requesters are demo users whose keys the embedded gateway holds (``user1``, ``user2`` =
 eth-tester's deterministic keys, funded); the workers sign with their own key files from
@@ -32,6 +34,8 @@ from workers.daemon.gateway import Gateway, GatewayError
 #: eth-tester's account i has private key i + 1 (demo user ``user<i>`` of the gateway).
 DEMO_REQUESTER_KEYS = ("0x" + "0" * 63 + "2", "0x" + "0" * 63 + "3")
 SCENARIO_ENV = {"rows": 6, "cols": 6, "agents": 2, "walls": [0, 0]}
+#: The shipped models (workers/mdrl/zoo.py) the demo workers publish.
+ZOO_DIR = Path(__file__).resolve().parents[2] / "models"
 
 
 def demo_requester_keys(chain_kind: str) -> tuple[str, str]:
@@ -86,6 +90,7 @@ def run_scenario(
     timeout: float = 300.0,
     say: Callable[[str], None] = print,
     requester_keys: tuple[str, str] = DEMO_REQUESTER_KEYS,
+    zoo: Path | None = ZOO_DIR,
 ) -> dict[str, Any]:
     """Run the scenario; returns what happened (task id, CID, reputations, allocation)."""
     req1 = Gateway(url, Account.from_key(requester_keys[0]))
@@ -216,9 +221,47 @@ def run_scenario(
     )
     if cid not in report["allocated"]:
         raise RuntimeError(f"the expert request did not return the trained model {cid}")
+    if zoo is not None and zoo.is_dir():
+        report["zoo"] = _share_zoo(zoo, url, data_dir, [w["address"] for w in workers], say)
     for g in (req1, req2, anon, owner):
         g.close()
     return report
+
+
+def _share_zoo(
+    zoo: Path, url: str, data_dir: Path, workers: list[str], say: Callable[[str], None]
+) -> dict[str, int]:
+    """Upload each zoo model (weights + card) to the platform's store and list it on chain,
+    the models spread over the workers (an owner lists a bounded number of models)."""
+    from backend.store import make_store
+    from backend.store.bundle import upload_model
+
+    svc = load_settings().ipfs_service
+    store = make_store(svc.url, default_dir=data_dir / "ipfs")
+    keys = {}
+    for k in sorted((data_dir / "keys").glob("*.key")):
+        acct = Account.from_key(k.read_text().strip())
+        if acct.address in workers:
+            keys[acct.address] = acct
+    owners = [Gateway(url, keys[a]) for a in workers if a in keys]
+    if not owners:
+        raise RuntimeError(f"no worker key files under {data_dir / 'keys'}")
+    listed: dict[str, int] = {}
+    for i, model_dir in enumerate(sorted(p.parent for p in zoo.glob("*/model.json"))):
+        card = json.loads((model_dir / "model.json").read_text())
+        zoo_card = card.get("zoo", {})
+        body = {
+            "cid": upload_model(store, model_dir),
+            "description": f"zoo {model_dir.name}: {zoo_card.get('preset', card['model'])}",
+            "domain": 0,
+            "env": card["env"],
+        }
+        model = write(owners[i % len(owners)], "POST", "/models", body)
+        listed[model_dir.name] = model["id"]
+    say(f"model zoo published: {len(listed)} models ({', '.join(listed)})")
+    for g in owners:
+        g.close()
+    return listed
 
 
 def scenario_command(
