@@ -5,7 +5,8 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 DEMO_OUT ?= runs/demo
 
-.PHONY: setup demo train-demo test lint bench-env bench-train bench-table bench-ablations bench-recruitment zoo clean
+.PHONY: setup demo train-demo test test-contracts lint bench-env bench-train bench-table \
+	bench-ablations bench-recruitment bench-gas zoo clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
@@ -48,10 +49,21 @@ train-demo: setup
 	$(BIN)/drlaas eval --policy $(DEMO_OUT)/odmtl/model --episodes 500 --seed 1
 	$(BIN)/drlaas eval --policy bayes --agents 3 --episodes 500 --seed 1
 
-test: setup
+# forge (contracts/node_modules/.bin, npm ci) and slither (venv) for the contract checks.
+FORGE_PATH := PATH=$(CURDIR)/contracts/node_modules/.bin:$(CURDIR)/$(BIN):$$PATH
+
+test: setup test-contracts
 	$(BIN)/ruff check .
 	$(BIN)/lint-imports  # layers of .importlinter: nothing imports upward
 	$(BIN)/python -m pytest -q
+
+# Foundry fuzz tests and invariants (foundry.toml: 10,000 calls per invariant), the per-function
+# gas snapshot against the committed one (isolated transactions, thesis bounds asserted), and
+# Slither with the zero-High / zero-unexplained-Medium gate.
+test-contracts: setup
+	cd contracts && $(FORGE_PATH) forge test --no-match-contract GasTest
+	cd contracts && $(FORGE_PATH) FORGE_SNAPSHOT_CHECK=true forge snapshot --isolate --match-contract GasTest --check
+	$(FORGE_PATH) $(BIN)/python contracts/foundry/slither_gate.py
 
 lint: setup
 	$(BIN)/ruff check .
@@ -77,5 +89,11 @@ zoo: setup
 bench-recruitment: setup
 	$(BIN)/python benchmarks/recruitment/run.py
 
+# Gas per function (forge, isolated transactions) next to thesis Table 7.5, with the ratio;
+# rewrites contracts/.gas-snapshot and contracts/snapshots/GasTest.json.
+bench-gas: setup
+	cd contracts && $(FORGE_PATH) forge snapshot --isolate --match-contract GasTest
+	$(BIN)/python benchmarks/gas_table.py
+
 clean:
-	rm -rf $(VENV) runs contracts/node_modules tests/foundry/node_modules
+	rm -rf $(VENV) runs contracts/node_modules contracts/out contracts/cache tests/foundry/node_modules

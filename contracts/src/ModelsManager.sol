@@ -272,8 +272,8 @@ contract ModelsManager is ReentrancyGuardTransient {
         modelOfCid[cidHash] = modelId;
         _ownerModelCount[ownerId] = owned + 1;
         _ownerModels[(uint256(ownerId) << 8) | domain].push(uint32(modelId));
-        uint256 head;
-        uint256 word;
+        uint256 head = 0;
+        uint256 word = 0;
         for (uint256 j; j < env.length; ++j) {
             if (j < 4) {
                 head |= uint256(env[j]) << (32 * j);
@@ -309,6 +309,8 @@ contract ModelsManager is ReentrancyGuardTransient {
         if (r.minReputation > ONE) revert ModelsBadThreshold(r.minReputation);
         if (r.minRating > ONE) revert ModelsBadThreshold(r.minRating);
         if (r.minModelReputation > ONE) revert ModelsBadThreshold(r.minModelReputation);
+        // Exact division, checked right below (price * N == msg.value): nothing is lost.
+        // slither-disable-next-line divide-before-multiply
         uint256 price = msg.value / r.numModels;
         if (price * r.numModels != msg.value || price > type(uint80).max) {
             revert ModelsBadPayment(msg.value, r.numModels);
@@ -332,6 +334,8 @@ contract ModelsManager is ReentrancyGuardTransient {
         for (uint256 i; i < count; ++i) {
             owners[i] = _models[idx[i]].ownerId;
         }
+        // Only the owners' addresses are needed here, not their counters.
+        // slither-disable-next-line unused-return
         (uint256[] memory words,) = umc.profiles(owners, r.domain, SHARING);
         for (uint256 i; i < count; ++i) {
             uint256 modelId = idx[i];
@@ -340,6 +344,9 @@ contract ModelsManager is ReentrancyGuardTransient {
             m.allocCount += 1;
             _ownerRep[owners[i]].allocCount += 1;
             allocState[allocId][modelId] = AllocState.Allocated;
+            // The UMC is the immutable platform registry set at construction; updateInfo makes
+            // no external call, so no re-entry can observe this allocation half written.
+            // slither-disable-next-line reentrancy-no-eth
             umc.updateInfo(owner, r.domain, SHARING, SHARED, 0);
             emit ModelAllocated(allocId, modelId, owner, qs[i] >> 32);
             _credit(owner, allocId, price);
@@ -365,6 +372,8 @@ contract ModelsManager is ReentrancyGuardTransient {
         _ownerRep[ownerId].totalReview += review;
         uint32[] memory one = new uint32[](1);
         one[0] = ownerId;
+        // Only the owner's address is needed here, not its counters.
+        // slither-disable-next-line unused-return
         (uint256[] memory words,) = umc.profiles(one, a.domain, SHARING);
         umc.updateInfo(words[0].addr(), a.domain, SHARING, REVIEWED, review);
         emit ModelReviewed(allocId, modelId, review);
@@ -393,6 +402,8 @@ contract ModelsManager is ReentrancyGuardTransient {
         Model memory m = _models[modelId];
         uint32[] memory one = new uint32[](1);
         one[0] = m.ownerId;
+        // Only the owner's address is needed here, not its counters.
+        // slither-disable-next-line unused-return
         (uint256[] memory words,) = umc.profiles(one, m.domain, SHARING);
         model = ModelView(words[0].addr(), m.domain, m.envLen, m.allocCount, m.totalReview);
         env = new uint32[](m.envLen);
@@ -457,7 +468,7 @@ contract ModelsManager is ReentrancyGuardTransient {
     ) internal view returns (uint256[] memory idx, uint256[] memory qs, uint256 count) {
         uint256 n = ws.length;
         uint256 d = r.env.length;
-        uint256 nMax;
+        uint256 nMax = 0;
         uint256[] memory part = new uint256[](n);
         for (uint256 i; i < n; ++i) {
             uint32 ownerId = ws[i].id();
@@ -502,7 +513,7 @@ contract ModelsManager is ReentrancyGuardTransient {
         view
         returns (uint256 s)
     {
-        uint256 word;
+        uint256 word = 0;
         for (uint256 j; j < env.length; ++j) {
             uint256 a;
             if (j < 4) {
@@ -532,13 +543,16 @@ contract ModelsManager is ReentrancyGuardTransient {
             return w;
         }
         if (given.length == 0) {
+            // qos.default_weights: the floor of ONE / d each, the remainder on the first, so the
+            // weights sum to ONE exactly (bit-exact with qos.py).
+            // slither-disable-next-line divide-before-multiply
             uint256 each = ONE / d;
             for (uint256 j; j < d; ++j) w[j] = each;
             w[0] += ONE - each * d;
             return w;
         }
         if (given.length != d) revert ModelsBadWeights();
-        uint256 sum;
+        uint256 sum = 0;
         for (uint256 j; j < d; ++j) {
             w[j] = given[j];
             sum += given[j];

@@ -316,6 +316,8 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
         if (p.duration < shortest || p.duration > maxDuration) {
             revert TasksBadDuration(p.duration, shortest, maxDuration);
         }
+        // Exact division, checked right below (reward * NW == msg.value): nothing is lost.
+        // slither-disable-next-line divide-before-multiply
         uint256 reward = msg.value / p.numWorkers;
         if (reward * p.numWorkers != msg.value || reward > type(uint96).max) {
             revert TasksBadPayment(msg.value, p.numWorkers);
@@ -379,6 +381,9 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
             address a = w.addr();
             _offers[taskId][a] = Offer(OfferState.Offered, expiry, w.id(), false);
             _offerees[taskId].push(a);
+            // The UMC is the immutable platform registry set at construction; updateInfo makes no
+            // external call, so no re-entry can observe the offers written in this loop.
+            // slither-disable-next-line reentrancy-no-eth
             umc.updateInfo(a, r.domain, TRAINING, ASSIGNED, 0);
             emit TaskOffered(taskId, a, qs[i] >> 32, expiry);
         }
@@ -630,7 +635,7 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
     {
         uint256 n = ws.length;
         uint256[] memory part = new uint256[](n);
-        uint256 nMax;
+        uint256 nMax = 0;
         uint256 gpus = acceptedGpus;
         uint256 weight = w1;
         for (uint256 i; i < n; ++i) {

@@ -257,7 +257,7 @@ contract UsersManager {
     function addWorker(uint256 domains, uint16 cpuCores, uint16 ramGb, uint8 gpuSeries) external {
         if (workerId[msg.sender] != 0) revert UsersAlreadyRegistered(msg.sender);
         if (domains == 0 || domains >> (MAX_DOMAIN + 1) != 0) revert UsersBadDomains(domains);
-        uint256 count;
+        uint256 count = 0;
         for (uint256 rest = domains; rest != 0; rest &= rest - 1) ++count;
         if (count > MAX_WORKER_DOMAINS) revert UsersTooManyDomains(domains, MAX_WORKER_DOMAINS);
         bool pending = approvalRequired;

@@ -1,0 +1,266 @@
+// SPDX-License-Identifier: MIT
+pragma solidity ^0.8.24;
+
+import {Fixture} from "./utils/Fixture.sol";
+import {ModelsManager} from "../src/ModelsManager.sol";
+import {TasksManager} from "../src/TasksManager.sol";
+import {ITasksOutcomes} from "../src/ITasksOutcomes.sol";
+
+/// @dev Fuzz tests of every external state-changing function of the MMC: valid path (state,
+/// money, event) and wrong-role / bad-input reverts with the exact custom error.
+contract ModelsManagerFuzzTest is Fixture {
+    address internal owner;
+    address internal owner2;
+
+    function setUp() public {
+        _deploy();
+        owner = _actor("owner");
+        owner2 = _actor("owner2");
+        _worker(owner, 1 << DOMAIN, 8);
+        _worker(owner2, 1 << DOMAIN, 16);
+    }
+
+    function _env(uint32 a, uint32 b) internal pure returns (uint32[] memory e) {
+        e = new uint32[](2);
+        (e[0], e[1]) = (a, b);
+    }
+
+    function _model(address who, string memory cid, uint32 a, uint32 b) internal returns (uint256) {
+        vm.prank(who);
+        return mmc.addModel(cid, "desc", DOMAIN, _env(a, b));
+    }
+
+    function _request(uint8 n, ModelsManager.Metric metric) internal pure returns (ModelsManager.ModelRequest memory r) {
+        r = ModelsManager.ModelRequest(DOMAIN, n, metric, 0, 0, 0, _env(3, 3), new uint32[](0));
+    }
+
+    // ------------------------------------------------------------------ admin setters
+
+    function testFuzz_setMinModelPrice(uint256 price, address caller) public {
+        uint256 ok = _bound(price, 1, type(uint80).max);
+        vm.expectEmit(address(mmc));
+        emit ModelsManager.MinModelPriceUpdated(ok);
+        vm.prank(admin);
+        mmc.setMinModelPrice(ok);
+        vm.assertEq(mmc.minModelPrice(), ok, "price");
+        vm.expectRevert(ModelsManager.ModelsBadConfig.selector);
+        vm.prank(admin);
+        mmc.setMinModelPrice(price > type(uint80).max ? price : 0);
+        vm.assume(caller != admin);
+        vm.expectRevert(abi.encodeWithSelector(ModelsManager.ModelsNotAdmin.selector, caller));
+        vm.prank(caller);
+        mmc.setMinModelPrice(ok);
+    }
+
+    function testFuzz_setMaxModelsPerOwner(uint256 limit, address caller) public {
+        uint256 ok = _bound(limit, 1, mmc.MAX_MODELS_PER_OWNER());
+        vm.expectEmit(address(mmc));
+        emit ModelsManager.MaxModelsPerOwnerUpdated(ok);
+        vm.prank(admin);
+        mmc.setMaxModelsPerOwner(ok);
+        vm.assertEq(mmc.maxModelsPerOwner(), ok, "limit");
+        uint256 bad = limit > mmc.MAX_MODELS_PER_OWNER() ? limit : 0;
+        vm.expectRevert(abi.encodeWithSelector(ModelsManager.ModelsBadLimit.selector, bad));
+        vm.prank(admin);
+        mmc.setMaxModelsPerOwner(bad);
+        vm.assume(caller != admin);
+        vm.expectRevert(abi.encodeWithSelector(ModelsManager.ModelsNotAdmin.selector, caller));
+        vm.prank(caller);
+        mmc.setMaxModelsPerOwner(ok);
+    }
+
+    // ------------------------------------------------------------------ addModel
+
+    function testFuzz_addModel(string calldata cid, uint32[] calldata env) public {
+        vm.assume(bytes(cid).length != 0 && env.length <= 64);
+        vm.expectEmit(address(mmc));
+        emit ModelsManager.ModelAdded(1, owner, DOMAIN, cid, "d", env);
+        vm.prank(owner);
+        uint256 id = mmc.addModel(cid, "d", DOMAIN, env);
+        vm.assertEq(id, 1, "id");
+        (ModelsManager.ModelView memory m, string memory storedCid, uint32[] memory storedEnv) = mmc.getModel(id);
+        vm.assertEq(m.owner, owner, "owner");
+        vm.assertEq(keccak256(bytes(storedCid)), keccak256(bytes(cid)), "cid");
+        vm.assertEq(storedEnv.length, env.length, "env length");
+        for (uint256 j; j < env.length; ++j) vm.assertEq(storedEnv[j], env[j], "env attribute");
+        vm.assertEq(mmc.modelOfCid(keccak256(bytes(cid))), id, "cid index");
+        vm.expectRevert(abi.encodeWithSelector(ModelsManager.ModelsDuplicateModel.selector, id));
+        vm.prank(owner2);
+        mmc.addModel(cid, "copy", DOMAIN, env);
+    }
+
+    function testFuzz_addModel_rejects(address caller, uint32 domain, uint8 extra) public {
+        vm.assume(caller != owner && caller != owner2);
+        vm.expectRevert(abi.encodeWithSelector(ModelsManager.ModelsNotWorker.selector, caller));
+        vm.prank(caller);
+        mmc.addModel("c", "d", DOMAIN, _env(1, 1));
+        address pending = _actor("pending");
+        vm.prank(pending);
+        umc.addWorker(1 << DOMAIN, 1, 1, 1);
+        vm.expectRevert(abi.encodeWithSelector(ModelsManager.ModelsNotApproved.selector, pending));
+        vm.prank(pending);
+        mmc.addModel("c", "d", DOMAIN, _env(1, 1));
+        vm.startPrank(owner);
+        uint32 bad = uint32(_bound(domain, 48, type(uint32).max));
+        vm.expectRevert(abi.encodeWithSelector(ModelsManager.ModelsBadDomain.selector, bad));
+        mmc.addModel("c", "d", bad, _env(1, 1));
+        uint32 other = uint32(_bound(domain, 0, 46));
+        if (other >= DOMAIN) ++other;
+        vm.expectRevert(abi.encodeWithSelector(ModelsManager.ModelsOwnerNotInDomain.selector, owner, other));
+        mmc.addModel("c", "d", other, _env(1, 1));
+        vm.expectRevert(ModelsManager.ModelsEmptyCid.selector);
+        mmc.addModel("", "d", DOMAIN, _env(1, 1));
+        uint256 len = _bound(extra, 65, 200);
+        vm.expectRevert(abi.encodeWithSelector(ModelsManager.ModelsBadEnv.selector, len));
+        mmc.addModel("c", "d", DOMAIN, new uint32[](len));
+        for (uint256 i; i < mmc.maxModelsPerOwner(); ++i) {
+            mmc.addModel(string(abi.encodePacked("cid", i)), "d", DOMAIN, _env(1, 1));
+        }
+        vm.expectRevert(abi.encodeWithSelector(ModelsManager.ModelsOwnerLimit.selector, owner, 8));
+        mmc.addModel("one-more", "d", DOMAIN, _env(1, 1));
+        vm.stopPrank();
+    }
+
+    function testFuzz_addModel_provenance(uint8 review, bool accept) public {
+        // owner2 submits an outcome; nobody else may list it, owner2 only once accepted
+        vm.prank(requester);
+        uint256 id = tmc.addTask{value: 1e9}(_params(1));
+        vm.prank(requester);
+        tmc.allocateTask(id);
+        address w = tmc.offerees(id)[0];
+        address other = w == owner ? owner2 : owner;
+        vm.prank(w);
+        tmc.acceptOffer(id);
+        vm.prank(w);
+        tmc.submitOutcome(id, "bafy-outcome");
+        vm.expectRevert(abi.encodeWithSelector(ModelsManager.ModelsNotOutcomeOwner.selector, id, w));
+        _model(other, "bafy-outcome", 1, 1);
+        vm.expectRevert(
+            abi.encodeWithSelector(ModelsManager.ModelsOutcomeNotAccepted.selector, id, ITasksOutcomes.Verdict.Pending)
+        );
+        _model(w, "bafy-outcome", 1, 1);
+        vm.prank(requester);
+        tmc.reviewOutcome(id, w, uint8(_bound(review, 0, 5)), accept);
+        if (!accept) {
+            vm.expectRevert(
+                abi.encodeWithSelector(ModelsManager.ModelsOutcomeNotAccepted.selector, id, ITasksOutcomes.Verdict.Rejected)
+            );
+        }
+        _model(w, "bafy-outcome", 1, 1);
+    }
+
+    // ------------------------------------------------------------------ allocateModel
+
+    function testFuzz_allocateModel(uint8 n, uint80 price, bool sharing) public {
+        uint256 a = _model(owner, "m-a", 3, 3); // exact match
+        uint256 b = _model(owner2, "m-b", 9, 9);
+        uint8 k = uint8(_bound(n, 1, 16));
+        uint256 p = _bound(price, 1, 1e24);
+        ModelsManager.ModelRequest memory r =
+            _request(k, sharing ? ModelsManager.Metric.Sharing : ModelsManager.Metric.Model);
+        vm.expectEmit(address(mmc));
+        emit ModelsManager.ModelsRequested(1, requester, DOMAIN, r.metric, k, uint80(p));
+        vm.prank(requester);
+        uint256 allocId = mmc.allocateModel{value: p * k}(r);
+        uint256 got = k < 2 ? k : 2;
+        vm.assertEq(uint256(mmc.allocState(allocId, a)), 1, "best (exact match) allocated");
+        vm.assertEq(uint256(mmc.allocState(allocId, b)), got == 2 ? 1 : 0, "second only with room");
+        vm.assertEq(mmc.credits(owner), p, "owner paid once");
+        vm.assertEq(mmc.credits(owner2), got == 2 ? p : 0, "second owner");
+        vm.assertEq(mmc.credits(requester), (k - got) * p, "unfilled slots refunded");
+        vm.assertEq(address(mmc).balance, p * k, "escrow = credits");
+        (ModelsManager.ModelView memory m,,) = mmc.getModel(a);
+        vm.assertEq(m.allocCount, 1, "Eq. 11 count");
+    }
+
+    function testFuzz_allocateModel_rejects(address caller, uint8 n, uint32 threshold, uint256 value) public {
+        _model(owner, "m-a", 3, 3);
+        vm.assume(caller != requester);
+        vm.deal(caller, 1 ether);
+        ModelsManager.ModelRequest memory r = _request(1, ModelsManager.Metric.Model);
+        vm.expectRevert(abi.encodeWithSelector(ModelsManager.ModelsNotRequester.selector, caller));
+        vm.prank(caller);
+        mmc.allocateModel{value: 1}(r);
+        vm.startPrank(requester);
+        r.numModels = n > 16 ? n : 0;
+        vm.expectRevert(abi.encodeWithSelector(ModelsManager.ModelsBadModelCount.selector, r.numModels));
+        mmc.allocateModel{value: 1}(r);
+        r.numModels = 2;
+        r.domain = uint32(_bound(threshold, 48, type(uint32).max));
+        vm.expectRevert(abi.encodeWithSelector(ModelsManager.ModelsBadDomain.selector, r.domain));
+        mmc.allocateModel{value: 2}(r);
+        r.domain = DOMAIN;
+        r.minModelReputation = uint32(_bound(threshold, 1e6 + 1, type(uint32).max));
+        vm.expectRevert(abi.encodeWithSelector(ModelsManager.ModelsBadThreshold.selector, r.minModelReputation));
+        mmc.allocateModel{value: 2}(r);
+        r.minModelReputation = 0;
+        uint256 odd = 2 * _bound(value, 1, 1e20) + 1;
+        vm.expectRevert(abi.encodeWithSelector(ModelsManager.ModelsBadPayment.selector, odd, 2));
+        mmc.allocateModel{value: odd}(r);
+        vm.expectRevert(abi.encodeWithSelector(ModelsManager.ModelsPriceBelowMinimum.selector, 0, 1));
+        mmc.allocateModel{value: 0}(r);
+        r.weights = new uint32[](2);
+        (r.weights[0], r.weights[1]) = (5e5, 5e5 - 1);
+        vm.expectRevert(ModelsManager.ModelsBadWeights.selector);
+        mmc.allocateModel{value: 2}(r);
+        r.weights = new uint32[](0);
+        r.env = new uint32[](3); // no model with three attributes
+        vm.expectRevert(abi.encodeWithSelector(ModelsManager.ModelsNoEligibleModel.selector, DOMAIN));
+        mmc.allocateModel{value: 2}(r);
+        vm.stopPrank();
+        vm.assertEq(mmc.allocCount(), 0, "nothing allocated");
+    }
+
+    // ------------------------------------------------------------------ updateModelRep
+
+    function testFuzz_updateModelRep(uint8 review, address stranger_) public {
+        uint256 a = _model(owner, "m-a", 3, 3);
+        vm.prank(requester);
+        uint256 allocId = mmc.allocateModel{value: 1e9}(_request(1, ModelsManager.Metric.Sharing));
+        vm.assume(stranger_ != requester);
+        uint8 r = uint8(_bound(review, 0, 5));
+        vm.expectRevert(abi.encodeWithSelector(ModelsManager.ModelsNotAllocationRequester.selector, allocId, stranger_));
+        vm.prank(stranger_);
+        mmc.updateModelRep(allocId, a, r);
+        vm.expectRevert(abi.encodeWithSelector(ModelsManager.ModelsNotAllocated.selector, allocId, a + 1));
+        vm.prank(requester);
+        mmc.updateModelRep(allocId, a + 1, r);
+        uint8 bad = uint8(_bound(review, 6, 255));
+        vm.expectRevert(abi.encodeWithSelector(ModelsManager.ModelsBadReview.selector, bad));
+        vm.prank(requester);
+        mmc.updateModelRep(allocId, a, bad);
+        vm.expectEmit(address(mmc));
+        emit ModelsManager.ModelReviewed(allocId, a, r);
+        vm.prank(requester);
+        mmc.updateModelRep(allocId, a, r);
+        (ModelsManager.ModelView memory m,,) = mmc.getModel(a);
+        vm.assertEq(m.totalReview, r, "Eq. 11 total");
+        vm.assertEq(mmc.ownerRep(owner).totalReview, r, "Eq. 10 total");
+        vm.assertEq(umc.counters(owner, DOMAIN, 1).ratingSum, r, "sharing rating");
+        vm.expectRevert(abi.encodeWithSelector(ModelsManager.ModelsNotAllocated.selector, allocId, a));
+        vm.prank(requester);
+        mmc.updateModelRep(allocId, a, r);
+    }
+
+    // ------------------------------------------------------------------ withdraw
+
+    function testFuzz_withdraw(uint80 price, address stranger_) public {
+        _model(owner, "m-a", 3, 3);
+        uint256 p = _bound(price, 1, 1e24);
+        vm.prank(requester);
+        mmc.allocateModel{value: p}(_request(1, ModelsManager.Metric.Model));
+        vm.assume(stranger_ != owner && mmc.credits(stranger_) == 0);
+        vm.expectRevert(abi.encodeWithSelector(ModelsManager.ModelsNothingToWithdraw.selector, stranger_));
+        vm.prank(stranger_);
+        mmc.withdraw();
+        vm.expectEmit(address(mmc));
+        emit ModelsManager.Withdrawn(owner, p);
+        vm.prank(owner);
+        mmc.withdraw();
+        vm.assertEq(owner.balance, p, "paid");
+        vm.assertEq(address(mmc).balance, 0, "drained exactly");
+        vm.expectRevert(abi.encodeWithSelector(ModelsManager.ModelsNothingToWithdraw.selector, owner));
+        vm.prank(owner);
+        mmc.withdraw();
+    }
+}

@@ -1,0 +1,490 @@
+// SPDX-License-Identifier: MIT
+pragma solidity ^0.8.24;
+
+import {Fixture} from "./utils/Fixture.sol";
+import {TasksManager} from "../src/TasksManager.sol";
+
+/// @dev Fuzz tests of every external state-changing function of the TMC: valid path (state,
+/// money, event) and wrong-role / bad-input reverts with the exact custom error.
+contract TasksManagerFuzzTest is Fixture {
+    address[] internal workers;
+
+    function setUp() public {
+        _deploy();
+        for (uint256 i; i < 6; ++i) {
+            address w = address(uint160(0xA000 + i));
+            _worker(w, 1 << DOMAIN, uint16(4 + 8 * i));
+            workers.push(w);
+        }
+    }
+
+    /// @dev A task of `n` slots allocated: returns its id and the offered workers.
+    function _allocated(uint8 n, uint256 reward) internal returns (uint256 id, address[] memory offered) {
+        id = _task(n, reward);
+        vm.prank(requester);
+        tmc.allocateTask(id);
+        offered = tmc.offerees(id);
+    }
+
+    function _accepted(uint256 reward) internal returns (uint256 id, address w) {
+        address[] memory offered;
+        (id, offered) = _allocated(1, reward);
+        w = offered[0];
+        vm.prank(w);
+        tmc.acceptOffer(id);
+    }
+
+    function _submitted(uint256 reward, string memory cid) internal returns (uint256 id, address w) {
+        (id, w) = _accepted(reward);
+        vm.prank(w);
+        tmc.submitOutcome(id, cid);
+    }
+
+    // ------------------------------------------------------------------ admin setters
+
+    function testFuzz_setConfig(uint64 w1, uint32 aw, uint32 rw, address caller) public {
+        w1 = uint64(_bound(w1, 1, 1e12));
+        aw = uint32(_bound(aw, 1, 30 days - 60));
+        rw = uint32(_bound(rw, 1, type(uint32).max));
+        vm.expectEmit(address(tmc));
+        emit TasksManager.ConfigUpdated(w1, aw, rw);
+        vm.prank(admin);
+        tmc.setConfig(w1, aw, rw);
+        vm.assertEq(tmc.w1(), w1, "w1");
+        vm.assertEq(tmc.acceptWindow(), aw, "acceptWindow");
+        vm.assertEq(tmc.reviewWindow(), rw, "reviewWindow");
+        vm.expectRevert(TasksManager.TasksBadConfig.selector);
+        vm.prank(admin);
+        tmc.setConfig(0, aw, rw);
+        vm.expectRevert(TasksManager.TasksBadConfig.selector);
+        vm.prank(admin);
+        tmc.setConfig(w1, 30 days, rw); // + minWorkTime > maxDuration
+        vm.assume(caller != admin);
+        vm.expectRevert(abi.encodeWithSelector(TasksManager.TasksNotAdmin.selector, caller));
+        vm.prank(caller);
+        tmc.setConfig(w1, aw, rw);
+    }
+
+    function testFuzz_setGpuSeries(uint8 series, bool accepted, address caller) public {
+        uint256 before = tmc.acceptedGpus();
+        uint256 expect = accepted ? before | (uint256(1) << series) : before & ~(uint256(1) << series);
+        vm.expectEmit(address(tmc));
+        emit TasksManager.AcceptedGpusUpdated(expect);
+        vm.prank(admin);
+        tmc.setGpuSeries(series, accepted);
+        vm.assertEq(tmc.acceptedGpus(), expect, "mask");
+        vm.assume(caller != admin);
+        vm.expectRevert(abi.encodeWithSelector(TasksManager.TasksNotAdmin.selector, caller));
+        vm.prank(caller);
+        tmc.setGpuSeries(series, !accepted);
+    }
+
+    function testFuzz_setTaskLimits(uint32 minWork, uint40 maxDur, address caller) public {
+        minWork = uint32(_bound(minWork, 1, 1e8));
+        maxDur = uint40(_bound(maxDur, uint256(ACCEPT_WINDOW) + minWork, type(uint32).max));
+        vm.expectEmit(address(tmc));
+        emit TasksManager.TaskLimitsUpdated(minWork, maxDur);
+        vm.prank(admin);
+        tmc.setTaskLimits(minWork, maxDur);
+        vm.assertEq(tmc.minWorkTime(), minWork, "minWorkTime");
+        vm.assertEq(tmc.maxDuration(), maxDur, "maxDuration");
+        vm.expectRevert(TasksManager.TasksBadConfig.selector);
+        vm.prank(admin);
+        tmc.setTaskLimits(0, maxDur);
+        vm.expectRevert(TasksManager.TasksBadConfig.selector);
+        vm.prank(admin);
+        tmc.setTaskLimits(minWork, uint40(uint256(ACCEPT_WINDOW) + minWork - 1));
+        vm.assume(caller != admin);
+        vm.expectRevert(abi.encodeWithSelector(TasksManager.TasksNotAdmin.selector, caller));
+        vm.prank(caller);
+        tmc.setTaskLimits(minWork, maxDur);
+    }
+
+    function testFuzz_setMinRewardPerHour(uint256 rate, address caller) public {
+        uint256 ok = _bound(rate, 0, type(uint96).max);
+        vm.expectEmit(address(tmc));
+        emit TasksManager.MinRewardPerHourUpdated(ok);
+        vm.prank(admin);
+        tmc.setMinRewardPerHour(ok);
+        vm.assertEq(tmc.minRewardPerHour(), ok, "rate");
+        vm.assertEq(tmc.minRewardForDuration(3600), ok == 0 ? 1 : ok, "one hour");
+        vm.expectRevert(TasksManager.TasksBadConfig.selector);
+        vm.prank(admin);
+        tmc.setMinRewardPerHour(_bound(rate, uint256(type(uint96).max) + 1, type(uint256).max));
+        vm.assume(caller != admin);
+        vm.expectRevert(abi.encodeWithSelector(TasksManager.TasksNotAdmin.selector, caller));
+        vm.prank(caller);
+        tmc.setMinRewardPerHour(ok);
+    }
+
+    // ------------------------------------------------------------------ addTask
+
+    function testFuzz_addTask_escrows(uint8 n, uint96 reward, uint40 duration) public {
+        uint8 nw = uint8(_bound(n, 1, 16));
+        uint256 r = _bound(reward, 1, 1e24);
+        uint40 d = uint40(_bound(duration, ACCEPT_WINDOW + 60, 30 days));
+        TasksManager.TaskParams memory p = _params(nw);
+        p.duration = d;
+        uint256 balance = address(tmc).balance;
+        vm.expectEmit(address(tmc));
+        emit TasksManager.TaskAdded(1, requester, DOMAIN, nw, uint96(r), uint40(block.timestamp) + d, 0, 0, 0, 0, "task");
+        vm.prank(requester);
+        uint256 id = tmc.addTask{value: r * nw}(p);
+        vm.assertEq(id, 1, "first id");
+        vm.assertEq(address(tmc).balance - balance, r * nw, "escrow = reward * NW");
+        (TasksManager.Task memory t, TasksManager.Reqs memory q) = tmc.getTask(id);
+        vm.assertEq(t.requester, requester, "requester");
+        vm.assertEq(uint256(t.status), uint256(TasksManager.TaskStatus.Open), "open");
+        vm.assertEq(t.numWorkers, nw, "NW");
+        vm.assertEq(q.reward, r, "reward");
+        vm.assertEq(tmc.domainTasks(DOMAIN).length, 1, "domain list");
+    }
+
+    function testFuzz_addTask_rejects(address caller, uint8 n, uint32 threshold, uint40 duration, uint256 extra) public {
+        vm.assume(caller != requester);
+        vm.deal(caller, 1 ether);
+        TasksManager.TaskParams memory p = _params(2);
+        vm.expectRevert(abi.encodeWithSelector(TasksManager.TasksNotRequester.selector, caller));
+        vm.prank(caller);
+        tmc.addTask{value: 2}(p);
+
+        vm.startPrank(requester);
+        p.numWorkers = n > 16 ? n : 0;
+        vm.expectRevert(abi.encodeWithSelector(TasksManager.TasksBadWorkerCount.selector, p.numWorkers));
+        tmc.addTask{value: 2}(p);
+        p.numWorkers = 2;
+        p.domain = uint32(_bound(threshold, 48, type(uint32).max));
+        vm.expectRevert(abi.encodeWithSelector(TasksManager.TasksBadDomain.selector, p.domain));
+        tmc.addTask{value: 2}(p);
+        p.domain = DOMAIN;
+        p.minRating = uint32(_bound(threshold, 1e6 + 1, type(uint32).max));
+        vm.expectRevert(abi.encodeWithSelector(TasksManager.TasksBadThreshold.selector, p.minRating));
+        tmc.addTask{value: 2}(p);
+        p.minRating = 0;
+        p.minReputation = p.minRating = 0;
+        uint256 shortest = ACCEPT_WINDOW + 60;
+        p.duration = duration >= shortest && duration <= 30 days ? 0 : duration;
+        vm.expectRevert(abi.encodeWithSelector(TasksManager.TasksBadDuration.selector, p.duration, shortest, 30 days));
+        tmc.addTask{value: 2}(p);
+        p.duration = DURATION;
+        uint256 value = 2 * 5 + 1 + 2 * _bound(extra, 0, 1e20); // odd: not a multiple of NW
+        vm.expectRevert(abi.encodeWithSelector(TasksManager.TasksBadPayment.selector, value, 2));
+        tmc.addTask{value: value}(p);
+        vm.expectRevert(abi.encodeWithSelector(TasksManager.TasksRewardBelowMinimum.selector, 0, 1));
+        tmc.addTask{value: 0}(p);
+        vm.stopPrank();
+        vm.assertEq(tmc.taskCount(), 0, "nothing created");
+        vm.assertEq(address(tmc).balance, 0, "nothing escrowed");
+    }
+
+    function testFuzz_addTask_minimumReward(uint96 rate, uint40 duration) public {
+        uint256 r = _bound(rate, 1, 1e20);
+        uint40 d = uint40(_bound(duration, ACCEPT_WINDOW + 60, 30 days));
+        vm.prank(admin);
+        tmc.setMinRewardPerHour(r);
+        uint256 minimum = (r * d + 3599) / 3600;
+        TasksManager.TaskParams memory p = _params(1);
+        p.duration = d;
+        vm.expectRevert(abi.encodeWithSelector(TasksManager.TasksRewardBelowMinimum.selector, minimum - 1, minimum));
+        vm.prank(requester);
+        tmc.addTask{value: minimum - 1}(p);
+        vm.prank(requester);
+        tmc.addTask{value: minimum}(p);
+    }
+
+    // ------------------------------------------------------------------ allocateTask
+
+    function testFuzz_allocateTask(uint8 n, bool byAdmin) public {
+        uint8 nw = uint8(_bound(n, 1, 8));
+        uint256 id = _task(nw, 1e9);
+        vm.prank(byAdmin ? admin : requester);
+        uint256 offered = tmc.allocateTask(id);
+        uint256 expected = nw < workers.length ? nw : workers.length;
+        vm.assertEq(offered, expected, "offers = min(NW, eligible)");
+        address[] memory list = tmc.offerees(id);
+        // best QoS first: more cores -> higher CC (Eq. 20); all other terms equal (new workers)
+        for (uint256 i; i < list.length; ++i) {
+            vm.assertEq(list[i], workers[workers.length - 1 - i], "greedy order");
+            vm.assertEq(umc.counters(list[i], DOMAIN, 0).assigned, 1, "assigned counted");
+            TasksManager.Offer memory o = tmc.getOffer(id, list[i]);
+            vm.assertEq(uint256(o.state), uint256(TasksManager.OfferState.Offered), "offered");
+            vm.assertEq(o.expiry, block.timestamp + ACCEPT_WINDOW, "expiry");
+        }
+        if (offered == nw) {
+            vm.expectRevert(abi.encodeWithSelector(TasksManager.TasksNoOpenSlot.selector, id));
+            vm.prank(requester);
+            tmc.allocateTask(id);
+        }
+    }
+
+    function testFuzz_allocateTask_rejects(address caller, uint256 unknown, uint256 late) public {
+        vm.assume(caller != requester && caller != admin);
+        uint256 id = _task(1, 1e9);
+        vm.expectRevert(abi.encodeWithSelector(TasksManager.TasksNotTaskRequester.selector, id, caller));
+        vm.prank(caller);
+        tmc.allocateTask(id);
+        uint256 other = _bound(unknown, 2, type(uint256).max);
+        vm.expectRevert(abi.encodeWithSelector(TasksManager.TasksUnknownTask.selector, other));
+        vm.prank(caller);
+        tmc.allocateTask(other);
+        (TasksManager.Task memory t,) = tmc.getTask(id);
+        vm.warp(_bound(late, t.deadline - ACCEPT_WINDOW - 60 + 1, t.deadline));
+        vm.expectRevert(abi.encodeWithSelector(TasksManager.TasksTooLateToOffer.selector, id, t.deadline));
+        vm.prank(requester);
+        tmc.allocateTask(id);
+        vm.warp(uint256(t.deadline) + 1);
+        vm.expectRevert(abi.encodeWithSelector(TasksManager.TasksDeadlinePassed.selector, id, t.deadline));
+        vm.prank(requester);
+        tmc.allocateTask(id);
+    }
+
+    // ------------------------------------------------------------------ offers
+
+    function testFuzz_acceptOffer(uint32 after_, address stranger_) public {
+        (uint256 id, address[] memory offered) = _allocated(2, 1e9);
+        vm.assume(stranger_ != offered[0] && stranger_ != offered[1]);
+        vm.expectRevert(abi.encodeWithSelector(TasksManager.TasksNotOfferedWorker.selector, id, stranger_));
+        vm.prank(stranger_);
+        tmc.acceptOffer(id);
+        uint256 t = _bound(after_, 0, ACCEPT_WINDOW);
+        vm.warp(block.timestamp + t);
+        vm.expectEmit(address(tmc));
+        emit TasksManager.OfferAccepted(id, offered[0]);
+        vm.prank(offered[0]);
+        tmc.acceptOffer(id);
+        (TasksManager.Task memory task,) = tmc.getTask(id);
+        vm.assertEq(task.filled, 1, "filled");
+        vm.assertEq(task.liveOffers, 1, "live");
+        vm.assertEq(umc.counters(offered[0], DOMAIN, 0).accepted, 1, "accepted counted");
+        vm.expectRevert(abi.encodeWithSelector(TasksManager.TasksNotOfferedWorker.selector, id, offered[0]));
+        vm.prank(offered[0]);
+        tmc.acceptOffer(id);
+        vm.warp(block.timestamp + ACCEPT_WINDOW - t + 1);
+        TasksManager.Offer memory o = tmc.getOffer(id, offered[1]);
+        vm.expectRevert(abi.encodeWithSelector(TasksManager.TasksOfferExpired.selector, id, offered[1], o.expiry));
+        vm.prank(offered[1]);
+        tmc.acceptOffer(id);
+    }
+
+    function testFuzz_declineOffer_nextBest(address stranger_) public {
+        (uint256 id, address[] memory offered) = _allocated(1, 1e9);
+        vm.assume(stranger_ != offered[0]);
+        vm.expectRevert(abi.encodeWithSelector(TasksManager.TasksNotOfferedWorker.selector, id, stranger_));
+        vm.prank(stranger_);
+        tmc.declineOffer(id);
+        vm.expectEmit(address(tmc));
+        emit TasksManager.OfferDeclined(id, offered[0]);
+        vm.prank(offered[0]);
+        tmc.declineOffer(id);
+        vm.prank(requester);
+        tmc.allocateTask(id);
+        address[] memory list = tmc.offerees(id);
+        vm.assertEq(list.length, 2, "re-offered");
+        vm.assertEq(list[1], workers[workers.length - 2], "next best, never the decliner");
+    }
+
+    function testFuzz_abandonOffer(address stranger_) public {
+        (uint256 id, address w) = _accepted(1e9);
+        vm.assume(stranger_ != w);
+        vm.expectRevert(abi.encodeWithSelector(TasksManager.TasksNotAssignedWorker.selector, id, stranger_));
+        vm.prank(stranger_);
+        tmc.abandonOffer(id);
+        vm.expectEmit(address(tmc));
+        emit TasksManager.OfferFailed(id, w);
+        vm.prank(w);
+        tmc.abandonOffer(id);
+        (TasksManager.Task memory t,) = tmc.getTask(id);
+        vm.assertEq(t.filled, 0, "slot open again");
+        vm.assertEq(uint256(tmc.getOffer(id, w).state), uint256(TasksManager.OfferState.Failed), "failed");
+    }
+
+    // ------------------------------------------------------------------ submitOutcome
+
+    function testFuzz_submitOutcome(string calldata cid, address stranger_) public {
+        vm.assume(bytes(cid).length != 0);
+        (uint256 id, address w) = _accepted(1e9);
+        vm.assume(stranger_ != w);
+        vm.expectRevert(abi.encodeWithSelector(TasksManager.TasksNotAssignedWorker.selector, id, stranger_));
+        vm.prank(stranger_);
+        tmc.submitOutcome(id, cid);
+        vm.expectRevert(TasksManager.TasksEmptyCid.selector);
+        vm.prank(w);
+        tmc.submitOutcome(id, "");
+        vm.expectEmit(address(tmc));
+        emit TasksManager.OutcomeSubmitted(id, w, cid);
+        vm.prank(w);
+        tmc.submitOutcome(id, cid);
+        (address who, uint256 task,) = tmc.outcomeOf(keccak256(bytes(cid)));
+        vm.assertEq(who, w, "provenance worker");
+        vm.assertEq(task, id, "provenance task");
+        vm.assertEq(umc.counters(w, DOMAIN, 0).completed, 1, "completed counted");
+        // the same CID for another slot is refused
+        (uint256 id2, address w2) = _accepted(1e9);
+        vm.expectRevert(abi.encodeWithSelector(TasksManager.TasksDuplicateOutcome.selector, id, w));
+        vm.prank(w2);
+        tmc.submitOutcome(id2, cid);
+    }
+
+    // ------------------------------------------------------------------ reviewOutcome
+
+    function testFuzz_reviewOutcome(uint8 review, bool accepted, address stranger_) public {
+        uint256 reward = 1e9;
+        (uint256 id, address w) = _submitted(reward, "bafy-review");
+        vm.assume(stranger_ != requester);
+        uint8 r = uint8(_bound(review, 0, 5));
+        vm.expectRevert(abi.encodeWithSelector(TasksManager.TasksNotTaskRequester.selector, id, stranger_));
+        vm.prank(stranger_);
+        tmc.reviewOutcome(id, w, r, accepted);
+        vm.expectRevert(abi.encodeWithSelector(TasksManager.TasksBadReview.selector, uint8(_bound(review, 6, 255))));
+        vm.prank(requester);
+        tmc.reviewOutcome(id, w, uint8(_bound(review, 6, 255)), accepted);
+        vm.expectEmit(address(tmc));
+        emit TasksManager.OutcomeReviewed(id, w, r, accepted);
+        vm.prank(requester);
+        tmc.reviewOutcome(id, w, r, accepted);
+        vm.assertEq(tmc.credits(accepted ? w : requester), reward, "slot paid or refunded");
+        vm.assertEq(tmc.credits(accepted ? requester : w), 0, "only once");
+        (TasksManager.Task memory t,) = tmc.getTask(id);
+        vm.assertEq(uint256(t.status), uint256(TasksManager.TaskStatus.Completed), "completed");
+        vm.assertEq(umc.counters(w, DOMAIN, 0).ratingSum, r, "rating");
+        vm.expectRevert(abi.encodeWithSelector(TasksManager.TasksNotSubmitted.selector, id, w));
+        vm.prank(requester);
+        tmc.reviewOutcome(id, w, r, accepted);
+    }
+
+    function testFuzz_reviewOutcome_windowCloses(uint32 late) public {
+        (uint256 id, address w) = _submitted(1e9, "bafy-late");
+        (TasksManager.Task memory t,) = tmc.getTask(id);
+        uint256 end = uint256(t.deadline) + REVIEW_WINDOW;
+        vm.warp(_bound(late, end + 1, end + 1e9));
+        vm.expectRevert(abi.encodeWithSelector(TasksManager.TasksReviewWindowClosed.selector, id, end));
+        vm.prank(requester);
+        tmc.reviewOutcome(id, w, 0, false);
+        // the outcome is the worker's: paid at close
+        vm.prank(w);
+        tmc.updateTaskStatus(id, TasksManager.TaskStatus.Closed);
+        vm.assertEq(tmc.credits(w), 1e9, "paid unreviewed");
+    }
+
+    // ------------------------------------------------------------------ updateTaskStatus
+
+    function testFuzz_cancel_refundsAll(uint8 n, uint96 reward, address stranger_) public {
+        uint8 nw = uint8(_bound(n, 1, 16));
+        uint256 r = _bound(reward, 1, 1e24);
+        uint256 id = _task(nw, r);
+        vm.assume(stranger_ != requester);
+        vm.expectRevert(abi.encodeWithSelector(TasksManager.TasksNotTaskRequester.selector, id, stranger_));
+        vm.prank(stranger_);
+        tmc.updateTaskStatus(id, TasksManager.TaskStatus.Cancelled);
+        vm.expectEmit(address(tmc));
+        emit TasksManager.PaymentCredited(requester, id, r * nw);
+        vm.prank(requester);
+        tmc.updateTaskStatus(id, TasksManager.TaskStatus.Cancelled);
+        vm.assertEq(tmc.credits(requester), r * nw, "full refund");
+        vm.expectRevert(
+            abi.encodeWithSelector(TasksManager.TasksNotOpen.selector, id, TasksManager.TaskStatus.Cancelled)
+        );
+        vm.prank(requester);
+        tmc.updateTaskStatus(id, TasksManager.TaskStatus.Cancelled);
+    }
+
+    function testFuzz_cancel_rejects(uint8 raw) public {
+        (uint256 id,) = _allocated(2, 1e9);
+        vm.expectRevert(abi.encodeWithSelector(TasksManager.TasksHasLiveOffers.selector, id));
+        vm.prank(requester);
+        tmc.updateTaskStatus(id, TasksManager.TaskStatus.Cancelled);
+        address w = tmc.offerees(id)[0];
+        vm.prank(w);
+        tmc.acceptOffer(id);
+        vm.expectRevert(abi.encodeWithSelector(TasksManager.TasksHasAcceptedWorkers.selector, id));
+        vm.prank(requester);
+        tmc.updateTaskStatus(id, TasksManager.TaskStatus.Cancelled);
+        uint8 s = uint8(_bound(raw, 0, 2)); // None, Open, Completed: no caller may set them
+        vm.expectRevert(abi.encodeWithSelector(TasksManager.TasksBadStatus.selector, s));
+        vm.prank(requester);
+        tmc.updateTaskStatus(id, TasksManager.TaskStatus(s));
+    }
+
+    function testFuzz_close_settles(uint32 late, address stranger_) public {
+        uint256 reward = 1e9;
+        (uint256 id, address[] memory offered) = _allocated(3, reward);
+        vm.prank(offered[0]);
+        tmc.acceptOffer(id);
+        vm.prank(offered[0]);
+        tmc.submitOutcome(id, "bafy-close");
+        vm.prank(offered[1]);
+        tmc.acceptOffer(id); // accepted, never submits -> Failed at close
+        (TasksManager.Task memory t,) = tmc.getTask(id);
+        vm.expectRevert(abi.encodeWithSelector(TasksManager.TasksDeadlineNotPassed.selector, id, t.deadline));
+        vm.prank(requester);
+        tmc.updateTaskStatus(id, TasksManager.TaskStatus.Closed);
+        vm.assume(stranger_ != requester && stranger_ != admin);
+        vm.assume(stranger_ != offered[0] && stranger_ != offered[1] && stranger_ != offered[2]);
+        vm.expectRevert(abi.encodeWithSelector(TasksManager.TasksNotParticipant.selector, id, stranger_));
+        vm.prank(stranger_);
+        tmc.updateTaskStatus(id, TasksManager.TaskStatus.Closed);
+        uint256 end = uint256(t.deadline) + REVIEW_WINDOW;
+        vm.warp(_bound(late, t.deadline + 1, end));
+        vm.expectRevert(abi.encodeWithSelector(TasksManager.TasksReviewWindowOpen.selector, id, end));
+        vm.prank(requester);
+        tmc.updateTaskStatus(id, TasksManager.TaskStatus.Closed);
+        vm.warp(end + 1);
+        vm.expectEmit(address(tmc));
+        emit TasksManager.TaskStatusUpdated(id, TasksManager.TaskStatus.Closed);
+        vm.prank(offered[2]);
+        tmc.updateTaskStatus(id, TasksManager.TaskStatus.Closed);
+        vm.assertEq(tmc.credits(offered[0]), reward, "unreviewed outcome paid");
+        vm.assertEq(tmc.credits(requester), 2 * reward, "other slots refunded");
+        vm.assertEq(uint256(tmc.getOffer(id, offered[1]).state), uint256(TasksManager.OfferState.Failed), "failed");
+        vm.assertEq(uint256(tmc.getOffer(id, offered[2]).state), uint256(TasksManager.OfferState.Expired), "expired");
+    }
+
+    // ------------------------------------------------------------------ cancelOpenSlots
+
+    function testFuzz_cancelOpenSlots(uint8 n, address stranger_) public {
+        uint8 nw = uint8(_bound(n, 2, 5));
+        uint256 reward = 1e9;
+        (uint256 id, address[] memory offered) = _allocated(nw, reward);
+        vm.assume(stranger_ != requester);
+        vm.expectRevert(abi.encodeWithSelector(TasksManager.TasksNotTaskRequester.selector, id, stranger_));
+        vm.prank(stranger_);
+        tmc.cancelOpenSlots(id);
+        vm.expectRevert(abi.encodeWithSelector(TasksManager.TasksNoOpenSlot.selector, id));
+        vm.prank(requester);
+        tmc.cancelOpenSlots(id); // every slot inside a live offer
+        vm.prank(offered[0]);
+        tmc.acceptOffer(id);
+        vm.warp(block.timestamp + ACCEPT_WINDOW + 1); // the other offers expire
+        vm.expectEmit(address(tmc));
+        emit TasksManager.SlotsCancelled(id, nw - 1, 1);
+        vm.prank(requester);
+        uint256 cancelled = tmc.cancelOpenSlots(id);
+        vm.assertEq(cancelled, nw - 1, "cancelled");
+        vm.assertEq(tmc.credits(requester), (nw - 1) * reward, "refund");
+        (TasksManager.Task memory t,) = tmc.getTask(id);
+        vm.assertEq(t.numWorkers, 1, "one slot left");
+    }
+
+    // ------------------------------------------------------------------ withdraw
+
+    function testFuzz_withdraw(uint96 reward, address stranger_) public {
+        uint256 r = _bound(reward, 1, 1e24);
+        uint256 id = _task(1, r);
+        vm.prank(requester);
+        tmc.updateTaskStatus(id, TasksManager.TaskStatus.Cancelled);
+        vm.assume(stranger_ != requester && tmc.credits(stranger_) == 0);
+        vm.expectRevert(abi.encodeWithSelector(TasksManager.TasksNothingToWithdraw.selector, stranger_));
+        vm.prank(stranger_);
+        tmc.withdraw();
+        uint256 before = requester.balance;
+        vm.expectEmit(address(tmc));
+        emit TasksManager.Withdrawn(requester, r);
+        vm.prank(requester);
+        tmc.withdraw();
+        vm.assertEq(requester.balance - before, r, "paid out");
+        vm.assertEq(address(tmc).balance, 0, "nothing left");
+        vm.expectRevert(abi.encodeWithSelector(TasksManager.TasksNothingToWithdraw.selector, requester));
+        vm.prank(requester);
+        tmc.withdraw();
+    }
+}

@@ -1,0 +1,328 @@
+// SPDX-License-Identifier: MIT
+pragma solidity ^0.8.24;
+
+import {Fixture} from "./utils/Fixture.sol";
+import {UsersManager} from "../src/UsersManager.sol";
+
+/// @dev Fuzz tests of every external state-changing function of the UMC: the valid path
+/// (state and event) and each wrong-role / bad-input revert with its exact custom error.
+contract UsersManagerFuzzTest is Fixture {
+    function setUp() public {
+        _deploy();
+    }
+
+    function _notAdmin(address a) internal view {
+        vm.assume(a != admin);
+    }
+
+    // ------------------------------------------------------------------ setAdmin
+
+    function testFuzz_setAdmin_addsAndRemoves(address a) public {
+        vm.assume(a != admin);
+        vm.expectEmit(address(umc));
+        emit UsersManager.AdminUpdated(a, true);
+        vm.prank(admin);
+        umc.setAdmin(a, true);
+        vm.assertTrue(umc.isAdmin(a), "added");
+        vm.assertEq(umc.adminCount(), 2, "count up");
+        vm.prank(a);
+        umc.setAdmin(admin, false);
+        vm.assertFalse(umc.isAdmin(admin), "removed");
+        vm.assertEq(umc.adminCount(), 1, "count down");
+        vm.expectRevert(abi.encodeWithSelector(UsersManager.UsersLastAdmin.selector, a));
+        vm.prank(a);
+        umc.setAdmin(a, false);
+    }
+
+    function testFuzz_setAdmin_onlyAdmin(address caller, address a, bool on) public {
+        _notAdmin(caller);
+        vm.expectRevert(abi.encodeWithSelector(UsersManager.UsersNotAdmin.selector, caller));
+        vm.prank(caller);
+        umc.setAdmin(a, on);
+    }
+
+    // ------------------------------------------------------------------ setPlatform
+
+    function testFuzz_setPlatform(address caller, address a, bool on) public {
+        vm.expectEmit(address(umc));
+        emit UsersManager.PlatformUpdated(a, on);
+        vm.prank(admin);
+        umc.setPlatform(a, on);
+        vm.assertEq(umc.isPlatform(a), on, "platform flag");
+        _notAdmin(caller);
+        vm.expectRevert(abi.encodeWithSelector(UsersManager.UsersNotAdmin.selector, caller));
+        vm.prank(caller);
+        umc.setPlatform(a, !on);
+    }
+
+    // ------------------------------------------------------------------ setApprovalRequired
+
+    function testFuzz_setApprovalRequired(address caller, bool required, address w) public {
+        vm.assume(w != address(0) && w != requester);
+        vm.expectEmit(address(umc));
+        emit UsersManager.ApprovalRequiredUpdated(required);
+        vm.prank(admin);
+        umc.setApprovalRequired(required);
+        vm.prank(w);
+        umc.addWorker(1 << DOMAIN, 8, 32, 1);
+        UsersManager.Status expect = required ? UsersManager.Status.Pending : UsersManager.Status.Active;
+        vm.assertEq(uint256(umc.getWorker(w).status), uint256(expect), "status at registration");
+        vm.assertEq(umc.queueLength(DOMAIN), required ? 0 : 1, "queue");
+        _notAdmin(caller);
+        vm.expectRevert(abi.encodeWithSelector(UsersManager.UsersNotAdmin.selector, caller));
+        vm.prank(caller);
+        umc.setApprovalRequired(!required);
+    }
+
+    // ------------------------------------------------------------------ setPoolSize
+
+    function testFuzz_setPoolSize(uint256 size, address caller) public {
+        uint256 ok = _bound(size, 1, umc.MAX_POOL_SIZE());
+        vm.expectEmit(address(umc));
+        emit UsersManager.PoolSizeUpdated(ok);
+        vm.prank(admin);
+        umc.setPoolSize(ok);
+        vm.assertEq(umc.poolSize(), ok, "pool size");
+        uint256 bad = size > umc.MAX_POOL_SIZE() ? size : 0;
+        vm.expectRevert(abi.encodeWithSelector(UsersManager.UsersBadPoolSize.selector, bad));
+        vm.prank(admin);
+        umc.setPoolSize(bad);
+        _notAdmin(caller);
+        vm.expectRevert(abi.encodeWithSelector(UsersManager.UsersNotAdmin.selector, caller));
+        vm.prank(caller);
+        umc.setPoolSize(ok);
+    }
+
+    function testFuzz_poolIsQueuePrefix(uint8 n, uint8 size) public {
+        uint256 workers = _bound(n, 1, 40);
+        uint256 ps = _bound(size, 1, 40);
+        vm.prank(admin);
+        umc.setPoolSize(ps);
+        for (uint256 i; i < workers; ++i) _worker(address(uint160(0x1000 + i)), 1 << DOMAIN, 8);
+        address[] memory pool = umc.pool(DOMAIN);
+        address[] memory q = umc.queue(DOMAIN);
+        vm.assertEq(q.length, workers, "queue holds every Active worker");
+        vm.assertEq(pool.length, workers < ps ? workers : ps, "pool = min(queue, poolSize)");
+        for (uint256 i; i < pool.length; ++i) vm.assertEq(pool[i], q[i], "pool is the queue's prefix");
+    }
+
+    // ------------------------------------------------------------------ addWorker
+
+    function testFuzz_addWorker(address w, uint8 d1, uint8 d2, uint16 cores, uint16 ram, uint8 gpu) public {
+        vm.assume(w != address(0));
+        uint256 domains = (uint256(1) << (d1 % 48)) | (uint256(1) << (d2 % 48));
+        vm.expectEmit(address(umc));
+        emit UsersManager.WorkerAdded(w, 1, domains, cores, ram, gpu);
+        vm.expectEmit(address(umc));
+        emit UsersManager.WorkerStatusUpdated(w, UsersManager.Status.Pending);
+        vm.prank(w);
+        umc.addWorker(domains, cores, ram, gpu);
+        UsersManager.Worker memory rec = umc.getWorker(w);
+        vm.assertEq(umc.workerId(w), 1, "id");
+        vm.assertEq(rec.addr, w, "addr");
+        vm.assertEq(rec.domains, domains, "domains");
+        vm.assertEq(rec.cpuCores, cores, "cores");
+        vm.assertEq(rec.ramGb, ram, "ram");
+        vm.assertEq(rec.gpuSeries, gpu, "gpu");
+        vm.assertEq(umc.domainSize(d1 % 48), 1, "listed");
+        vm.expectRevert(abi.encodeWithSelector(UsersManager.UsersAlreadyRegistered.selector, w));
+        vm.prank(w);
+        umc.addWorker(domains, cores, ram, gpu);
+    }
+
+    function testFuzz_addWorker_badDomains(address w, uint256 domains) public {
+        vm.assume(w != address(0));
+        uint256 bad = domains >> 48 == 0 ? 0 : domains;
+        vm.expectRevert(abi.encodeWithSelector(UsersManager.UsersBadDomains.selector, bad));
+        vm.prank(w);
+        umc.addWorker(bad, 1, 1, 1);
+    }
+
+    function testFuzz_addWorker_tooManyDomains(address w, uint256 seed) public {
+        vm.assume(w != address(0));
+        uint256 domains = uint256(uint48(seed)) | 0x1f; // >= 5 bits set
+        vm.expectRevert(
+            abi.encodeWithSelector(UsersManager.UsersTooManyDomains.selector, domains, umc.MAX_WORKER_DOMAINS())
+        );
+        vm.prank(w);
+        umc.addWorker(domains, 1, 1, 1);
+    }
+
+    // ------------------------------------------------------------------ approveWorker
+
+    function testFuzz_approveWorker(address w, address caller) public {
+        vm.assume(w != address(0) && w != admin);
+        vm.prank(w);
+        umc.addWorker(1 << DOMAIN, 4, 4, 1);
+        _notAdmin(caller);
+        vm.expectRevert(abi.encodeWithSelector(UsersManager.UsersNotAdmin.selector, caller));
+        vm.prank(caller);
+        umc.approveWorker(w);
+        vm.expectEmit(address(umc));
+        emit UsersManager.WorkerApproved(w, admin);
+        vm.prank(admin);
+        umc.approveWorker(w);
+        vm.assertEq(uint256(umc.getWorker(w).status), uint256(UsersManager.Status.Active), "active");
+        vm.assertEq(umc.pool(DOMAIN)[0], w, "in pool");
+        vm.expectRevert(
+            abi.encodeWithSelector(UsersManager.UsersNotPending.selector, w, UsersManager.Status.Active)
+        );
+        vm.prank(admin);
+        umc.approveWorker(w);
+    }
+
+    function testFuzz_approveWorker_unknown(address w) public {
+        vm.expectRevert(abi.encodeWithSelector(UsersManager.UsersNotWorker.selector, w));
+        vm.prank(admin);
+        umc.approveWorker(w);
+    }
+
+    // ------------------------------------------------------------------ removeWorker
+
+    function testFuzz_removeWorker(address w, address caller, bool byAdmin) public {
+        vm.assume(w != address(0) && w != admin && caller != w && caller != admin);
+        _worker(w, 1 << DOMAIN, 8);
+        vm.expectRevert(abi.encodeWithSelector(UsersManager.UsersNotSelfOrAdmin.selector, caller, w));
+        vm.prank(caller);
+        umc.removeWorker(w);
+        address by = byAdmin ? admin : w;
+        vm.expectEmit(address(umc));
+        emit UsersManager.WorkerRemoved(w, by);
+        vm.prank(by);
+        umc.removeWorker(w);
+        vm.assertEq(umc.queueLength(DOMAIN), 0, "left the queue");
+        vm.assertEq(uint256(umc.getWorker(w).status), uint256(UsersManager.Status.Removed), "removed");
+        vm.expectRevert(
+            abi.encodeWithSelector(UsersManager.UsersNotApproved.selector, w, UsersManager.Status.Removed)
+        );
+        vm.prank(by);
+        umc.removeWorker(w);
+        vm.expectRevert(abi.encodeWithSelector(UsersManager.UsersAlreadyRegistered.selector, w));
+        vm.prank(w);
+        umc.addWorker(1 << DOMAIN, 8, 32, 1);
+    }
+
+    // ------------------------------------------------------------------ addRequester
+
+    function testFuzz_addRequester(address a) public {
+        vm.assume(a != requester);
+        vm.expectEmit(address(umc));
+        emit UsersManager.RequesterAdded(a);
+        vm.prank(a);
+        umc.addRequester();
+        vm.assertTrue(umc.isRequester(a), "registered");
+        vm.expectRevert(abi.encodeWithSelector(UsersManager.UsersAlreadyRegistered.selector, a));
+        vm.prank(a);
+        umc.addRequester();
+    }
+
+    // ------------------------------------------------------------------ updateStatus
+
+    function testFuzz_updateStatus(address w, uint8 raw) public {
+        vm.assume(w != address(0) && w != admin);
+        _worker(w, 1 << DOMAIN | 1 << 3, 8);
+        UsersManager.Status s = UsersManager.Status(_bound(raw, 0, 4));
+        if (s != UsersManager.Status.Active && s != UsersManager.Status.Idle) {
+            vm.expectRevert(abi.encodeWithSelector(UsersManager.UsersBadStatus.selector, uint8(s)));
+            vm.prank(w);
+            umc.updateStatus(s);
+            return;
+        }
+        vm.expectEmit(address(umc));
+        emit UsersManager.WorkerStatusUpdated(w, s);
+        vm.prank(w);
+        umc.updateStatus(s);
+        uint256 inQueue = s == UsersManager.Status.Active ? 1 : 0;
+        vm.assertEq(umc.queueLength(DOMAIN), inQueue, "domain 7 queue");
+        vm.assertEq(umc.queueLength(3), inQueue, "domain 3 queue");
+    }
+
+    function testFuzz_updateStatus_wrongRole(address a) public {
+        vm.expectRevert(abi.encodeWithSelector(UsersManager.UsersNotWorker.selector, a));
+        vm.prank(a);
+        umc.updateStatus(UsersManager.Status.Active);
+    }
+
+    function testFuzz_updateStatus_pendingCannot(address w) public {
+        vm.assume(w != address(0));
+        vm.prank(w);
+        umc.addWorker(1 << DOMAIN, 1, 1, 1);
+        vm.expectRevert(
+            abi.encodeWithSelector(UsersManager.UsersNotApproved.selector, w, UsersManager.Status.Pending)
+        );
+        vm.prank(w);
+        umc.updateStatus(UsersManager.Status.Active);
+    }
+
+    // ------------------------------------------------------------------ updateCapabilities
+
+    function testFuzz_updateCapabilities(address w, uint16 cores, uint16 ram, uint8 gpu, address other) public {
+        vm.assume(w != address(0) && w != admin && other != w);
+        _worker(w, 1 << DOMAIN, 8);
+        vm.expectEmit(address(umc));
+        emit UsersManager.WorkerCapabilitiesUpdated(w, cores, ram, gpu);
+        vm.prank(w);
+        umc.updateCapabilities(cores, ram, gpu);
+        UsersManager.Worker memory rec = umc.getWorker(w);
+        vm.assertEq(rec.cpuCores, cores, "cores");
+        vm.assertEq(rec.ramGb, ram, "ram");
+        vm.assertEq(rec.gpuSeries, gpu, "gpu");
+        vm.assertEq(rec.domains, 1 << DOMAIN, "domains kept");
+        vm.expectRevert(abi.encodeWithSelector(UsersManager.UsersNotWorker.selector, other));
+        vm.prank(other);
+        umc.updateCapabilities(cores, ram, gpu);
+    }
+
+    // ------------------------------------------------------------------ updateInfo
+
+    function testFuzz_updateInfo(uint8 flags, uint8 review, uint8 taskType) public {
+        address w = _actor("worker");
+        _worker(w, 1 << DOMAIN, 8);
+        vm.prank(admin);
+        umc.setPlatform(admin, true);
+        uint8 f = uint8(_bound(flags, 1, 15));
+        uint8 t = uint8(_bound(taskType, 0, 1));
+        uint8 r = uint8(_bound(review, 0, 5));
+        // assigned/accepted first so every combination keeps completed <= accepted <= assigned
+        vm.startPrank(admin);
+        umc.updateInfo(w, DOMAIN, t, 1, 0);
+        umc.updateInfo(w, DOMAIN, t, 1 | 2, 0); // assigned 2, accepted 1
+        vm.stopPrank();
+        vm.prank(admin);
+        umc.updateInfo(w, DOMAIN, t, f, r);
+        UsersManager.Counters memory c = umc.counters(w, DOMAIN, t);
+        vm.assertEq(c.assigned, 2 + (f & 1), "assigned");
+        vm.assertEq(c.accepted, 1 + ((f >> 1) & 1), "accepted");
+        vm.assertEq(c.completed, (f >> 2) & 1, "completed");
+        vm.assertEq(c.ratingCount, (f >> 3) & 1, "ratingCount");
+        vm.assertEq(c.ratingSum, (f & 8) != 0 ? r : 0, "ratingSum");
+        UsersManager.Counters memory other = umc.counters(w, DOMAIN, 1 - t);
+        vm.assertEq(other.assigned, 0, "other task type untouched");
+    }
+
+    function testFuzz_updateInfo_rejects(address caller, uint8 flags, uint8 review, uint8 taskType) public {
+        address w = _actor("worker");
+        _worker(w, 1 << DOMAIN, 8);
+        vm.assume(caller != address(tmc) && caller != address(mmc));
+        vm.expectRevert(abi.encodeWithSelector(UsersManager.UsersNotPlatform.selector, caller));
+        vm.prank(caller);
+        umc.updateInfo(w, DOMAIN, 0, 1, 0);
+
+        vm.startPrank(address(tmc));
+        vm.expectRevert(abi.encodeWithSelector(UsersManager.UsersNotWorker.selector, caller));
+        umc.updateInfo(caller, DOMAIN, 0, 1, 0);
+        uint8 badType = uint8(_bound(taskType, 2, 255));
+        vm.expectRevert(abi.encodeWithSelector(UsersManager.UsersBadTaskType.selector, badType));
+        umc.updateInfo(w, DOMAIN, badType, 1, 0);
+        uint8 badFlags = flags > 15 ? flags : 0;
+        vm.expectRevert(abi.encodeWithSelector(UsersManager.UsersBadFlags.selector, badFlags));
+        umc.updateInfo(w, DOMAIN, 0, badFlags, 0);
+        uint8 badReview = uint8(_bound(review, 6, 255));
+        vm.expectRevert(abi.encodeWithSelector(UsersManager.UsersBadReview.selector, badReview));
+        umc.updateInfo(w, DOMAIN, 0, 8, badReview);
+        // completed before accepted breaks completed <= accepted <= assigned
+        vm.expectRevert(abi.encodeWithSelector(UsersManager.UsersCountersInconsistent.selector, w, DOMAIN, 0));
+        umc.updateInfo(w, DOMAIN, 0, 4, 0);
+        vm.stopPrank();
+    }
+}
