@@ -88,10 +88,7 @@ class GeneralistTrainer:
         self.elapsed = 0.0
 
     def budget_left(self) -> bool:
-        run = self.run
-        if run.total_steps is not None and self.global_step >= run.total_steps:
-            return False
-        return not (run.minutes is not None and self.elapsed >= run.minutes * 60.0)
+        return self.run.budget_left(self.global_step, self.elapsed)
 
     def train(self) -> dict[str, Any]:
         """Updates in turn over the set-ups until the budget is used; writes metrics.csv."""

@@ -33,7 +33,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from workers.mdrl.imitation import WarmStart
 from workers.mdrl.medc import DemonstrationConfig
 from workers.mdrl.observations import ObservationSpec
 from workers.mdrl.ppo import PPOConfig
@@ -51,8 +50,6 @@ class Preset:
     description: str = ""
     run: dict[str, Any] = field(default_factory=dict)
     """RunConfig overrides that belong to the set-up (e.g. evaluation cadence)."""
-    warm_start: WarmStart | None = None
-    """Clone a searcher before PPO (imitation.py); None = PPO from scratch."""
     experts: DemonstrationConfig | None = None
     """Expert guidance (DC / MEDC, medc.py), from a config file's [experts] section."""
 
@@ -60,7 +57,6 @@ class Preset:
         return {"name": self.name, "description": self.description, "env": self.env.to_dict(),
                 "observation": self.observation.to_dict(), "ppo": self.ppo.to_dict(),
                 "run": dict(self.run),
-                "warm_start": self.warm_start.to_dict() if self.warm_start else None,
                 **({"experts": self.experts.to_dict()} if self.experts else {})}
 
 
@@ -121,7 +117,7 @@ def _merge(base: dict[str, Any], changes: dict[str, Any], what: str) -> dict[str
 def preset_from_dict(doc: dict[str, Any], name: str = "custom") -> Preset:
     """Build a preset from a config document (sections env/observation/ppo/run, optional base)."""
     allowed = {"preset", "name", "description", "env", "observation", "ppo", "run",
-               "warm_start", "experts"}
+               "experts"}
     unknown = sorted(set(doc) - allowed)
     if unknown:
         raise ValueError(f"config: unknown top-level key(s) {unknown}; allowed: {sorted(allowed)}")
@@ -131,16 +127,11 @@ def preset_from_dict(doc: dict[str, Any], name: str = "custom") -> Preset:
                  "observation")
     ppo = _merge(base.ppo.to_dict() if base else {}, doc.get("ppo", {}), "ppo")
     run = _merge(dict(base.run) if base else {}, doc.get("run", {}), "run")
-    warm = base.warm_start if base else None
-    if "warm_start" in doc:  # a table of WarmStart fields, or false/null to switch it off
-        section = doc["warm_start"]
-        warm = (None if section in (None, False) else WarmStart.from_dict(
-            _merge(warm.to_dict() if warm else {}, section, "warm_start")))
     experts = DemonstrationConfig.from_dict(doc["experts"]) if "experts" in doc else None
     return Preset(name=doc.get("name", name), env=EnvSpec.from_dict(env),
                   observation=ObservationSpec.from_dict(obs), ppo=PPOConfig.from_dict(ppo),
                   description=doc.get("description", base.description if base else ""),
-                  run=run, warm_start=warm, experts=experts)
+                  run=run, experts=experts)
 
 
 def load_config(path: str | Path) -> Preset:

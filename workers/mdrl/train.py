@@ -25,7 +25,6 @@ import torch
 from workers.mdrl import checkpoint as ckpt
 from workers.mdrl.env import TargetLocalizationEnv
 from workers.mdrl.evaluate import evaluate
-from workers.mdrl.imitation import WarmStart, warm_start
 from workers.mdrl.networks import ActorCritic
 from workers.mdrl.observations import ObservationSpec, make_observer
 from workers.mdrl.ppo import PPOConfig, entropy_from_log_probs, gae, masked_log_probs, ppo_losses
@@ -64,6 +63,12 @@ class RunConfig:
     """Write TensorBoard event files under out/tb."""
     progress: bool = True
     """Show a tqdm progress bar."""
+
+    def budget_left(self, global_step: int, elapsed_s: float) -> bool:
+        """Whether a run that took ``global_step`` env steps in ``elapsed_s`` may go on."""
+        if self.total_steps is not None and global_step >= self.total_steps:
+            return False
+        return not (self.minutes is not None and elapsed_s >= self.minutes * 60.0)
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
@@ -104,11 +109,8 @@ class Trainer:
 
     def __init__(self, env_spec: EnvSpec, obs_spec: ObservationSpec, ppo: PPOConfig,
                  run: RunConfig, out: str | Path | None = None,
-                 selector: ActionSelector | None = None, warm: WarmStart | None = None):
+                 selector: ActionSelector | None = None):
         self.env_spec, self.obs_spec, self.ppo, self.run = env_spec, obs_spec, ppo, run
-        self.warm = warm
-        """Clone a searcher before the first PPO update (imitation.py); None = PPO only."""
-        self.warm_done = False
         self.out = Path(out) if out is not None else None
         torch.set_num_threads(run.threads)
         # environment: B envs stepped together as arrays
@@ -299,10 +301,7 @@ class Trainer:
 
     # ------------------------------------------------------------------ loop
     def budget_left(self) -> bool:
-        run = self.run
-        if run.total_steps is not None and self.global_step >= run.total_steps:
-            return False
-        return not (run.minutes is not None and self.elapsed >= run.minutes * 60.0)
+        return self.run.budget_left(self.global_step, self.elapsed)
 
     def train(self) -> dict[str, Any]:
         """Run updates until the step or time budget is used; returns the last metrics row."""
@@ -317,8 +316,6 @@ class Trainer:
         bar = self._progress_bar()
         t0, elapsed0 = time.perf_counter(), self.elapsed
         try:
-            if self.warm is not None and not self.warm_done:
-                self._warm_start(t0, elapsed0)
             while self.budget_left():
                 u0 = time.perf_counter()
                 step0 = self.global_step
@@ -354,20 +351,6 @@ class Trainer:
         if self.out is not None:
             self.save_model(self.out / "model")
         return self.last_metrics
-
-    def _warm_start(self, t0: float, elapsed0: float) -> None:
-        """Clone the searcher (imitation.py); its env steps count in the budget."""
-        stats = warm_start(self, self.warm)
-        self.global_step += int(stats.pop("warm_steps"))
-        self.warm_done = True
-        self.elapsed = elapsed0 + (time.perf_counter() - t0)
-        self.last_eval = self.evaluate()
-        row = {"update": 0, "global_step": self.global_step, "wall_time": self.elapsed,
-               "sps": math.nan, **self.last_eval}
-        self._log(row)
-        self.warm_stats = stats
-        if self.out is not None:
-            self.save_checkpoint(self.out / "checkpoint")
 
     # ------------------------------------------------------------------ outputs
     def _open_outputs(self) -> None:
@@ -410,8 +393,7 @@ class Trainer:
             step = self.global_step
             for k in ("loss", "policy_loss", "value_loss", "entropy", "approx_kl", "clipfrac",
                       "explained_variance"):
-                if k in row:  # the warm-start row has no PPO losses
-                    self._writer.add_scalar(f"losses/{k}", row[k], step)
+                self._writer.add_scalar(f"losses/{k}", row[k], step)
             for k in ("learning_rate", "sps", "success", "episode_length", "episode_cost",
                       "episode_return", "eval_success", "eval_time", "eval_cost"):
                 if k in row and not (isinstance(row[k], float) and math.isnan(row[k])):
@@ -419,8 +401,7 @@ class Trainer:
 
     def config_dict(self) -> dict[str, Any]:
         return {"env": self.env_spec.to_dict(), "observation": self.obs_spec.to_dict(),
-                "ppo": self.ppo.to_dict(), "run": self.run.to_dict(),
-                "warm_start": self.warm.to_dict() if self.warm is not None else None}
+                "ppo": self.ppo.to_dict(), "run": self.run.to_dict()}
 
     def save_model(self, path: str | Path) -> Path:
         from workers.mdrl.modelio import save_model
@@ -428,8 +409,7 @@ class Trainer:
         metrics = {k: self.last_metrics.get(k) for k in METRIC_COLUMNS if k in self.last_metrics}
         metrics.update(self.last_eval)
         training = {"run": self.run.to_dict(), "env_steps": self.global_step,
-                    "updates": self.update_idx, "wall_time_s": self.elapsed,
-                    "warm_start": self.warm.to_dict() if self.warm is not None else None}
+                    "updates": self.update_idx, "wall_time_s": self.elapsed}
         if hasattr(self.selector, "card"):  # expert-guided training (medc.py) lists its experts
             training["experts"] = self.selector.card()
         return save_model(path, self.agent, self.env_spec, self.obs_spec, self.ppo,
@@ -446,8 +426,7 @@ class Trainer:
         env_arrays, env_meta = ckpt.env_state(self.env)
         meta = {**self.config_dict(),
                 "counters": {"update": self.update_idx, "global_step": self.global_step,
-                             "episodes": self.episodes, "elapsed": self.elapsed,
-                             "warm_done": self.warm_done},
+                             "episodes": self.episodes, "elapsed": self.elapsed},
                 "last_eval": self.last_eval, "optimizer": opt_meta, "env_state": env_meta}
         if hasattr(self.selector, "state_dict"):  # e.g. an expert selector's per-episode flags
             meta["selector"] = self.selector.state_dict()  # must be JSON-able
@@ -465,7 +444,6 @@ class Trainer:
         c = meta["counters"]
         self.update_idx, self.global_step = c["update"], c["global_step"]
         self.episodes, self.elapsed = c["episodes"], c["elapsed"]
-        self.warm_done = bool(c.get("warm_done", False))
         self.last_eval = meta.get("last_eval", {})
         if "selector" in meta:
             if not hasattr(self.selector, "load_state_dict"):
@@ -485,9 +463,8 @@ class Trainer:
         run = RunConfig.from_dict({**meta["run"], **(run_overrides or {})})
         env_spec, ppo = EnvSpec.from_dict(meta["env"]), PPOConfig.from_dict(meta["ppo"])
         obs_spec = ObservationSpec.from_dict(meta["observation"])
-        warm = WarmStart.from_dict(meta["warm_start"]) if meta.get("warm_start") else None
         trainer = cls(env_spec, obs_spec, ppo, run,
-                      out=out if out is not None else path.parent, selector=selector, warm=warm)
+                      out=out if out is not None else path.parent, selector=selector)
         trainer.load_state(tensors, env_arrays, meta)
         return trainer
 

@@ -116,6 +116,5 @@ def _trainer(entry: ZooEntry, run_dir: Path, budget: dict[str, Any], progress: b
     else:
         run = RunConfig.from_dict({**preset.run, **budget, "seed": entry.seed,
                                    "progress": progress, "tensorboard": False})
-        trainer = Trainer(preset.env, preset.observation, preset.ppo, run, out=run_dir,
-                          warm=preset.warm_start)
+        trainer = Trainer(preset.env, preset.observation, preset.ppo, run, out=run_dir)
     return trainer

@@ -89,8 +89,7 @@ def train(
         run = RunConfig.from_dict({**chosen.run, **run_changes, "seed": seed})
         out = out if out is not None else Path("runs") / f"{chosen.name}-s{seed}"
         selector = _selector(chosen, seed, *expert_options)
-        trainer = Trainer(chosen.env, chosen.observation, ppo, run, out=out, selector=selector,
-                          warm=chosen.warm_start)
+        trainer = Trainer(chosen.env, chosen.observation, ppo, run, out=out, selector=selector)
     summary = trainer.train()
     result = {"out": str(trainer.out), "model": str(trainer.out / "model"),
               "env_steps": trainer.global_step, "updates": trainer.update_idx,
