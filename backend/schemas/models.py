@@ -88,9 +88,29 @@ class ModelAllocationPublic(BaseModel):
     models: list[AllocatedModelPublic]
 
 
+class AllocationModelPublic(AllocatedModelPublic):
+    owner: str
+    review: int | None = Field(description="the requester's review (0-5), null until reviewed")
+
+
+class AllocationDetailPublic(BaseModel):
+    """A model-sharing allocation (MMC.allocateModel) as indexed: what the requester paid for
+    and the models it received, each with its QoS (Eq. 13 / 22-23) and review."""
+
+    alloc_id: int
+    requester: str
+    domain: int
+    metric: Literal["model", "sharing"]
+    num_models: int
+    price_wei: str
+    block_number: int
+    models: list[AllocationModelPublic]
+
+
 class ModelReviewCreate(BaseModel):
     model_id: int = Field(ge=1, le=MAX_ID)
     review: Review
 
 
 ModelsPublic = ListPublic[ModelPublic]
+AllocationsPublic = ListPublic[AllocationDetailPublic]

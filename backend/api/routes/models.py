@@ -28,6 +28,9 @@ from backend.db import models as m
 from backend.schemas.common import MAX_DOMAIN, MAX_ID, TxPublic, from_fixed, to_fixed
 from backend.schemas.models import (
     AllocatedModelPublic,
+    AllocationDetailPublic,
+    AllocationModelPublic,
+    AllocationsPublic,
     ModelAllocationPublic,
     ModelCreate,
     ModelDetailPublic,
@@ -200,6 +203,63 @@ def list_models(
         return {"data": data, "count": count}
 
     return cached_page(request, session, build)  # type: ignore[return-value]
+
+
+def allocation_public(session: SessionDep, alloc: m.AllocationRow) -> AllocationDetailPublic:
+    rows = session.execute(
+        select(m.AllocatedModel, m.ModelRow.cid)
+        .join(m.ModelRow, m.ModelRow.id == m.AllocatedModel.model_id, isouter=True)
+        .where(m.AllocatedModel.alloc_id == alloc.id)
+        .order_by(m.AllocatedModel.qos.desc(), m.AllocatedModel.model_id)
+    ).all()
+    return AllocationDetailPublic(
+        alloc_id=alloc.id,
+        requester=alloc.requester,
+        domain=alloc.domain,
+        metric="model" if alloc.metric == int(Metric.MODEL) else "sharing",
+        num_models=alloc.num_models,
+        price_wei=alloc.price_wei,
+        block_number=alloc.block_number,
+        models=[
+            AllocationModelPublic(
+                id=am.model_id,
+                cid=cid or "",
+                qos=from_fixed(am.qos),
+                owner=am.owner,
+                review=am.review,
+            )
+            for am, cid in rows
+        ],
+    )
+
+
+@router.get("/requests", response_model=AllocationsPublic)
+def list_allocations(
+    session: SessionDep,
+    requester: Address | None = None,
+    limit: Annotated[int, Query(ge=1, le=500)] = 100,
+    offset: Annotated[int, Query(ge=0, le=1_000_000)] = 0,
+) -> AllocationsPublic:
+    """Model allocations (MMC.allocateModel), newest first; ``requester`` filters."""
+    stmt = select(m.AllocationRow)
+    if requester is not None:
+        stmt = stmt.where(m.AllocationRow.requester == requester)
+    count = session.scalar(select(func.count()).select_from(stmt.subquery())) or 0
+    page = session.scalars(stmt.order_by(m.AllocationRow.id.desc()).limit(limit).offset(offset))
+    return AllocationsPublic(data=[allocation_public(session, a) for a in page], count=count)
+
+
+@router.get(
+    "/requests/{alloc_id}", response_model=AllocationDetailPublic, responses=rule_responses(404)
+)
+def get_allocation(alloc_id: AllocId, session: SessionDep) -> AllocationDetailPublic:
+    """One allocation: its models (id, CID, QoS, owner) and the requester's reviews."""
+    alloc = session.get(m.AllocationRow, alloc_id)
+    if alloc is None:
+        raise RuleError(
+            404, "allocation_not_found", f"no allocation {alloc_id} (or not indexed yet)"
+        )
+    return allocation_public(session, alloc)
 
 
 def _model(session: SessionDep, model_id: int) -> m.ModelRow:

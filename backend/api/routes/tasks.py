@@ -11,6 +11,7 @@ from sqlalchemy.exc import IntegrityError
 
 from backend.api.deps import ChainDep, CurrentUser, IndexerDep, SessionDep, SettingsDep, StoreDep
 from backend.api.errors import RuleError, rule_responses
+from backend.api.experts import allocation_experts, check_experts, task_experts
 from backend.api.pagecache import cached_page
 from backend.api.schemas import Address
 from backend.api.writes import catch_up, field_error, receipt_public
@@ -25,6 +26,7 @@ from backend.schemas.tasks import (
     TaskCreate,
     TaskCreatedPublic,
     TaskDetailPublic,
+    TaskExpertPublic,
     TaskPublic,
     TaskReviewCreate,
     TasksPublic,
@@ -44,12 +46,18 @@ TaskId = Annotated[int, Path(ge=1, le=MAX_ID)]
 ASSIGNED_STATES = ("accepted", "submitted", "reviewed")
 
 
-def build_spec(body: TaskCreate, settings: Settings) -> TrainingSpec:
+def build_spec(
+    body: TaskCreate, settings: Settings, experts: list[Any] | None = None
+) -> TrainingSpec:
     """The task's TrainingSpec, within the platform limits; 422 naming the bad field or the
     limit (``spec_exceeds_memory_limit``, ``spec_exceeds_worker_hours_limit``). The payment
-    minimum is the TMC's rule on the booked duration (:func:`check_min_reward`)."""
+    minimum is the TMC's rule on the booked duration (:func:`check_min_reward`). ``experts``
+    (from an allocation) replaces the body's."""
+    doc = body.spec_document()
+    if experts is not None:
+        doc["experts"] = experts
     try:
-        spec = TrainingSpec.from_dict(body.spec_document())
+        spec = TrainingSpec.from_dict(doc)
         check_limits(
             spec,
             num_workers=body.num_workers,
@@ -91,13 +99,24 @@ def create_task(
     store: StoreDep,
     indexer: IndexerDep,
     settings: SettingsDep,
+    session: SessionDep,
 ) -> TaskCreatedPublic:
     """Store the spec, addTask with ``payment_wei * num_workers`` escrowed, then allocateTask.
 
     When the gateway cannot sign for the caller, the 409 ``sign_locally`` carries the addTask
     transaction; after relaying it via ``POST /tx`` the caller calls ``POST /tasks/{id}/allocate``.
+    Experts (MEDC) are named by CID in ``experts`` or come from the caller's model allocation
+    ``expert_allocation`` (``backend.api.experts``).
     """
-    spec = build_spec(body, settings)
+    experts = None
+    if body.expert_allocation is not None:
+        if "experts" in body.model_fields_set and body.experts:
+            field_error(
+                ("body", "expert_allocation"), "give experts or expert_allocation, not both"
+            )
+        experts = allocation_experts(session, body.expert_allocation, user.address)
+    spec = build_spec(body, settings, experts)
+    check_experts(store, spec.experts)
     check_min_reward(chain, body.payment_wei, body.deadline_s)
     spec_cid = store.add(canonical_json(spec.to_dict()))
     tmc = chain.platform.tmc
@@ -239,6 +258,7 @@ def get_task(task_id: TaskId, session: SessionDep) -> TaskDetailPublic:
     return TaskDetailPublic(
         **task_public(t).model_dump(),
         spec=t.spec,
+        experts=[TaskExpertPublic(**e) for e in task_experts(session, t.spec, t.requester)],
         timeline=[
             EventPublic(
                 block_number=e.block_number,
