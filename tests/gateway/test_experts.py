@@ -33,7 +33,8 @@ def test_experts_from_an_allocation_named_checked_and_reviewed(
     assert [(x["id"], x["cid"], x["qos"]) for x in detail["models"]] == [
         (x["id"], x["cid"], x["qos"]) for x in alloc["models"]
     ]
-    assert {x["owner"] for x in detail["models"]} == {addr(service, "user3"), addr(service, "user4")}
+    owners = {x["owner"] for x in detail["models"]}
+    assert owners == {addr(service, "user3"), addr(service, "user4")}
     assert [x["review"] for x in detail["models"]] == [None, None]
     mine = client.get(f"{P}/models/requests", params={"requester": addr(service, "user1")})
     assert [x["alloc_id"] for x in mine.json()["data"]] == [alloc["alloc_id"]]
@@ -62,7 +63,8 @@ def test_experts_from_an_allocation_named_checked_and_reviewed(
     assert shown[a["cid"]]["model_id"] == a["id"] and shown[a["cid"]]["alloc_id"] == alloc[
         "alloc_id"
     ]
-    assert shown[a["cid"]]["review"] is None and shown[a["cid"]]["reputation"] == 0.0  # Eq. 11: allocated, unreviewed
+    # Eq. 11: allocated once, not reviewed yet
+    assert shown[a["cid"]]["review"] is None and shown[a["cid"]]["reputation"] == 0.0
 
     # the requester reviews an expert it used: the task page and the listing show it
     r = client.post(
