@@ -34,8 +34,8 @@ def store(tmp_path: Path) -> EmbeddedStore:
 
 
 def medc_spec(*cids: str, qos: tuple[float, ...] = (), rate: float = 0.5) -> TrainingSpec:
-    experts = [{"model": c, "qos": q} for c, q in zip(cids, qos, strict=True)] if qos else list(
-        cids
+    experts = (
+        [{"model": c, "qos": q} for c, q in zip(cids, qos, strict=True)] if qos else list(cids)
     )
     return TrainingSpec.from_dict(
         {**TINY_SPEC, "experts": experts, "algorithm": {"demonstration": {"rate": rate}}}
@@ -120,6 +120,7 @@ def test_a_resumed_medc_job_keeps_its_selector(store, tmp_path: Path) -> None:
         def hook(point: dict) -> None:
             if point["update"] == crash_at:
                 raise KeyboardInterrupt  # the worker killed after this update's checkpoint
+
         dirs = fetch_experts(store, spec.experts, job)
         return jobs.run_job(spec, job, checkpoint_every=1, on_progress=hook, experts=dirs)[0]
 
@@ -191,3 +192,63 @@ def test_an_medc_offer_trains_with_its_expert_and_the_card_lists_it(env, store, 
     listed = card["training"]["experts"]["experts"]
     assert [(e["ref"], e["qos"]) for e in listed] == [(cid, 0.25)]
     assert (h.job_dir(task_id) / "experts" / cid / "model.safetensors").is_file()
+
+
+# -- the requester's CLI ----------------------------------------------------------------------
+
+
+def test_task_submit_expert_options_are_checked_before_anything_is_sent(tmp_path: Path) -> None:
+    from typer.testing import CliRunner
+
+    from drlaas.cli import app
+
+    cid = "bafkreigh2akiscaildcqabsyg3dfr6chu3fgpregiymsck7e7aqa4s52zy"
+    key = tmp_path / "r.key"
+    base = ["task", "submit", "--key", str(key), "--gateway", "http://127.0.0.1:9"]
+    cases = {
+        ("--experts", "oracle"): "model CIDs",
+        ("--experts", cid, "--experts-from-mmc", "2"): "give one of",
+        ("--expert-qos", "1"): "--expert-qos weighs --experts",
+        ("--experts", cid, "--expert-qos", "1,2"): "2 weight(s) for 1 expert(s)",
+        ("--expert-rate", "0.5"): "need experts",
+        ("--experts", cid, "--expert-rate", "1.5"): "algorithm.demonstration.rate",
+        ("--expert-allocation", "3", "--expert-price-wei", "5"): "prices --experts-from-mmc",
+    }
+    for args, msg in cases.items():
+        res = CliRunner().invoke(app, [*base, *args])
+        text = " ".join(res.output.replace("│", " ").split())
+        assert res.exit_code == 2 and msg in text, (args, res.output)
+    assert not key.exists()  # refused before a key was even created
+
+    from drlaas.commands.client.tasks import task_body
+
+    body = task_body(
+        grid="6x6",
+        agents=2,
+        walls="0",
+        kind="odmtl",
+        window=3,
+        steps=1000,
+        minutes=5,
+        seed=1,
+        workers=1,
+        payment_wei=1,
+        deadline_s=600,
+        domain=0,
+        spec=None,
+        experts=cid,
+        expert_qos="0.4",
+        expert_threshold=0.1,
+    )
+    assert body["experts"] == [{"model": cid, "qos": 0.4}]
+    assert body["algorithm"] == {"demonstration": {"threshold": 0.1}}
+    assert TrainingSpec.from_dict({k: body[k] for k in ("env", "budget", "experts", "algorithm")})
+
+
+def test_an_expert_that_cannot_serve_the_task_is_named(store, tmp_path: Path) -> None:
+    dmtl = Path(__file__).resolve().parents[2] / "models" / "dmtl-2a"  # full 10x10 maps
+    cid = upload_model(store, dmtl)
+    spec = medc_spec(cid)
+    dirs = fetch_experts(store, spec.experts, tmp_path / "job")
+    with pytest.raises(ExpertFetchError, match=f"expert {cid}: cannot guide this task: .*10x10"):
+        jobs.make_selector(spec, dirs)

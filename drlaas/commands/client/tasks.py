@@ -20,6 +20,7 @@ from typing import Annotated, Any
 
 import typer
 
+from backend.store import CID, InvalidCID
 from drlaas.commands.client.models import pull, request_models
 from drlaas.commands.client.session import (
     DEFAULT_GATEWAY,
@@ -106,9 +107,16 @@ def expert_list(experts: str, qos: str | None) -> list[Any]:
     """``--experts a,b [--expert-qos 0.7,0.3]`` -> the spec's ``experts``."""
     try:
         cids = parse_list(experts, "--experts")
+        for c in cids:
+            if str(CID.parse(c).v1()) != c:
+                raise ValueError(f"--experts: give {c!r} in canonical form {CID.parse(c).v1()}")
         if qos is None:
             return list(cids)
         weights = [float(q) for q in parse_list(qos, "--expert-qos")]
+    except InvalidCID as exc:
+        raise typer.BadParameter(
+            f"experts are model CIDs (`drlaas model list`): {exc}", param_hint="--experts"
+        ) from None
     except ValueError as exc:
         raise typer.BadParameter(str(exc)) from None
     if len(weights) != len(cids):
