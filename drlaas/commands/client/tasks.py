@@ -311,6 +311,21 @@ def task_show(
                 "\noutcomes\n"
                 + table(d["outcomes"], [("worker", "WORKER"), ("cid", "CID"), ("review", "REVIEW")])
             )
+        if d.get("experts"):
+            typer.echo(
+                "\nexperts\n"
+                + table(
+                    d["experts"],
+                    [
+                        ("cid", "CID"),
+                        ("qos", "QOS"),
+                        ("model_id", "MODEL"),
+                        ("reputation", "REPUTATION"),
+                        ("alloc_id", "ALLOCATION"),
+                        ("review", "REVIEW"),
+                    ],
+                )
+            )
         if d.get("progress"):
             typer.echo(
                 "\nprogress\n"
