@@ -176,6 +176,18 @@ def test_an_expert_failing_verification_fails_the_job_on_chain(env, store, tmp_p
     assert again["status"] == "offer failed"
 
 
+def test_an_offer_naming_a_path_as_expert_is_declined(env, store, tmp_path) -> None:
+    p, actors = env
+    spec = {**TINY_SPEC, "experts": ["runs/my-model"]}  # the core's form, not the platform's
+    task_id, offered, _ = post_task(p, store, actors.requester, spec=spec)
+    h = OfferHandler(
+        account=p.chain._keys[offered[0]], platform=p, store=store, data_dir=tmp_path / "w"
+    )
+    out = h.handle(task_id, offered[0])
+    assert out["status"] == "declined" and "expert runs/my-model: not a model CID" in out["reason"]
+    assert p.tmc.offer(task_id, offered[0])["state"] == OfferState.DECLINED
+
+
 def test_an_medc_offer_trains_with_its_expert_and_the_card_lists_it(env, store, tmp_path) -> None:
     p, actors = env
     cid = upload_model(store, EXPERT)

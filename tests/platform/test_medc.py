@@ -116,4 +116,6 @@ def test_medc_task_with_an_mmc_expert_end_to_end(data_dir: Path, tmp_path: Path)
         assert listed[model_id]["reputation"] == pytest.approx(4 / 5)  # Eq. 11: 4 / (1 * 5)
         experts = anon.get(f"/tasks/{task['task_id']}")["experts"]
         assert [(e["cid"], e["alloc_id"], e["review"]) for e in experts] == [(cid, alloc_id, 4)]
+        shown = cli.invoke(app, ["task", "show", str(task["task_id"]), "--gateway", p.url])
+        assert shown.exit_code == 0 and "experts" in shown.stdout and cid[:20] in shown.stdout
         anon.close()

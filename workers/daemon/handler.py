@@ -37,7 +37,12 @@ from backend.store import ContentStore, StoreError, StoreUnavailable
 from backend.store.bundle import read_bundle, upload_model
 from workers.daemon import job as jobs
 from workers.daemon.capabilities import ram_bytes
-from workers.daemon.experts import MAX_WEIGHTS_BYTES, fetch_experts
+from workers.daemon.experts import (
+    MAX_WEIGHTS_BYTES,
+    ExpertFetchError,
+    expert_key,
+    fetch_experts,
+)
 from workers.daemon.gateway import Gateway, GatewayError
 from workers.daemon.links import task_spec_cid
 from workers.mdrl.resources import estimate
@@ -207,6 +212,11 @@ class OfferHandler:
         """Why this worker must decline the offer (None: it can take it)."""
         if isinstance(spec, SpecError):
             return str(spec)
+        try:  # experts are fetched after acceptance; one no worker can fetch is known now
+            for ref in spec.experts:
+                expert_key(ref)
+        except ExpertFetchError as exc:
+            return str(exc)
         busy = self.active_jobs(exclude=task_id)
         if len(busy) >= self.max_jobs:
             return "at capacity"
