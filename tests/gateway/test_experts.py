@@ -38,9 +38,12 @@ def test_experts_from_an_allocation_named_checked_and_reviewed(
     assert [x["review"] for x in detail["models"]] == [None, None]
     mine = client.get(f"{P}/models/requests", params={"requester": addr(service, "user1")})
     assert [x["alloc_id"] for x in mine.json()["data"]] == [alloc["alloc_id"]]
-    assert client.get(f"{P}/models/requests", params={"requester": addr(service, "user2")}).json()[
-        "data"
-    ] == []
+    assert (
+        client.get(f"{P}/models/requests", params={"requester": addr(service, "user2")}).json()[
+            "data"
+        ]
+        == []
+    )
     assert client.get(f"{P}/models/requests/99").json()["detail"]["rule"] == "allocation_not_found"
 
     # another requester cannot use (nor see in its spec) user1's paid allocation
@@ -60,9 +63,9 @@ def test_experts_from_an_allocation_named_checked_and_reviewed(
     assert by_cid == {x["cid"]: x["qos"] for x in alloc["models"]}  # the QoS the MMC emitted
     shown = {x["cid"]: x for x in task["experts"]}
     assert set(shown) == {a["cid"], b["cid"]}
-    assert shown[a["cid"]]["model_id"] == a["id"] and shown[a["cid"]]["alloc_id"] == alloc[
-        "alloc_id"
-    ]
+    assert (
+        shown[a["cid"]]["model_id"] == a["id"] and shown[a["cid"]]["alloc_id"] == alloc["alloc_id"]
+    )
     # Eq. 11: allocated once, not reviewed yet
     assert shown[a["cid"]]["review"] is None and shown[a["cid"]]["reputation"] == 0.0
 

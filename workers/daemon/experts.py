@@ -37,8 +37,18 @@ MAX_CARD_BYTES = 1 << 20
 """Bound on an expert's card (the gateway's bound on cards it reads)."""
 MAX_HEADER_BYTES = 1 << 20
 """Bound on the JSON header of a safetensors file."""
-_DTYPE_BYTES = {"F64": 8, "F32": 4, "F16": 2, "BF16": 2, "I64": 8, "I32": 4, "I16": 2,
-                "I8": 1, "U8": 1, "BOOL": 1}
+_DTYPE_BYTES = {
+    "F64": 8,
+    "F32": 4,
+    "F16": 2,
+    "BF16": 2,
+    "I64": 8,
+    "I32": 4,
+    "I16": 2,
+    "I8": 1,
+    "U8": 1,
+    "BOOL": 1,
+}
 
 
 class ExpertFetchError(ValueError):
@@ -55,18 +65,25 @@ def expert_key(ref: str) -> str:
     try:
         return str(CID.parse(ref).v1())
     except (InvalidCID, ValueError):
-        raise ExpertFetchError(ref, "not a model CID (a platform task names its experts by the "
-                                    "CID of their bundle)") from None
+        raise ExpertFetchError(
+            ref, "not a model CID (a platform task names its experts by the CID of their bundle)"
+        ) from None
 
 
-def fetch_experts(store: ContentStore, refs: tuple[str, ...] | list[str], job_dir: Path,
-                  *, max_weights: int = MAX_WEIGHTS_BYTES) -> dict[str, Path]:
+def fetch_experts(
+    store: ContentStore,
+    refs: tuple[str, ...] | list[str],
+    job_dir: Path,
+    *,
+    max_weights: int = MAX_WEIGHTS_BYTES,
+) -> dict[str, Path]:
     """{reference as the spec writes it: verified model directory} for every expert."""
     return {ref: fetch_expert(store, ref, job_dir, max_weights=max_weights) for ref in refs}
 
 
-def fetch_expert(store: ContentStore, ref: str, job_dir: Path, *,
-                 max_weights: int = MAX_WEIGHTS_BYTES) -> Path:
+def fetch_expert(
+    store: ContentStore, ref: str, job_dir: Path, *, max_weights: int = MAX_WEIGHTS_BYTES
+) -> Path:
     """The verified model directory of expert ``ref`` under ``job_dir/experts`` (fetched once).
 
     :class:`StoreUnavailable` propagates (try again later); every other failure is an
@@ -98,20 +115,23 @@ def _download(store: ContentStore, ref: str, dest: Path, max_weights: int) -> No
     except StoreError as exc:  # not found, mismatch, not a manifest, too large
         raise ExpertFetchError(ref, f"cannot read its bundle manifest: {exc}") from None
     if sorted(files) != sorted(MODEL_FILES):
-        raise ExpertFetchError(ref, f"the bundle must hold exactly {list(MODEL_FILES)} (weights "
-                                    f"as safetensors + card), it holds {sorted(files)}")
+        raise ExpertFetchError(
+            ref,
+            f"the bundle must hold exactly {list(MODEL_FILES)} (weights "
+            f"as safetensors + card), it holds {sorted(files)}",
+        )
     for name in MODEL_FILES:
         file_cid, size = files[name]
         if size > bounds[name]:
-            raise ExpertFetchError(ref, f"{name} is {size} bytes, more than the bound of "
-                                        f"{bounds[name]} bytes")
+            raise ExpertFetchError(
+                ref, f"{name} is {size} bytes, more than the bound of {bounds[name]} bytes"
+            )
         try:
             got = store.get_to_file(file_cid, dest / name, max_size=max(size, 1))
         except StoreUnavailable:
             raise
         except StoreError as exc:
-            raise ExpertFetchError(ref, f"{name} ({file_cid}) failed verification: {exc}") \
-                from None
+            raise ExpertFetchError(ref, f"{name} ({file_cid}) failed verification: {exc}") from None
         if got != size:
             raise ExpertFetchError(ref, f"{name} has {got} bytes, its manifest says {size}")
 
@@ -124,14 +144,20 @@ def check_safetensors(path: Path, ref: str) -> None:
         head = f.read(8)
         if head[:1] == b"\x80" or head[:2] == b"PK":
             kind = "a pickle" if head[:1] == b"\x80" else "a zip archive (torch.save)"
-            raise ExpertFetchError(ref, f"model.safetensors is {kind}, not safetensors: refused "
-                                        "(models are never unpickled)")
+            raise ExpertFetchError(
+                ref,
+                f"model.safetensors is {kind}, not safetensors: refused "
+                "(models are never unpickled)",
+            )
         if len(head) < 8:
             raise ExpertFetchError(ref, "model.safetensors is too short to be safetensors")
         (n,) = struct.unpack("<Q", head)
         if n > min(MAX_HEADER_BYTES, size - 8):
-            raise ExpertFetchError(ref, f"model.safetensors: header length {n} does not fit "
-                                        f"the file ({size} bytes) or the bound")
+            raise ExpertFetchError(
+                ref,
+                f"model.safetensors: header length {n} does not fit "
+                f"the file ({size} bytes) or the bound",
+            )
         try:
             header = json.loads(f.read(n))
         except ValueError:
@@ -142,11 +168,15 @@ def check_safetensors(path: Path, ref: str) -> None:
     for name, t in header.items():
         if name == "__metadata__":
             continue
-        ok = (isinstance(t, dict) and t.get("dtype") in _DTYPE_BYTES
-              and isinstance(t.get("shape"), list)
-              and all(isinstance(d, int) and d >= 0 for d in t["shape"])
-              and isinstance(t.get("data_offsets"), list) and len(t["data_offsets"]) == 2
-              and all(isinstance(o, int) for o in t["data_offsets"]))
+        ok = (
+            isinstance(t, dict)
+            and t.get("dtype") in _DTYPE_BYTES
+            and isinstance(t.get("shape"), list)
+            and all(isinstance(d, int) and d >= 0 for d in t["shape"])
+            and isinstance(t.get("data_offsets"), list)
+            and len(t["data_offsets"]) == 2
+            and all(isinstance(o, int) for o in t["data_offsets"])
+        )
         if not ok:
             raise ExpertFetchError(ref, f"model.safetensors: bad entry for tensor {name!r}")
         begin, end = t["data_offsets"]
@@ -154,14 +184,18 @@ def check_safetensors(path: Path, ref: str) -> None:
         for d in t["shape"]:
             count *= d
         if not 0 <= begin <= end <= data or end - begin != count * _DTYPE_BYTES[t["dtype"]]:
-            raise ExpertFetchError(ref, f"model.safetensors: tensor {name!r} does not fit its "
-                                        "byte range")
+            raise ExpertFetchError(
+                ref, f"model.safetensors: tensor {name!r} does not fit its byte range"
+            )
         spans.append((begin, end))
     if not spans:
         raise ExpertFetchError(ref, "model.safetensors holds no tensor")
     spans.sort()
-    if spans[0][0] != 0 or spans[-1][1] != data or any(
-            a[1] != b[0] for a, b in zip(spans, spans[1:], strict=False)):
+    if (
+        spans[0][0] != 0
+        or spans[-1][1] != data
+        or any(a[1] != b[0] for a, b in zip(spans, spans[1:], strict=False))
+    ):
         raise ExpertFetchError(ref, "model.safetensors: tensors overlap or leave gaps")
 
 
@@ -180,19 +214,23 @@ def check_card(path: Path, ref: str) -> dict[str, Any]:
         raise ExpertFetchError(ref, f"model.json is not a {CARD_FORMAT} card (format {got!r})")
     try:
         EnvSpec.from_dict(card["env"])
-        obs = {k: v for k, v in card["observation"].items()
-               if k not in ("actor_shape", "critic_shape")}
+        obs = {
+            k: v for k, v in card["observation"].items() if k not in ("actor_shape", "critic_shape")
+        }
         ObservationSpec.from_dict(obs)
         if not isinstance(card["observation"]["actor_shape"], list):
             raise TypeError("actor_shape must be a list")
     except (KeyError, TypeError, ValueError, AttributeError) as exc:
-        raise ExpertFetchError(ref, f"model.json: its env/observation cannot be rebuilt here "
-                                    f"({type(exc).__name__}: {exc})") from None
+        raise ExpertFetchError(
+            ref,
+            f"model.json: its env/observation cannot be rebuilt here ({type(exc).__name__}: {exc})",
+        ) from None
     return card
 
 
-def load_job_experts(refs: tuple[str, ...], dirs: dict[str, Path], task: Any,
-                     seed: int) -> list[Any]:
+def load_job_experts(
+    refs: tuple[str, ...], dirs: dict[str, Path], task: Any, seed: int
+) -> list[Any]:
     """The experts of a job, each named by its CID (what the outcome's card lists) while its
     weights come from its verified directory; the i-th is seeded ``seed + i`` as
     ``experts.load_experts`` does."""
