@@ -16,6 +16,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any, cast
 
+from workers.mdrl.curve import attach_curve
 from workers.mdrl.train import RunConfig, Trainer
 from workers.mdrl.trainingspec import TrainingSpec
 
@@ -143,6 +144,7 @@ def run_job(
     t0 = time.perf_counter()
     metrics = trainer.train()
     model = run_dir(job) / "model"
+    attach_curve(model, run_dir(job) / "metrics.csv")  # the card's training curve
     return model, {
         **metrics,
         **trainer.last_eval,

@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from workers.mdrl.baselines import OraclePolicy
+from workers.mdrl.curve import CURVE_KEY, training_curve
 from workers.mdrl.evaluate import EvalReport, evaluate
 from workers.mdrl.modelio import CARD, load_model
 from workers.mdrl.ppo import PPOConfig
@@ -91,6 +92,7 @@ def train_entry(name: str, models: Path, runs: Path, minutes: float | None = Non
     card["zoo"] = {"name": name, "preset": entry.preset, "seed": entry.seed,
                    "env_steps": trainer.global_step, "wall_clock_s": round(trainer.elapsed, 1),
                    "heldout": heldout(policy, spec if spec is not None else policy.env_spec)}
+    card[CURVE_KEY] = training_curve(run_dir / "metrics.csv")
     (target / CARD).write_text(json.dumps(card, indent=1))
     return target
 
