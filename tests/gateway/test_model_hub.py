@@ -16,6 +16,7 @@ from backend.schemas.common import wei_to_eth
 from backend.services.chain import ChainService
 from backend.services.specs import validate_env
 from backend.store.bundle import add_bundle
+from drlaas.commands.client.models import hub_lines
 
 from .conftest import ENV, Login, P, addr, register, task_body
 
@@ -136,6 +137,15 @@ def test_model_page_links_task_experts_and_reads_the_card(
     assert req["price_wei"] == str(price) and req["price_eth"] == "0.000001234567890123"
     row = index_row(client, m.ModelRow, shared["id"])
     assert d["reputation"] == row.reputation / 1_000_000
+
+    # the CLI's `drlaas model show` prints the same figures
+    lines = hub_lines(d)
+    assert f"produced by task {task_id} (worker {owner}; the chain's outcome record)" in lines
+    assert f"expert {expert['cid']} (model {expert['id']}; from the task spec)" in lines
+    assert (
+        "held-out (1000 episodes, poisson readings): success 99.9%, time 5.50 (oracle 4.00), "
+        "cost 6.50" in lines
+    )
 
     # the expert was no task's outcome: no producing task; its card has no curve
     e = client.get(f"{P}/models/{expert['id']}").json()
