@@ -17,6 +17,7 @@ from backend.services.chain import ChainService
 from backend.services.specs import validate_env
 from backend.store.bundle import add_bundle
 from drlaas.commands.client.models import hub_lines
+from drlaas.commands.client.tasks import env_summary
 
 from .conftest import ENV, Login, P, addr, register, task_body
 
@@ -73,6 +74,7 @@ def test_model_page_links_task_experts_and_reads_the_card(
         "intensity": {"kind": "fixed", "values": [1e9]},
     }  # fmt: skip
     assert client.get(f"{P}/tasks/{task_id}").json()["env"] == listed["env"]
+    assert env_summary(listed) == "8x8 2a 0w 4m I=1e+09"  # `drlaas task list`
 
     # the worker's outcome: a card with a curve, held-out figures and its experts
     card = card_bytes(
