@@ -13,6 +13,7 @@ from __future__ import annotations
 import logging
 import math
 import re
+from functools import partial
 from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, Field, ValidationError, field_validator
@@ -24,6 +25,7 @@ log = logging.getLogger(__name__)
 MAX_CARD_CURVE_POINTS = 1000
 """A card's curve longer than this is dropped (workers write at most 200: curve.py)."""
 MAX_EXPERTS = 16
+MAX_BASELINES = 8
 READING_MODELS = ("poisson", "expected")
 """The held-out reading models of a zoo card (workers.mdrl.zoo.READING_MODELS)."""
 
@@ -44,11 +46,24 @@ class CurvePointPublic(BaseModel):
     cost: Cost | None = Field(default=None, description="mean moving cost per episode")
 
 
+class BaselineFiguresPublic(BaseModel):
+    """A baseline search policy (workers/mdrl/baselines.py) on the same held-out episodes."""
+
+    name: str = Field(pattern=r"^[a-z][a-z0-9_-]{0,31}$", description="bayes, uniform, random")
+    success: Rate
+    time: Steps | None = None
+    time_ci: tuple[Steps, Steps] | None = None
+    cost: Cost | None = None
+    cost_ci: tuple[Cost, Cost] | None = None
+    time_vs_oracle: float | None = None
+
+
 class HeldoutFiguresPublic(BaseModel):
     """Greedy figures on the card's held-out episodes under one reading model, next to the
-    oracle (which knows the target: a lower bound on search time)."""
+    oracle (which knows the target: a lower bound on search time) and the baselines."""
 
     reading_model: Literal["poisson", "expected"]
+    baselines: list[BaselineFiguresPublic] = Field(default_factory=list)
     success: Rate
     time: Steps | None = None
     time_ci: tuple[Steps, Steps] | None = Field(default=None, description="95% interval")
@@ -160,14 +175,17 @@ def _heldout(raw: Any) -> HeldoutPublic | None:
                 {
                     **{k: f.get(k) for k in HeldoutFiguresPublic.model_fields},
                     "reading_model": n,
+                    "baselines": [],
                     "time_vs_oracle": None,
                 }
             )
         )
         if fig is None:
             continue
-        if fig.time is not None and fig.oracle_time:
-            fig.time_vs_oracle = fig.time / fig.oracle_time
+        fig.baselines = _baselines(figures.get("baselines"))
+        for f in (fig, *fig.baselines):
+            if f.time is not None and fig.oracle_time:
+                f.time_vs_oracle = f.time / fig.oracle_time
         readings.append(fig)
     if not readings:
         return None
@@ -176,6 +194,26 @@ def _heldout(raw: Any) -> HeldoutPublic | None:
             episodes=held.get("episodes"), seed=held.get("seed"), readings=readings
         )
     )
+
+
+def _baselines(raw: Any) -> list[BaselineFiguresPublic]:
+    """``{name: figures}`` of one reading model (workers.mdrl.zoo.baselines); invalid ones are
+    left out."""
+    if not isinstance(raw, dict):
+        return []
+    keys = [k for k in BaselineFiguresPublic.model_fields if k not in ("name", "time_vs_oracle")]
+    out = []
+    for name, f in list(raw.items())[:MAX_BASELINES]:
+        figures = _obj(f)
+        fig = _section(
+            partial(
+                BaselineFiguresPublic.model_validate,
+                {"name": name} | {k: figures.get(k) for k in keys},
+            )
+        )
+        if fig is not None:
+            out.append(fig)
+    return out
 
 
 def _final_eval(raw: Any) -> FinalEvalPublic | None:

@@ -84,15 +84,25 @@ def curve(n: int) -> list[dict]:
     ]
 
 
+UNIFORM = {"success": 1.0, "time": 18.338, "time_ci": [17.7207, 18.9553], "cost": 55.014,
+           "cost_ci": [53.1621, 56.8659]}  # fmt: skip
+RANDOM = {"success": 0.684, "time": 56.72, "time_ci": [54.3812, 59.0588], "cost": 133.092,
+          "cost_ci": [127.6202, 138.5638]}  # fmt: skip
 HELDOUT = {
     "episodes": 1000,
     "seed": 20261124,
     "poisson": {"success": 0.999, "time": 5.502, "time_ci": [5.2037, 5.8003], "cost": 6.537,
-                "cost_ci": [6.2503, 6.8237], "oracle_time": 4.069},
+                "cost_ci": [6.2503, 6.8237], "oracle_time": 4.069,
+                "baselines": {"bayes": {"success": 1.0, "time": 4.496, "time_ci": [4.3529, 4.6391],
+                                        "cost": 5.262, "cost_ci": [5.0643, 5.4597]},
+                              "uniform": UNIFORM, "random": RANDOM}},
     "expected": {"success": 1.0, "time": 5.035, "time_ci": [4.8191, 5.2509], "cost": 6.166,
-                 "cost_ci": [5.8988, 6.4332], "oracle_time": 4.069},
+                 "cost_ci": [5.8988, 6.4332], "oracle_time": 4.069,
+                 "baselines": {"bayes": {"success": 1.0, "time": 4.122, "time_ci": [3.9855, 4.2585],
+                                         "cost": 4.865, "cost_ci": [4.6656, 5.0644]},
+                               "uniform": UNIFORM, "random": RANDOM}},
 }  # fmt: skip
-"""A zoo card's held-out section (models/odmtl-3a/model.json)."""
+"""A zoo card's held-out section (odmtl-3a; its baselines by `drlaas zoo complete`)."""
 
 
 def card(env_spec: dict, kind: str, points: list[dict]) -> dict:

@@ -28,16 +28,26 @@ def test_model_page_shows_heldout_curve_provenance_and_human_units(
     expect(page.locator("#model-title")).to_have_text("odmtl-3a")
     expect(page.locator("#model-description")).to_have_text(m["description"])
 
-    # held-out table: one row per reading model, the card's numbers, the ratio to the oracle
-    rows = page.locator("#heldout-table tbody tr")
-    expect(rows).to_have_count(2)
+    # held-out table: per reading model the model, the baselines and the oracle, the card's
+    # numbers, each time against the oracle's
     for f in m["heldout"]["readings"]:
-        row = page.locator(f'#heldout-table tr[data-reading-model="{f["reading_model"]}"]')
-        expect(row.locator(".success")).to_have_text(f"{100 * f['success']:.1f}%")
-        expect(row.locator(".time")).to_have_text(ci(f["time"], f["time_ci"]))
-        expect(row.locator(".cost")).to_have_text(ci(f["cost"], f["cost_ci"]))
-        expect(row.locator(".oracle")).to_have_text(f"{f['oracle_time']:.2f}")
-        expect(row.locator(".ratio")).to_have_text(f"{f['time'] / f['oracle_time']:.2f}×")
+        group = page.locator(f'#heldout-table tbody[data-reading-model="{f["reading_model"]}"]')
+        policies = ["model", *(b["name"] for b in f["baselines"]), "oracle"]
+        assert (
+            group.locator("tr[data-policy]").evaluate_all("rs => rs.map(r => r.dataset.policy)")
+            == policies
+            == ["model", "bayes", "uniform", "random", "oracle"]
+        )
+        for policy, figures in (("model", f), *((b["name"], b) for b in f["baselines"])):
+            row = group.locator(f'tr[data-policy="{policy}"]')
+            expect(row.locator(".success")).to_have_text(f"{100 * figures['success']:.1f}%")
+            expect(row.locator(".time")).to_have_text(ci(figures["time"], figures["time_ci"]))
+            expect(row.locator(".cost")).to_have_text(ci(figures["cost"], figures["cost_ci"]))
+            ratio = figures["time"] / f["oracle_time"]
+            expect(row.locator(".ratio")).to_have_text(f"{ratio:.2f}×")
+        oracle = group.locator('tr[data-policy="oracle"]')
+        expect(oracle.locator(".time")).to_have_text(f"{f['oracle_time']:.2f}")
+        expect(oracle.locator(".success")).to_have_text("—")  # the card does not say
 
     # the curve: time and cost against env steps, every point of the card, falling
     for chart in ("Search time", "Cost"):

@@ -30,7 +30,10 @@ HELDOUT = {
     "episodes": 1000,
     "seed": 20261124,
     "poisson": {"success": 0.999, "time": 5.5, "time_ci": [5.2, 5.8], "cost": 6.5,
-                "cost_ci": [6.25, 6.75], "oracle_time": 4.0},
+                "cost_ci": [6.25, 6.75], "oracle_time": 4.0,
+                "baselines": {"bayes": {"success": 1.0, "time": 4.5, "time_ci": [4.25, 4.75],
+                                        "cost": 5.0, "cost_ci": [4.75, 5.25]},
+                              "random": {"success": 2.0, "time": 50.0}}},  # random: invalid
     "expected": {"success": 1.0, "time": 5.0, "time_ci": [4.8, 5.2], "cost": 6.0,
                  "cost_ci": [5.75, 6.25], "oracle_time": 4.0},
 }  # fmt: skip
@@ -130,6 +133,11 @@ def test_model_page_links_task_experts_and_reads_the_card(
         for key in ("success", "time", "time_ci", "cost", "cost_ci", "oracle_time"):
             assert f[key] == claimed[key]
         assert f["time_vs_oracle"] == claimed["time"] / claimed["oracle_time"]
+    bayes = HELDOUT["poisson"]["baselines"]["bayes"]  # type: ignore[index]
+    assert held["readings"][0]["baselines"] == [
+        {"name": "bayes", **bayes, "time_vs_oracle": 4.5 / 4.0}
+    ]  # the invalid random figures are left out
+    assert held["readings"][1]["baselines"] == []
 
     # chain values: exact conversions of the indexed fixed-point integers and wei
     [req] = d["requests"]

@@ -82,3 +82,35 @@ def test_attach_curve_without_metrics_leaves_the_card(tmp_path: Path) -> None:
     (tmp_path / "model.json").write_text('{"format": "drlaas-model/1"}')
     assert attach_curve(tmp_path, tmp_path / "missing.csv") is False
     assert json.loads((tmp_path / "model.json").read_text()) == {"format": "drlaas-model/1"}
+
+
+def test_zoo_cards_are_completed_with_baselines_and_their_own_runs_curve(tmp_path: Path) -> None:
+    from workers.mdrl.baselines import make_baseline
+    from workers.mdrl.evaluate import evaluate
+    from workers.mdrl.spec import EnvSpec
+    from workers.mdrl.zoo import BASELINE_POLICIES, add_baselines, attach_run_curve
+
+    env = EnvSpec(rows=5, cols=5, agents=2)
+    mine = {"success": 1.0, "time": 3.0, "oracle_time": 2.0}
+    card = {"env": env.to_dict(), "training": {"env_steps": 300},
+            "zoo": {"heldout": {"episodes": 12, "seed": 5, "poisson": dict(mine),
+                                "expected": dict(mine)}}}  # fmt: skip
+    (tmp_path / "model.json").write_text(json.dumps(card))
+    held = add_baselines(tmp_path)
+    for readings in ("poisson", "expected"):
+        assert held[readings]["time"] == 3.0  # the model's own figures are kept
+        assert list(held[readings]["baselines"]) == list(BASELINE_POLICIES)
+        for name, figures in held[readings]["baselines"].items():
+            direct = evaluate(make_baseline(name), env.replace(readings=readings), 12, seed=5)
+            assert figures["time"] == direct.summary["time_mean"]
+            assert figures["success"] == direct.summary["success_rate"]
+    assert json.loads((tmp_path / "model.json").read_text())["zoo"]["heldout"] == held
+
+    run = tmp_path / "run"
+    run.mkdir()
+    write_metrics(run / "metrics.csv", [[1, 100, 0.5, 0.0, 9.0, 9.0], [2, 200, 1.0, 1.0, 5, 6]])
+    with pytest.raises(ValueError, match="not this model's run"):
+        attach_run_curve(tmp_path, run)  # ends at 200 steps, the card says 300
+    write_metrics(run / "metrics.csv", [[1, 150, 0.5, 0.0, 9.0, 9.0], [2, 300, 1.0, 1.0, 5, 6]])
+    assert [p["step"] for p in attach_run_curve(tmp_path, run)["points"]] == [150, 300]
+    assert json.loads((tmp_path / "model.json").read_text())["curve"]["updates"] == 2

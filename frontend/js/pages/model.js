@@ -39,21 +39,37 @@ function copyButton(text) {
   } }, "Copy");
 }
 
+const BASELINE_LABELS = {
+  bayes: "Bayesian search (shared posterior)",
+  uniform: "uniform coverage (zig-zag)",
+  random: "random moves",
+};
+
+function figuresRow(reading, policy, label, f, oracleTime) {
+  return h("tr", { "data-reading-model": reading, "data-policy": policy, class: `policy-${policy}` },
+    h("td", {}, label),
+    h("td", { class: "num success" }, percent(f.success)),
+    h("td", { class: "num time" }, withCi(f.time, f.time_ci)),
+    h("td", { class: "num cost" }, withCi(f.cost, f.cost_ci)),
+    h("td", { class: "num ratio" }, f.time_vs_oracle === null || f.time_vs_oracle === undefined
+      ? (policy === "oracle" && oracleTime ? "1.00×" : "—") : `${Number(f.time_vs_oracle).toFixed(2)}×`));
+}
+
 function heldoutTable(held) {
   return h("div", {},
     h("table", { class: "list", id: "heldout-table" },
-      h("thead", {}, h("tr", {}, ["Readings", "Success", "Time (steps, 95% CI)", "Cost (moves, 95% CI)",
-        "Oracle time", "Time / oracle"].map((c) => h("th", {}, c)))),
-      h("tbody", {}, held.readings.map((f) => h("tr", { "data-reading-model": f.reading_model },
-        h("td", {}, READING_MODELS[f.reading_model] || f.reading_model),
-        h("td", { class: "num success" }, percent(f.success)),
-        h("td", { class: "num time" }, withCi(f.time, f.time_ci)),
-        h("td", { class: "num cost" }, withCi(f.cost, f.cost_ci)),
-        h("td", { class: "num oracle" }, f.oracle_time === null ? "—" : Number(f.oracle_time).toFixed(2)),
-        h("td", { class: "num ratio" }, f.time_vs_oracle === null ? "—" : `${Number(f.time_vs_oracle).toFixed(2)}×`))))),
+      h("thead", {}, h("tr", {}, ["Policy", "Success", "Time (steps, 95% CI)", "Cost (moves, 95% CI)",
+        "Time / oracle"].map((c) => h("th", {}, c)))),
+      held.readings.map((f) => h("tbody", { "data-reading-model": f.reading_model },
+        h("tr", { class: "group" }, h("th", { colspan: 5 }, READING_MODELS[f.reading_model] || f.reading_model)),
+        figuresRow(f.reading_model, "model", h("strong", {}, "this model"), f),
+        (f.baselines || []).map((b) => figuresRow(f.reading_model, b.name, BASELINE_LABELS[b.name] || b.name, b)),
+        f.oracle_time === null || f.oracle_time === undefined ? null
+          : figuresRow(f.reading_model, "oracle", "oracle (knows the target)", { success: null, time: f.oracle_time }, f.oracle_time)))),
     h("p", { class: "muted" }, `Greedy policy on ${num(held.episodes)} held-out episodes`
-      + `${held.seed !== null && held.seed !== undefined ? ` (seed ${held.seed})` : ""}, figures from the model's card. `
-      + "The oracle knows the target and walks the closest agent straight to it: no search is faster."));
+      + `${held.seed !== null && held.seed !== undefined ? ` (seed ${held.seed})` : ""}, figures from the model's card; `
+      + "the baselines and the oracle on the same episodes. The oracle knows the target and walks the closest agent "
+      + "straight to it: no search is faster."));
 }
 
 function finalEval(ev) {
