@@ -1,6 +1,6 @@
 from __future__ import annotations
 
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, WithJsonSchema, model_validator
 
@@ -61,6 +61,22 @@ class TaskCreatedPublic(BaseModel):
     tx_hashes: list[str]
 
 
+class IntensityPublic(BaseModel):
+    kind: Literal["fixed", "choice", "uniform"]
+    values: list[float] = Field(description="photons per minute")
+
+
+class TaskEnvPublic(BaseModel):
+    """The environment of a task, from its spec (the document behind the on-chain CID)."""
+
+    rows: int
+    cols: int
+    agents: int
+    walls: tuple[int, int] = Field(description="walls per episode, [min, max]")
+    moves: int
+    intensity: IntensityPublic
+
+
 class TaskPublic(BaseModel):
     id: int
     requester: str
@@ -68,6 +84,10 @@ class TaskPublic(BaseModel):
     status: str
     num_workers: int
     reward_wei: str
+    reward_eth: str = Field(description="reward_wei in ETH, an exact decimal string")
+    env: TaskEnvPublic | None = Field(
+        description="the spec's environment; null when the description is not a readable spec"
+    )
     deadline: int
     min_reputation: float
     min_rating: float

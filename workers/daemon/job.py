@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any, cast
 
 from workers.daemon.experts import load_job_experts
+from workers.mdrl.curve import attach_curve
 from workers.mdrl.train import RunConfig, Trainer
 from workers.mdrl.trainingspec import TrainingSpec
 
@@ -172,6 +173,7 @@ def run_job(
     t0 = time.perf_counter()
     metrics = trainer.train()
     model = run_dir(job) / "model"
+    attach_curve(model, run_dir(job) / "metrics.csv")  # the card's training curve
     return model, {
         **metrics,
         **trainer.last_eval,

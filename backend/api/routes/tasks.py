@@ -17,7 +17,15 @@ from backend.api.schemas import Address
 from backend.api.writes import catch_up, field_error, receipt_public
 from backend.chain.platform import TaskStatus
 from backend.db import models as m
-from backend.schemas.common import MAX_DOMAIN, MAX_ID, EventPublic, TxPublic, from_fixed, to_fixed
+from backend.schemas.common import (
+    MAX_DOMAIN,
+    MAX_ID,
+    EventPublic,
+    TxPublic,
+    from_fixed,
+    to_fixed,
+    wei_to_eth,
+)
 from backend.schemas.tasks import (
     OfferPublic,
     OutcomePublic,
@@ -36,6 +44,7 @@ from backend.services.specs import (
     SpecLimitExceeded,
     check_limits,
     field_loc,
+    validate_env,
 )
 from backend.settings import Settings
 from backend.store.bundle import canonical_json
@@ -176,6 +185,23 @@ def allocate_task(
     return TxPublic(**receipt_public(rc))
 
 
+def task_env(env: Any) -> dict[str, Any] | None:
+    """TaskEnvPublic of a spec's ``env`` (indexed from the store: parsed with the core's rules
+    here); None when it does not parse."""
+    try:
+        spec = validate_env(env)
+    except (SpecError, TypeError, ValueError):
+        return None
+    return {
+        "rows": spec.rows,
+        "cols": spec.cols,
+        "agents": spec.agents,
+        "walls": list(spec.walls),
+        "moves": spec.moves,
+        "intensity": {"kind": spec.intensity.kind, "values": list(spec.intensity.values)},
+    }
+
+
 def task_public(t: m.TaskRow) -> TaskPublic:
     return TaskPublic(
         id=t.id,
@@ -184,6 +210,8 @@ def task_public(t: m.TaskRow) -> TaskPublic:
         status=t.status,
         num_workers=t.num_workers,
         reward_wei=t.reward_wei,
+        reward_eth=wei_to_eth(t.reward_wei),
+        env=task_env(t.spec.get("env")) if isinstance(t.spec, dict) else None,  # type: ignore[arg-type]
         deadline=t.deadline,
         min_reputation=from_fixed(t.min_reputation),
         min_rating=from_fixed(t.min_rating),
@@ -220,21 +248,31 @@ def list_tasks(
             q = q.where(m.TaskRow.domain == domain)
         count = session.scalar(select(func.count()).select_from(q.subquery())) or 0
         # The hot path (docs/platform.md, "Overload"): plain columns, serialised once.
-        page = q.with_only_columns(*_LIST_COLUMNS).order_by(m.TaskRow.id.desc()).limit(limit)
-        data = [
-            {
-                **row._asdict(),
-                "min_reputation": from_fixed(row.min_reputation),
-                "min_rating": from_fixed(row.min_rating),
-            }
-            for row in session.execute(page.offset(offset))
-        ]
+        # The spec's env only (JSON path on SQLite and PostgreSQL), not the whole document.
+        page = (
+            q.with_only_columns(*_LIST_COLUMNS, m.TaskRow.spec["env"].label("spec_env"))
+            .order_by(m.TaskRow.id.desc())
+            .limit(limit)
+        )
+        data = []
+        for row in session.execute(page.offset(offset)):
+            item = row._asdict()
+            item.update(
+                min_reputation=from_fixed(row.min_reputation),
+                min_rating=from_fixed(row.min_rating),
+                reward_eth=wei_to_eth(row.reward_wei),
+                env=task_env(item.pop("spec_env")),
+            )
+            data.append(item)
         return {"data": data, "count": count}
 
     return cached_page(request, session, build)  # type: ignore[return-value]
 
 
-_LIST_COLUMNS = tuple(getattr(m.TaskRow, name) for name in TaskPublic.model_fields)
+_COMPUTED = ("reward_eth", "env")
+_LIST_COLUMNS = tuple(
+    getattr(m.TaskRow, name) for name in TaskPublic.model_fields if name not in _COMPUTED
+)
 
 
 @router.get("/{task_id}", response_model=TaskDetailPublic, responses=rule_responses(404))

@@ -116,15 +116,44 @@ def model_show(
                 ],
             )
         )
-        card = d.get("card") or {}
-        if card:
-            typer.echo(
-                f"\nmodel {card.get('model')} for {card.get('env', {}).get('agents')} agents "
-                f"on {card.get('env', {}).get('rows')}x{card.get('env', {}).get('cols')}; "
-                f"metrics: {json.dumps(card.get('metrics', {}))[:200]}"
-            )
+        lines = hub_lines(d)
+        if lines:
+            typer.echo("\n" + "\n".join(lines))
 
     emit(out, as_json, render)
+
+
+def hub_lines(d: dict[str, Any]) -> list[str]:
+    """The model page's figures as text (GET /models/{id}: provenance, held-out, curve)."""
+    lines = []
+    if d.get("name") or d.get("kind"):
+        lines.append(" ".join(str(x) for x in (d.get("name"), d.get("kind")) if x))
+    p = d.get("produced_by")
+    lines.append(
+        f"produced by task {p['task_id']} (worker {p['worker']}; the chain's outcome record)"
+        if p
+        else "an owner's upload (no task's outcome)"
+    )
+    for x in d.get("experts") or []:
+        where = f"model {x['model_id']}" if x.get("model_id") else "not listed here"
+        lines.append(f"expert {x['ref']} ({where}; from the {x['source'].replace('_', ' ')})")
+    held = d.get("heldout")
+    for f in (held or {}).get("readings", []):
+        time = "-" if f.get("time") is None else f"{f['time']:.2f}"
+        oracle = "-" if f.get("oracle_time") is None else f"{f['oracle_time']:.2f}"
+        lines.append(
+            f"held-out ({held['episodes']} episodes, {f['reading_model']} readings): "
+            f"success {100 * f['success']:.1f}%, time {time} (oracle {oracle}), "
+            f"cost {'-' if f.get('cost') is None else format(f['cost'], '.2f')}"
+        )
+    curve = d.get("curve") or []
+    if curve:
+        last = curve[-1]
+        lines.append(
+            f"curve: {len(curve)} points to {last['step']} env steps; last success "
+            f"{last.get('success')}, time {last.get('time')}, cost {last.get('cost')}"
+        )
+    return lines
 
 
 @model_app.command("pull")

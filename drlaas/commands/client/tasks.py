@@ -277,19 +277,31 @@ def task_list(
         as_json,
         lambda d: typer.echo(
             table(
-                d["data"],
+                [t | {"environment": env_summary(t)} for t in d["data"]],
                 [
                     ("id", "ID"),
                     ("status", "STATUS"),
+                    ("environment", "ENVIRONMENT"),
                     ("requester", "REQUESTER"),
                     ("num_workers", "WORKERS"),
                     ("offered", "OFFERED"),
+                    ("reward_eth", "ETH/WORKER"),
                     ("deadline", "DEADLINE"),
-                    ("description", "SPEC CID"),
                 ],
             )
         ),
     )
+
+
+def env_summary(task: dict[str, Any]) -> str:
+    """``10x10 3a 0w 4m I=1e+09`` from a listed task's ``env`` (its spec CID when it has none)."""
+    env = task.get("env")
+    if not env:
+        return f"spec {task.get('description')}"
+    lo, hi = env["walls"]
+    values = ",".join(f"{v:.0e}" for v in env["intensity"]["values"])
+    walls = f"{lo}" if lo == hi else f"{lo}-{hi}"
+    return f"{env['rows']}x{env['cols']} {env['agents']}a {walls}w {env['moves']}m I={values}"
 
 
 @task_app.command("show")
