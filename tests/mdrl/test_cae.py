@@ -139,6 +139,10 @@ def test_the_embedding_replaces_the_downsized_walls_in_the_observation(tiny_cae)
     path, model, _ = tiny_cae
     plain = ObservationSpec("odmtl", window=3)
     spec = ObservationSpec("odmtl", window=3, walls_embedding=str(path), walls_embedding_size=16)
+    assert "walls_embedding" not in plain.to_dict()  # cards without the option are unchanged
+    assert ObservationSpec.from_dict(spec.to_dict()) == spec
+    with pytest.raises(ValueError, match="walls_embedding"):
+        ObservationSpec(walls_embedding="")
     before, after = channel_layout(SMALL, plain), channel_layout(SMALL, spec)
     assert "ds_walls" in before.actor and "ds_walls" not in after.actor
     assert "win_walls" in after.actor  # the windowed walls map stays (Fig. 4.2)
@@ -267,5 +271,6 @@ def test_cae_commands_train_and_eval(tmp_path):
     shown = json.loads(res.stdout)
     assert shown["card"] == card["heldout"]
     assert set(shown["fresh"]) == {"cae", "empty", "mean_map"}
+    assert {"cae", "cae_unseen", "empty", "mean_map"} == set(card["heldout"])
     res = runner.invoke(app, ["cae", "train", "--out", str(out), "--walls", "3:1"])
     assert res.exit_code != 0 and "--walls" in res.output

@@ -143,7 +143,12 @@ class ObservationSpec:
                 f"ObservationSpec.walls_embedding_size must be a positive int, got {size!r}")
 
     def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
+        """Fields as a dict; the walls-embedding fields only when the option is on, so specs,
+        cards and checkpoints without it read exactly as before it existed."""
+        d = asdict(self)
+        if self.walls_embedding is None:
+            del d["walls_embedding"], d["walls_embedding_size"]
+        return d
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> ObservationSpec:
