@@ -274,3 +274,32 @@ def test_cae_commands_train_and_eval(tmp_path):
     assert {"cae", "cae_unseen", "empty", "mean_map"} == set(card["heldout"])
     res = runner.invoke(app, ["cae", "train", "--out", str(out), "--walls", "3:1"])
     assert res.exit_code != 0 and "--walls" in res.output
+
+
+@pytest.mark.parametrize("options", [dict(kind="odmtl", belief=True),
+                                     dict(kind="odmtl", critic="full", belief=True),
+                                     dict(kind="dmtl", belief=True), dict(kind="cmtl")])
+def test_every_map_channel_is_unchanged_by_the_embedding(tiny_cae, options):
+    path, _, _ = tiny_cae
+    plain = ObservationSpec(window=3, **options)
+    spec = ObservationSpec(window=3, walls_embedding=str(path), walls_embedding_size=16,
+                           **options)
+    env = TargetLocalizationEnv(SMALL, num_envs=3, seed=4)
+    for _ in range(3):
+        env.step(np.argmax(env.action_mask(), -1))
+    observer, base = make_observer(SMALL, spec), make_observer(SMALL, plain)
+    (actor, critic), (b_actor, b_critic) = observer.observe(env), base.observe(env)
+    code = observer.embedder.embed(env.walls)
+    for got, want, names, base_names in ((actor, b_actor, observer.actor_channels,
+                                          base.actor_channels),
+                                         (critic[:, None], b_critic[:, None],
+                                          observer.critic_channels, base.critic_channels)):
+        codes = [i for i, c in enumerate(names) if c.startswith("walls_code_")]
+        assert codes == list(range(len(names) - len(codes), len(names)))  # last planes
+        flat = got[:, :, codes].reshape(*got.shape[:2], -1)
+        np.testing.assert_array_equal(flat[..., :16], np.broadcast_to(
+            code[:, None], (got.shape[0], got.shape[1], 16)))
+        for i, name in enumerate(names[:codes[0]]):
+            np.testing.assert_array_equal(got[:, :, i], want[:, :, base_names.index(name)])
+        dropped = set(base_names) - set(names)
+        assert dropped <= {"ds_walls"}
