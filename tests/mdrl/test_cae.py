@@ -216,6 +216,13 @@ def test_odmtl_training_with_the_embedding_saves_a_self_contained_model(tiny_cae
         np.testing.assert_array_equal(a, b)
         env_a.step(a)
         env_b.step(b)
+    # as a DC expert on the same task it ranks actions by the same probabilities
+    from workers.mdrl.experts import load_expert
+
+    expert = load_expert(str(model_dir), SMALL)
+    env = TargetLocalizationEnv(SMALL, 4, seed=6, autoreset=False)
+    np.testing.assert_allclose(np.exp(expert.scores(env, np.arange(4))),
+                               policy.action_probs(env), rtol=1e-5, atol=1e-7)
 
 
 def _lenet_reference(tensors, prefix, x):
@@ -303,3 +310,26 @@ def test_every_map_channel_is_unchanged_by_the_embedding(tiny_cae, options):
             np.testing.assert_array_equal(got[:, :, i], want[:, :, base_names.index(name)])
         dropped = set(base_names) - set(names)
         assert dropped <= {"ds_walls"}
+
+
+def test_shipped_30x30_cae_holds_its_card_on_fresh_layouts():
+    from workers.mdrl.cae import predict, reconstruction_figures
+
+    path = ZOO / "cae-30x30"
+    if not (path / "model.json").is_file():
+        pytest.skip("models/cae-30x30 not present")
+    assert (path / "model.safetensors").stat().st_size < 400 * 1024
+    card = load_cae_card(path)
+    spec = EnvSpec.from_dict(card["env"])
+    assert (spec.rows, spec.cols, tuple(spec.walls), card["embedding"]) == (30, 30, (1, 3), 128)
+    held = card["heldout"]
+    assert held["cae"]["cell_error"] < 0.1 * held["empty"]["cell_error"]
+    fresh = wall_layouts(spec, 500, seed=424242)
+    got = reconstruction_figures(predict(load_cae(path), fresh), fresh)
+    # 500 x 900 cells: the card's misclassified-cell rate and IoU must hold up to sampling
+    assert got["cell_error"] < 2 * held["cae"]["cell_error"] + 1e-3
+    assert got["wall_iou"] > held["cae"]["wall_iou"] - 0.03
+    # and it serves a Ch. 4 observation (w = 7: d = 128 rides in 3 planes of 7 x 7)
+    obs = ObservationSpec("odmtl", window=7, walls_embedding=str(path))
+    observer = make_observer(spec.replace(agents=3, moves=8), obs)
+    assert observer.actor_channels[-3:] == tuple(f"walls_code_{i}" for i in range(3))
