@@ -344,8 +344,8 @@ def load_expert(ref: str, task: Any, seed: int = 0) -> Any:
     ``ref`` is a built-in (``oracle``, ``bayes``, ``uniform``, ``random``, ``biased:K``,
     ``malicious:REF``) or a model directory (``model.json`` + ``model.safetensors``); write
     ``./oracle`` for a directory that has a built-in's name. Built-in names come first.
-    Loading by CID is the platform's job: it fetches and verifies the model, then passes its
-    directory. ``seed`` seeds the random expert.
+    Loading by CID is the platform's job (``workers/daemon/experts.py``): it fetches and
+    verifies the model, then passes its directory. ``seed`` seeds the random expert.
     """
     if not isinstance(ref, str) or not ref:
         raise ExpertError(f"expert reference must be a non-empty string, got {ref!r}")
