@@ -44,7 +44,9 @@ class ZooEntry:
 
 
 ZOO: dict[str, ZooEntry] = {
-    **{f"odmtl-{n}a": ZooEntry(f"odmtl-{n}a-10x10", minutes=6) for n in (1, 2, 3, 4, 10)},
+    # 30 minutes (the bound per model) where a 6-minute run missed Table 3.5
+    **{f"odmtl-{n}a": ZooEntry(f"odmtl-{n}a-10x10", minutes=30 if n in (2, 3, 4) else 6)
+       for n in (1, 2, 3, 4, 10)},
     **{f"dmtl-{n}a": ZooEntry(f"dmtl-{n}a-10x10", minutes=6) for n in (1, 2, 3, 4, 10)},
     **{f"cmtl-{n}a": ZooEntry(f"cmtl-{n}a-10x10", minutes=6) for n in (1, 2, 3)},
     "odmtl-generalist": ZooEntry("generalist", minutes=20),
