@@ -164,7 +164,7 @@ class TargetLocalizationEnv:
         keys = rng.random((R, C))
         keys[walls] = 2.0
         target = keys.argmin(axis=1)
-        dist = self._bfs(target, walls, next_cell)
+        dist = self._bfs(target, walls)
         reachable = dist < UNREACHABLE
         short = reachable.sum(1) < N + 1
         if short.any():  # a pocket too small to hold the team: draw those layouts again
@@ -258,31 +258,51 @@ class TargetLocalizationEnv:
         table[blocked] = -1
         return table
 
-    def _bfs(self, target: np.ndarray, walls: np.ndarray, next_cell: np.ndarray) -> np.ndarray:
-        """(R, C) BFS steps to the target (moves are symmetric, so search from the target)."""
+    def _bfs(self, target: np.ndarray, walls: np.ndarray) -> np.ndarray:
+        """(R, C) BFS steps to the target (moves are symmetric, so search from the target).
+
+        Level by level on the padded grid: a cell joins the next level if a move from the
+        current level reaches it, i.e. it is free and (for a diagonal) both orthogonal cells
+        beside the move are free, as in ``_move_table``.
+        """
         R, C = walls.shape
         dist = self._free_dist[target].copy()
-        hard = walls.any(axis=1)
-        if not hard.any():
+        hard = np.flatnonzero(walls.any(axis=1))
+        if not len(hard):
             return dist
-        idx = np.flatnonzero(hard)
-        sub = np.full((len(idx), C), UNREACHABLE, dtype=np.int32)
-        sub[np.arange(len(idx)), target[idx]] = 0
-        frontier = np.zeros((len(idx), C), dtype=bool)
-        frontier[np.arange(len(idx)), target[idx]] = True
-        table = next_cell[idx]
-        rows = np.arange(len(idx))[:, None]
+        m, n, k = self.spec.rows, self.spec.cols, len(hard)
+        free = np.zeros((k, m + 2, n + 2), dtype=bool)  # a border of walls around the grid
+        inner = free[:, 1:-1, 1:-1]
+        inner[...] = ~walls[hard].reshape(k, m, n)
+        steps = []
+        for dr, dc in self.moves[1:]:
+            ok = inner.copy()  # the destination is free ...
+            if dr and dc:  # ... and a diagonal does not cut a wall corner
+                ok &= free[:, 1 : m + 1, 1 - dc : n + 1 - dc]
+                ok &= free[:, 1 - dr : m + 1 - dr, 1 : n + 1]
+            steps.append((slice(1 - dr, m + 1 - dr), slice(1 - dc, n + 1 - dc), ok))
+        sub = np.full((k, m, n), UNREACHABLE, dtype=np.int32)
+        frontier = np.zeros((k, m + 2, n + 2), dtype=bool)
+        tr, tc = np.divmod(target[hard], n)
+        at = np.arange(k)
+        frontier[at, tr + 1, tc + 1] = True
+        sub[at, tr, tc] = 0
+        seen = ~inner
+        seen[at, tr, tc] = True
+        reached = np.empty((k, m, n), dtype=bool)
         d = 0
-        while frontier.any():
+        while True:
             d += 1
-            reached = np.zeros_like(frontier)
-            for a in range(1, table.shape[2]):
-                dest = table[:, :, a]
-                ok = frontier & (dest >= 0)
-                reached[np.broadcast_to(rows, dest.shape)[ok], dest[ok]] = True
-            frontier = reached & (sub == UNREACHABLE)
-            sub[frontier] = d
-        dist[idx] = sub
+            reached[...] = False
+            for rs, cs, ok in steps:
+                reached |= frontier[:, rs, cs] & ok
+            reached &= ~seen
+            if not reached.any():
+                break
+            seen |= reached
+            np.copyto(sub, d, where=reached)
+            frontier[:, 1:-1, 1:-1] = reached
+        dist[hard] = sub.reshape(k, C)
         return dist
 
     def expected_counts(
