@@ -462,18 +462,41 @@ class TargetLocalizationEnv:
 def _slab_slant(a_p, a_q, s_p, s_q, length, near, far, size_a, size_s, span) -> np.ndarray:
     """Sum of 1/cos(theta) over the slabs at a = (j + 0.5) * size_a that the segment PQ crosses.
 
-    ``a`` is the coordinate across the slabs, ``s`` the one along them; ``near``/``far`` (R, lines)
-    are the run lengths from the two sides (0: no wall there).
+    ``a`` is the coordinate across the slabs, ``s`` the one along them; detectors ``a_p``,
+    ``s_p`` are (1, C), sources ``a_q``, ``s_q`` (R, 1); ``near``/``far`` (R, lines) are the run
+    lengths from the two sides (0: no wall there). Each env adds its wall lines in increasing
+    order, evaluated either for the (env, line) pairs that hold a wall (envs with different
+    layouts, as at reset) or line by line over all envs (envs sharing one layout, as the belief
+    filter's C hypotheses), whichever touches fewer (env, line) pairs.
     """
-    total = np.zeros(np.broadcast_shapes(a_p.shape, a_q.shape))
-    for j in np.flatnonzero((near > 0).any(0) | (far > 0).any(0)):
-        aw = (j + 0.5) * size_a
-        dp, dq = a_p - aw, a_q - aw
-        crosses = dp * dq < 0
-        with np.errstate(divide="ignore", invalid="ignore"):
-            s = s_p + dp / (dp - dq) * (s_q - s_p)
-            slant = length / np.abs(a_p - a_q)
-        nj, fj = near[:, j : j + 1], far[:, j : j + 1]
-        hit = crosses & (((nj > 0) & (s <= nj * size_s)) | ((fj > 0) & (s >= (span - fj) * size_s)))
-        total += np.where(hit, slant, 0.0)
+    total = np.zeros(length.shape)
+    has = (near > 0) | (far > 0)
+    rows, lines = np.nonzero(has)  # sorted by env, then line
+    if not len(rows):
+        return total
+    shared = np.flatnonzero(has.any(0))
+    if 2 * len(rows) >= len(shared) * len(has):
+        for j in shared:
+            total += _line_slant(a_p, a_q, s_p, s_q, length, near[:, j : j + 1],
+                                 far[:, j : j + 1], j, size_a, size_s, span)
+        return total
+    add = _line_slant(a_p, a_q[rows], s_p, s_q[rows], length[rows], near[rows, lines][:, None],
+                      far[rows, lines][:, None], lines[:, None], size_a, size_s, span)
+    rank = np.arange(len(rows)) - np.searchsorted(rows, rows)  # k-th wall line of its env
+    for k in range(int(rank.max()) + 1):
+        sel = rank == k
+        total[rows[sel]] += add[sel]
     return total
+
+
+def _line_slant(a_p, a_q, s_p, s_q, length, near, far, line, size_a, size_s, span) -> np.ndarray:
+    """1/cos(theta) where PQ crosses the wall(s) on slab ``line`` (broadcast), else 0."""
+    aw = (line + 0.5) * size_a
+    dp, dq = a_p - aw, a_q - aw
+    crosses = dp * dq < 0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = s_p + dp / (dp - dq) * (s_q - s_p)
+        slant = length / np.abs(a_p - a_q)
+    hit = crosses & (((near > 0) & (s <= near * size_s))
+                     | ((far > 0) & (s >= (span - far) * size_s)))
+    return np.where(hit, slant, 0.0)
