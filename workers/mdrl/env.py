@@ -240,22 +240,16 @@ class TargetLocalizationEnv:
         table = np.broadcast_to(self._free_next, (R, *self._free_next.shape)).copy()
         if not walls.any():
             return table
-        rows = np.arange(R)[:, None, None]
-        blocked = (table >= 0) & walls[rows, np.maximum(table, 0)]
-        if self.spec.moves == 8:
-            n = self.spec.cols
-            for a, (dr, dc) in enumerate(self.moves):
-                if dr == 0 or dc == 0:
-                    continue
-                # Moving diagonally needs both orthogonal neighbours free (no corner cutting).
-                via_r = self.cell_row + dr
-                via_c = self.cell_col + dc
-                ok = table[:, :, a] >= 0
-                side1 = np.where(ok, via_r * n + self.cell_col, 0)
-                side2 = np.where(ok, self.cell_row * n + via_c, 0)
-                rr = np.arange(R)[:, None]
-                blocked[:, :, a] |= ok & (walls[rr, side1] | walls[rr, side2])
-        table[blocked] = -1
+        m, n = self.spec.rows, self.spec.cols
+        free = np.zeros((R, m + 2, n + 2), dtype=bool)  # a border of walls around the grid
+        free[:, 1:-1, 1:-1] = ~walls.reshape(R, m, n)
+        grid = table.reshape(R, m, n, -1)
+        for a, (dr, dc) in enumerate(self.moves):
+            ok = free[:, 1 + dr : m + 1 + dr, 1 + dc : n + 1 + dc].copy()  # destination free
+            if dr and dc:  # a diagonal needs both orthogonal neighbours free (no corner cutting)
+                ok &= free[:, 1 + dr : m + 1 + dr, 1 : n + 1]
+                ok &= free[:, 1 : m + 1, 1 + dc : n + 1 + dc]
+            grid[:, :, :, a][~ok] = -1
         return table
 
     def _bfs(self, target: np.ndarray, walls: np.ndarray) -> np.ndarray:
