@@ -375,6 +375,11 @@ class Observer:
         products, ``downsize_factors``); a strided view of a scratch buffer."""
         k, b = len(maps), maps[0].shape[0]
         rows, cols, w, pad = self.rows, self.cols, self.window, self._ac_t.shape[1]
+        if self.cells * w * w <= (self.cells + w * rows) * pad:  # small grid: one product
+            out = self._buffer(("ds_full", b, k), (k, b, w * w))
+            for j, m in enumerate(maps):
+                np.matmul(m, self._rt, out=out[j])
+            return out.reshape(k, b, w, w)
         by_col = self._buffer(("ds_cols", b, k), (k, b * rows, pad))  # [j, (b, r), kc]
         for j, m in enumerate(maps):
             np.matmul(m.reshape(b * rows, cols), self._ac_t, out=by_col[j])
@@ -540,8 +545,8 @@ class Observer:
             actor[:, :, k] = others
             k += 1
         ds = self._downsize([readings, visits] + ([walls] if walls is not None else []))
-        ds_r = ds[0] * inv_r[:, None, None]  # (B, w, w)
-        ds_v = ds[1] * inv_v[:, None, None]
+        ds_r = np.multiply(ds[0], inv_r[:, None, None], order="C")  # (B, w, w), C order
+        ds_v = np.multiply(ds[1], inv_v[:, None, None], order="C")
         actor_sq[:, :, k] = ds_r[:, None]
         actor_sq[:, :, k + 1] = ds_v[:, None]
         top_count = at_cell.max(1, keepdims=True).astype(np.float32)
@@ -561,11 +566,12 @@ class Observer:
             critic_sq[:, 2] = ds_v
         if walls is not None:
             actor[:, :, k + 2] = self._gather_windows(walls, index)
-            actor_sq[:, :, k + 3] = ds[2][:, None]
+            ds_w = np.ascontiguousarray(ds[2])
+            actor_sq[:, :, k + 3] = ds_w[:, None]
             if self.full_critic:
                 critic[:, 3] = walls
             else:
-                critic_sq[:, 3] = ds[2]
+                critic_sq[:, 3] = ds_w
         return actor, critic
 
 
