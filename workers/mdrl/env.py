@@ -270,32 +270,38 @@ class TargetLocalizationEnv:
         free = np.zeros((k, m + 2, n + 2), dtype=bool)  # a border of walls around the grid
         inner = free[:, 1:-1, 1:-1]
         inner[...] = ~walls[hard].reshape(k, m, n)
-        steps = []
+        straight, diagonal = [], []
         for dr, dc in self.moves[1:]:
-            ok = inner.copy()  # the destination is free ...
-            if dr and dc:  # ... and a diagonal does not cut a wall corner
-                ok &= free[:, 1 : m + 1, 1 - dc : n + 1 - dc]
-                ok &= free[:, 1 - dr : m + 1 - dr, 1 : n + 1]
-            steps.append((slice(1 - dr, m + 1 - dr), slice(1 - dc, n + 1 - dc), ok))
+            shift = (slice(None), slice(1 - dr, m + 1 - dr), slice(1 - dc, n + 1 - dc))
+            if dr and dc:  # a diagonal does not cut a wall corner
+                ok = free[:, 1 : m + 1, 1 - dc : n + 1 - dc]
+                ok = ok & free[:, 1 - dr : m + 1 - dr, 1 : n + 1]
+                diagonal.append((shift, ok))
+            else:
+                straight.append(shift)
         sub = np.full((k, m, n), UNREACHABLE, dtype=np.int32)
         frontier = np.zeros((k, m + 2, n + 2), dtype=bool)
         tr, tc = np.divmod(target[hard], n)
         at = np.arange(k)
         frontier[at, tr + 1, tc + 1] = True
         sub[at, tr, tc] = 0
-        seen = ~inner
-        seen[at, tr, tc] = True
+        unseen = inner.copy()  # free cells not reached yet (the destination-free condition)
+        unseen[at, tr, tc] = False
         reached = np.empty((k, m, n), dtype=bool)
+        step = np.empty((k, m, n), dtype=bool)
         d = 0
         while True:
             d += 1
-            reached[...] = False
-            for rs, cs, ok in steps:
-                reached |= frontier[:, rs, cs] & ok
-            reached &= ~seen
+            np.logical_or(frontier[straight[0]], frontier[straight[1]], out=reached)
+            for shift in straight[2:]:
+                reached |= frontier[shift]
+            for shift, ok in diagonal:
+                np.logical_and(frontier[shift], ok, out=step)
+                reached |= step
+            reached &= unseen
             if not reached.any():
                 break
-            seen |= reached
+            unseen ^= reached
             np.copyto(sub, d, where=reached)
             frontier[:, 1:-1, 1:-1] = reached
         dist[hard] = sub.reshape(k, C)
