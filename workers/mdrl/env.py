@@ -403,9 +403,11 @@ class TargetLocalizationEnv:
                 f"(valid: {np.flatnonzero(self._mask[b, i]).tolist()})"
             )
 
-        rows = self._rows if live.all() else np.flatnonzero(live)
-        act = actions[rows]
-        old = self.pos[rows]
+        everyone = live.all()
+        rows = self._rows if everyone else np.flatnonzero(live)
+        sel = slice(None) if everyone else rows  # a slice indexes faster than arange(B)
+        act = actions[sel]
+        old = self.pos[sel]
         C = spec.num_cells
         new = self.next_cell.reshape(-1)[(rows[:, None] * C + old) * A + act]
         moved = act != 0
@@ -417,21 +419,21 @@ class TargetLocalizationEnv:
 
         reward = np.zeros(B, dtype=np.float32)
         if spec.reward == "shaped":  # Eq. 5 / Eq. 8
-            reward[rows] = np.where(new_min < prev_min, 1.0, -1.0) - b
+            reward[sel] = np.where(new_min < prev_min, 1.0, -1.0) - b
         else:  # Eq. 9
-            reward[rows] = -b + spec.sparse_bonus * found
+            reward[sel] = -b + spec.sparse_bonus * found
 
-        self.pos[rows] = new
-        self.cost[rows] += b
-        self.t[rows] += 1
-        self.idle_streak[rows] = np.where(b == 0, self.idle_streak[rows] + 1, 0)
-        self.history[rows, self.t[rows] % HISTORY] = new
+        self.pos[sel] = new
+        self.cost[sel] += b
+        self.t[sel] += 1
+        self.idle_streak[sel] = np.where(b == 0, self.idle_streak[sel] + 1, 0)
+        self.history[rows, self.t[sel] % HISTORY] = new
         self._take_readings(rows, new)
 
         terminated = np.zeros(B, dtype=bool)
         truncated = np.zeros(B, dtype=bool)
-        terminated[rows] = found
-        truncated[rows] = ~found & (self.t[rows] >= spec.max_steps)
+        terminated[sel] = found
+        truncated[sel] = ~found & (self.t[sel] >= spec.max_steps)
         ended = np.flatnonzero(terminated | truncated)
         episode = None
         if len(ended):
