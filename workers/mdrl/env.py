@@ -71,6 +71,9 @@ class TargetLocalizationEnv:
         nc = self.cell_col[:, None] + self.moves[None, :, 1]
         inside = (nr >= 0) & (nr < m) & (nc >= 0) & (nc < n)
         self._free_next = np.where(inside, nr * n + nc, -1)  # (C, A) move table without walls
+        # A spec without walls gives every env this table: steps and masks read the small shared
+        # table instead of gathering from next_cell (B * C * A entries, far beyond the caches).
+        self._one_table = spec.walls[1] == 0
         diff = (
             np.abs(self.cell_row[:, None] - self.cell_row[None]),
             np.abs(self.cell_col[:, None] - self.cell_col[None]),
@@ -351,8 +354,11 @@ class TargetLocalizationEnv:
 
     def _masks(self, rows: np.ndarray) -> np.ndarray:
         C = self.spec.num_cells
-        flat = self.next_cell.reshape(-1, self.spec.num_actions)
-        mask = flat[rows[:, None] * C + self.pos[rows]] >= 0
+        if self._one_table:
+            mask = self._free_next[self.pos[rows]] >= 0
+        else:
+            flat = self.next_cell.reshape(-1, self.spec.num_actions)
+            mask = flat[rows[:, None] * C + self.pos[rows]] >= 0
         mask[:, :, 0] &= (self.idle_streak[rows] < self.spec.idle_limit)[:, None]
         return mask
 
@@ -409,7 +415,10 @@ class TargetLocalizationEnv:
         act = actions[sel]
         old = self.pos[sel]
         C = spec.num_cells
-        new = self.next_cell.reshape(-1)[(rows[:, None] * C + old) * A + act]
+        if self._one_table:
+            new = self._free_next[old, act]
+        else:
+            new = self.next_cell.reshape(-1)[(rows[:, None] * C + old) * A + act]
         moved = act != 0
         b = moved.sum(1)
         dist_flat = self.dist.reshape(-1)
