@@ -233,3 +233,15 @@ def test_spec_validation_and_json_round_trip():
     with pytest.raises(ValueError, match="intensity"):
         IntensitySpec.parse("lots")
     assert IntensitySpec.parse("1e8:1e9") == IntensitySpec.uniform(1e8, 1e9)
+
+
+def test_transmission_of_many_layouts_equals_each_layout_alone():
+    # at reset the walls are evaluated per (env, wall line) pair; alone, line by line
+    spec = EnvSpec(rows=12, cols=9, agents=2, moves=8, walls=(1, 3))
+    env = TargetLocalizationEnv(spec, 24, seed=6)
+    together = env.expected_counts(env.target, env.walls, env.intensity)
+    assert (together < env._free_gain[env.target] * env.intensity[:, None]).any()  # walls bite
+    for b in range(env.num_envs):
+        alone = env.expected_counts(env.target[b : b + 1], env.walls[b : b + 1],
+                                    env.intensity[b : b + 1])[0]
+        np.testing.assert_array_equal(together[b], alone)
