@@ -20,6 +20,8 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from scipy.sparse import csr_matrix
+from scipy.sparse.csgraph import dijkstra
 
 from .spec import MOVES, EnvSpec
 
@@ -167,7 +169,7 @@ class TargetLocalizationEnv:
         keys = rng.random((R, C))
         keys[walls] = 2.0
         target = keys.argmin(axis=1)
-        dist = self._bfs(target, walls)
+        dist = self._bfs(target, walls, next_cell)
         reachable = dist < UNREACHABLE
         short = reachable.sum(1) < N + 1
         if short.any():  # a pocket too small to hold the team: draw those layouts again
@@ -257,17 +259,26 @@ class TargetLocalizationEnv:
             grid[:, :, :, a][~ok] = -1
         return table
 
-    def _bfs(self, target: np.ndarray, walls: np.ndarray) -> np.ndarray:
+    #: Below this many layouts a graph search per layout beats the level-by-level grid search.
+    _GRAPH_BFS_BELOW = 12
+
+    def _bfs(self, target: np.ndarray, walls: np.ndarray, next_cell: np.ndarray) -> np.ndarray:
         """(R, C) BFS steps to the target (moves are symmetric, so search from the target).
 
-        Level by level on the padded grid: a cell joins the next level if a move from the
-        current level reaches it, i.e. it is free and (for a diagonal) both orthogonal cells
-        beside the move are free, as in ``_move_table``.
+        Without walls: the closed form. A few layouts (a typical reset): scipy's search on the
+        graph of ``next_cell``. Many: level by level on the padded grid, where a cell joins the
+        next level if a move from the current level reaches it, i.e. it is free and (for a
+        diagonal) both orthogonal cells beside the move are free, as in ``_move_table``. The
+        grid search costs ~45 levels of array passes whatever the number of layouts, the graph
+        search a fixed cost per layout.
         """
         R, C = walls.shape
         dist = self._free_dist[target].copy()
         hard = np.flatnonzero(walls.any(axis=1))
         if not len(hard):
+            return dist
+        if len(hard) < self._GRAPH_BFS_BELOW:
+            dist[hard] = _graph_bfs(target[hard], next_cell[hard])
             return dist
         m, n, k = self.spec.rows, self.spec.cols, len(hard)
         free = np.zeros((k, m + 2, n + 2), dtype=bool)  # a border of walls around the grid
@@ -513,3 +524,19 @@ def _line_slant(a_p, a_q, s_p, s_q, length, near, far, line, size_a, size_s, spa
     hit = crosses & (((near > 0) & (s <= near * size_s))
                      | ((far > 0) & (s >= (span - far) * size_s)))
     return np.where(hit, slant, 0.0)
+
+
+def _graph_bfs(target: np.ndarray, next_cell: np.ndarray) -> np.ndarray:
+    """(k, C) BFS steps from ``target`` over the moves of ``next_cell`` (k, C, A), one graph
+    of k disconnected layouts; invalid moves become self-loops, so every cell has A - 1 edges
+    and the sparse layout needs no sorting."""
+    k, C, A = next_cell.shape
+    moves = next_cell[:, :, 1:]
+    base = (np.arange(k) * C)[:, None, None]
+    dest = np.where(moves >= 0, moves, np.arange(C)[None, :, None]) + base
+    edges = (np.ones(dest.size, dtype=np.float32), dest.reshape(-1),
+             np.arange(0, dest.size + 1, A - 1))
+    graph = csr_matrix(edges, shape=(k * C, k * C))
+    d = dijkstra(graph, indices=np.arange(k) * C + target, unweighted=True)
+    d = d.reshape(k, k, C)[np.arange(k), np.arange(k)]
+    return np.where(np.isfinite(d), d, UNREACHABLE).astype(np.int32)
