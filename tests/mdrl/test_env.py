@@ -233,3 +233,29 @@ def test_spec_validation_and_json_round_trip():
     with pytest.raises(ValueError, match="intensity"):
         IntensitySpec.parse("lots")
     assert IntensitySpec.parse("1e8:1e9") == IntensitySpec.uniform(1e8, 1e9)
+
+
+def test_transmission_of_many_layouts_equals_each_layout_alone():
+    # at reset the walls are evaluated per (env, wall line) pair; alone, line by line
+    spec = EnvSpec(rows=12, cols=9, agents=2, moves=8, walls=(1, 3))
+    env = TargetLocalizationEnv(spec, 24, seed=6)
+    together = env.expected_counts(env.target, env.walls, env.intensity)
+    assert (together < env._free_gain[env.target] * env.intensity[:, None]).any()  # walls bite
+    for b in range(env.num_envs):
+        alone = env.expected_counts(env.target[b : b + 1], env.walls[b : b + 1],
+                                    env.intensity[b : b + 1])[0]
+        np.testing.assert_array_equal(together[b], alone)
+
+
+@pytest.mark.parametrize("moves", [4, 8])
+def test_graph_and_grid_searches_give_the_same_distances(moves):
+    # a few layouts (a typical reset) take the graph search, many the level-by-level one
+    spec = EnvSpec(rows=12, cols=9, agents=2, moves=moves, walls=(1, 3))
+    env = TargetLocalizationEnv(spec, 40, seed=8)
+    assert env._GRAPH_BFS_BELOW < 40
+    many = env._bfs(env.target, env.walls, env.next_cell)
+    np.testing.assert_array_equal(many, env.dist)
+    for lo in range(0, 40, 5):
+        few = env._bfs(env.target[lo : lo + 5], env.walls[lo : lo + 5], env.next_cell[lo : lo + 5])
+        np.testing.assert_array_equal(few, many[lo : lo + 5])
+    assert (many >= UNREACHABLE).any() and (many[many < UNREACHABLE] > 8).any()

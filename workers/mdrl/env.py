@@ -7,9 +7,11 @@ once at reset, so a step is a handful of gathers over (B, N) arrays.
 
 Walls (ours where the thesis is silent): a wall starts at one side of the area, at a cell drawn
 away from the corners, and runs perpendicular to that side for a random length of at most
-span - 2 cells. Wall cells cannot be entered; a diagonal move may not cut the corner of a wall
-cell. Walls can wall off pockets: the target is drawn among free cells, and agents start only in
-cells from which the target is reachable (the target of Ch. 3/4 is always reachable).
+span - 2 cells; no two walls leave the same side on the same line (they would merge), so an
+episode has exactly the drawn number of walls (Ch. 4: "the number of walls is fixed").
+Wall cells cannot be entered; a diagonal move may not cut the corner of a wall cell. Walls can
+wall off pockets: the target is drawn among free cells, and agents start only in cells from
+which the target is reachable (the target of Ch. 3/4 is always reachable).
 """
 
 from __future__ import annotations
@@ -18,6 +20,8 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from scipy.sparse import csr_matrix
+from scipy.sparse.csgraph import dijkstra
 
 from .spec import MOVES, EnvSpec
 
@@ -69,6 +73,9 @@ class TargetLocalizationEnv:
         nc = self.cell_col[:, None] + self.moves[None, :, 1]
         inside = (nr >= 0) & (nr < m) & (nc >= 0) & (nc < n)
         self._free_next = np.where(inside, nr * n + nc, -1)  # (C, A) move table without walls
+        # A spec without walls gives every env this table: steps and masks read the small shared
+        # table instead of gathering from next_cell (B * C * A entries, far beyond the caches).
+        self._one_table = spec.walls[1] == 0
         diff = (
             np.abs(self.cell_row[:, None] - self.cell_row[None]),
             np.abs(self.cell_col[:, None] - self.cell_col[None]),
@@ -172,7 +179,9 @@ class TargetLocalizationEnv:
         keys = rng.random((R, C))
         keys[~reachable] = 2.0
         keys[np.arange(R), target] = 2.0
-        start = np.argsort(keys, axis=1)[:, :N]
+        # the N smallest keys in increasing order (= argsort(keys)[:, :N], without a full sort)
+        start = np.argpartition(keys, N - 1, axis=1)[:, :N]  # N < C (spec: N + 1 <= C)
+        start = np.take_along_axis(start, np.argsort(np.take_along_axis(keys, start, 1), 1), 1)
 
         self.target[rows] = target
         self.dist[rows] = dist
@@ -201,12 +210,21 @@ class TargetLocalizationEnv:
         if hi == 0:
             return walls.reshape(R, -1)
         count = rng.integers(lo, hi + 1, size=R)
+        taken = np.zeros((R, 4, max(m, n)), dtype=bool)  # (side, place) already holding a wall
         for k in range(hi):
             side = rng.integers(0, 4, size=R)  # 0 top, 1 bottom, 2 left, 3 right
             vertical = side < 2
             along = np.where(vertical, n, m)  # cells along the side
             span = np.where(vertical, m, n)  # how far a wall can reach
             place = rng.integers(1, along - 1)
+            # Two walls on one line of one side would merge: draw again so the count is exact.
+            again = taken[np.arange(R), side, place]
+            while again.any():
+                side[again] = rng.integers(0, 4, size=int(again.sum()))
+                vertical, along, span = side < 2, np.where(side < 2, n, m), np.where(side < 2, m, n)
+                place[again] = rng.integers(1, along[again] - 1)
+                again = taken[np.arange(R), side, place]
+            taken[np.arange(R), side, place] = True
             lmin = np.array([spec.wall_length_range(int(s))[0] for s in span])
             lmax = np.array([spec.wall_length_range(int(s))[1] for s in span])
             length = rng.integers(lmin, lmax + 1)
@@ -230,49 +248,78 @@ class TargetLocalizationEnv:
         table = np.broadcast_to(self._free_next, (R, *self._free_next.shape)).copy()
         if not walls.any():
             return table
-        rows = np.arange(R)[:, None, None]
-        blocked = (table >= 0) & walls[rows, np.maximum(table, 0)]
-        if self.spec.moves == 8:
-            n = self.spec.cols
-            for a, (dr, dc) in enumerate(self.moves):
-                if dr == 0 or dc == 0:
-                    continue
-                # Moving diagonally needs both orthogonal neighbours free (no corner cutting).
-                via_r = self.cell_row + dr
-                via_c = self.cell_col + dc
-                ok = table[:, :, a] >= 0
-                side1 = np.where(ok, via_r * n + self.cell_col, 0)
-                side2 = np.where(ok, self.cell_row * n + via_c, 0)
-                rr = np.arange(R)[:, None]
-                blocked[:, :, a] |= ok & (walls[rr, side1] | walls[rr, side2])
-        table[blocked] = -1
+        m, n = self.spec.rows, self.spec.cols
+        free = np.zeros((R, m + 2, n + 2), dtype=bool)  # a border of walls around the grid
+        free[:, 1:-1, 1:-1] = ~walls.reshape(R, m, n)
+        grid = table.reshape(R, m, n, -1)
+        for a, (dr, dc) in enumerate(self.moves):
+            ok = free[:, 1 + dr : m + 1 + dr, 1 + dc : n + 1 + dc].copy()  # destination free
+            if dr and dc:  # a diagonal needs both orthogonal neighbours free (no corner cutting)
+                ok &= free[:, 1 + dr : m + 1 + dr, 1 : n + 1]
+                ok &= free[:, 1 : m + 1, 1 + dc : n + 1 + dc]
+            grid[:, :, :, a][~ok] = -1
         return table
 
+    #: Below this many layouts a graph search per layout beats the level-by-level grid search.
+    _GRAPH_BFS_BELOW = 12
+
     def _bfs(self, target: np.ndarray, walls: np.ndarray, next_cell: np.ndarray) -> np.ndarray:
-        """(R, C) BFS steps to the target (moves are symmetric, so search from the target)."""
+        """(R, C) BFS steps to the target (moves are symmetric, so search from the target).
+
+        Without walls: the closed form. A few layouts (a typical reset): scipy's search on the
+        graph of ``next_cell``. Many: level by level on the padded grid, where a cell joins the
+        next level if a move from the current level reaches it, i.e. it is free and (for a
+        diagonal) both orthogonal cells beside the move are free, as in ``_move_table``. The
+        grid search costs ~45 levels of array passes whatever the number of layouts, the graph
+        search a fixed cost per layout.
+        """
         R, C = walls.shape
         dist = self._free_dist[target].copy()
-        hard = walls.any(axis=1)
-        if not hard.any():
+        hard = np.flatnonzero(walls.any(axis=1))
+        if not len(hard):
             return dist
-        idx = np.flatnonzero(hard)
-        sub = np.full((len(idx), C), UNREACHABLE, dtype=np.int32)
-        sub[np.arange(len(idx)), target[idx]] = 0
-        frontier = np.zeros((len(idx), C), dtype=bool)
-        frontier[np.arange(len(idx)), target[idx]] = True
-        table = next_cell[idx]
-        rows = np.arange(len(idx))[:, None]
+        if len(hard) < self._GRAPH_BFS_BELOW:
+            dist[hard] = _graph_bfs(target[hard], next_cell[hard])
+            return dist
+        m, n, k = self.spec.rows, self.spec.cols, len(hard)
+        free = np.zeros((k, m + 2, n + 2), dtype=bool)  # a border of walls around the grid
+        inner = free[:, 1:-1, 1:-1]
+        inner[...] = ~walls[hard].reshape(k, m, n)
+        straight, diagonal = [], []
+        for dr, dc in self.moves[1:]:
+            shift = (slice(None), slice(1 - dr, m + 1 - dr), slice(1 - dc, n + 1 - dc))
+            if dr and dc:  # a diagonal does not cut a wall corner
+                ok = free[:, 1 : m + 1, 1 - dc : n + 1 - dc]
+                ok = ok & free[:, 1 - dr : m + 1 - dr, 1 : n + 1]
+                diagonal.append((shift, ok))
+            else:
+                straight.append(shift)
+        sub = np.full((k, m, n), UNREACHABLE, dtype=np.int32)
+        frontier = np.zeros((k, m + 2, n + 2), dtype=bool)
+        tr, tc = np.divmod(target[hard], n)
+        at = np.arange(k)
+        frontier[at, tr + 1, tc + 1] = True
+        sub[at, tr, tc] = 0
+        unseen = inner.copy()  # free cells not reached yet (the destination-free condition)
+        unseen[at, tr, tc] = False
+        reached = np.empty((k, m, n), dtype=bool)
+        step = np.empty((k, m, n), dtype=bool)
         d = 0
-        while frontier.any():
+        while True:
             d += 1
-            reached = np.zeros_like(frontier)
-            for a in range(1, table.shape[2]):
-                dest = table[:, :, a]
-                ok = frontier & (dest >= 0)
-                reached[np.broadcast_to(rows, dest.shape)[ok], dest[ok]] = True
-            frontier = reached & (sub == UNREACHABLE)
-            sub[frontier] = d
-        dist[idx] = sub
+            np.logical_or(frontier[straight[0]], frontier[straight[1]], out=reached)
+            for shift in straight[2:]:
+                reached |= frontier[shift]
+            for shift, ok in diagonal:
+                np.logical_and(frontier[shift], ok, out=step)
+                reached |= step
+            reached &= unseen
+            if not reached.any():
+                break
+            unseen ^= reached
+            np.copyto(sub, d, where=reached)
+            frontier[:, 1:-1, 1:-1] = reached
+        dist[hard] = sub.reshape(k, C)
         return dist
 
     def expected_counts(
@@ -319,8 +366,11 @@ class TargetLocalizationEnv:
 
     def _masks(self, rows: np.ndarray) -> np.ndarray:
         C = self.spec.num_cells
-        flat = self.next_cell.reshape(-1, self.spec.num_actions)
-        mask = flat[rows[:, None] * C + self.pos[rows]] >= 0
+        if self._one_table:
+            mask = self._free_next[self.pos[rows]] >= 0
+        else:
+            flat = self.next_cell.reshape(-1, self.spec.num_actions)
+            mask = flat[rows[:, None] * C + self.pos[rows]] >= 0
         mask[:, :, 0] &= (self.idle_streak[rows] < self.spec.idle_limit)[:, None]
         return mask
 
@@ -371,11 +421,16 @@ class TargetLocalizationEnv:
                 f"(valid: {np.flatnonzero(self._mask[b, i]).tolist()})"
             )
 
-        rows = self._rows if live.all() else np.flatnonzero(live)
-        act = actions[rows]
-        old = self.pos[rows]
+        everyone = live.all()
+        rows = self._rows if everyone else np.flatnonzero(live)
+        sel = slice(None) if everyone else rows  # a slice indexes faster than arange(B)
+        act = actions[sel]
+        old = self.pos[sel]
         C = spec.num_cells
-        new = self.next_cell.reshape(-1)[(rows[:, None] * C + old) * A + act]
+        if self._one_table:
+            new = self._free_next[old, act]
+        else:
+            new = self.next_cell.reshape(-1)[(rows[:, None] * C + old) * A + act]
         moved = act != 0
         b = moved.sum(1)
         dist_flat = self.dist.reshape(-1)
@@ -385,21 +440,21 @@ class TargetLocalizationEnv:
 
         reward = np.zeros(B, dtype=np.float32)
         if spec.reward == "shaped":  # Eq. 5 / Eq. 8
-            reward[rows] = np.where(new_min < prev_min, 1.0, -1.0) - b
+            reward[sel] = np.where(new_min < prev_min, 1.0, -1.0) - b
         else:  # Eq. 9
-            reward[rows] = -b + spec.sparse_bonus * found
+            reward[sel] = -b + spec.sparse_bonus * found
 
-        self.pos[rows] = new
-        self.cost[rows] += b
-        self.t[rows] += 1
-        self.idle_streak[rows] = np.where(b == 0, self.idle_streak[rows] + 1, 0)
-        self.history[rows, self.t[rows] % HISTORY] = new
+        self.pos[sel] = new
+        self.cost[sel] += b
+        self.t[sel] += 1
+        self.idle_streak[sel] = np.where(b == 0, self.idle_streak[sel] + 1, 0)
+        self.history[rows, self.t[sel] % HISTORY] = new
         self._take_readings(rows, new)
 
         terminated = np.zeros(B, dtype=bool)
         truncated = np.zeros(B, dtype=bool)
-        terminated[rows] = found
-        truncated[rows] = ~found & (self.t[rows] >= spec.max_steps)
+        terminated[sel] = found
+        truncated[sel] = ~found & (self.t[sel] >= spec.max_steps)
         ended = np.flatnonzero(terminated | truncated)
         episode = None
         if len(ended):
@@ -432,18 +487,57 @@ class TargetLocalizationEnv:
 def _slab_slant(a_p, a_q, s_p, s_q, length, near, far, size_a, size_s, span) -> np.ndarray:
     """Sum of 1/cos(theta) over the slabs at a = (j + 0.5) * size_a that the segment PQ crosses.
 
-    ``a`` is the coordinate across the slabs, ``s`` the one along them; ``near``/``far`` (R, lines)
-    are the run lengths from the two sides (0: no wall there).
+    ``a`` is the coordinate across the slabs, ``s`` the one along them; detectors ``a_p``,
+    ``s_p`` are (1, C), sources ``a_q``, ``s_q`` (R, 1); ``near``/``far`` (R, lines) are the run
+    lengths from the two sides (0: no wall there). Each env adds its wall lines in increasing
+    order, evaluated either for the (env, line) pairs that hold a wall (envs with different
+    layouts, as at reset) or line by line over all envs (envs sharing one layout, as the belief
+    filter's C hypotheses), whichever touches fewer (env, line) pairs.
     """
-    total = np.zeros(np.broadcast_shapes(a_p.shape, a_q.shape))
-    for j in np.flatnonzero((near > 0).any(0) | (far > 0).any(0)):
-        aw = (j + 0.5) * size_a
-        dp, dq = a_p - aw, a_q - aw
-        crosses = dp * dq < 0
-        with np.errstate(divide="ignore", invalid="ignore"):
-            s = s_p + dp / (dp - dq) * (s_q - s_p)
-            slant = length / np.abs(a_p - a_q)
-        nj, fj = near[:, j : j + 1], far[:, j : j + 1]
-        hit = crosses & (((nj > 0) & (s <= nj * size_s)) | ((fj > 0) & (s >= (span - fj) * size_s)))
-        total += np.where(hit, slant, 0.0)
+    total = np.zeros(length.shape)
+    has = (near > 0) | (far > 0)
+    rows, lines = np.nonzero(has)  # sorted by env, then line
+    if not len(rows):
+        return total
+    shared = np.flatnonzero(has.any(0))
+    if 2 * len(rows) >= len(shared) * len(has):
+        for j in shared:
+            total += _line_slant(a_p, a_q, s_p, s_q, length, near[:, j : j + 1],
+                                 far[:, j : j + 1], j, size_a, size_s, span)
+        return total
+    add = _line_slant(a_p, a_q[rows], s_p, s_q[rows], length[rows], near[rows, lines][:, None],
+                      far[rows, lines][:, None], lines[:, None], size_a, size_s, span)
+    rank = np.arange(len(rows)) - np.searchsorted(rows, rows)  # k-th wall line of its env
+    for k in range(int(rank.max()) + 1):
+        sel = rank == k
+        total[rows[sel]] += add[sel]
     return total
+
+
+def _line_slant(a_p, a_q, s_p, s_q, length, near, far, line, size_a, size_s, span) -> np.ndarray:
+    """1/cos(theta) where PQ crosses the wall(s) on slab ``line`` (broadcast), else 0."""
+    aw = (line + 0.5) * size_a
+    dp, dq = a_p - aw, a_q - aw
+    crosses = dp * dq < 0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = s_p + dp / (dp - dq) * (s_q - s_p)
+        slant = length / np.abs(a_p - a_q)
+    hit = crosses & (((near > 0) & (s <= near * size_s))
+                     | ((far > 0) & (s >= (span - far) * size_s)))
+    return np.where(hit, slant, 0.0)
+
+
+def _graph_bfs(target: np.ndarray, next_cell: np.ndarray) -> np.ndarray:
+    """(k, C) BFS steps from ``target`` over the moves of ``next_cell`` (k, C, A), one graph
+    of k disconnected layouts; invalid moves become self-loops, so every cell has A - 1 edges
+    and the sparse layout needs no sorting."""
+    k, C, A = next_cell.shape
+    moves = next_cell[:, :, 1:]
+    base = (np.arange(k) * C)[:, None, None]
+    dest = np.where(moves >= 0, moves, np.arange(C)[None, :, None]) + base
+    edges = (np.ones(dest.size, dtype=np.float32), dest.reshape(-1),
+             np.arange(0, dest.size + 1, A - 1))
+    graph = csr_matrix(edges, shape=(k * C, k * C))
+    d = dijkstra(graph, indices=np.arange(k) * C + target, unweighted=True)
+    d = d.reshape(k, k, C)[np.arange(k), np.arange(k)]
+    return np.where(np.isfinite(d), d, UNREACHABLE).astype(np.int32)
