@@ -8,8 +8,9 @@ the gas estimate (or a replayed call when a mined transaction failed).
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -32,6 +33,12 @@ except ImportError:  # pragma: no cover - eth-tester is a dependency
 restore_recursion_limit()  # eth_account and py-evm raised it at import
 
 _REVERTS = (ContractCustomError, ContractLogicError, _TesterFailed)
+_DECODE_SLIPS = (OverflowError, ValueError, TypeError)
+"""What web3's eth-tester provider can raise *while* turning a revert into its own exception:
+it reads every revert as ``Error(string)``, so a custom error whose first word points inside
+the data at a word >= 2**63 (``TasksBadDuration(60, 660, 2592000)``: offset 60, "length"
+0x294 << 224 ...) makes eth_abi raise ``OverflowError``, not its ``DecodingError``. The revert
+is still in the exception's context (:func:`_slipped_revert`)."""
 
 # anvil's and hardhat's well-known development mnemonic (never use it outside tests).
 DEV_MNEMONIC = "test test test test test test test test test test test junk"
@@ -99,10 +106,8 @@ class ContractHandle:
     def estimate(self, fn: str, *args: Any, sender: str | None = None, value: int = 0) -> int:
         """eth_estimateGas of ``fn`` (used for view functions in the gas report)."""
         f = self.contract.functions[fn](*args)
-        try:
+        with _typed_reverts():
             return f.estimate_gas({"from": sender or self.chain.accounts[0], "value": value})
-        except _REVERTS as exc:
-            raise _typed(exc) from None
 
     def __repr__(self) -> str:
         return f"<{self.name} at {self.address}>"
@@ -125,6 +130,33 @@ def _revert_data(exc: BaseException) -> bytes | str | None:
 
 def _typed(exc: BaseException) -> errors.ContractError:
     return errors.decode_revert(_revert_data(exc))
+
+
+def _slipped_revert(exc: BaseException) -> bool:
+    """``exc`` (one of :data:`_DECODE_SLIPS`) was raised while a revert was being reported:
+    a revert exception is in its cause/context chain."""
+    seen = exc.__cause__ or exc.__context__
+    for _ in range(8):
+        if seen is None:
+            return False
+        if isinstance(seen, _REVERTS):
+            return True
+        seen = seen.__cause__ or seen.__context__
+    return False
+
+
+@contextlib.contextmanager
+def _typed_reverts() -> Iterator[None]:
+    """Reverts inside the block raise the typed :class:`errors.ContractError`; so does a
+    revert web3 failed to report (:data:`_DECODE_SLIPS`). Anything else goes through."""
+    try:
+        yield
+    except _REVERTS as exc:
+        raise _typed(exc) from None
+    except _DECODE_SLIPS as exc:
+        if not _slipped_revert(exc):
+            raise
+        raise _typed(exc) from None
 
 
 class Chain:
@@ -212,10 +244,8 @@ class Chain:
     # -- calls and transactions ---------------------------------------------------------
     def call(self, contract: Contract, fn: str, *args: Any, sender: str | None = None) -> Any:
         """Execute ``fn`` without a transaction; custom errors raise typed exceptions."""
-        try:
+        with _typed_reverts():
             return contract.functions[fn](*args).call({"from": sender or self.accounts[0]})
-        except _REVERTS as exc:
-            raise _typed(exc) from None
 
     def transact(
         self, contract: Contract, fn: str, *args: Any, sender: str, value: int = 0
@@ -238,10 +268,8 @@ class Chain:
         else:
             params["maxPriorityFeePerGas"] = 0  # consortium chain: no tips
             params["maxFeePerGas"] = 2 * base
-        try:
+        with _typed_reverts():
             gas = fn.estimate_gas({k: params[k] for k in ("from", "value")})
-        except _REVERTS as exc:
-            raise _typed(exc) from None
         params["gas"] = min(int(gas * GAS_MARGIN) + 10_000, 30_000_000)
         tx = fn.build_transaction(params)
         signed = self._keys[sender].sign_transaction(tx)
@@ -260,10 +288,8 @@ class Chain:
         self.fees_paid += receipt.fee
         if receipt.status != 1:
             # Replay as a call at the parent block to recover the revert data.
-            try:
+            with _typed_reverts():
                 fn.call({"from": sender, "value": value}, block_identifier=raw["blockNumber"] - 1)
-            except _REVERTS as exc:
-                raise _typed(exc) from None
             raise errors.UnknownRevert({"tx": receipt.tx_hash})
         return receipt
 

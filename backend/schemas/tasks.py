@@ -38,7 +38,13 @@ class TaskCreate(BaseModel):
     min_rating: Fraction = 0.0
     min_cpu_cores: int = Field(default=0, ge=0, le=65_535)
     min_ram_gb: int = Field(default=0, ge=0, le=65_535)
-    deadline_s: int = Field(default=86_400, ge=60, le=2**32 - 1)
+    deadline_s: int = Field(
+        default=86_400,
+        ge=60,
+        le=2**32 - 1,
+        description="task duration (s); the TMC also requires acceptWindow + minWorkTime <= "
+        "deadline_s <= maxDuration (consortium settings; 422 tasks_bad_duration otherwise)",
+    )
     payment_wei: Wei(96) = Field(default=0, description="reward per worker, escrowed")  # type: ignore[valid-type]
     expert_allocation: int | None = Field(
         default=None,

@@ -5,11 +5,14 @@ from __future__ import annotations
 
 from typing import Any
 
+import pytest
+from eth_abi import abi, encode
 from eth_account import Account
 from fastapi.testclient import TestClient
 
 from backend.api.errors import domain_status
 from backend.auth import DemoKeys, bearer_headers
+from backend.chain import errors
 from backend.services.chain import ChainService, node_rule_error
 
 from .conftest import Login, P, addr, register, task_body
@@ -129,6 +132,56 @@ def test_deadline_too_short_to_accept_and_work_is_422(
         r = client.post(f"{P}/tasks", json=task_body(deadline_s=deadline_s), headers=login("user1"))
         assert r.status_code == 422, r.text
         assert r.json()["detail"]["rule"] == "tasks_bad_duration"
+
+
+SCHEMATHESIS_DEADLINE_S = 60
+"""The deadline of the schema-valid ``POST /tasks`` schemathesis sent (the schema's minimum):
+it once answered 500 ``OverflowError`` instead of 422 ``tasks_bad_duration``."""
+
+
+def test_custom_error_web3_cannot_read_as_a_string_is_still_typed(
+    client: TestClient, login: Login, service: ChainService
+) -> None:
+    """web3's eth-tester provider reads every revert as ``Error(string)``. The data of
+    ``TasksBadDuration(60, 660, 2592000)`` starts with 60, a valid offset, whose "length" word
+    is 660's low bytes << 224 ...: eth_abi raises OverflowError (not DecodingError), which web3
+    lets out of the gas estimate. The chain client still raises the typed contract error."""
+    register(client, login, ["user1"], {})
+    tmc = service.platform.tmc
+    shortest, longest = tmc.duration_bounds()
+    duration = SCHEMATHESIS_DEADLINE_S
+    assert duration < shortest
+    args = encode(["uint40", "uint256", "uint256"], [duration, shortest, longest])
+    with pytest.raises(OverflowError):  # what web3's provider does with the revert data
+        abi.decode(["string"], args)
+    reward = tmc.min_reward(duration)
+    params = (0, 1, 0, 0, 0, 0, duration, "")
+    with pytest.raises(errors.get("TasksBadDuration")) as caught:
+        tmc.transact("addTask", params, sender=addr(service, "user1"), value=reward)
+    assert caught.value.args_dict == {"duration": duration, "minimum": shortest, "maximum": longest}
+    with pytest.raises(errors.get("TasksBadDuration")):
+        tmc.estimate("addTask", params, sender=addr(service, "user1"), value=reward)
+
+
+def test_deadline_schemathesis_sent_is_422_naming_deadline_s(
+    client: TestClient, login: Login, service: ChainService
+) -> None:
+    """The failing request of tests/gateway/test_schemathesis.py (deadline_s 60..63 with a
+    valid spec and payment): 422 ``tasks_bad_duration`` naming ``deadline_s`` and the bounds,
+    before anything is sent."""
+    register(client, login, ["user1"], {})
+    tmc = service.platform.tmc
+    shortest, longest = tmc.duration_bounds()
+    before, block = tmc.call("taskCount"), service.block_number()
+    for deadline_s in range(SCHEMATHESIS_DEADLINE_S, SCHEMATHESIS_DEADLINE_S + 4):
+        body = task_body(deadline_s=deadline_s, payment_wei=tmc.min_reward(deadline_s))
+        r = client.post(f"{P}/tasks", json=body, headers=login("user1"))
+        assert r.status_code == 422, r.text
+        detail = r.json()["detail"]
+        assert detail["rule"] == "tasks_bad_duration"
+        assert "deadline_s" in detail["msg"] and f"{shortest}" in detail["msg"]
+        assert f"{longest}" in detail["msg"]
+    assert tmc.call("taskCount") == before and service.block_number() == block  # nothing sent
 
 
 def test_cancel_open_slots_refunds_them_and_keeps_accepted_ones(

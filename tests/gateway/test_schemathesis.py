@@ -76,6 +76,7 @@ UNSCHEMATIC_REJECTIONS: dict[str, tuple[str, ...]] = {
         r"window must be < min\(rows, cols\)",
         r"^spec_exceeds_\w+$",  # resource limits: estimated memory, worker-hours
         r"^reward_below_minimum ",  # payment vs duration, minimum read from the chain
+        r"^tasks_bad_duration$",  # deadline_s within the TMC's settings, read from the chain
         # experts (MEDC): model CIDs in the store, or the caller's allocation in the index
         r"^expert_(not_cid|not_canonical|not_found|invalid) ",
         r"^allocation_(not_found|empty) ",

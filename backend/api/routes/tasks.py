@@ -80,6 +80,22 @@ def build_spec(
     return spec
 
 
+def check_duration(chain: ChainDep, deadline_s: int) -> None:
+    """Before anything is sent: 422 ``tasks_bad_duration`` (the TMC's rule, same name as its
+    revert) naming ``deadline_s`` when it is outside the TMC's bounds: at least the acceptance
+    window plus ``minWorkTime``, at most ``maxDuration`` (consortium settings, read from the
+    chain; the schema's minimum, 60 s, is only the contract's floor of ``minWorkTime``)."""
+    shortest, longest = chain.platform.tmc.duration_bounds()
+    if not shortest <= deadline_s <= longest:
+        raise RuleError(
+            422,
+            "tasks_bad_duration",
+            f"deadline_s {deadline_s} s is outside [{shortest}, {longest}] s: an offered "
+            "worker needs its acceptance window plus the minimum work time, and a task lasts "
+            "at most the consortium's maximum duration",
+        )
+
+
 def check_min_reward(chain: ChainDep, payment_wei: int, deadline_s: int) -> None:
     """Anti-spam, before anything is sent: 422 ``reward_below_minimum`` on ``payment_wei``
     when it is below the TMC's minimum for the task's duration (minRewardPerHour per
@@ -126,6 +142,7 @@ def create_task(
         experts = allocation_experts(session, body.expert_allocation, user.address)
     spec = build_spec(body, settings, experts)
     check_experts(store, spec.experts)
+    check_duration(chain, body.deadline_s)
     check_min_reward(chain, body.payment_wei, body.deadline_s)
     spec_cid = store.add(canonical_json(spec.to_dict()))
     tmc = chain.platform.tmc
