@@ -353,12 +353,20 @@ contract UsersManager {
 
     // ---------------------------------------------------------------------------- views
 
-    /// @dev All workers of `domain` in registration order (thesis getWorkers).
-    function getWorkers(uint32 domain) external view returns (Worker[] memory out) {
+    /**
+     * @dev Workers of `domain` in registration order (thesis getWorkers), one page: those at
+     * positions [offset, offset + limit) of the domain's list ({domainSize} in all; a page
+     * past the end is empty). Paged so that the view's gas is bounded by `limit`, not by the
+     * number ever registered (an eth_call has a gas cap too).
+     */
+    function getWorkers(uint32 domain, uint256 offset, uint256 limit) external view returns (Worker[] memory out) {
         uint32[] storage ids = _domainWorkers[domain];
-        out = new Worker[](ids.length);
-        for (uint256 i; i < out.length; ++i) {
-            out[i] = _workers[ids[i]];
+        uint256 len = ids.length;
+        uint256 n = offset < len ? len - offset : 0;
+        if (n > limit) n = limit;
+        out = new Worker[](n);
+        for (uint256 i; i < n; ++i) {
+            out[i] = _workers[ids[offset + i]];
         }
     }
 
