@@ -122,11 +122,12 @@ def gas_report(workers: int = 50, scaling: Sequence[int] = (50, 200, 600), seed:
     )
     p.umc.transact("setPlatform", admin, False, sender=admin)
     page = min(workers, p.umc.WORKERS_PAGE)
-    view_gas = p.umc.estimate("getWorkers", DOMAIN, 0, page)
+    view_args = [DOMAIN, 0, page]
+    view_gas = p.umc.estimate("getWorkers", *view_args)
     f["UMC.getWorkers"] = {
         "gas_used": view_gas,
         "execution_gas": view_gas
-        - intrinsic_gas(bytes.fromhex(p.umc.contract.encode_abi("getWorkers", [DOMAIN, 0, page])[2:])),
+        - intrinsic_gas(bytes.fromhex(p.umc.contract.encode_abi("getWorkers", view_args)[2:])),
         "thesis": THESIS_TABLE_7_5["UMC.getWorkers"],
         "note": f"view, eth_estimateGas, a page of {page} of {workers} workers",
     }
