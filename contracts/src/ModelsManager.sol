@@ -112,6 +112,15 @@ contract ModelsManager is ReentrancyGuardTransient {
         uint40 totalReview;
     }
 
+    /// Per owner (UMC worker id), one slot: the Eq. 10 totals and the number of models it
+    /// listed (all domains), so the owner's first allocation rewrites the slot its first
+    /// listing created instead of creating one.
+    struct OwnerRecord {
+        uint40 allocCount;
+        uint40 totalReview;
+        uint32 modelCount;
+    }
+
     struct Allocation {
         address requester;
         uint8 domain;
@@ -195,7 +204,7 @@ contract ModelsManager is ReentrancyGuardTransient {
     mapping(uint256 => string) internal _cids;
     /// Domain Models (thesis: uint -> Model[]), as model ids in submission order.
     mapping(uint256 => uint32[]) internal _domainModels;
-    mapping(uint32 => OwnerRep) internal _ownerRep; // by UMC worker id
+    mapping(uint32 => OwnerRecord) internal _owners; // by UMC worker id
     mapping(uint256 => Allocation) internal _allocs;
     /// Models of an allocation, MODELS_PER_WORD per word (word k holds entries 7k..7k+6):
     /// entry e's model id at bits 32e, its reviewed flag at bit REVIEWED_SHIFT + e; an
@@ -209,8 +218,6 @@ contract ModelsManager is ReentrancyGuardTransient {
     /// count at bits COUNT_SHIFT.. . An owner's list of up to 7 models in a domain is one
     /// storage slot (an allocation scan reads one cold slot per owner, not two).
     mapping(uint256 => mapping(uint256 => uint256)) internal _ownerModels;
-    /// Models listed by an owner (UMC worker id), all domains.
-    mapping(uint32 => uint256) internal _ownerModelCount;
 
     constructor(IUsersManager umc_, ITasksOutcomes tmc_) {
         umc = umc_;
@@ -265,7 +272,7 @@ contract ModelsManager is ReentrancyGuardTransient {
         if (status != Packed.ACTIVE && status != Packed.IDLE) revert ModelsNotApproved(msg.sender);
         if (domain > Packed.MAX_DOMAIN) revert ModelsBadDomain(domain);
         if (!record.covers(domain)) revert ModelsOwnerNotInDomain(msg.sender, domain);
-        uint256 owned = _ownerModelCount[ownerId];
+        uint256 owned = _owners[ownerId].modelCount;
         if (owned >= maxModelsPerOwner) revert ModelsOwnerLimit(msg.sender, maxModelsPerOwner);
         if (bytes(cid).length == 0) revert ModelsEmptyCid();
         if (env.length > MAX_ENV_DIMS) revert ModelsBadEnv(env.length);
@@ -279,7 +286,7 @@ contract ModelsManager is ReentrancyGuardTransient {
         }
         modelId = ++modelCount;
         modelOfCid[cidHash] = modelId;
-        _ownerModelCount[ownerId] = owned + 1;
+        _owners[ownerId].modelCount = uint32(owned + 1); // owned < maxModelsPerOwner <= 16
         _pushOwnerModel((uint256(ownerId) << 8) | domain, modelId);
         uint256 head = 0;
         uint256 word = 0;
@@ -358,7 +365,7 @@ contract ModelsManager is ReentrancyGuardTransient {
             Model storage m = _models[modelId];
             address owner = words[i].addr();
             m.allocCount += 1;
-            _ownerRep[owners[i]].allocCount += 1;
+            _owners[owners[i]].allocCount += 1;
             // The UMC is the immutable platform registry set at construction; updateInfo makes
             // no external call, so no re-entry can observe this allocation half written.
             // slither-disable-next-line reentrancy-no-eth
@@ -385,7 +392,7 @@ contract ModelsManager is ReentrancyGuardTransient {
         Model storage m = _models[modelId];
         m.totalReview += review;
         uint32 ownerId = m.ownerId;
-        _ownerRep[ownerId].totalReview += review;
+        _owners[ownerId].totalReview += review;
         uint32[] memory one = new uint32[](1);
         one[0] = ownerId;
         // Only the owner's address is needed here, not its counters.
@@ -438,7 +445,8 @@ contract ModelsManager is ReentrancyGuardTransient {
 
     /// @dev Eq. 10 totals of the owner `owner` (allocations of all its models, review sum).
     function ownerRep(address owner) external view returns (OwnerRep memory) {
-        return _ownerRep[umc.workerId(owner)];
+        OwnerRecord memory o = _owners[umc.workerId(owner)];
+        return OwnerRep(o.allocCount, o.totalReview);
     }
 
     function getAllocation(uint256 allocId) external view returns (Allocation memory) {
@@ -464,7 +472,7 @@ contract ModelsManager is ReentrancyGuardTransient {
         for (uint256 i; i < ws.length; ++i) {
             uint32 ownerId = ws[i].id();
             if (ownerId == selfId) continue;
-            OwnerRep memory o = _ownerRep[ownerId];
+            OwnerRecord memory o = _owners[ownerId];
             uint256 repI = QoSMath.rating(o.totalReview, o.allocCount);
             if (repI < r.minReputation) continue;
             uint256[] memory list = _ownerList((uint256(ownerId) << 8) | r.domain);

@@ -30,7 +30,7 @@ contract ModelsManagerHarness is ModelsManager {
                 _domainModels[domain].push(uint32(modelId));
                 _pushOwnerModel((uint256(ownerId) << 8) | domain, modelId);
             }
-            _ownerModelCount[ownerId] += perOwner;
+            _owners[ownerId].modelCount += uint32(perOwner);
         }
     }
 }
