@@ -121,13 +121,15 @@ def gas_report(workers: int = 50, scaling: Sequence[int] = (50, 200, 600), seed:
         note="first counter write of a worker/domain/type (zero -> non-zero slot)",
     )
     p.umc.transact("setPlatform", admin, False, sender=admin)
-    view_gas = p.umc.estimate("getWorkers", DOMAIN)
+    page = min(workers, p.umc.WORKERS_PAGE)
+    view_args = [DOMAIN, 0, page]
+    view_gas = p.umc.estimate("getWorkers", *view_args)
     f["UMC.getWorkers"] = {
         "gas_used": view_gas,
         "execution_gas": view_gas
-        - intrinsic_gas(bytes.fromhex(p.umc.contract.encode_abi("getWorkers", [DOMAIN])[2:])),
+        - intrinsic_gas(bytes.fromhex(p.umc.contract.encode_abi("getWorkers", view_args)[2:])),
         "thesis": THESIS_TABLE_7_5["UMC.getWorkers"],
-        "note": f"view, eth_estimateGas over {workers} workers",
+        "note": f"view, eth_estimateGas, a page of {page} of {workers} workers",
     }
 
     # -- training task flow ------------------------------------------------------------

@@ -137,9 +137,18 @@ class UsersManager(ContractHandle):
         names = ("assigned", "accepted", "completed", "rating_sum", "rating_count")
         return dict(zip(names, c, strict=True))
 
+    #: Workers per getWorkers page (the view is paged so its gas is bounded by the page).
+    WORKERS_PAGE = 20
+
     def get_workers(self, domain: int) -> list[dict[str, Any]]:
+        """All workers of `domain` in registration order, read page by page."""
         names = ("address", "status", "gpu_series", "cpu_cores", "ram_gb", "domains")
-        return [dict(zip(names, w, strict=True)) for w in self.call("getWorkers", domain)]
+        out: list[dict[str, Any]] = []
+        while True:
+            page = self.call("getWorkers", domain, len(out), self.WORKERS_PAGE)
+            out.extend(dict(zip(names, w, strict=True)) for w in page)
+            if len(page) < self.WORKERS_PAGE:
+                return out
 
 
 class TasksManager(ContractHandle):

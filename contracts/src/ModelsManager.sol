@@ -74,6 +74,9 @@ contract ModelsManager is ReentrancyGuardTransient {
     uint256 internal constant ID_MASK = (1 << 32) - 1;
     uint256 internal constant ONE = QoSMath.ONE;
     uint256 internal constant ELIGIBLE = 1 << 255;
+    uint256 internal constant MODELS_PER_WORD = 7;
+    uint256 internal constant REVIEWED_SHIFT = 224;
+    uint256 internal constant COUNT_SHIFT = 248;
 
     enum Metric {
         Model, // Eq. 10-13
@@ -107,6 +110,15 @@ contract ModelsManager is ReentrancyGuardTransient {
     struct OwnerRep {
         uint40 allocCount; // Eq. 10: allocations of all the owner's models
         uint40 totalReview;
+    }
+
+    /// Per owner (UMC worker id), one slot: the Eq. 10 totals and the number of models it
+    /// listed (all domains), so the owner's first allocation rewrites the slot its first
+    /// listing created instead of creating one.
+    struct OwnerRecord {
+        uint40 allocCount;
+        uint40 totalReview;
+        uint32 modelCount;
     }
 
     struct Allocation {
@@ -192,16 +204,20 @@ contract ModelsManager is ReentrancyGuardTransient {
     mapping(uint256 => string) internal _cids;
     /// Domain Models (thesis: uint -> Model[]), as model ids in submission order.
     mapping(uint256 => uint32[]) internal _domainModels;
-    mapping(uint32 => OwnerRep) internal _ownerRep; // by UMC worker id
+    mapping(uint32 => OwnerRecord) internal _owners; // by UMC worker id
     mapping(uint256 => Allocation) internal _allocs;
-    mapping(uint256 => mapping(uint256 => AllocState)) public allocState;
+    /// Models of an allocation, MODELS_PER_WORD per word (word k holds entries 7k..7k+6):
+    /// entry e's model id at bits 32e, its reviewed flag at bit REVIEWED_SHIFT + e; an
+    /// allocation of up to 7 models is one storage slot instead of one per model.
+    mapping(uint256 => mapping(uint256 => uint256)) internal _allocModels;
     mapping(address => uint256) public credits;
     /// keccak256(cid) -> the model listing it (0 = not listed).
     mapping(bytes32 => uint256) public modelOfCid;
-    /// Models of an owner in a domain: key = owner id << 8 | domain.
-    mapping(uint256 => uint32[]) internal _ownerModels;
-    /// Models listed by an owner (UMC worker id), all domains.
-    mapping(uint32 => uint256) internal _ownerModelCount;
+    /// Models of an owner in a domain (key = owner id << 8 | domain), MODELS_PER_WORD per
+    /// word: word k holds entries 7k..7k+6 (model id at bits 32e); word 0 also holds the
+    /// count at bits COUNT_SHIFT.. . An owner's list of up to 7 models in a domain is one
+    /// storage slot (an allocation scan reads one cold slot per owner, not two).
+    mapping(uint256 => mapping(uint256 => uint256)) internal _ownerModels;
 
     constructor(IUsersManager umc_, ITasksOutcomes tmc_) {
         umc = umc_;
@@ -256,7 +272,7 @@ contract ModelsManager is ReentrancyGuardTransient {
         if (status != Packed.ACTIVE && status != Packed.IDLE) revert ModelsNotApproved(msg.sender);
         if (domain > Packed.MAX_DOMAIN) revert ModelsBadDomain(domain);
         if (!record.covers(domain)) revert ModelsOwnerNotInDomain(msg.sender, domain);
-        uint256 owned = _ownerModelCount[ownerId];
+        uint256 owned = _owners[ownerId].modelCount;
         if (owned >= maxModelsPerOwner) revert ModelsOwnerLimit(msg.sender, maxModelsPerOwner);
         if (bytes(cid).length == 0) revert ModelsEmptyCid();
         if (env.length > MAX_ENV_DIMS) revert ModelsBadEnv(env.length);
@@ -270,8 +286,8 @@ contract ModelsManager is ReentrancyGuardTransient {
         }
         modelId = ++modelCount;
         modelOfCid[cidHash] = modelId;
-        _ownerModelCount[ownerId] = owned + 1;
-        _ownerModels[(uint256(ownerId) << 8) | domain].push(uint32(modelId));
+        _owners[ownerId].modelCount = uint32(owned + 1); // owned < maxModelsPerOwner <= 16
+        _pushOwnerModel((uint256(ownerId) << 8) | domain, modelId);
         uint256 head = 0;
         uint256 word = 0;
         for (uint256 j; j < env.length; ++j) {
@@ -331,8 +347,15 @@ contract ModelsManager is ReentrancyGuardTransient {
         _allocs[allocId] = Allocation(msg.sender, uint8(r.domain), r.metric, uint80(price));
         emit ModelsRequested(allocId, msg.sender, r.domain, r.metric, r.numModels, uint80(price));
         uint32[] memory owners = new uint32[](count);
+        uint256 word = 0;
         for (uint256 i; i < count; ++i) {
             owners[i] = _models[idx[i]].ownerId;
+            // idx[i] < 2^32 (ids are listed as uint32), so the entry never spills over.
+            word |= idx[i] << (32 * (i % MODELS_PER_WORD));
+            if (i % MODELS_PER_WORD == MODELS_PER_WORD - 1 || i == count - 1) {
+                _allocModels[allocId][i / MODELS_PER_WORD] = word;
+                word = 0;
+            }
         }
         // Only the owners' addresses are needed here, not their counters.
         // slither-disable-next-line unused-return
@@ -342,8 +365,7 @@ contract ModelsManager is ReentrancyGuardTransient {
             Model storage m = _models[modelId];
             address owner = words[i].addr();
             m.allocCount += 1;
-            _ownerRep[owners[i]].allocCount += 1;
-            allocState[allocId][modelId] = AllocState.Allocated;
+            _owners[owners[i]].allocCount += 1;
             // The UMC is the immutable platform registry set at construction; updateInfo makes
             // no external call, so no re-entry can observe this allocation half written.
             // slither-disable-next-line reentrancy-no-eth
@@ -363,13 +385,14 @@ contract ModelsManager is ReentrancyGuardTransient {
     function updateModelRep(uint256 allocId, uint256 modelId, uint8 review) external {
         Allocation storage a = _allocs[allocId];
         if (a.requester != msg.sender) revert ModelsNotAllocationRequester(allocId, msg.sender);
-        if (allocState[allocId][modelId] != AllocState.Allocated) revert ModelsNotAllocated(allocId, modelId);
+        (uint256 k, uint256 word, uint256 bit) = _findModel(allocId, modelId);
+        if (bit == 0 || word & bit != 0) revert ModelsNotAllocated(allocId, modelId);
         if (review > QoSMath.REVIEW_MAX) revert ModelsBadReview(review);
-        allocState[allocId][modelId] = AllocState.Reviewed;
+        _allocModels[allocId][k] = word | bit;
         Model storage m = _models[modelId];
         m.totalReview += review;
         uint32 ownerId = m.ownerId;
-        _ownerRep[ownerId].totalReview += review;
+        _owners[ownerId].totalReview += review;
         uint32[] memory one = new uint32[](1);
         one[0] = ownerId;
         // Only the owner's address is needed here, not its counters.
@@ -394,6 +417,13 @@ contract ModelsManager is ReentrancyGuardTransient {
 
     // ---------------------------------------------------------------------------- views
 
+    /// @dev Whether model `modelId` is in allocation `allocId`, and reviewed.
+    function allocState(uint256 allocId, uint256 modelId) external view returns (AllocState) {
+        (, uint256 word, uint256 bit) = _findModel(allocId, modelId);
+        if (bit == 0) return AllocState.None;
+        return word & bit != 0 ? AllocState.Reviewed : AllocState.Allocated;
+    }
+
     function getModel(uint256 modelId)
         external
         view
@@ -415,7 +445,8 @@ contract ModelsManager is ReentrancyGuardTransient {
 
     /// @dev Eq. 10 totals of the owner `owner` (allocations of all its models, review sum).
     function ownerRep(address owner) external view returns (OwnerRep memory) {
-        return _ownerRep[umc.workerId(owner)];
+        OwnerRecord memory o = _owners[umc.workerId(owner)];
+        return OwnerRep(o.allocCount, o.totalReview);
     }
 
     function getAllocation(uint256 allocId) external view returns (Allocation memory) {
@@ -441,10 +472,10 @@ contract ModelsManager is ReentrancyGuardTransient {
         for (uint256 i; i < ws.length; ++i) {
             uint32 ownerId = ws[i].id();
             if (ownerId == selfId) continue;
-            OwnerRep memory o = _ownerRep[ownerId];
+            OwnerRecord memory o = _owners[ownerId];
             uint256 repI = QoSMath.rating(o.totalReview, o.allocCount);
             if (repI < r.minReputation) continue;
-            uint32[] storage list = _ownerModels[(uint256(ownerId) << 8) | r.domain];
+            uint256[] memory list = _ownerList((uint256(ownerId) << 8) | r.domain);
             for (uint256 j; j < list.length; ++j) {
                 uint256 mid = list[j];
                 Model memory m = _models[mid];
@@ -470,6 +501,7 @@ contract ModelsManager is ReentrancyGuardTransient {
         uint256 d = r.env.length;
         uint256 nMax = 0;
         uint256[] memory part = new uint256[](n);
+        uint256[][] memory lists = new uint256[][](n); // each owner's list, read once
         for (uint256 i; i < n; ++i) {
             uint32 ownerId = ws[i].id();
             if (ownerId == selfId) continue;
@@ -477,7 +509,9 @@ contract ModelsManager is ReentrancyGuardTransient {
             uint256 rep = QoSMath.reputation(c.assigned(), c.accepted(), c.completed());
             uint256 rat = QoSMath.rating(c.ratingSum(), c.ratingCount());
             if (rep < r.minReputation || rat < r.minRating) continue;
-            if (!_hasModelOfDims(_ownerModels[(uint256(ownerId) << 8) | r.domain], d)) continue;
+            uint256[] memory list = _ownerList((uint256(ownerId) << 8) | r.domain);
+            if (!_hasModelOfDims(list, d)) continue;
+            lists[i] = list;
             uint256 e = c.completed();
             if (e > nMax) nMax = e;
             // eligible flag | E << 64 | Rep * R (< 1e12)
@@ -489,7 +523,7 @@ contract ModelsManager is ReentrancyGuardTransient {
             uint256 p = part[i];
             if (p == 0) continue;
             uint256 top = QoSMath.expertise(uint48(p >> 64), nMax) * uint64(p);
-            uint32[] storage list = _ownerModels[(uint256(ws[i].id()) << 8) | r.domain];
+            uint256[] memory list = lists[i];
             for (uint256 j; j < list.length; ++j) {
                 uint256 mid = list[j];
                 Model memory m = _models[mid];
@@ -500,7 +534,53 @@ contract ModelsManager is ReentrancyGuardTransient {
         }
     }
 
-    function _hasModelOfDims(uint32[] storage list, uint256 d) internal view returns (bool) {
+    /// @dev Locates `modelId` among the models of allocation `allocId`: the word index `k`,
+    /// that word and the entry's reviewed bit (0 when the model is not in the allocation).
+    function _findModel(uint256 allocId, uint256 modelId)
+        internal
+        view
+        returns (uint256 k, uint256 word, uint256 bit)
+    {
+        for (uint256 i; i < MAX_MODELS; ++i) {
+            uint256 e = i % MODELS_PER_WORD;
+            if (e == 0) {
+                k = i / MODELS_PER_WORD;
+                word = _allocModels[allocId][k];
+            }
+            uint256 id = (word >> (32 * e)) & ID_MASK;
+            if (id == 0) break; // entries are filled in order; model ids are >= 1
+            if (id == modelId) return (k, word, 1 << (REVIEWED_SHIFT + e));
+        }
+        return (0, 0, 0);
+    }
+
+    /// @dev Appends model `modelId` (< 2^32) to the owner list `key` (fewer than 256 entries:
+    /// at most MAX_MODELS_PER_OWNER are listed).
+    function _pushOwnerModel(uint256 key, uint256 modelId) internal {
+        uint256 head = _ownerModels[key][0];
+        uint256 n = head >> COUNT_SHIFT;
+        uint256 entry = modelId << (32 * (n % MODELS_PER_WORD));
+        if (n < MODELS_PER_WORD) {
+            _ownerModels[key][0] = (head + (1 << COUNT_SHIFT)) | entry;
+        } else {
+            _ownerModels[key][0] = head + (1 << COUNT_SHIFT);
+            _ownerModels[key][n / MODELS_PER_WORD] |= entry;
+        }
+    }
+
+    /// @dev The model ids of owner list `key`, in listing order.
+    function _ownerList(uint256 key) internal view returns (uint256[] memory ids) {
+        uint256 word = _ownerModels[key][0];
+        uint256 n = word >> COUNT_SHIFT;
+        ids = new uint256[](n);
+        for (uint256 i; i < n; ++i) {
+            uint256 e = i % MODELS_PER_WORD;
+            if (e == 0 && i != 0) word = _ownerModels[key][i / MODELS_PER_WORD];
+            ids[i] = (word >> (32 * e)) & ID_MASK;
+        }
+    }
+
+    function _hasModelOfDims(uint256[] memory list, uint256 d) internal view returns (bool) {
         for (uint256 j; j < list.length; ++j) {
             if (_models[list[j]].envLen == d) return true;
         }

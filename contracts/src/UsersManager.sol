@@ -34,8 +34,10 @@ import {Math} from "@openzeppelin/contracts/utils/math/Math.sol";
  *
  * Gas: a worker is one storage slot (address, status, GPU, cores, RAM, domains) and each
  * counter set is one slot (five uint48: 2.8e14 tasks before overflow); domain lists hold
- * uint32 ids, eight per slot, so a candidate scan costs two cold SLOADs per worker and
- * addWorker writes three new slots (worker, id, list entry).
+ * uint32 ids, seven per slot with the count in the first, so a candidate scan costs three
+ * cold SLOADs per worker (worker, counters, queue link) and addWorker writes at most two new
+ * slots of its own (worker, id) plus, per domain, a list word and a queue link when those
+ * are new (docs/chain.md, "Gas against Table 7.5").
  */
 contract UsersManager {
 
@@ -60,6 +62,8 @@ contract UsersManager {
     uint256 public constant MAX_POOL_SIZE = 128;
     uint32 public constant DEFAULT_POOL_SIZE = 64;
     uint256 internal constant ID_MASK = (1 << 32) - 1;
+    uint256 internal constant LIST_PER_WORD = 7;
+    uint256 internal constant LIST_COUNT_SHIFT = 224;
 
     enum Status {
         None,
@@ -130,12 +134,13 @@ contract UsersManager {
     /// Workers List (thesis: address -> Worker); ids start at 1, 0 = not a worker.
     mapping(uint32 => Worker) internal _workers;
     mapping(address => uint32) public workerId;
-    /// Domain Workers (thesis: uint -> address[]), as worker ids in registration order.
-    mapping(uint256 => uint32[]) internal _domainWorkers;
+    /// Domain Workers (thesis: uint -> address[]), as worker ids in registration order,
+    /// LIST_PER_WORD per word: entry i at bits 32 * (i % 7) of word i / 7; word 0 also holds
+    /// the count at bits LIST_COUNT_SHIFT.. (a domain's first worker writes one new slot).
+    mapping(uint256 => mapping(uint256 => uint256)) internal _domainWorkers;
     /// Counters per (worker id, domain, task type): key = id << 16 | domain << 8 | type.
     mapping(uint256 => Counters) internal _counters;
     mapping(address => bool) public isRequester;
-    uint32 public workerCount;
 
     mapping(address => bool) public isAdmin;
     mapping(address => bool) public isPlatform;
@@ -145,6 +150,9 @@ contract UsersManager {
     bool public approvalRequired;
     /// Candidates per domain: the first `poolSize` workers of the domain's Active queue.
     uint32 public poolSize;
+    /// Workers ever registered (ids 1..workerCount). In the slot of the two settings above,
+    /// which the constructor writes, so the first registration does not create a slot.
+    uint32 public workerCount;
     /// Active queue links per (domain << 32 | id): prev | next << 32 (ids; 0 = none).
     mapping(uint256 => uint256) internal _links;
     /// Active queue ends per domain: head | tail << 32 | length << 64.
@@ -268,7 +276,7 @@ contract UsersManager {
         uint256 rest = domains;
         while (rest != 0) {
             uint256 low = rest & (~rest + 1);
-            _domainWorkers[Math.log2(low)].push(id);
+            _listWorker(Math.log2(low), id);
             rest ^= low;
         }
         if (!pending) _join(id, domains);
@@ -353,12 +361,24 @@ contract UsersManager {
 
     // ---------------------------------------------------------------------------- views
 
-    /// @dev All workers of `domain` in registration order (thesis getWorkers).
-    function getWorkers(uint32 domain) external view returns (Worker[] memory out) {
-        uint32[] storage ids = _domainWorkers[domain];
-        out = new Worker[](ids.length);
-        for (uint256 i; i < out.length; ++i) {
-            out[i] = _workers[ids[i]];
+    /**
+     * @dev Workers of `domain` in registration order (thesis getWorkers), one page: those at
+     * positions [offset, offset + limit) of the domain's list ({domainSize} in all; a page
+     * past the end is empty). Paged so that the view's gas is bounded by `limit`, not by the
+     * number ever registered (an eth_call has a gas cap too).
+     */
+    function getWorkers(uint32 domain, uint256 offset, uint256 limit) external view returns (Worker[] memory out) {
+        mapping(uint256 => uint256) storage list = _domainWorkers[domain];
+        uint256 len = list[0] >> LIST_COUNT_SHIFT;
+        uint256 n = offset < len ? len - offset : 0;
+        if (n > limit) n = limit;
+        out = new Worker[](n);
+        uint256 word = 0;
+        for (uint256 i; i < n; ++i) {
+            uint256 j = offset + i; // < len <= 2^32
+            uint256 e = j % LIST_PER_WORD;
+            if (i == 0 || e == 0) word = list[j / LIST_PER_WORD];
+            out[i] = _workers[uint32(word >> (32 * e))];
         }
     }
 
@@ -377,7 +397,7 @@ contract UsersManager {
     }
 
     function domainSize(uint32 domain) external view returns (uint256) {
-        return _domainWorkers[domain].length;
+        return _domainWorkers[domain][0] >> LIST_COUNT_SHIFT;
     }
 
     /**
@@ -463,14 +483,29 @@ contract UsersManager {
             uint256 d = Math.log2(low);
             uint256 q = _queues[d];
             uint256 tail = (q >> 32) & ID_MASK;
-            _links[(d << 32) | id] = tail; // prev = old tail, next = none
             if (tail == 0) {
+                // prev = next = none: the link is already zero (never set, or deleted by
+                // _leave), so it is not written.
                 q = id | (uint256(id) << 32) | (1 << 64);
             } else {
+                _links[(d << 32) | id] = tail; // prev = old tail, next = none
                 _links[(d << 32) | tail] |= uint256(id) << 32;
                 q = (q & ~(ID_MASK << 32)) + (uint256(id) << 32) + (1 << 64);
             }
             _queues[d] = q;
+        }
+    }
+
+    /// @dev Appends worker `id` to the registration list of domain `d`.
+    function _listWorker(uint256 d, uint32 id) internal {
+        uint256 head = _domainWorkers[d][0];
+        uint256 n = head >> LIST_COUNT_SHIFT; // < 2^32: at most workerCount entries
+        uint256 entry = uint256(id) << (32 * (n % LIST_PER_WORD));
+        if (n < LIST_PER_WORD) {
+            _domainWorkers[d][0] = (head + (1 << LIST_COUNT_SHIFT)) | entry;
+        } else {
+            _domainWorkers[d][0] = head + (1 << LIST_COUNT_SHIFT);
+            _domainWorkers[d][n / LIST_PER_WORD] |= entry;
         }
     }
 

@@ -25,6 +25,7 @@ import {ITasksOutcomes} from "../src/ITasksOutcomes.sol";
 contract GasTest is Fixture {
     uint256 internal constant POOL = 50;
     uint8 internal constant NW = 5;
+    uint256 internal constant WORKERS_PAGE = 20;
     
     function _deployMeasured() internal {
         admin = _actor("admin");
@@ -87,8 +88,12 @@ contract GasTest is Fixture {
         _atMost("UMC.updateInfo", 67_486);
         vm.prank(admin);
         umc.setPlatform(admin, false);
-        umc.getWorkers(DOMAIN);
-        vm.snapshotGasLastCall("UMC.getWorkers");
+        // Paged view: a page of WORKERS_PAGE (the size backend/chain/platform.py reads), then
+        // all 50 in one page for comparison (not a Table 7.5 row).
+        umc.getWorkers(DOMAIN, 0, WORKERS_PAGE);
+        _atMost("UMC.getWorkers", 95_287);
+        umc.getWorkers(DOMAIN, 0, POOL);
+        vm.snapshotGasLastCall("UMC.getWorkers(all 50)");
 
         // training task flow
         TasksManager.TaskParams memory p = TasksManager.TaskParams(

@@ -242,6 +242,47 @@ contract ModelsManagerFuzzTest is Fixture {
         mmc.updateModelRep(allocId, a, r);
     }
 
+    /// Packed lists: an owner's list of 16 models in a domain spans three words and an
+    /// allocation of up to 16 models spans three words; every entry is found, reviewed once,
+    /// and a review flags that entry only.
+    function testFuzz_packedListsAndAllocations(uint8 n, uint8 pick, bool sharing) public {
+        vm.prank(admin);
+        mmc.setMaxModelsPerOwner(16);
+        uint256[] memory ids = new uint256[](16);
+        for (uint256 i; i < 16; ++i) {
+            // distance to the request grows with i, and ties go to the lower id: the top k
+            // are the first k listed.
+            ids[i] = _model(owner, string(abi.encodePacked("m-", i)), uint32(3 + i), 3);
+        }
+        uint8 k = uint8(_bound(n, 1, 16));
+        vm.prank(requester);
+        uint256 allocId = mmc.allocateModel{value: k}(
+            _request(k, sharing ? ModelsManager.Metric.Sharing : ModelsManager.Metric.Model)
+        );
+        for (uint256 i; i < 16; ++i) {
+            vm.assertEq(uint256(mmc.allocState(allocId, ids[i])), i < k ? 1 : 0, "top k allocated");
+        }
+        vm.assertEq(uint256(mmc.allocState(allocId, 0)), 0, "id 0 never allocated");
+        vm.assertEq(uint256(mmc.allocState(allocId + 1, ids[0])), 0, "unknown allocation");
+        vm.assertEq(mmc.credits(owner), k, "owner paid per allocated model");
+        uint256 j = _bound(pick, 0, k - 1);
+        vm.prank(requester);
+        mmc.updateModelRep(allocId, ids[j], 4);
+        for (uint256 i; i < k; ++i) {
+            vm.assertEq(uint256(mmc.allocState(allocId, ids[i])), i == j ? 2 : 1, "only that entry reviewed");
+        }
+        vm.expectRevert(abi.encodeWithSelector(ModelsManager.ModelsNotAllocated.selector, allocId, ids[j]));
+        vm.prank(requester);
+        mmc.updateModelRep(allocId, ids[j], 4);
+        if (k < 16) {
+            vm.expectRevert(abi.encodeWithSelector(ModelsManager.ModelsNotAllocated.selector, allocId, ids[k]));
+            vm.prank(requester);
+            mmc.updateModelRep(allocId, ids[k], 4);
+        }
+        (ModelsManager.ModelView memory m,,) = mmc.getModel(ids[j]);
+        vm.assertEq(m.totalReview, 4, "Eq. 11 total of the reviewed model");
+    }
+
     // ------------------------------------------------------------------ withdraw
 
     function testFuzz_withdraw(uint80 price, address stranger_) public {

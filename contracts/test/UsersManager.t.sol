@@ -106,6 +106,31 @@ contract UsersManagerFuzzTest is Fixture {
         for (uint256 i; i < pool.length; ++i) vm.assertEq(pool[i], q[i], "pool is the queue's prefix");
     }
 
+    /// getWorkers pages: the concatenation of consecutive pages is the domain's list in
+    /// registration order; a page past the end is empty; page length = min(limit, rest).
+    function testFuzz_getWorkersPages(uint8 n, uint8 lim, uint8 off) public {
+        uint256 workers = _bound(n, 0, 30);
+        uint256 limit = _bound(lim, 1, 40);
+        for (uint256 i; i < workers; ++i) _worker(address(uint160(0x1000 + i)), 1 << DOMAIN, 8);
+        uint256 seen;
+        while (true) {
+            UsersManager.Worker[] memory page = umc.getWorkers(DOMAIN, seen, limit);
+            uint256 rest = workers - seen;
+            vm.assertEq(page.length, rest < limit ? rest : limit, "page length");
+            for (uint256 i; i < page.length; ++i) {
+                vm.assertEq(page[i].addr, address(uint160(0x1000 + seen + i)), "registration order");
+                vm.assertEq(uint8(page[i].status), uint8(UsersManager.Status.Active), "status");
+                vm.assertEq(page[i].domains, uint256(1) << DOMAIN, "domains");
+            }
+            seen += page.length;
+            if (page.length < limit) break;
+        }
+        vm.assertEq(seen, workers, "all workers listed once");
+        uint256 offset = workers + _bound(off, 0, 200);
+        vm.assertEq(umc.getWorkers(DOMAIN, offset, limit).length, 0, "past the end");
+        vm.assertEq(umc.getWorkers(DOMAIN, type(uint256).max, type(uint256).max).length, 0, "huge offset");
+    }
+
     // ------------------------------------------------------------------ addWorker
 
     function testFuzz_addWorker(address w, uint8 d1, uint8 d2, uint16 cores, uint16 ram, uint8 gpu) public {

@@ -35,6 +35,19 @@ def test_add_worker_registers_in_each_domain(p, actors) -> None:
     assert p.umc.call("domainsOf", w) == (1 << DOMAIN) | (1 << 40)
 
 
+def test_get_workers_reads_every_page(p, actors, monkeypatch) -> None:
+    """getWorkers is paged: get_workers concatenates pages in registration order."""
+    ws = actors.workers[:5]
+    for i, w in enumerate(ws):
+        p.umc.add_worker(w, [DOMAIN], 1 + i, 8, 1)
+    monkeypatch.setattr(p.umc, "WORKERS_PAGE", 2)
+    assert [x["address"] for x in p.umc.get_workers(DOMAIN)] == ws
+    assert [x["cpu_cores"] for x in p.umc.get_workers(DOMAIN)] == [1, 2, 3, 4, 5]
+    assert [w[0] for w in p.umc.call("getWorkers", DOMAIN, 3, 10)] == ws[3:]
+    assert p.umc.call("getWorkers", DOMAIN, 5, 10) == []
+    assert p.umc.call("getWorkers", DOMAIN, 2**256 - 1, 2**256 - 1) == []
+
+
 def test_add_requester_once(p, actors) -> None:
     r = actors.requester
     assert not p.umc.call("isRequester", r)

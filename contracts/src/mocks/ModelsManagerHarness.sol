@@ -28,9 +28,9 @@ contract ModelsManagerHarness is ModelsManager {
                 uint256 head = (modelId % 7) | ((modelId % 5) << 32);
                 _models[modelId] = Model(ownerId, uint8(domain), 2, 0, 0, uint128(head));
                 _domainModels[domain].push(uint32(modelId));
-                _ownerModels[(uint256(ownerId) << 8) | domain].push(uint32(modelId));
+                _pushOwnerModel((uint256(ownerId) << 8) | domain, modelId);
             }
-            _ownerModelCount[ownerId] += perOwner;
+            _owners[ownerId].modelCount += uint32(perOwner);
         }
     }
 }

@@ -32,7 +32,7 @@ contract UsersManagerHarness is UsersManager {
                 uint256 low = rest & (~rest + 1);
                 uint256 d;
                 while ((low >> d) != 1) ++d;
-                _domainWorkers[d].push(id);
+                _listWorker(d, id);
                 rest ^= low;
             }
             _join(id, domains);
