@@ -81,6 +81,8 @@ UNSCHEMATIC_REJECTIONS: dict[str, tuple[str, ...]] = {
         r"^expert_(not_cid|not_canonical|not_found|invalid) ",
         r"^allocation_(not_found|empty) ",
         r"give experts or expert_allocation, not both",
+        # algorithm.demonstration (nested) needs experts or expert_allocation (top level)
+        r"applies only when experts are named",
     ),
     "POST /api/models": (
         *_ENV_RELATIONS,
