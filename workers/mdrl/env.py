@@ -7,9 +7,11 @@ once at reset, so a step is a handful of gathers over (B, N) arrays.
 
 Walls (ours where the thesis is silent): a wall starts at one side of the area, at a cell drawn
 away from the corners, and runs perpendicular to that side for a random length of at most
-span - 2 cells. Wall cells cannot be entered; a diagonal move may not cut the corner of a wall
-cell. Walls can wall off pockets: the target is drawn among free cells, and agents start only in
-cells from which the target is reachable (the target of Ch. 3/4 is always reachable).
+span - 2 cells; no two walls leave the same side on the same line (they would merge), so an
+episode has exactly the drawn number of walls (Ch. 4: "the number of walls is fixed").
+Wall cells cannot be entered; a diagonal move may not cut the corner of a wall cell. Walls can
+wall off pockets: the target is drawn among free cells, and agents start only in cells from
+which the target is reachable (the target of Ch. 3/4 is always reachable).
 """
 
 from __future__ import annotations
@@ -200,12 +202,21 @@ class TargetLocalizationEnv:
         if hi == 0:
             return walls.reshape(R, -1)
         count = rng.integers(lo, hi + 1, size=R)
+        taken = np.zeros((R, 4, max(m, n)), dtype=bool)  # (side, place) already holding a wall
         for k in range(hi):
             side = rng.integers(0, 4, size=R)  # 0 top, 1 bottom, 2 left, 3 right
             vertical = side < 2
             along = np.where(vertical, n, m)  # cells along the side
             span = np.where(vertical, m, n)  # how far a wall can reach
             place = rng.integers(1, along - 1)
+            # Two walls on one line of one side would merge: draw again so the count is exact.
+            again = taken[np.arange(R), side, place]
+            while again.any():
+                side[again] = rng.integers(0, 4, size=int(again.sum()))
+                vertical, along, span = side < 2, np.where(side < 2, n, m), np.where(side < 2, m, n)
+                place[again] = rng.integers(1, along[again] - 1)
+                again = taken[np.arange(R), side, place]
+            taken[np.arange(R), side, place] = True
             lmin = np.array([spec.wall_length_range(int(s))[0] for s in span])
             lmax = np.array([spec.wall_length_range(int(s))[1] for s in span])
             length = rng.integers(lmin, lmax + 1)

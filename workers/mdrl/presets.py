@@ -6,6 +6,11 @@ PPOConfig's defaults stay Table 3.2; presets use faster-learning settings measur
 CPU (see `FAST_PPO`) and the product observations (`PRODUCT_OBSERVATION`); `table32` variants
 (`...-t32`) keep the thesis observations and Table 3.2 exactly.
 
+Ch. 4 presets (users A1W0 ... A4W3 of 4.7.1): `ch4-a{N}w{K}-sr` (shaped BFS reward, Eq. 8) and
+`ch4-a{N}w{K}-sparse` (Eq. 9, S = 50) for N = 1..4 agents and exactly K = 0..3 walls, on a
+30 x 30 grid over 1.5 km x 1.5 km (50 m moves), 8 directions + idle (Eq. 7), I = 1e9, ODMTL
+w = 7 with wall maps, fast PPO (`FAST_PPO`); `...-t41` variants run Table 4.1 exactly.
+
 A config file (JSON or TOML) has the same fields, optionally on top of a preset:
 
     preset = "odmtl-3a-10x10"      # optional base
@@ -91,6 +96,37 @@ def _make(kind: str, agents: int, fast: bool = True) -> Preset:
     return Preset(name, env, obs, ppo, desc)
 
 
+CH4_OBSERVATION = dict(kind="odmtl", window=7, walls=True, readings="mean", scale="fixed")
+"""Ch. 4 observation (4.3): ODMTL w = 7 with the windowed and downsized walls maps standing in
+for the CAE walls embedding; walls maps on even with 0 walls, so all 16 users share one input
+layout per team size (any of them can be another's DC expert). Mean readings on a fixed scale
+as the product presets. No belief map: the filter does model walls (transmission and pockets,
+belief.py), but with walls it keeps two (C, C) matrices per env (C = 900: 6.5 MB per env,
+0.8 GB at 128 envs) and rebuilds them at every reset (~60 ms each), too slow for training."""
+
+TABLE_41_PPO = dict(update_epochs=20)
+"""Table 4.1: Table 3.2 (PPOConfig's defaults: lr 3e-4, clip 0.2, c2 0.01, gamma 0.99,
+lambda 0.95, H = 4000) with 20 epochs per update instead of 50."""
+
+
+def _make_ch4(agents: int, walls: int, reward: str, table41: bool = False) -> Preset:
+    env = EnvSpec(rows=30, cols=30, area_m=(1500.0, 1500.0), agents=agents, moves=8,
+                  walls=(walls, walls), reward=reward, sparse_bonus=50.0)
+    ppo = PPOConfig(**(TABLE_41_PPO if table41 else FAST_PPO))
+    tag = "sr" if reward == "shaped" else "sparse"
+    name = f"ch4-a{agents}w{walls}-{tag}" + ("-t41" if table41 else "")
+    what = ("shaped BFS team reward (Eq. 8, MDRL-SR)" if reward == "shaped"
+            else "sparse team reward (Eq. 9, S = 50, MDRL-Sparse / the base of MDRL-DC)")
+    desc = (f"Ch. 4 user A{agents}W{walls}: {agents} agent(s), exactly {walls} wall(s) from the "
+            f"sides, 30x30 grid over 1.5 km x 1.5 km (50 m moves), I = 1e9, 8 directions + idle "
+            f"(Eq. 7), {what}; ODMTL w = 7 with wall maps (for the CAE embedding), mean readings "
+            f"on a fixed scale, no belief map (too costly with walls at 30x30); "
+            + ("PPO exactly as Table 4.1" if table41
+               else "fast PPO settings (FAST_PPO), not Table 4.1's 20 epochs (see the -t41 "
+                    "variant)"))
+    return Preset(name, env, ObservationSpec(**CH4_OBSERVATION), ppo, desc)
+
+
 PRESETS: dict[str, Preset] = {}
 for _kind, _agents in ([("odmtl", n) for n in (1, 2, 3, 4, 10)]
                        + [("dmtl", n) for n in (1, 2, 3, 4, 10)]
@@ -98,6 +134,12 @@ for _kind, _agents in ([("odmtl", n) for n in (1, 2, 3, 4, 10)]
     for _fast in (True, False):
         _p = _make(_kind, _agents, _fast)
         PRESETS[_p.name] = _p
+for _agents in range(1, 5):
+    for _walls in range(4):
+        for _reward in ("shaped", "sparse"):
+            for _t41 in (False, True):
+                _p = _make_ch4(_agents, _walls, _reward, _t41)
+                PRESETS[_p.name] = _p
 
 
 def get_preset(name: str) -> Preset:

@@ -145,6 +145,11 @@ class EnvSpec:
                 )
         if hi > 0 and min(self.rows, self.cols) < 4:
             problems.append("walls need a grid of at least 4x4")
+        elif hi > 2 * (self.rows - 2) + 2 * (self.cols - 2):
+            problems.append(
+                f"at most {2 * (self.rows - 2) + 2 * (self.cols - 2)} walls fit on "
+                f"{self.rows}x{self.cols} (one per non-corner side cell), got {hi}"
+            )
         if self.reward not in ("shaped", "sparse"):
             problems.append(
                 f"reward must be 'shaped' (Eq. 5/8) or 'sparse' (Eq. 9), got {self.reward!r}"
