@@ -14,6 +14,7 @@ from drlaas.commands.client import model_app, requester_app, task_app, worker_ap
 from drlaas.commands.deploy import app as deploy_app
 from drlaas.commands.scenario import scenario_command
 from drlaas.commands.up import up_command
+from workers.mdrl.commands.cae import app as cae_app
 from workers.mdrl.commands.evaluate import eval_command
 from workers.mdrl.commands.train import train
 from workers.mdrl.commands.zoo import app as zoo_app
@@ -27,6 +28,7 @@ app = typer.Typer(
 app.command("train", help="Train an MDRL model (PPO: CMTL / DMTL / ODMTL).")(train)
 app.command("eval", help="Evaluate a model or a baseline against the oracle.")(eval_command)
 app.add_typer(zoo_app, name="zoo")  # list | train: the shipped models of models/
+app.add_typer(cae_app, name="cae")  # train | eval: the Ch. 4 walls autoencoder
 
 app.add_typer(task_app, name="task")
 app.add_typer(model_app, name="model")

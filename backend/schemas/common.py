@@ -23,6 +23,7 @@ __all__ = [
     "Review",
     "TxPublic",
     "Wei",
+    "wei_to_eth",
 ]
 
 Address = Annotated[
@@ -95,6 +96,17 @@ def to_fixed(x: float) -> int:
 
 def from_fixed(v: int) -> float:
     return v / ONE
+
+
+WEI_PER_ETH = 10**18
+
+
+def wei_to_eth(wei: int | str) -> str:
+    """An amount of wei as an exact decimal string of ETH ("0.005", "12", "0.000000000000000001"):
+    no float on the way, so the UI shows exactly what the chain holds."""
+    whole, frac = divmod(int(wei), WEI_PER_ETH)
+    digits = f"{frac:018d}".rstrip("0")
+    return f"{whole}.{digits}" if digits else str(whole)
 
 
 class ListPublic(BaseModel, Generic[T]):

@@ -6,6 +6,7 @@ from pydantic import BaseModel, Field, WithJsonSchema
 
 from workers.mdrl.trainingspec import trainingspec_json_schema
 
+from .cards import CurvePointPublic, FinalEvalPublic, HeldoutPublic, TrainedPublic
 from .common import MAX_ID, CidStr, Domain, Fraction, ListPublic, Review, Wei
 
 EnvDocument = Annotated[
@@ -43,12 +44,64 @@ class ModelPublic(BaseModel):
     rating: float
 
 
+class ProducedByPublic(BaseModel):
+    """The training task whose outcome this model is: the TMC records each outcome CID once
+    with its task and worker (``outcomeOf``), indexed as the task's outcome, so this link is
+    the chain's, not the card's."""
+
+    task_id: int
+    worker: str
+    review: int | None
+    accepted: bool | None
+    source: Literal["chain"] = "chain"
+
+
+class ExpertPublic(BaseModel):
+    """A model this one learned from (MEDC/DC experts)."""
+
+    ref: str = Field(description="the expert as given: a CID, or a name the card gives")
+    cid: str | None = Field(description="the expert's CID, when ref is one")
+    model_id: int | None = Field(description="the expert's model id when it is on the platform")
+    source: Literal["card", "task_spec"] = Field(
+        description="card: training.experts of the model's card (the owner's word); task_spec: "
+        "the experts of the producing task's spec (its CID is on chain)"
+    )
+
+
+class ModelRequestPublic(BaseModel):
+    """A model-sharing task (MMC.allocateModel) that returned this model."""
+
+    alloc_id: int
+    requester: str
+    qos: float = Field(description="the model's QoS in that allocation, in [0, 1]")
+    price_wei: str
+    price_eth: str = Field(description="price_wei in ETH, an exact decimal string")
+    review: int | None
+
+
 class ModelDetailPublic(ModelPublic):
     description: str
     card: dict[str, Any] | None
     metrics: Any | None
     owner_reputation: float
     owner_rating: float
+    name: str | None = Field(default=None, description="the card's name (zoo models)")
+    kind: str | None = Field(default=None, description="ODMTL, DMTL or CMTL (the card's)")
+    env_spec: dict[str, Any] | None = Field(
+        default=None, description="the card's EnvSpec, when it parses (bounds of a task spec)"
+    )
+    curve: list[CurvePointPublic] = Field(
+        default_factory=list, description="the card's training curve (workers/mdrl/curve.py)"
+    )
+    curve_updates: int | None = None
+    heldout: HeldoutPublic | None = None
+    final_eval: FinalEvalPublic | None = None
+    trained: TrainedPublic | None = None
+    produced_by: ProducedByPublic | None = None
+    experts: list[ExpertPublic] = Field(default_factory=list)
+    requests: list[ModelRequestPublic] = Field(
+        default_factory=list, description="the latest model-sharing tasks that returned it"
+    )
 
 
 class ModelRequestCreate(BaseModel):
@@ -88,9 +141,29 @@ class ModelAllocationPublic(BaseModel):
     models: list[AllocatedModelPublic]
 
 
+class AllocationModelPublic(AllocatedModelPublic):
+    owner: str
+    review: int | None = Field(description="the requester's review (0-5), null until reviewed")
+
+
+class AllocationDetailPublic(BaseModel):
+    """A model-sharing allocation (MMC.allocateModel) as indexed: what the requester paid for
+    and the models it received, each with its QoS (Eq. 13 / 22-23) and review."""
+
+    alloc_id: int
+    requester: str
+    domain: int
+    metric: Literal["model", "sharing"]
+    num_models: int
+    price_wei: str
+    block_number: int
+    models: list[AllocationModelPublic]
+
+
 class ModelReviewCreate(BaseModel):
     model_id: int = Field(ge=1, le=MAX_ID)
     review: Review
 
 
 ModelsPublic = ListPublic[ModelPublic]
+AllocationsPublic = ListPublic[AllocationDetailPublic]

@@ -1,12 +1,12 @@
 from __future__ import annotations
 
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, WithJsonSchema, model_validator
 
 from workers.mdrl.trainingspec import trainingspec_json_schema
 
-from .common import Address, Domain, EventPublic, Fraction, ListPublic, Review, Wei
+from .common import MAX_ID, Address, Domain, EventPublic, Fraction, ListPublic, Review, Wei
 
 MAX_EXTRA_METRICS = 16
 _SPEC = trainingspec_json_schema()["properties"]
@@ -40,6 +40,14 @@ class TaskCreate(BaseModel):
     min_ram_gb: int = Field(default=0, ge=0, le=65_535)
     deadline_s: int = Field(default=86_400, ge=60, le=2**32 - 1)
     payment_wei: Wei(96) = Field(default=0, description="reward per worker, escrowed")  # type: ignore[valid-type]
+    expert_allocation: int | None = Field(
+        default=None,
+        ge=1,
+        le=MAX_ID,
+        description="one of the caller's MMC model allocations (POST /models/requests): its "
+        "models become the spec's experts with the QoS the MMC gave them (MEDC); instead of "
+        "experts",
+    )
 
     def spec_document(self) -> dict[str, Any]:
         """The spec fields the caller gave (unset ones take the TrainingSpec defaults)."""
@@ -53,6 +61,22 @@ class TaskCreatedPublic(BaseModel):
     tx_hashes: list[str]
 
 
+class IntensityPublic(BaseModel):
+    kind: Literal["fixed", "choice", "uniform"]
+    values: list[float] = Field(description="photons per minute")
+
+
+class TaskEnvPublic(BaseModel):
+    """The environment of a task, from its spec (the document behind the on-chain CID)."""
+
+    rows: int
+    cols: int
+    agents: int
+    walls: tuple[int, int] = Field(description="walls per episode, [min, max]")
+    moves: int
+    intensity: IntensityPublic
+
+
 class TaskPublic(BaseModel):
     id: int
     requester: str
@@ -60,6 +84,10 @@ class TaskPublic(BaseModel):
     status: str
     num_workers: int
     reward_wei: str
+    reward_eth: str = Field(description="reward_wei in ETH, an exact decimal string")
+    env: TaskEnvPublic | None = Field(
+        description="the spec's environment; null when the description is not a readable spec"
+    )
     deadline: int
     min_reputation: float
     min_rating: float
@@ -126,8 +154,20 @@ class TaskReviewCreate(BaseModel):
     accepted: bool = True
 
 
+class TaskExpertPublic(BaseModel):
+    """An expert model the task's spec names (MEDC), with what the index knows of it."""
+
+    cid: str
+    qos: float | None = Field(description="QoS weight in the spec (null: equal weights)")
+    model_id: int | None = Field(description="its MMC model, when listed")
+    reputation: float | None = Field(description="the model's Eq. 11 reputation")
+    alloc_id: int | None = Field(description="the requester's latest allocation of it")
+    review: int | None = Field(description="the requester's review in that allocation")
+
+
 class TaskDetailPublic(TaskPublic):
     spec: dict[str, Any] | None
+    experts: list[TaskExpertPublic] = Field(default_factory=list)
     timeline: list[EventPublic]
     offers: list[OfferPublic]
     outcomes: list[OutcomePublic]

@@ -246,7 +246,9 @@ def _share_zoo(
     if not owners:
         raise RuntimeError(f"no worker key files under {data_dir / 'keys'}")
     listed: dict[str, str] = {}
-    for i, model_dir in enumerate(sorted(p.parent for p in zoo.glob("*/model.json"))):
+    policies = sorted(p.parent for p in zoo.glob("*/model.json")  # not the walls CAE
+                      if "kind" not in json.loads(p.read_text()))
+    for i, model_dir in enumerate(policies):
         card = json.loads((model_dir / "model.json").read_text())
         zoo_card = card.get("zoo", {})
         body = {

@@ -25,6 +25,10 @@ from pydantic import ValidationError
 from backend.api.errors import RuleError, install_error_handlers
 from backend.api.frontend import mount_frontend
 from backend.api.main import create_app
+from backend.api.routes.tasks import task_env
+from backend.schemas.cards import CardView
+from backend.schemas.common import wei_to_eth
+from backend.schemas.models import ModelDetailPublic
 from backend.schemas.tasks import TaskCreate
 from backend.services.specs import field_loc
 from backend.settings import Settings
@@ -65,22 +69,40 @@ def env(agents: int, rows: int = 10, cols: int = 10, walls: tuple[int, int] = (0
     }
 
 
-def curve(n: int, *, eval_every: int = 5) -> list[dict]:
-    """A plausible learning curve: success rises, search time and cost fall."""
-    points = []
-    for i in range(n):
-        step = (i + 1) * 2048
-        p = {
-            "update": i + 1,
-            "global_step": step,
+def curve(n: int) -> list[dict]:
+    """A plausible learning curve as a card carries it (workers/mdrl/curve.py): success rises,
+    search time and cost fall."""
+    return [
+        {
+            "step": (i + 1) * 2048,
+            "wall_s": round(1.5 * (i + 1), 2),
             "success": round(min(1.0, 0.1 + 0.045 * i), 3),
-            "episode_length": round(80 - 2.5 * i, 2),
-            "episode_cost": round(120 - 3.1 * i, 2),
+            "time": round(80 - 2.5 * i, 2),
+            "cost": round(120 - 3.1 * i, 2),
         }
-        if (i + 1) % eval_every == 0:
-            p["eval_success"] = round(min(1.0, 0.15 + 0.045 * i), 3)
-        points.append(p)
-    return points
+        for i in range(n)
+    ]
+
+
+UNIFORM = {"success": 1.0, "time": 18.338, "time_ci": [17.7207, 18.9553], "cost": 55.014,
+           "cost_ci": [53.1621, 56.8659]}  # fmt: skip
+RANDOM = {"success": 0.684, "time": 56.72, "time_ci": [54.3812, 59.0588], "cost": 133.092,
+          "cost_ci": [127.6202, 138.5638]}  # fmt: skip
+HELDOUT = {
+    "episodes": 1000,
+    "seed": 20261124,
+    "poisson": {"success": 0.999, "time": 5.502, "time_ci": [5.2037, 5.8003], "cost": 6.537,
+                "cost_ci": [6.2503, 6.8237], "oracle_time": 4.069,
+                "baselines": {"bayes": {"success": 1.0, "time": 4.496, "time_ci": [4.3529, 4.6391],
+                                        "cost": 5.262, "cost_ci": [5.0643, 5.4597]},
+                              "uniform": UNIFORM, "random": RANDOM}},
+    "expected": {"success": 1.0, "time": 5.035, "time_ci": [4.8191, 5.2509], "cost": 6.166,
+                 "cost_ci": [5.8988, 6.4332], "oracle_time": 4.069,
+                 "baselines": {"bayes": {"success": 1.0, "time": 4.122, "time_ci": [3.9855, 4.2585],
+                                         "cost": 4.865, "cost_ci": [4.6656, 5.0644]},
+                               "uniform": UNIFORM, "random": RANDOM}},
+}  # fmt: skip
+"""A zoo card's held-out section (odmtl-3a; its baselines by `drlaas zoo complete`)."""
 
 
 def card(env_spec: dict, kind: str, points: list[dict]) -> dict:
@@ -113,12 +135,13 @@ def card(env_spec: dict, kind: str, points: list[dict]) -> dict:
         },
         "training": {
             "ppo": {"learning_rate": 0.00025},
-            "env_steps": points[-1]["global_step"],
+            "env_steps": points[-1]["step"],
             "updates": len(points),
             "wall_time_s": 812.4,
         },
-        "metrics": {k: v for k, v in points[-1].items()},
+        "metrics": {"eval_success": 0.96, "eval_time": 9.5, "eval_cost": 14.25, "loss": 0.07},
         "code": {"version": "0.1.0"},
+        "curve": {"x": "env_steps", "updates": len(points), "points": points},
     }
 
 
@@ -139,7 +162,9 @@ def initial_models() -> list[dict]:
     for mid, cid, owner, domain, e, kind, rep, rating, allocs, desc, n in specs:
         pts = curve(n)
         c = card(e, kind, pts)
-        c["metrics"]["curve"] = pts  # a card may carry its whole curve; metrics = card.metrics
+        if mid == 1:  # a zoo model: held-out figures, an expert, a producing task, a request
+            c["zoo"] = {"name": "odmtl-3a", "heldout": HELDOUT}
+            c["training"]["experts"] = {"experts": [{"ref": CID_B}, {"ref": "runs/local"}]}
         models.append(
             {
                 "id": mid,
@@ -158,9 +183,32 @@ def initial_models() -> list[dict]:
                 "metrics": c["metrics"],
                 "owner_reputation": round(rep * 0.9, 3),
                 "owner_rating": rating,
+                # what the gateway reads from the card: the real parser (backend/schemas/cards.py)
+                **CardView.from_card(c).model_dump(exclude={"expert_refs"}),
+                "env_spec": e,
+                **(MODEL_1_LINKS if mid == 1 else {}),
             }
         )
-    return models
+    return [ModelDetailPublic.model_validate(x).model_dump(mode="json") for x in models]
+
+
+MODEL_1_LINKS = {
+    "produced_by": {"task_id": 3, "worker": W1, "review": 5, "accepted": True, "source": "chain"},
+    "experts": [
+        {"ref": CID_B, "cid": CID_B, "model_id": 2, "source": "task_spec"},
+        {"ref": "runs/local", "cid": None, "model_id": None, "source": "card"},
+    ],
+    "requests": [
+        {
+            "alloc_id": 5,
+            "requester": BOB,
+            "qos": 0.731,
+            "price_wei": "1234567890123",
+            "price_eth": wei_to_eth(1234567890123),
+            "review": 4,
+        }
+    ],
+}
 
 
 LIST_KEYS = (
@@ -252,6 +300,7 @@ def task(
     tid: int, status: str, requester: str, workers: int, reward: int, agents: int = 3, **detail: Any
 ) -> dict:
     """TaskDetailPublic (backend/schemas/tasks.py)."""
+    spec = detail.pop("spec", None) or task_spec(agents)
     return {
         "id": tid,
         "requester": requester,
@@ -264,9 +313,11 @@ def task(
         "min_rating": 0.0,
         "min_cpu_cores": 1,
         "min_ram_gb": 1,
+        "reward_eth": wei_to_eth(reward),
+        "env": task_env(spec["env"]),  # the real route's parser
         "description": CID_SPEC,
         "offered": len(detail.get("offers", [])),
-        "spec": task_spec(agents),
+        "spec": spec,
         "timeline": [],
         "offers": [],
         "outcomes": [],
@@ -282,6 +333,8 @@ TASK_LIST_KEYS = (
     "status",
     "num_workers",
     "reward_wei",
+    "reward_eth",
+    "env",
     "deadline",
     "min_reputation",
     "min_rating",

@@ -113,14 +113,10 @@ def test_model_page_shows_card_cid_curve(page: Any, server: LiveServer, state: F
 
     success = page.locator('#model-curve [data-chart="Success rate"]')
     train = success.locator('polyline[data-series="training"]')
-    evals = success.locator('polyline[data-series="evaluation"]')
-    assert int(train.get_attribute("data-count")) == len(m["metrics"]["curve"])
-    assert int(evals.get_attribute("data-count")) == sum(
-        "eval_success" in p for p in m["metrics"]["curve"]
-    )
+    assert int(train.get_attribute("data-count")) == len(m["curve"])
     # A rising success rate is drawn rising: SVG y shrinks upwards.
     pts = [tuple(map(float, p.split(","))) for p in train.get_attribute("points").split()]
-    assert len(pts) == len(m["metrics"]["curve"])
+    assert len(pts) == len(m["curve"])
     assert pts[-1][0] > pts[0][0] and pts[-1][1] < pts[0][1]
     expect(page.locator('#model-curve [data-chart="Cost"] polyline')).to_have_count(1)
     screenshot(page, "model")

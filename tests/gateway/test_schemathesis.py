@@ -76,6 +76,10 @@ UNSCHEMATIC_REJECTIONS: dict[str, tuple[str, ...]] = {
         r"window must be < min\(rows, cols\)",
         r"^spec_exceeds_\w+$",  # resource limits: estimated memory, worker-hours
         r"^reward_below_minimum ",  # payment vs duration, minimum read from the chain
+        # experts (MEDC): model CIDs in the store, or the caller's allocation in the index
+        r"^expert_(not_cid|not_canonical|not_found|invalid) ",
+        r"^allocation_(not_found|empty) ",
+        r"give experts or expert_allocation, not both",
     ),
     "POST /api/models": (
         *_ENV_RELATIONS,

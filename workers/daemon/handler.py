@@ -10,7 +10,9 @@ An offer whose spec cannot be trained here (bad spec, estimated memory beyond th
 share) is declined. A job that fails after acceptance (an exception in training or upload, a
 spec found bad late) is marked ``failed``: it no longer holds capacity, and the task is given
 back on chain at once (TMC ``abandonOffer``: the offer becomes ``Failed`` and the slot opens
-for the requester to re-allocate).
+for the requester to re-allocate). So is a job whose expert models (MEDC, the spec's
+``experts``) cannot be fetched or fail verification (``workers.daemon.experts``): the reason
+names the CID and what is wrong.
 """
 
 from __future__ import annotations
@@ -35,6 +37,12 @@ from backend.store import ContentStore, StoreError, StoreUnavailable
 from backend.store.bundle import read_bundle, upload_model
 from workers.daemon import job as jobs
 from workers.daemon.capabilities import ram_bytes
+from workers.daemon.experts import (
+    MAX_WEIGHTS_BYTES,
+    ExpertFetchError,
+    expert_key,
+    fetch_experts,
+)
 from workers.daemon.gateway import Gateway, GatewayError
 from workers.daemon.links import task_spec_cid
 from workers.mdrl.resources import estimate
@@ -63,6 +71,8 @@ class OfferHandler:
     memory_bytes: int = field(default_factory=ram_bytes)
     """RAM this worker's jobs may use together (measured); each job gets memory_bytes/max_jobs."""
     checkpoint_every: int = jobs.CHECKPOINT_EVERY
+    max_expert_bytes: int = MAX_WEIGHTS_BYTES
+    """Bound on the weights of one expert model fetched for an MEDC job."""
     clock: Callable[[], float] = time.time
     on_first_step: Callable[[int, int], None] | None = None
     progress_errors: int = field(default=0, init=False)
@@ -202,6 +212,11 @@ class OfferHandler:
         """Why this worker must decline the offer (None: it can take it)."""
         if isinstance(spec, SpecError):
             return str(spec)
+        try:  # experts are fetched after acceptance; one no worker can fetch is known now
+            for ref in spec.experts:
+                expert_key(ref)
+        except ExpertFetchError as exc:
+            return str(exc)
         busy = self.active_jobs(exclude=task_id)
         if len(busy) >= self.max_jobs:
             return "at capacity"
@@ -257,6 +272,7 @@ class OfferHandler:
         if left_min <= 0:
             raise RuntimeError(f"task {task_id}: deadline {deadline} leaves no time to train")
         minutes = min(spec.minutes, left_min) if spec.minutes is not None else left_min
+        experts = self._fetch_experts(task_id, spec)
 
         def first(step: int) -> None:
             self._save(task_id, first_step_at=self.clock(), resumed_from_step=step)
@@ -270,8 +286,23 @@ class OfferHandler:
             checkpoint_every=self.checkpoint_every,
             on_progress=lambda p: self._post_progress(task_id, p),
             on_first_step=first,
+            experts=experts,
         )
         return model_dir
+
+    def _fetch_experts(self, task_id: int, spec: TrainingSpec) -> dict[str, Path]:
+        """The spec's expert models, verified, in the job directory (kept for a resume);
+        ExpertFetchError (the job fails naming the CID) or Transient (store down)."""
+        if not spec.experts:
+            return {}
+        try:
+            dirs = fetch_experts(
+                self.store, spec.experts, self.job_dir(task_id), max_weights=self.max_expert_bytes
+            )
+        except StoreUnavailable as exc:
+            raise Transient(f"cannot fetch the task's expert models: {exc}") from exc
+        self._save(task_id, experts=list(spec.experts))
+        return dirs
 
     def _transact(self, fn: str, *args: Any) -> Any:
         try:

@@ -2,9 +2,11 @@
 
 Layout of a job directory ``<worker data>/jobs/<task_id>/``: ``run/`` is the trainer's output
 (``checkpoint/`` every ``checkpoint_every`` updates, ``metrics.csv``, ``model/`` at the end),
-``progress.jsonl`` the points posted to the gateway. A job started again in the same directory
+``progress.jsonl`` the points posted to the gateway, ``experts/<CID>/`` the verified expert
+models of an MEDC task (``workers.daemon.experts``). A job started again in the same directory
 resumes from its last checkpoint (the trainer restores weights, optimiser, RNGs and env state,
-so the continued run is the run that would have happened without the interruption).
+and the DC / MEDC selector's state: roulette-wheel RNG, each env's guiding expert, counters),
+so the continued run is the run that would have happened without the interruption.
 """
 
 from __future__ import annotations
@@ -16,6 +18,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any, cast
 
+from workers.daemon.experts import load_job_experts
+from workers.mdrl.curve import attach_curve
 from workers.mdrl.train import RunConfig, Trainer
 from workers.mdrl.trainingspec import TrainingSpec
 
@@ -80,15 +84,35 @@ def has_checkpoint(job_dir: str | Path) -> bool:
     return (run_dir(job_dir) / "checkpoint" / "state.json").is_file()
 
 
+def make_selector(spec: TrainingSpec, experts: dict[str, Path] | None) -> Any:
+    """The DC / MEDC selector (Alg. 4.1 / 5.1, ``medc.DemonstrationSelector``) of a spec that
+    names experts, its models loaded from ``experts`` ({CID: verified directory}) and named by
+    CID; None for plain PPO. Built the same way on resume, so the checkpoint's selector state
+    (which records the experts by CID) loads into it."""
+    demo = spec.demonstration()
+    if demo is None:
+        return None
+    from workers.mdrl.medc import DemonstrationSelector
+
+    missing = [ref for ref in demo.experts if ref not in (experts or {})]
+    if missing:
+        raise ValueError(f"experts {missing} were not fetched for this job")
+    loaded = load_job_experts(demo.experts, experts or {}, spec.env, spec.seed)
+    return DemonstrationSelector(loaded, demo.qos, demo.rate, demo.threshold, seed=spec.seed)
+
+
 def make_trainer(
     spec: TrainingSpec,
     job_dir: str | Path,
     *,
     minutes: float | None = None,
     checkpoint_every: int = CHECKPOINT_EVERY,
+    experts: dict[str, Path] | None = None,
 ) -> JobTrainer:
     """A trainer for ``spec`` in ``job_dir``: resumed from its checkpoint when there is one.
-    ``minutes`` (e.g. capped by the task deadline) overrides the spec's time budget."""
+    ``minutes`` (e.g. capped by the task deadline) overrides the spec's time budget;
+    ``experts`` maps the spec's expert CIDs to their verified directories."""
+    selector = make_selector(spec, experts)
     out = run_dir(job_dir)
     budget_minutes = spec.minutes if minutes is None else minutes
     overrides = {
@@ -99,7 +123,10 @@ def make_trainer(
         "minutes": budget_minutes,
     }
     if has_checkpoint(job_dir):
-        return cast(JobTrainer, JobTrainer.resume(out, out=out, run_overrides=overrides))
+        return cast(
+            JobTrainer,
+            JobTrainer.resume(out, out=out, run_overrides=overrides, selector=selector),
+        )
     run = RunConfig(
         seed=spec.seed,
         total_steps=spec.steps,
@@ -111,7 +138,7 @@ def make_trainer(
         checkpoint_every=checkpoint_every,
         minutes=budget_minutes,
     )
-    return JobTrainer(spec.env, spec.observation, spec.ppo, run, out=out)
+    return JobTrainer(spec.env, spec.observation, spec.ppo, run, out=out, selector=selector)
 
 
 def run_job(
@@ -122,13 +149,16 @@ def run_job(
     on_first_step: Callable[[int], None] | None = None,
     minutes: float | None = None,
     checkpoint_every: int = CHECKPOINT_EVERY,
+    experts: dict[str, Path] | None = None,
 ) -> tuple[Path, dict[str, Any]]:
     """Train (or finish training) ``spec`` in ``job_dir``; returns (model dir, last metrics).
 
     Each update appends a progress point to ``progress.jsonl`` and calls ``on_progress``."""
     job = Path(job_dir)
     job.mkdir(parents=True, exist_ok=True)
-    trainer = make_trainer(spec, job, minutes=minutes, checkpoint_every=checkpoint_every)
+    trainer = make_trainer(
+        spec, job, minutes=minutes, checkpoint_every=checkpoint_every, experts=experts
+    )
     log = job / "progress.jsonl"
 
     def on_row(row: dict[str, Any]) -> None:
@@ -143,6 +173,7 @@ def run_job(
     t0 = time.perf_counter()
     metrics = trainer.train()
     model = run_dir(job) / "model"
+    attach_curve(model, run_dir(job) / "metrics.csv")  # the card's training curve
     return model, {
         **metrics,
         **trainer.last_eval,

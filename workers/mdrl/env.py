@@ -155,7 +155,7 @@ class TargetLocalizationEnv:
     def _reset_rows(self, rows: np.ndarray) -> None:
         spec, rng = self.spec, self.layout_rng
         R, C, N = len(rows), spec.num_cells, spec.agents
-        walls = self._draw_walls(R)
+        walls = self.draw_walls(spec, rng, R)
         self.walls[rows] = walls
         next_cell = self._move_table(walls)
         self.next_cell[rows] = next_cell
@@ -193,9 +193,10 @@ class TargetLocalizationEnv:
         self._take_readings(rows, start)
         self._mask[rows] = self._masks(rows)
 
-    def _draw_walls(self, R: int) -> np.ndarray:
-        """(R, C) wall maps: each wall leaves a side at a non-corner cell, perpendicular to it."""
-        spec, rng = self.spec, self.layout_rng
+    @staticmethod
+    def draw_walls(spec: EnvSpec, rng: np.random.Generator, R: int) -> np.ndarray:
+        """(R, C) wall maps: each wall leaves a side at a non-corner cell, perpendicular to it.
+        Public (a static method) so the walls CAE (``cae.py``) trains on the env's own layouts."""
         m, n = spec.rows, spec.cols
         walls = np.zeros((R, m, n), dtype=bool)
         lo, hi = spec.walls

@@ -278,11 +278,14 @@ class ModelExpert:
         if kind == "odmtl" and not obs.window < min(task_grid):
             raise ExpertError(f"{what}: its window w = {obs.window} must be < min(rows, cols) "
                               f"= {min(task_grid)} of the task")
+        if obs.walls_embedding and grid != task_grid:
+            raise ExpertError(f"{what}: its walls encoder reads {grid[0]}x{grid[1]} maps, so "
+                              f"it cannot serve a {task_grid[0]}x{task_grid[1]} task")
         self.joint = kind == "cmtl"
         on_task = dataclasses.replace(exp, rows=task.rows, cols=task.cols, agents=task.agents,
                                       walls=task.walls, wall_length=task.wall_length,
                                       moves=task.moves)
-        self.observer = make_observer(on_task, obs)
+        self.observer = make_observer(on_task, obs, getattr(policy.observer, "embedder", None))
         want = channel_layout(dataclasses.replace(on_task, agents=exp.agents), obs).actor
         have = list(self.observer.actor_channels)
         zero_ok = {"others", "ds_others"}  # no other agent in the task: an empty map is exact
@@ -341,8 +344,8 @@ def load_expert(ref: str, task: Any, seed: int = 0) -> Any:
     ``ref`` is a built-in (``oracle``, ``bayes``, ``uniform``, ``random``, ``biased:K``,
     ``malicious:REF``) or a model directory (``model.json`` + ``model.safetensors``); write
     ``./oracle`` for a directory that has a built-in's name. Built-in names come first.
-    Loading by CID is the platform's job: it fetches and verifies the model, then passes its
-    directory. ``seed`` seeds the random expert.
+    Loading by CID is the platform's job (``workers/daemon/experts.py``): it fetches and
+    verifies the model, then passes its directory. ``seed`` seeds the random expert.
     """
     if not isinstance(ref, str) or not ref:
         raise ExpertError(f"expert reference must be a non-empty string, got {ref!r}")

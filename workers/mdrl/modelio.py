@@ -4,6 +4,11 @@ The card says what the model is for and how to rebuild it: env spec, observation
 architecture (Table 3.1 and parameter counts), action space, training config, metrics and
 code version. `load_model(dir)` rebuilds a ready-to-act greedy policy from safetensors + JSON
 only (never pickle).
+
+A model trained with a walls embedding (Ch. 4, ``ObservationSpec.walls_embedding``) carries
+its frozen CAE encoder: weights under ``walls_encoder.*`` in the same safetensors file, and
+``card["walls_encoder"]`` (grid, d, channels, weight digest, the directory it came from). So
+the two files stay self-contained: a model fetched by CID acts without the CAE directory.
 """
 
 from __future__ import annotations
@@ -23,6 +28,7 @@ from workers.mdrl.rollout import GreedySelector, PolicyHead, policy_step
 CARD_FORMAT = "drlaas-model/1"
 WEIGHTS = "model.safetensors"
 CARD = "model.json"
+ENCODER_PREFIX = "walls_encoder."
 ARCHITECTURE = ("Table 3.1 LeNet-like CNN, same body for actor and critic: conv3x3x8 (pad 1) "
                 "ReLU -> maxpool 2x2 stride 2 (ceil) -> conv3x3x16 (pad 1) ReLU -> flatten -> "
                 "fc32 ReLU -> fc16 ReLU -> out (actor: masked softmax over actions; critic: "
@@ -104,7 +110,11 @@ def save_model(path: str | Path, agent: torch.nn.Module, env_spec: Any, obs_spec
         observer = make_observer(env_spec, obs_spec)
     head = PolicyHead(env_spec.num_actions, env_spec.agents, joint=bool(observer.joint_actions))
     tensors = {k: v.detach().contiguous().clone() for k, v in agent.state_dict().items()}
-    save_file(tensors, str(path / WEIGHTS), metadata={"format": CARD_FORMAT})
+    embedder = getattr(observer, "embedder", None)
+    encoder = {} if embedder is None else {
+        ENCODER_PREFIX + k: v.detach().contiguous().clone()
+        for k, v in embedder.encoder.state_dict().items()}
+    save_file({**tensors, **encoder}, str(path / WEIGHTS), metadata={"format": CARD_FORMAT})
     card = {
         "format": CARD_FORMAT,
         "created": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
@@ -134,6 +144,8 @@ def save_model(path: str | Path, agent: torch.nn.Module, env_spec: Any, obs_spec
         "metrics": _jsonable(metrics or {}),
         "code": code_version(),
     }
+    if embedder is not None:
+        card["walls_encoder"] = embedder.card
     (path / CARD).write_text(json.dumps(card, indent=1))
     return path
 
@@ -146,6 +158,9 @@ def load_card(path: str | Path) -> dict[str, Any]:
     card = json.loads(card_path.read_text())
     if card.get("format") != CARD_FORMAT:
         raise ValueError(f"{card_path}: unknown model format {card.get('format')!r}")
+    if "kind" in card:
+        raise ValueError(f"{card_path}: a {card['kind']!r} model, not a policy (a walls CAE "
+                         "loads with cae.load_cae)")
     return card
 
 
@@ -161,10 +176,22 @@ def load_model(path: str | Path) -> GreedyPolicy:
     obs = {k: v for k, v in card["observation"].items()
            if k not in ("actor_shape", "critic_shape")}
     obs_spec = ObservationSpec.from_dict(obs)
-    observer = make_observer(env_spec, obs_spec)
+    tensors = load_file(str(path / WEIGHTS))
+    encoder = {k[len(ENCODER_PREFIX):]: tensors.pop(k) for k in list(tensors)
+               if k.startswith(ENCODER_PREFIX)}
+    embedder = None
+    if obs_spec.walls_embedding:
+        from workers.mdrl.cae import WallsEmbedder, encoder_from_tensors
+
+        if "walls_encoder" not in card or not encoder:
+            raise ValueError(f"{path}: the observation uses a walls embedding but the model "
+                             "file carries no walls encoder")
+        info = card["walls_encoder"]
+        embedder = WallsEmbedder(encoder_from_tensors(info, encoder), info.get("source"))
+    observer = make_observer(env_spec, obs_spec, walls_encoder=embedder)
     head = PolicyHead(env_spec.num_actions, env_spec.agents, joint=bool(observer.joint_actions))
     agent = ActorCritic(observer, head.policy_actions)
-    agent.load_state_dict(load_file(str(path / WEIGHTS)))
+    agent.load_state_dict(tensors)
     agent.eval()
     policy = GreedyPolicy(agent, observer, head)
     policy.card = card  # type: ignore[attr-defined]

@@ -4,6 +4,10 @@ Both networks are the LeNet-like stack of Fig. 3.2; only the input maps and the 
 differ (A**N joint actions for the CMTL actor, A for the shared CLDE actor, 1 for critics).
 Max pooling uses ``ceil_mode=True`` so a 3 x 3 ODMTL input pools to 2 x 2, which is what
 reproduces the actor sizes of Table 3.4 (4229 parameters for ODMTL with one agent).
+
+With a walls embedding (Ch. 4, Fig. 4.4) the d-vector arrives in the last planes of the input
+stack (``observations`` module doc); it skips the convolutions and is concatenated to the
+flattened conv features before the fully connected layers.
 """
 
 from __future__ import annotations
@@ -28,9 +32,11 @@ def _init(layer: nn.Module, gain: float) -> nn.Module:
 class LeNet(nn.Module):
     """conv3x3x8 (pad 1) ReLU -> maxpool 2/2 (ceil) -> conv3x3x16 (pad 1) ReLU -> fc32 ReLU ->
     fc16 ReLU -> ``outputs`` (Table 3.1). Orthogonal init, gain sqrt 2; the head uses
-    ``head_gain`` (0.01 for actors: near-uniform initial policy; 1 for critics)."""
+    ``head_gain`` (0.01 for actors: near-uniform initial policy; 1 for critics).
+    ``embedding`` = d > 0: the last ceil(d / (H * W)) input planes carry a d-vector (Fig. 4.4)."""
 
-    def __init__(self, in_shape: tuple[int, int, int], outputs: int, head_gain: float = 1.0):
+    def __init__(self, in_shape: tuple[int, int, int], outputs: int, head_gain: float = 1.0,
+                 embedding: int = 0):
         super().__init__()
         c, h, w = (int(x) for x in in_shape)
         if min(c, h, w, outputs) < 1:
@@ -38,10 +44,15 @@ class LeNet(nn.Module):
                 f"LeNet needs a positive (C, H, W) and outputs, got {in_shape}, {outputs}"
             )
         self.in_shape, self.outputs = (c, h, w), int(outputs)
+        self.embedding = int(embedding)
+        self.code_planes = -(-self.embedding // (h * w))
+        if self.code_planes >= c:
+            raise ValueError(f"LeNet input {in_shape} has no map planes besides the "
+                             f"{self.code_planes} that carry the d = {self.embedding} embedding")
         relu = math.sqrt(2.0)
-        flat = 16 * math.ceil(h / 2) * math.ceil(w / 2)
+        flat = 16 * math.ceil(h / 2) * math.ceil(w / 2) + self.embedding
         self.net = nn.Sequential(
-            _init(nn.Conv2d(c, 8, 3, stride=1, padding=1), relu),
+            _init(nn.Conv2d(c - self.code_planes, 8, 3, stride=1, padding=1), relu),
             nn.ReLU(),
             nn.MaxPool2d(2, 2, ceil_mode=True),
             _init(nn.Conv2d(8, 16, 3, stride=1, padding=1), relu),
@@ -59,7 +70,14 @@ class LeNet(nn.Module):
         if tuple(x.shape[-3:]) != self.in_shape:
             raise ValueError(f"LeNet expects inputs (..., {self.in_shape}), got {tuple(x.shape)}")
         lead = x.shape[:-3]
-        return self.net(x.reshape((-1,) + self.in_shape)).reshape(lead + (self.outputs,))
+        x = x.reshape((-1,) + self.in_shape)
+        if self.embedding:
+            maps, planes = x[:, : -self.code_planes], x[:, -self.code_planes:]
+            code = planes.reshape(len(x), -1)[:, : self.embedding]
+            x = self.net[6:](torch.cat([self.net[:6](maps), code], dim=1))
+        else:
+            x = self.net(x)
+        return x.reshape(lead + (self.outputs,))
 
 
 class ActorCritic(nn.Module):
@@ -72,27 +90,28 @@ class ActorCritic(nn.Module):
     ``ActorCritic.for_observer(observer, num_actions)`` takes the per-agent A instead.
     """
 
-    def __init__(self, actor_shape: Any, critic_shape: Any, actor_outputs: int | None = None):
+    def __init__(self, actor_shape: Any, critic_shape: Any, actor_outputs: int | None = None,
+                 embedding: int = 0):
         super().__init__()
         if hasattr(actor_shape, "actor_shape"):  # ActorCritic(observer, actor_outputs)
             if actor_outputs is not None:
                 raise ValueError("ActorCritic(observer, actor_outputs) takes two arguments")
             observer, actor_outputs = actor_shape, critic_shape
             actor_shape, critic_shape = observer.actor_shape, observer.critic_shape
+            embedding = getattr(observer, "embedding", 0)
         elif actor_outputs is None:
             raise ValueError(
                 "ActorCritic needs (actor_shape, critic_shape, actor_outputs) or "
                 "(observer, actor_outputs)"
             )
-        self.actor = LeNet(actor_shape, int(actor_outputs), head_gain=0.01)
-        self.critic = LeNet(critic_shape, 1, head_gain=1.0)
+        self.actor = LeNet(actor_shape, int(actor_outputs), head_gain=0.01, embedding=embedding)
+        self.critic = LeNet(critic_shape, 1, head_gain=1.0, embedding=embedding)
 
     @classmethod
     def for_observer(cls, observer: Any, num_actions: int) -> ActorCritic:
         """Networks sized for an ``observations.Observer``; ``num_actions`` per agent (A)."""
-        return cls(
-            observer.actor_shape, observer.critic_shape, observer.num_actor_outputs(num_actions)
-        )
+        return cls(observer.actor_shape, observer.critic_shape,
+                   observer.num_actor_outputs(num_actions), getattr(observer, "embedding", 0))
 
     def logits(self, actor_obs: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
         """actor_obs (..., C, H, W), mask bool (..., A) -> logits (..., A), invalid = -1e8."""

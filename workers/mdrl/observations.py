@@ -32,8 +32,15 @@ Options beyond the thesis (issue 9: what the thesis-faithful input throws away):
 * ``belief=True``: the team posterior over the target cell (``belief.BeliefFilter``, the
   Bayesian searcher's filter), divided by its maximum.
 
-Chapter 4 embeds walls with a CAE; here the (windowed / downsized) walls map stands in for it,
-so the actor sees walls without a pretrained encoder.
+Chapter 4 embeds walls with a CAE (``ObservationSpec.walls_embedding``, ``cae.py``): the frozen
+encoder turns the full walls map into a d-vector that replaces the downsized walls maps (ODMTL
+keeps the windowed one: the 9 reduced inputs of Fig. 4.2; DMTL/CMTL keep their full map) and is
+given to the actor and the critic (4.5). So that the rollout, PPO and model files keep carrying
+ONE (C, H, W) stack per sample, the d-vector rides in ``k = ceil(d / (H * W))`` extra planes at
+the end of each stack (``walls_code_*``: the vector, flattened row-major, zero padded); the
+networks cut those planes off before the convolutions and concatenate the vector to the
+flattened conv features (Fig. 4.4). Without the option the (windowed / downsized) walls maps
+stand in for it, so the actor sees walls without a pretrained encoder.
 
 Choices the thesis leaves open (ours):
 
@@ -91,6 +98,11 @@ class ObservationSpec:
     others: bool | None = None
     """DMTL/ODMTL map of the other agents; None = iff the team has more than one agent (Table
     3.4). True keeps it (all zeros) for one agent, so one actor can serve any team size."""
+    walls_embedding: str | None = None
+    """Directory of a walls CAE (``cae.py``, Ch. 4.3): its encoder's embedding of the full walls
+    map goes to the actor and critic instead of the downsized walls maps. None: no embedding."""
+    walls_embedding_size: int = 128
+    """d of that CAE (Table 4.1); sizes the networks before the CAE is loaded."""
 
     def __post_init__(self) -> None:
         if self.readings not in ("last", "mean"):
@@ -121,9 +133,22 @@ class ObservationSpec:
             raise ValueError(
                 f"ObservationSpec.walls must be True, False or None, got {self.walls!r}"
             )
+        if self.walls_embedding is not None and (
+                not isinstance(self.walls_embedding, str) or not self.walls_embedding):
+            raise ValueError("ObservationSpec.walls_embedding must be a CAE directory or None, "
+                             f"got {self.walls_embedding!r}")
+        size = self.walls_embedding_size
+        if isinstance(size, bool) or not isinstance(size, (int, np.integer)) or size < 1:
+            raise ValueError(
+                f"ObservationSpec.walls_embedding_size must be a positive int, got {size!r}")
 
     def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
+        """Fields as a dict; the walls-embedding fields only when the option is on, so specs,
+        cards and checkpoints without it read exactly as before it existed."""
+        d = asdict(self)
+        if self.walls_embedding is None:
+            del d["walls_embedding"], d["walls_embedding_size"]
+        return d
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> ObservationSpec:
@@ -143,6 +168,8 @@ class ChannelLayout:
     critic_shape: tuple[int, int, int]
     walls: bool
     full_critic: bool
+    embedding: int = 0
+    """d of the walls embedding carried in the last planes of both stacks (0: none)."""
 
 
 def channel_layout(env_spec: Any, obs_spec: ObservationSpec) -> ChannelLayout:
@@ -171,15 +198,21 @@ def channel_layout(env_spec: Any, obs_spec: ObservationSpec) -> ChannelLayout:
     full_critic = kind == "odmtl" and obs_spec.critic == "full"
     if full_critic:
         critic = ["all_locations", "readings", "visits"] + walls
+    embedding = int(obs_spec.walls_embedding_size) if obs_spec.walls_embedding else 0
+    if embedding:  # the embedding replaces the downsized walls maps (Fig. 4.2)
+        actor = [c for c in actor if c != "ds_walls"]
+        critic = [c for c in critic if c != "ds_walls"]
     if obs_spec.belief:
         actor += ["win_belief", "ds_belief"] if kind == "odmtl" else ["belief"]
         critic += ["ds_belief"] if kind == "odmtl" and not full_critic else ["belief"]
     h, wd = (w, w) if kind == "odmtl" else (rows, cols)
     reduced_critic = kind == "odmtl" and not full_critic
-    critic_shape = (len(critic), h, wd) if reduced_critic else (len(critic), rows, cols)
-    return ChannelLayout(
-        tuple(actor), tuple(critic), (len(actor), h, wd), critic_shape, walls_on, full_critic
-    )
+    ch, cw = (h, wd) if reduced_critic else (rows, cols)
+    if embedding:
+        actor += [f"walls_code_{i}" for i in range(-(-embedding // (h * wd)))]
+        critic += [f"walls_code_{i}" for i in range(-(-embedding // (ch * cw)))]
+    return ChannelLayout(tuple(actor), tuple(critic), (len(actor), h, wd), (len(critic), ch, cw),
+                         walls_on, full_critic, embedding)
 
 
 # --------------------------------------------------------------------------- linear operators
@@ -279,7 +312,8 @@ def joint_mask(mask: np.ndarray) -> np.ndarray:
 class Observer:
     """Builds (actor, critic) observations for a batch of envs; see the module docstring."""
 
-    def __init__(self, env_spec: Any, obs_spec: ObservationSpec) -> None:
+    def __init__(self, env_spec: Any, obs_spec: ObservationSpec,
+                 walls_encoder: Any = None) -> None:
         rows, cols, agents = int(env_spec.rows), int(env_spec.cols), int(env_spec.agents)
         if rows < 1 or cols < 1 or agents < 1:
             raise ValueError(
@@ -301,6 +335,8 @@ class Observer:
         self.joint_actions = self.kind == "cmtl"
         self.actor_channels, self.critic_channels = layout.actor, layout.critic
         self.actor_shape, self.critic_shape = layout.actor_shape, layout.critic_shape
+        self.embedding = layout.embedding
+        self.embedder = self._walls_embedder(walls_encoder) if self.embedding else None
         if self.kind == "odmtl":
             self._rt = downsize_matrix(rows, cols, w).T.astype(np.float32).copy()  # (C, w*w)
             self._win = window_index(rows, cols, w)
@@ -319,6 +355,32 @@ class Observer:
         return a**self.agents if self.joint_actions else a
 
     # ------------------------------------------------------------------ helpers
+    def _walls_embedder(self, given: Any) -> Any:
+        """The CAE encoder (``cae.WallsEmbedder``): ``given`` (e.g. rebuilt from a model file)
+        or loaded from ``obs_spec.walls_embedding``; checked against this grid and d."""
+        from workers.mdrl.cae import WallsEmbedder
+
+        embedder = given if given is not None else WallsEmbedder.load(
+            self.obs_spec.walls_embedding)
+        if tuple(embedder.grid) != (self.rows, self.cols):
+            raise ValueError(f"walls CAE {embedder.source!r} encodes {embedder.grid[0]}x"
+                             f"{embedder.grid[1]} maps; this env is {self.rows}x{self.cols}")
+        if embedder.size != self.embedding:
+            raise ValueError(f"walls CAE {embedder.source!r} has d = {embedder.size}; the "
+                             f"observation spec says walls_embedding_size = {self.embedding}")
+        return embedder
+
+    def _write_embedding(self, env: Any, actor: np.ndarray, critic: np.ndarray) -> None:
+        """The walls embedding (B, d), flattened into the last planes of both stacks."""
+        code = self.embedder.embed(env.walls)
+        d = self.embedding
+        for arr in (actor, critic):  # (B, [N,] C, cells): the code planes are the last k
+            k = -(-d // arr.shape[-1])
+            planes = arr[..., -k:, :].reshape(*arr.shape[:-2], -1)
+            planes[..., d:] = 0.0
+            planes[..., :d] = code.reshape(code.shape[0], *([1] * (arr.ndim - 3)), d)
+            arr[..., -k:, :] = planes.reshape(*arr.shape[:-2], k, arr.shape[-1])
+
     def _check(self, env: Any) -> tuple[np.ndarray, int]:
         pos = np.asarray(env.pos)
         if pos.ndim != 2 or pos.shape[1] != self.agents:
@@ -370,6 +432,8 @@ class Observer:
             actor, critic = self._observe_full(pos, b, shown, _normalise(visits), walls, out)
         if self._belief is not None:
             self._write_belief(env, actor, critic)
+        if self.embedder is not None:
+            self._write_embedding(env, actor, critic)
         return (actor.reshape((b, -1) + self.actor_shape), critic.reshape((b,) + self.critic_shape))
 
     def _readings_map(self, env: Any) -> np.ndarray:
@@ -389,15 +453,19 @@ class Observer:
         """Posterior map / its maximum into the last actor and critic channels (cells flat)."""
         post = self._belief.posterior(env).astype(np.float32)
         post *= _inverse_max(post)[:, None]
+        a = -1 - (self.actor_shape[0] - self.actor_channels.index("walls_code_0")
+                  if self.embedding else 0)  # the belief precedes the embedding planes
+        c = -1 - (self.critic_shape[0] - self.critic_channels.index("walls_code_0")
+                  if self.embedding else 0)
         if self.kind == "odmtl":
             centre = np.asarray(env.past_pos(self._pad))
-            actor[:, :, -2] = self._gather_windows(post, centre, 2)
+            actor[:, :, a - 1] = self._gather_windows(post, centre, 2)
             ds = post @ self._rt
-            actor[:, :, -1] = ds[:, None]
-            critic[:, -1] = post if self.full_critic else ds
+            actor[:, :, a] = ds[:, None]
+            critic[:, c] = post if self.full_critic else ds
         else:
-            actor[:, :, -1] = post[:, None]
-            critic[:, -1] = post
+            actor[:, :, a] = post[:, None]
+            critic[:, c] = post
 
     def _check_out(self, out: tuple[np.ndarray, np.ndarray], b: int) -> None:
         n = 1 if self.joint_actions else self.agents
@@ -512,10 +580,13 @@ class Observer:
             critic[:, 1] = ds_r
             critic[:, 2] = ds_v
         if walls is not None:
-            ds_walls = walls @ self._rt
             actor[:, :, k + 2] = self._gather_windows(walls, centre, 1)
-            actor[:, :, k + 3] = ds_walls[:, None]
-            critic[:, 3] = walls if self.full_critic else ds_walls
+            if not self.embedding:  # with a CAE its embedding replaces the downsized walls
+                ds_walls = walls @ self._rt
+                actor[:, :, k + 3] = ds_walls[:, None]
+                critic[:, 3] = walls if self.full_critic else ds_walls
+            elif self.full_critic:
+                critic[:, 3] = walls
         return actor, critic
 
 
@@ -528,8 +599,11 @@ def reference_count(env_spec: Any) -> float:
     return strongest * env_spec.dwell_min * env_spec.detector_area_cm2 / (4 * np.pi * cell_cm**2)
 
 
-def make_observer(env_spec: Any, obs_spec: ObservationSpec) -> Observer:
-    """Observer for an env spec (needs ``rows``, ``cols``, ``agents``, ``walls`` (min, max))."""
+def make_observer(env_spec: Any, obs_spec: ObservationSpec,
+                  walls_encoder: Any = None) -> Observer:
+    """Observer for an env spec (needs ``rows``, ``cols``, ``agents``, ``walls`` (min, max)).
+    ``walls_encoder``: a ``cae.WallsEmbedder`` to use instead of loading
+    ``obs_spec.walls_embedding`` (a model file carries its own encoder)."""
     if not isinstance(obs_spec, ObservationSpec):
         raise ValueError(f"obs_spec must be an ObservationSpec, got {type(obs_spec).__name__}")
-    return Observer(env_spec, obs_spec)
+    return Observer(env_spec, obs_spec, walls_encoder)

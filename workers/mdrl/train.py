@@ -400,8 +400,11 @@ class Trainer:
                     self._writer.add_scalar(f"charts/{k}", row[k], step)
 
     def config_dict(self) -> dict[str, Any]:
-        return {"env": self.env_spec.to_dict(), "observation": self.obs_spec.to_dict(),
-                "ppo": self.ppo.to_dict(), "run": self.run.to_dict()}
+        out = {"env": self.env_spec.to_dict(), "observation": self.obs_spec.to_dict(),
+               "ppo": self.ppo.to_dict(), "run": self.run.to_dict()}
+        if self.observer.embedder is not None:  # which CAE encoder, by weight digest
+            out["walls_encoder"] = self.observer.embedder.card
+        return out
 
     def save_model(self, path: str | Path) -> Path:
         from workers.mdrl.modelio import save_model
@@ -465,6 +468,11 @@ class Trainer:
         obs_spec = ObservationSpec.from_dict(meta["observation"])
         trainer = cls(env_spec, obs_spec, ppo, run,
                       out=out if out is not None else path.parent, selector=selector)
+        saved = meta.get("walls_encoder", {}).get("digest")
+        embedder = trainer.observer.embedder
+        if saved is not None and (embedder is None or embedder.card["digest"] != saved):
+            raise ValueError(f"checkpoint {path} was trained with walls encoder {saved}; "
+                             f"{obs_spec.walls_embedding!r} now holds another one")
         trainer.load_state(tensors, env_arrays, meta)
         return trainer
 

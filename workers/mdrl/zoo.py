@@ -18,11 +18,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from workers.mdrl.baselines import OraclePolicy
+from workers.mdrl.baselines import OraclePolicy, make_baseline
+from workers.mdrl.curve import CURVE_KEY, training_curve
 from workers.mdrl.evaluate import EvalReport, evaluate
 from workers.mdrl.modelio import CARD, load_model
 from workers.mdrl.ppo import PPOConfig
 from workers.mdrl.presets import get_preset
+from workers.mdrl.spec import EnvSpec
 
 HELDOUT_SEED = 20_261_124
 """Seed of the held-out episodes in the cards (training evaluates on RunConfig.eval_seed)."""
@@ -49,16 +51,61 @@ ZOO: dict[str, ZooEntry] = {
 }
 
 
+BASELINE_POLICIES = ("bayes", "uniform", "random")
+"""Baselines (baselines.py) whose figures a card lists next to the model's, on its episodes."""
+
+
 def heldout(policy: Any, spec: Any, episodes: int = HELDOUT_EPISODES,
             seed: int = HELDOUT_SEED) -> dict[str, Any]:
-    """Greedy held-out figures of ``policy`` under each reading model, with the oracle's."""
+    """Greedy held-out figures of ``policy`` under each reading model, with the oracle's time
+    and the baselines' figures on the same episodes."""
     out: dict[str, Any] = {"episodes": episodes, "seed": seed}
     for readings in READING_MODELS:
         s = spec.replace(readings=readings)
         report = evaluate(policy, s, episodes, seed=seed)
         oracle = evaluate(OraclePolicy(), s, episodes, seed=seed)
-        out[readings] = summary(report) | {"oracle_time": oracle.time_mean}
+        out[readings] = summary(report) | {"oracle_time": oracle.time_mean,
+                                           "baselines": baselines(s, episodes, seed)}
     return out
+
+
+def baselines(spec: Any, episodes: int, seed: int) -> dict[str, Any]:
+    """{name: figures} of each of BASELINE_POLICIES on ``episodes`` seeded episodes of ``spec``
+    (the random policy's own seed is 0: the same figures every time)."""
+    return {name: summary(evaluate(make_baseline(name), spec, episodes, seed=seed))
+            for name in BASELINE_POLICIES}
+
+
+def add_baselines(model_dir: Path) -> dict[str, Any]:
+    """Write the baselines' figures into the ``zoo.heldout`` of a card made before cards had
+    them, on the card's own held-out episodes (its env, episode count and seed); the model's
+    figures are left as they are. Returns the held-out section."""
+    card_path = Path(model_dir) / CARD
+    card = json.loads(card_path.read_text())
+    held = card["zoo"]["heldout"]
+    spec = EnvSpec.from_dict(card["env"])
+    for readings in READING_MODELS:
+        if readings in held:
+            held[readings]["baselines"] = baselines(spec.replace(readings=readings),
+                                                    held["episodes"], held["seed"])
+    card_path.write_text(json.dumps(card, indent=1))
+    return held
+
+
+def attach_run_curve(model_dir: Path, run_dir: Path) -> dict[str, Any]:
+    """Write the training curve of ``run_dir/metrics.csv`` into the card of ``model_dir`` (a
+    model trained before cards had curves); ValueError unless the run ends at the card's env
+    steps (another run's curve would be a false claim). Returns the curve section."""
+    card_path = Path(model_dir) / CARD
+    card = json.loads(card_path.read_text())
+    curve = training_curve(Path(run_dir) / "metrics.csv")
+    last = curve["points"][-1]["step"] if curve["points"] else None
+    if last != card.get("training", {}).get("env_steps"):
+        raise ValueError(f"{run_dir} ends at {last} env steps, the card of {model_dir} says "
+                         f"{card.get('training', {}).get('env_steps')}: not this model's run")
+    card[CURVE_KEY] = curve
+    card_path.write_text(json.dumps(card, indent=1))
+    return curve
 
 
 def summary(report: EvalReport) -> dict[str, Any]:
@@ -91,6 +138,7 @@ def train_entry(name: str, models: Path, runs: Path, minutes: float | None = Non
     card["zoo"] = {"name": name, "preset": entry.preset, "seed": entry.seed,
                    "env_steps": trainer.global_step, "wall_clock_s": round(trainer.elapsed, 1),
                    "heldout": heldout(policy, spec if spec is not None else policy.env_spec)}
+    card[CURVE_KEY] = training_curve(run_dir / "metrics.csv")
     (target / CARD).write_text(json.dumps(card, indent=1))
     return target
 

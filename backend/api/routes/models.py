@@ -20,21 +20,36 @@ from sqlalchemy import func, or_, select
 
 from backend.api.deps import ChainDep, CurrentUser, IndexerDep, SessionDep, SettingsDep, StoreDep
 from backend.api.errors import RuleError, rule_responses
+from backend.api.limits import json_depth_exceeds
 from backend.api.pagecache import cached_page
 from backend.api.schemas import Address
 from backend.api.writes import catch_up, field_error, receipt_public
 from backend.chain.platform import Metric, cid_hash
 from backend.db import models as m
-from backend.schemas.common import MAX_DOMAIN, MAX_ID, TxPublic, from_fixed, to_fixed
+from backend.schemas.cards import MAX_EXPERTS, CardView, is_cid
+from backend.schemas.common import (
+    MAX_DOMAIN,
+    MAX_ID,
+    TxPublic,
+    from_fixed,
+    to_fixed,
+    wei_to_eth,
+)
 from backend.schemas.models import (
     AllocatedModelPublic,
+    AllocationDetailPublic,
+    AllocationModelPublic,
+    AllocationsPublic,
+    ExpertPublic,
     ModelAllocationPublic,
     ModelCreate,
     ModelDetailPublic,
     ModelPublic,
     ModelRequestCreate,
+    ModelRequestPublic,
     ModelReviewCreate,
     ModelsPublic,
+    ProducedByPublic,
 )
 from backend.services.specs import SpecError, env_attributes, validate_env
 from backend.store import CIDMismatch, ContentTooLarge, NotFound, StoreError, StoreUnavailable
@@ -47,7 +62,9 @@ AllocId = Annotated[int, Path(ge=1, le=MAX_ID)]
 TaskId = Annotated[int, Path(ge=1, le=MAX_ID)]
 BundleFile = Literal["model.safetensors", "model.json"]
 MAX_CARD_BYTES = 1 << 20
+MAX_CARD_DEPTH = 32
 HALF = 500_000
+MAX_REQUESTS_SHOWN = 20
 
 _LIST_COLUMNS = (
     m.ModelRow.id,
@@ -202,6 +219,63 @@ def list_models(
     return cached_page(request, session, build)  # type: ignore[return-value]
 
 
+def allocation_public(session: SessionDep, alloc: m.AllocationRow) -> AllocationDetailPublic:
+    rows = session.execute(
+        select(m.AllocatedModel, m.ModelRow.cid)
+        .join(m.ModelRow, m.ModelRow.id == m.AllocatedModel.model_id, isouter=True)
+        .where(m.AllocatedModel.alloc_id == alloc.id)
+        .order_by(m.AllocatedModel.qos.desc(), m.AllocatedModel.model_id)
+    ).all()
+    return AllocationDetailPublic(
+        alloc_id=alloc.id,
+        requester=alloc.requester,
+        domain=alloc.domain,
+        metric="model" if alloc.metric == int(Metric.MODEL) else "sharing",
+        num_models=alloc.num_models,
+        price_wei=alloc.price_wei,
+        block_number=alloc.block_number,
+        models=[
+            AllocationModelPublic(
+                id=am.model_id,
+                cid=cid or "",
+                qos=from_fixed(am.qos),
+                owner=am.owner,
+                review=am.review,
+            )
+            for am, cid in rows
+        ],
+    )
+
+
+@router.get("/requests", response_model=AllocationsPublic)
+def list_allocations(
+    session: SessionDep,
+    requester: Address | None = None,
+    limit: Annotated[int, Query(ge=1, le=500)] = 100,
+    offset: Annotated[int, Query(ge=0, le=1_000_000)] = 0,
+) -> AllocationsPublic:
+    """Model allocations (MMC.allocateModel), newest first; ``requester`` filters."""
+    stmt = select(m.AllocationRow)
+    if requester is not None:
+        stmt = stmt.where(m.AllocationRow.requester == requester)
+    count = session.scalar(select(func.count()).select_from(stmt.subquery())) or 0
+    page = session.scalars(stmt.order_by(m.AllocationRow.id.desc()).limit(limit).offset(offset))
+    return AllocationsPublic(data=[allocation_public(session, a) for a in page], count=count)
+
+
+@router.get(
+    "/requests/{alloc_id}", response_model=AllocationDetailPublic, responses=rule_responses(404)
+)
+def get_allocation(alloc_id: AllocId, session: SessionDep) -> AllocationDetailPublic:
+    """One allocation: its models (id, CID, QoS, owner) and the requester's reviews."""
+    alloc = session.get(m.AllocationRow, alloc_id)
+    if alloc is None:
+        raise RuleError(
+            404, "allocation_not_found", f"no allocation {alloc_id} (or not indexed yet)"
+        )
+    return allocation_public(session, alloc)
+
+
 def _model(session: SessionDep, model_id: int) -> m.ModelRow:
     row = session.get(m.ModelRow, model_id)
     if row is None:
@@ -210,23 +284,37 @@ def _model(session: SessionDep, model_id: int) -> m.ModelRow:
 
 
 def _card(store: StoreDep, cid: str) -> dict[str, Any] | None:
+    """The bundle's card, or None when it is missing, too large, too deep or not a JSON object
+    (it is anyone's file: the answer must serialise whatever it holds; NaN/Infinity, which
+    Python's parser accepts and JSON does not, become null)."""
     try:
         card_cid, size = bundle_entry(store, cid, "model.json")
         if size > MAX_CARD_BYTES:
             return None
-        card = json.loads(store.get(card_cid, max_size=MAX_CARD_BYTES))
+        raw = store.get(card_cid, max_size=MAX_CARD_BYTES)
+        if json_depth_exceeds(raw, MAX_CARD_DEPTH):
+            raise ValueError(f"nested deeper than {MAX_CARD_DEPTH} levels")
+        card = json.loads(raw, parse_constant=lambda _: None)
         return card if isinstance(card, dict) else None
-    except (KeyError, ValueError, StoreError) as exc:
+    except (KeyError, ValueError, RecursionError, StoreError) as exc:
         log.info("model card of %s unavailable: %s", cid, exc)
         return None
 
 
 @router.get("/{model_id}", response_model=ModelDetailPublic, responses=rule_responses(404))
 def get_model(model_id: ModelId, session: SessionDep, store: StoreDep) -> ModelDetailPublic:
-    """A model with its card (model.json of the bundle, when the store has it)."""
+    """A model as a model hub shows it: chain values in human units (reputations and QoS as
+    fractions, prices in ETH), the producing task (the chain's outcome record), its experts,
+    and the validated parts of its card (curve, held-out figures; an invalid part is left out)
+    next to the raw card (model.json of the bundle, when the store has it)."""
     row = _model(session, model_id)
     owner = session.get(m.WorkerRow, row.owner)
     card = _card(store, row.cid)
+    view = CardView.from_card(card)
+    produced = session.scalars(
+        select(m.OutcomeRow).where(m.OutcomeRow.cid == row.cid).limit(1)
+    ).first()
+    task = session.get(m.TaskRow, produced.task_id) if produced is not None else None
     return ModelDetailPublic(
         **model_public(row, owner).model_dump(),
         description=row.description,
@@ -234,7 +322,85 @@ def get_model(model_id: ModelId, session: SessionDep, store: StoreDep) -> ModelD
         metrics=card.get("metrics") if card else None,
         owner_reputation=from_fixed(owner.sharing_reputation if owner else HALF),
         owner_rating=from_fixed(owner.sharing_rating if owner else HALF),
+        **view.model_dump(exclude={"expert_refs"}),
+        env_spec=_card_env(card),
+        produced_by=ProducedByPublic(
+            task_id=produced.task_id,
+            worker=produced.worker,
+            review=produced.review,
+            accepted=produced.accepted,
+        )
+        if produced is not None
+        else None,
+        experts=_experts(session, _spec_experts(task), view.expert_refs),
+        requests=_requests(session, model_id),
     )
+
+
+def _card_env(card: dict[str, Any] | None) -> dict[str, Any] | None:
+    try:
+        return validate_env(card.get("env")).to_dict() if card else None
+    except (SpecError, TypeError, ValueError):
+        return None
+
+
+def _spec_experts(task: m.TaskRow | None) -> list[str]:
+    """The ``experts`` of a task's spec document (indexed from the store: checked here)."""
+    experts = task.spec.get("experts") if task is not None and isinstance(task.spec, dict) else None
+    if not isinstance(experts, list):
+        return []
+    refs = [e.get("model") if isinstance(e, dict) else e for e in experts]  # {model, qos} or ref
+    return [r for r in refs if isinstance(r, str) and 0 < len(r) <= 200][:MAX_EXPERTS]
+
+
+def _experts(session: SessionDep, from_spec: list[str], from_card: list[str]) -> list[ExpertPublic]:
+    """Each expert once (the task spec's first: its CID is on chain), linked to its model."""
+    seen: dict[str, str] = {}
+    for source, refs in (("task_spec", from_spec), ("card", from_card)):
+        for ref in refs:
+            seen.setdefault(ref, source)
+    cids = [ref for ref in seen if is_cid(ref)]
+    ids = (
+        dict(
+            session.execute(
+                select(m.ModelRow.cid, func.min(m.ModelRow.id))
+                .where(m.ModelRow.cid.in_(cids))
+                .group_by(m.ModelRow.cid)
+            ).all()
+        )
+        if cids
+        else {}
+    )
+    return [
+        ExpertPublic(
+            ref=ref,
+            cid=ref if is_cid(ref) else None,
+            model_id=ids.get(ref),
+            source=source,  # type: ignore[arg-type]
+        )
+        for ref, source in seen.items()
+    ]
+
+
+def _requests(session: SessionDep, model_id: int) -> list[ModelRequestPublic]:
+    rows = session.execute(
+        select(m.AllocatedModel, m.AllocationRow)
+        .join(m.AllocationRow, m.AllocationRow.id == m.AllocatedModel.alloc_id)
+        .where(m.AllocatedModel.model_id == model_id)
+        .order_by(m.AllocatedModel.alloc_id.desc())
+        .limit(MAX_REQUESTS_SHOWN)
+    ).all()
+    return [
+        ModelRequestPublic(
+            alloc_id=a.alloc_id,
+            requester=alloc.requester,
+            qos=from_fixed(a.qos),
+            price_wei=alloc.price_wei,
+            price_eth=wei_to_eth(alloc.price_wei),
+            review=a.review,
+        )
+        for a, alloc in rows
+    ]
 
 
 @router.get(

@@ -11,12 +11,21 @@ from sqlalchemy.exc import IntegrityError
 
 from backend.api.deps import ChainDep, CurrentUser, IndexerDep, SessionDep, SettingsDep, StoreDep
 from backend.api.errors import RuleError, rule_responses
+from backend.api.experts import allocation_experts, check_experts, task_experts
 from backend.api.pagecache import cached_page
 from backend.api.schemas import Address
 from backend.api.writes import catch_up, field_error, receipt_public
 from backend.chain.platform import TaskStatus
 from backend.db import models as m
-from backend.schemas.common import MAX_DOMAIN, MAX_ID, EventPublic, TxPublic, from_fixed, to_fixed
+from backend.schemas.common import (
+    MAX_DOMAIN,
+    MAX_ID,
+    EventPublic,
+    TxPublic,
+    from_fixed,
+    to_fixed,
+    wei_to_eth,
+)
 from backend.schemas.tasks import (
     OfferPublic,
     OutcomePublic,
@@ -25,6 +34,7 @@ from backend.schemas.tasks import (
     TaskCreate,
     TaskCreatedPublic,
     TaskDetailPublic,
+    TaskExpertPublic,
     TaskPublic,
     TaskReviewCreate,
     TasksPublic,
@@ -34,6 +44,7 @@ from backend.services.specs import (
     SpecLimitExceeded,
     check_limits,
     field_loc,
+    validate_env,
 )
 from backend.settings import Settings
 from backend.store.bundle import canonical_json
@@ -44,12 +55,18 @@ TaskId = Annotated[int, Path(ge=1, le=MAX_ID)]
 ASSIGNED_STATES = ("accepted", "submitted", "reviewed")
 
 
-def build_spec(body: TaskCreate, settings: Settings) -> TrainingSpec:
+def build_spec(
+    body: TaskCreate, settings: Settings, experts: list[Any] | None = None
+) -> TrainingSpec:
     """The task's TrainingSpec, within the platform limits; 422 naming the bad field or the
     limit (``spec_exceeds_memory_limit``, ``spec_exceeds_worker_hours_limit``). The payment
-    minimum is the TMC's rule on the booked duration (:func:`check_min_reward`)."""
+    minimum is the TMC's rule on the booked duration (:func:`check_min_reward`). ``experts``
+    (from an allocation) replaces the body's."""
+    doc = body.spec_document()
+    if experts is not None:
+        doc["experts"] = experts
     try:
-        spec = TrainingSpec.from_dict(body.spec_document())
+        spec = TrainingSpec.from_dict(doc)
         check_limits(
             spec,
             num_workers=body.num_workers,
@@ -91,13 +108,24 @@ def create_task(
     store: StoreDep,
     indexer: IndexerDep,
     settings: SettingsDep,
+    session: SessionDep,
 ) -> TaskCreatedPublic:
     """Store the spec, addTask with ``payment_wei * num_workers`` escrowed, then allocateTask.
 
     When the gateway cannot sign for the caller, the 409 ``sign_locally`` carries the addTask
     transaction; after relaying it via ``POST /tx`` the caller calls ``POST /tasks/{id}/allocate``.
+    Experts (MEDC) are named by CID in ``experts`` or come from the caller's model allocation
+    ``expert_allocation`` (``backend.api.experts``).
     """
-    spec = build_spec(body, settings)
+    experts = None
+    if body.expert_allocation is not None:
+        if "experts" in body.model_fields_set and body.experts:
+            field_error(
+                ("body", "expert_allocation"), "give experts or expert_allocation, not both"
+            )
+        experts = allocation_experts(session, body.expert_allocation, user.address)
+    spec = build_spec(body, settings, experts)
+    check_experts(store, spec.experts)
     check_min_reward(chain, body.payment_wei, body.deadline_s)
     spec_cid = store.add(canonical_json(spec.to_dict()))
     tmc = chain.platform.tmc
@@ -157,6 +185,23 @@ def allocate_task(
     return TxPublic(**receipt_public(rc))
 
 
+def task_env(env: Any) -> dict[str, Any] | None:
+    """TaskEnvPublic of a spec's ``env`` (indexed from the store: parsed with the core's rules
+    here); None when it does not parse."""
+    try:
+        spec = validate_env(env)
+    except (SpecError, TypeError, ValueError):
+        return None
+    return {
+        "rows": spec.rows,
+        "cols": spec.cols,
+        "agents": spec.agents,
+        "walls": list(spec.walls),
+        "moves": spec.moves,
+        "intensity": {"kind": spec.intensity.kind, "values": list(spec.intensity.values)},
+    }
+
+
 def task_public(t: m.TaskRow) -> TaskPublic:
     return TaskPublic(
         id=t.id,
@@ -165,6 +210,8 @@ def task_public(t: m.TaskRow) -> TaskPublic:
         status=t.status,
         num_workers=t.num_workers,
         reward_wei=t.reward_wei,
+        reward_eth=wei_to_eth(t.reward_wei),
+        env=task_env(t.spec.get("env")) if isinstance(t.spec, dict) else None,  # type: ignore[arg-type]
         deadline=t.deadline,
         min_reputation=from_fixed(t.min_reputation),
         min_rating=from_fixed(t.min_rating),
@@ -201,21 +248,31 @@ def list_tasks(
             q = q.where(m.TaskRow.domain == domain)
         count = session.scalar(select(func.count()).select_from(q.subquery())) or 0
         # The hot path (docs/platform.md, "Overload"): plain columns, serialised once.
-        page = q.with_only_columns(*_LIST_COLUMNS).order_by(m.TaskRow.id.desc()).limit(limit)
-        data = [
-            {
-                **row._asdict(),
-                "min_reputation": from_fixed(row.min_reputation),
-                "min_rating": from_fixed(row.min_rating),
-            }
-            for row in session.execute(page.offset(offset))
-        ]
+        # The spec's env only (JSON path on SQLite and PostgreSQL), not the whole document.
+        page = (
+            q.with_only_columns(*_LIST_COLUMNS, m.TaskRow.spec["env"].label("spec_env"))
+            .order_by(m.TaskRow.id.desc())
+            .limit(limit)
+        )
+        data = []
+        for row in session.execute(page.offset(offset)):
+            item = row._asdict()
+            item.update(
+                min_reputation=from_fixed(row.min_reputation),
+                min_rating=from_fixed(row.min_rating),
+                reward_eth=wei_to_eth(row.reward_wei),
+                env=task_env(item.pop("spec_env")),
+            )
+            data.append(item)
         return {"data": data, "count": count}
 
     return cached_page(request, session, build)  # type: ignore[return-value]
 
 
-_LIST_COLUMNS = tuple(getattr(m.TaskRow, name) for name in TaskPublic.model_fields)
+_COMPUTED = ("reward_eth", "env")
+_LIST_COLUMNS = tuple(
+    getattr(m.TaskRow, name) for name in TaskPublic.model_fields if name not in _COMPUTED
+)
 
 
 @router.get("/{task_id}", response_model=TaskDetailPublic, responses=rule_responses(404))
@@ -239,6 +296,7 @@ def get_task(task_id: TaskId, session: SessionDep) -> TaskDetailPublic:
     return TaskDetailPublic(
         **task_public(t).model_dump(),
         spec=t.spec,
+        experts=[TaskExpertPublic(**e) for e in task_experts(session, t.spec, t.requester)],
         timeline=[
             EventPublic(
                 block_number=e.block_number,

@@ -1,5 +1,7 @@
 """``drlaas model ...``: shared models: list, show, pull (through the gateway, CID-verified),
-share."""
+share; model-sharing requests to the MMC (``request``: allocateModel, Eq. 10-13 / 22-23, paid
+per model), an allocation's models (``allocation``) and their reviews (``review``:
+updateModelRep, Eq. 10-11)."""
 
 from __future__ import annotations
 
@@ -19,15 +21,20 @@ from drlaas.commands.client.session import (
     KeyOpt,
     connect_funded,
     emit,
+    event_arg,
     fail,
     kv,
     read,
     table,
     write,
 )
-from workers.daemon.gateway import GatewayError
+from workers.daemon.gateway import Gateway, GatewayError
+from workers.mdrl.spec import parse_grid, parse_walls
 
-model_app = typer.Typer(help="Shared models: list, show, pull, share.", no_args_is_help=True)
+model_app = typer.Typer(
+    help="Shared models: list, show, pull, share, request (from the MMC), allocation, review.",
+    no_args_is_help=True,
+)
 
 
 def pull(gateway: str, cid: str, out: Path) -> Path:
@@ -109,15 +116,44 @@ def model_show(
                 ],
             )
         )
-        card = d.get("card") or {}
-        if card:
-            typer.echo(
-                f"\nmodel {card.get('model')} for {card.get('env', {}).get('agents')} agents "
-                f"on {card.get('env', {}).get('rows')}x{card.get('env', {}).get('cols')}; "
-                f"metrics: {json.dumps(card.get('metrics', {}))[:200]}"
-            )
+        lines = hub_lines(d)
+        if lines:
+            typer.echo("\n" + "\n".join(lines))
 
     emit(out, as_json, render)
+
+
+def hub_lines(d: dict[str, Any]) -> list[str]:
+    """The model page's figures as text (GET /models/{id}: provenance, held-out, curve)."""
+    lines = []
+    if d.get("name") or d.get("kind"):
+        lines.append(" ".join(str(x) for x in (d.get("name"), d.get("kind")) if x))
+    p = d.get("produced_by")
+    lines.append(
+        f"produced by task {p['task_id']} (worker {p['worker']}; the chain's outcome record)"
+        if p
+        else "an owner's upload (no task's outcome)"
+    )
+    for x in d.get("experts") or []:
+        where = f"model {x['model_id']}" if x.get("model_id") else "not listed here"
+        lines.append(f"expert {x['ref']} ({where}; from the {x['source'].replace('_', ' ')})")
+    held = d.get("heldout")
+    for f in (held or {}).get("readings", []):
+        time = "-" if f.get("time") is None else f"{f['time']:.2f}"
+        oracle = "-" if f.get("oracle_time") is None else f"{f['oracle_time']:.2f}"
+        lines.append(
+            f"held-out ({held['episodes']} episodes, {f['reading_model']} readings): "
+            f"success {100 * f['success']:.1f}%, time {time} (oracle {oracle}), "
+            f"cost {'-' if f.get('cost') is None else format(f['cost'], '.2f')}"
+        )
+    curve = d.get("curve") or []
+    if curve:
+        last = curve[-1]
+        lines.append(
+            f"curve: {len(curve)} points to {last['step']} env steps; last success "
+            f"{last.get('success')}, time {last.get('time')}, cost {last.get('cost')}"
+        )
+    return lines
 
 
 @model_app.command("pull")
@@ -172,3 +208,117 @@ def model_share(
         except GatewayError as exc:
             fail(exc)
     emit(out, as_json, lambda d: typer.echo(f"model shared: {json.dumps(d)[:200]}"))
+
+
+def request_models(
+    gw: Gateway,
+    env: dict[str, Any],
+    num_models: int,
+    *,
+    domain: int = 0,
+    price_wei: int | None = None,
+    metric: str = "sharing",
+) -> dict[str, Any]:
+    """MMC.allocateModel for ``num_models`` models fitting ``env``: ``{alloc_id, models: [{id,
+    cid, qos, ...}]}``, whether the gateway signed it or we relayed it (then the models are
+    read back from ``GET /models/requests/{id}``)."""
+    body: dict[str, Any] = {"domain": domain, "env": env, "num_models": num_models}
+    body["metric"] = metric
+    if price_wei is not None:
+        body["price_wei"] = price_wei
+    out = write(gw, "POST", "/models/requests", body)
+    if "alloc_id" in out:
+        return dict(out)
+    alloc_id = int(event_arg(out, "ModelsRequested", "allocId"))
+    return dict(gw.get(f"/models/requests/{alloc_id}"))
+
+
+def _show_allocation(d: dict[str, Any]) -> None:
+    typer.echo(f"allocation {d['alloc_id']}")
+    typer.echo(
+        table(
+            d["models"],
+            [
+                ("id", "MODEL"),
+                ("qos", "QOS"),
+                ("review", "REVIEW"),
+                ("owner", "OWNER"),
+                ("cid", "CID"),
+            ],
+        )
+    )
+
+
+@model_app.command("request")
+def model_request(
+    key: KeyOpt,
+    num_models: Annotated[int, typer.Option(min=1, max=16, help="models to allocate (K)")] = 1,
+    grid: Annotated[str, typer.Option(help="ROWSxCOLS of the task the models should fit")] = (
+        "10x10"
+    ),
+    agents: Annotated[int, typer.Option(min=1)] = 3,
+    walls: Annotated[str, typer.Option(help="count or range, e.g. 0-2")] = "0",
+    env_json: Annotated[
+        str | None, typer.Option("--env", help="EnvSpec JSON instead of --grid/--agents/--walls")
+    ] = None,
+    domain: int = 0,
+    metric: Annotated[str, typer.Option(help="sharing (Eq. 22-23) | model (Eq. 13)")] = "sharing",
+    price_wei: Annotated[
+        int | None, typer.Option(min=0, help="wei per model (default: the MMC's minimum)")
+    ] = None,
+    gateway: GatewayOpt = DEFAULT_GATEWAY,
+    as_json: JsonOpt = False,
+) -> None:
+    """Ask the MMC for K models fitting a task (allocateModel; each is paid to its owner). Use
+    the allocation's models as experts with `drlaas task submit --expert-allocation ID`."""
+    if metric not in ("sharing", "model"):
+        raise typer.BadParameter("sharing or model", param_hint="--metric")
+    if env_json is not None:
+        env = json.loads(env_json)
+    else:
+        rows, cols = parse_grid(grid)
+        env = {"rows": rows, "cols": cols, "agents": agents, "walls": list(parse_walls(walls))}
+    with connect_funded(gateway, key) as gw:
+        try:
+            out = request_models(
+                gw, env, num_models, domain=domain, price_wei=price_wei, metric=metric
+            )
+        except (GatewayError, LookupError) as exc:
+            fail(exc)
+    emit(out, as_json, _show_allocation)
+
+
+@model_app.command("allocation")
+def model_allocation(
+    alloc_id: int, gateway: GatewayOpt = DEFAULT_GATEWAY, as_json: JsonOpt = False
+) -> None:
+    """An MMC allocation: its models, their QoS and your reviews."""
+    emit(read(gateway, f"/models/requests/{alloc_id}"), as_json, _show_allocation)
+
+
+@model_app.command("review")
+def model_review(
+    alloc_id: Annotated[int, typer.Argument(help="the allocation that gave you the model")],
+    model_id: Annotated[int, typer.Option("--model", min=1, help="the model reviewed")],
+    review: Annotated[int, typer.Option(min=0, max=5, help="0-5")],
+    key: KeyOpt,
+    gateway: GatewayOpt = DEFAULT_GATEWAY,
+    as_json: JsonOpt = False,
+) -> None:
+    """Review a model you were allocated (MMC.updateModelRep, once per allocation): moves the
+    model's reputation (Eq. 11) and its owner's (Eq. 10)."""
+    with connect_funded(gateway, key) as gw:
+        try:
+            out = write(
+                gw,
+                "POST",
+                f"/models/requests/{alloc_id}/reviews",
+                {"model_id": model_id, "review": review},
+            )
+        except GatewayError as exc:
+            fail(exc)
+    emit(
+        out,
+        as_json,
+        lambda d: typer.echo(f"reviewed model {model_id} of allocation {alloc_id}: {review}/5"),
+    )

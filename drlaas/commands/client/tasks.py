@@ -3,6 +3,12 @@
 The body of ``POST /api/tasks`` is built in one place, :func:`task_body`. When the gateway holds
 no key for the requester, ``submit`` relays the signed ``addTask`` itself and then allocates the
 task the same way (``POST /api/tasks/{id}/allocate``, docs/platform.md "Signing").
+
+Experts (MEDC, thesis Alg. 5.1): ``--experts CID,CID`` names them (``--expert-qos`` weighs
+them), ``--experts-from-mmc K`` first buys K of them from the MMC (``allocateModel``, Eq. 10-13
+/ 22-23; :func:`drlaas.commands.client.models.request_models`) and ``--expert-allocation ID``
+uses an allocation made before; the gateway then writes the allocated CIDs and their QoS into
+the spec.
 """
 
 from __future__ import annotations
@@ -14,7 +20,8 @@ from typing import Annotated, Any
 
 import typer
 
-from drlaas.commands.client.models import pull
+from backend.store import CID, InvalidCID
+from drlaas.commands.client.models import pull, request_models
 from drlaas.commands.client.session import (
     DEFAULT_GATEWAY,
     GatewayOpt,
@@ -31,8 +38,10 @@ from drlaas.commands.client.session import (
     write,
 )
 from workers.daemon.gateway import Gateway, GatewayError
+from workers.mdrl.medc import parse_list
 from workers.mdrl.spec import parse_grid, parse_walls
-from workers.mdrl.trainingspec import SpecError, TrainingSpec
+from workers.mdrl.specfields import check_object
+from workers.mdrl.trainingspec import DEMONSTRATION_RULES, SpecError, TrainingSpec
 
 task_app = typer.Typer(
     help="Training tasks: submit, list, show, wait, pull, review.", no_args_is_help=True
@@ -54,20 +63,35 @@ def task_body(
     deadline_s: int,
     domain: int,
     spec: Path | None,
+    experts: str | None = None,
+    expert_qos: str | None = None,
+    expert_rate: float | None = None,
+    expert_threshold: float | None = None,
 ) -> dict[str, Any]:
     """POST /tasks body from options, or from a JSON file (``--spec``) that options fill in.
-    The spec part is checked locally with the core's TrainingSpec (the gateway's own parser)."""
+    The spec part is checked locally with the core's TrainingSpec (the gateway's own parser).
+    ``experts``/``expert_qos`` are comma-separated CIDs and weights (``drlaas train``'s form)."""
     if spec is not None:
         return json.loads(spec.read_text())
     rows, cols = parse_grid(grid)
-    doc = {
+    doc: dict[str, Any] = {
         "env": {"rows": rows, "cols": cols, "agents": agents, "walls": list(parse_walls(walls))},
         "observation": {"kind": kind, "window": window},
         "budget": {"steps": steps, "minutes": minutes},
         "seed": seed,
     }
+    if experts is not None:
+        doc["experts"] = expert_list(experts, expert_qos)
+    elif expert_qos is not None:
+        raise typer.BadParameter("--expert-qos weighs --experts", param_hint="--expert-qos")
+    demo = {"rate": expert_rate, "threshold": expert_threshold}
+    demo = {k: v for k, v in demo.items() if v is not None}
     try:
         TrainingSpec.from_dict(doc)
+        if demo:  # checked on its own: the experts may come from the MMC, on the gateway
+            doc["algorithm"] = {
+                "demonstration": check_object(demo, DEMONSTRATION_RULES, "algorithm.demonstration")
+            }
     except SpecError as exc:
         raise typer.BadParameter(exc.msg, param_hint=exc.field) from None
     return {
@@ -77,6 +101,29 @@ def task_body(
         "deadline_s": deadline_s,
         "domain": domain,
     }
+
+
+def expert_list(experts: str, qos: str | None) -> list[Any]:
+    """``--experts a,b [--expert-qos 0.7,0.3]`` -> the spec's ``experts``."""
+    try:
+        cids = parse_list(experts, "--experts")
+        for c in cids:
+            if str(CID.parse(c).v1()) != c:
+                raise ValueError(f"--experts: give {c!r} in canonical form {CID.parse(c).v1()}")
+        if qos is None:
+            return list(cids)
+        weights = [float(q) for q in parse_list(qos, "--expert-qos")]
+    except InvalidCID as exc:
+        raise typer.BadParameter(
+            f"experts are model CIDs (`drlaas model list`): {exc}", param_hint="--experts"
+        ) from None
+    except ValueError as exc:
+        raise typer.BadParameter(str(exc)) from None
+    if len(weights) != len(cids):
+        raise typer.BadParameter(
+            f"{len(weights)} weight(s) for {len(cids)} expert(s)", param_hint="--expert-qos"
+        )
+    return [{"model": c, "qos": q} for c, q in zip(cids, weights, strict=True)]
 
 
 @task_app.command("submit")
@@ -103,9 +150,45 @@ def task_submit(
     deadline_s: Annotated[int, typer.Option(min=60)] = 86_400,
     domain: int = 0,
     spec: Annotated[Path | None, typer.Option(help="JSON body of POST /api/tasks instead")] = None,
+    experts: Annotated[
+        str | None,
+        typer.Option(help="MEDC experts: model CIDs, comma-separated (see `drlaas model list`)"),
+    ] = None,
+    expert_qos: Annotated[
+        str | None, typer.Option(help="QoS weight of each --experts model, comma-separated")
+    ] = None,
+    experts_from_mmc: Annotated[
+        int | None,
+        typer.Option(
+            min=1,
+            max=16,
+            help="buy K expert models from the MMC first (allocateModel: the closest models "
+            "by QoS, each paid its price) and train with them and their QoS",
+        ),
+    ] = None,
+    expert_allocation: Annotated[
+        int | None, typer.Option(min=1, help="use the models of your MMC allocation ID")
+    ] = None,
+    expert_price_wei: Annotated[
+        int | None,
+        typer.Option(min=0, help="with --experts-from-mmc: wei per model (default: the minimum)"),
+    ] = None,
+    expert_rate: Annotated[
+        float | None, typer.Option(help="R_E: share of expert-guided episodes (0-1)")
+    ] = None,
+    expert_threshold: Annotated[
+        float | None, typer.Option(help="l: follow an expert action only above this probability")
+    ] = None,
     as_json: JsonOpt = False,
 ) -> None:
     """Submit a training task: the spec goes to the content store, the chain recruits."""
+    sources = [o for o in (experts, experts_from_mmc, expert_allocation) if o is not None]
+    if len(sources) > 1:
+        raise typer.BadParameter("give one of --experts, --experts-from-mmc, --expert-allocation")
+    if not sources and (expert_rate is not None or expert_threshold is not None):
+        raise typer.BadParameter("--expert-rate/--expert-threshold need experts")
+    if expert_price_wei is not None and experts_from_mmc is None:
+        raise typer.BadParameter("--expert-price-wei prices --experts-from-mmc")
     body = task_body(
         grid=grid,
         agents=agents,
@@ -120,10 +203,32 @@ def task_submit(
         deadline_s=deadline_s,
         domain=domain,
         spec=spec,
+        experts=experts,
+        expert_qos=expert_qos,
+        expert_rate=expert_rate,
+        expert_threshold=expert_threshold,
     )
     with connect_funded(gateway, key) as gw:
         try:
+            if experts_from_mmc is not None:
+                alloc = request_models(
+                    gw,
+                    body["env"],
+                    experts_from_mmc,
+                    domain=body.get("domain", 0),
+                    price_wei=expert_price_wei,
+                )
+                expert_allocation = alloc["alloc_id"]
+                typer.echo(
+                    f"allocation {expert_allocation}: experts "
+                    + ", ".join(f"{m['cid']} (qos {m['qos']:.3f})" for m in alloc["models"]),
+                    err=True,
+                )
+            if expert_allocation is not None:
+                body["expert_allocation"] = expert_allocation
             out = submit(gw, body)
+            if expert_allocation is not None:
+                out["expert_allocation"] = expert_allocation
         except (GatewayError, LookupError) as exc:
             fail(exc)
         emit(
@@ -172,19 +277,31 @@ def task_list(
         as_json,
         lambda d: typer.echo(
             table(
-                d["data"],
+                [t | {"environment": env_summary(t)} for t in d["data"]],
                 [
                     ("id", "ID"),
                     ("status", "STATUS"),
+                    ("environment", "ENVIRONMENT"),
                     ("requester", "REQUESTER"),
                     ("num_workers", "WORKERS"),
                     ("offered", "OFFERED"),
+                    ("reward_eth", "ETH/WORKER"),
                     ("deadline", "DEADLINE"),
-                    ("description", "SPEC CID"),
                 ],
             )
         ),
     )
+
+
+def env_summary(task: dict[str, Any]) -> str:
+    """``10x10 3a 0w 4m I=1e+09`` from a listed task's ``env`` (its spec CID when it has none)."""
+    env = task.get("env")
+    if not env:
+        return f"spec {task.get('description')}"
+    lo, hi = env["walls"]
+    values = ",".join(f"{v:.0e}" for v in env["intensity"]["values"])
+    walls = f"{lo}" if lo == hi else f"{lo}-{hi}"
+    return f"{env['rows']}x{env['cols']} {env['agents']}a {walls}w {env['moves']}m I={values}"
 
 
 @task_app.command("show")
@@ -205,6 +322,21 @@ def task_show(
             typer.echo(
                 "\noutcomes\n"
                 + table(d["outcomes"], [("worker", "WORKER"), ("cid", "CID"), ("review", "REVIEW")])
+            )
+        if d.get("experts"):
+            typer.echo(
+                "\nexperts\n"
+                + table(
+                    d["experts"],
+                    [
+                        ("cid", "CID"),
+                        ("qos", "QOS"),
+                        ("model_id", "MODEL"),
+                        ("reputation", "REPUTATION"),
+                        ("alloc_id", "ALLOCATION"),
+                        ("review", "REVIEW"),
+                    ],
+                )
             )
         if d.get("progress"):
             typer.echo(

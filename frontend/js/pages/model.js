@@ -1,32 +1,35 @@
-// One model: GET /api/models/{id} -> card (model.json), metrics curve, owner reputation, CID.
+// One model, as a model hub shows it: GET /api/models/{id} -> header (name, description, owner,
+// domain), provenance (the producing task from the chain's outcome record, the experts it
+// learned from), the training curve and the held-out figures of its card (validated by the
+// gateway, section by section), and chain values in human units (reputation and QoS as
+// fractions, prices in ETH). Every string from the API is inserted as text (dom.js).
 
 import { api, API_BASE } from "../api.js";
 import { curvePanels } from "../chart.js";
-import { defList, envSummary, h, link, num, rawJson, shortAddr, formatTime } from "../dom.js";
+import {
+  defList, envSummary, formatTime, h, link, num, rawJson, shortAddr, shortCid,
+} from "../dom.js";
 
-/** The curve points of a model detail, wherever the gateway put them. */
+const READING_MODELS = {
+  poisson: "Poisson readings (as sampled)",
+  expected: "expected readings (noise-free)",
+};
+
+/** The curve points of a model detail: the gateway's validated `curve` (workers/mdrl/curve.py). */
 export function modelCurve(m) {
-  for (const src of [m.curve, m.metrics, m.card && m.card.metrics]) {
-    if (Array.isArray(src)) return src;
-    if (!src || typeof src !== "object") continue;
-    if (Array.isArray(src.curve)) return src.curve;
-    // Columns: {global_step: [...], success: [...]} -> rows.
-    const cols = Object.entries(src).filter(([, v]) => Array.isArray(v));
-    if (cols.length >= 2 && cols.every(([, v]) => v.length === cols[0][1].length)) {
-      return cols[0][1].map((_, i) => Object.fromEntries(cols.map(([k, v]) => [k, v[i]])));
-    }
-  }
-  return [];
+  return Array.isArray(m.curve) ? m.curve : [];
 }
 
-function ownerReputation(m) {
-  if (m.owner_reputation !== undefined) return m.owner_reputation;
-  if (m.owner && typeof m.owner === "object") return m.owner.reputation;
-  return undefined;
+/** "5.50 [5.20, 5.80]": a mean with its 95% interval. */
+export function withCi(value, ci, digits = 2) {
+  if (value === null || value === undefined) return "—";
+  const mean = Number(value).toFixed(digits);
+  if (!Array.isArray(ci) || ci.length !== 2) return mean;
+  return `${mean} [${Number(ci[0]).toFixed(digits)}, ${Number(ci[1]).toFixed(digits)}]`;
 }
 
-function ownerAddress(m) {
-  return m.owner && typeof m.owner === "object" ? m.owner.address : m.owner;
+function percent(x) {
+  return x === null || x === undefined ? "—" : `${(100 * Number(x)).toFixed(1)}%`;
 }
 
 function copyButton(text) {
@@ -36,26 +39,104 @@ function copyButton(text) {
   } }, "Copy");
 }
 
+const BASELINE_LABELS = {
+  bayes: "Bayesian search (shared posterior)",
+  uniform: "uniform coverage (zig-zag)",
+  random: "random moves",
+};
+
+function figuresRow(reading, policy, label, f, oracleTime) {
+  return h("tr", { "data-reading-model": reading, "data-policy": policy, class: `policy-${policy}` },
+    h("td", {}, label),
+    h("td", { class: "num success" }, percent(f.success)),
+    h("td", { class: "num time" }, withCi(f.time, f.time_ci)),
+    h("td", { class: "num cost" }, withCi(f.cost, f.cost_ci)),
+    h("td", { class: "num ratio" }, f.time_vs_oracle === null || f.time_vs_oracle === undefined
+      ? (policy === "oracle" && oracleTime ? "1.00×" : "—") : `${Number(f.time_vs_oracle).toFixed(2)}×`));
+}
+
+function heldoutTable(held) {
+  return h("div", {},
+    h("table", { class: "list", id: "heldout-table" },
+      h("thead", {}, h("tr", {}, ["Policy", "Success", "Time (steps, 95% CI)", "Cost (moves, 95% CI)",
+        "Time / oracle"].map((c) => h("th", {}, c)))),
+      held.readings.map((f) => h("tbody", { "data-reading-model": f.reading_model },
+        h("tr", { class: "group" }, h("th", { colspan: 5 }, READING_MODELS[f.reading_model] || f.reading_model)),
+        figuresRow(f.reading_model, "model", h("strong", {}, "this model"), f),
+        (f.baselines || []).map((b) => figuresRow(f.reading_model, b.name, BASELINE_LABELS[b.name] || b.name, b)),
+        f.oracle_time === null || f.oracle_time === undefined ? null
+          : figuresRow(f.reading_model, "oracle", "oracle (knows the target)", { success: null, time: f.oracle_time }, f.oracle_time)))),
+    h("p", { class: "muted" }, `Greedy policy on ${num(held.episodes)} held-out episodes`
+      + `${held.seed !== null && held.seed !== undefined ? ` (seed ${held.seed})` : ""}, figures from the model's card; `
+      + "the baselines and the oracle on the same episodes. The oracle knows the target and walks the closest agent "
+      + "straight to it: no search is faster."));
+}
+
+function finalEval(ev) {
+  return h("div", { id: "final-eval" },
+    defList([["Success", percent(ev.success)], ["Time (steps)", num(ev.time, 2)], ["Cost (moves)", num(ev.cost, 2)]]),
+    h("p", { class: "muted" }, "The trainer's last greedy evaluation (its own evaluation episodes, not held out)."));
+}
+
+function expertItem(x) {
+  const label = x.model_id !== null && x.model_id !== undefined
+    ? link(`/models/${encodeURIComponent(x.model_id)}`, `model #${x.model_id}`)
+    : h("span", { class: "muted" }, x.cid ? "not on this platform" : "a local model");
+  return h("li", { "data-expert": x.ref },
+    label, " ", x.cid ? shortCid(x.cid) : h("code", { class: "mono" }, x.ref),
+    h("span", { class: "muted" }, x.source === "task_spec" ? " · named by the task's spec" : " · listed by the card"));
+}
+
+function provenance(m) {
+  const p = m.produced_by;
+  const task = p
+    ? h("span", { id: "produced-by" }, link(`/tasks/${encodeURIComponent(p.task_id)}`, `task #${p.task_id}`),
+      " by ", shortAddr(p.worker),
+      p.review !== null && p.review !== undefined ? ` · reviewed ${p.review}/5${p.accepted ? ", accepted" : ", rejected"}` : "",
+      h("span", { class: "muted" }, " (the chain's outcome record)"))
+    : h("span", { class: "muted", id: "produced-by" }, "uploaded by its owner (no task's outcome)");
+  const experts = (m.experts || []).length
+    ? h("ul", { id: "model-experts" }, m.experts.map(expertItem))
+    : h("span", { class: "muted", id: "model-experts" }, "none: trained from scratch");
+  const trained = m.trained || {};
+  return defList([
+    ["Produced by", task],
+    ["Experts", experts],
+    ["Trained for", trained.env_steps !== null && trained.env_steps !== undefined
+      ? `${num(trained.env_steps)} env steps${trained.updates ? `, ${num(trained.updates)} updates` : ""}`
+        + `${trained.wall_time_s ? `, ${num(trained.wall_time_s / 60, 1)} min` : ""}` : undefined],
+  ]);
+}
+
+function requestsTable(requests) {
+  if (!requests || !requests.length) return h("p", { class: "muted", id: "model-requests" }, "No model request has returned it yet.");
+  return h("table", { class: "list", id: "model-requests" },
+    h("thead", {}, h("tr", {}, ["Request", "Requester", "QoS", "Price", "Review"].map((c) => h("th", {}, c)))),
+    h("tbody", {}, requests.map((r) => h("tr", { "data-alloc-id": r.alloc_id },
+      h("td", {}, `#${r.alloc_id}`),
+      h("td", {}, shortAddr(r.requester)),
+      h("td", { class: "num qos" }, num(r.qos, 3)),
+      h("td", { class: "num price", title: `${r.price_wei} wei` }, `${r.price_eth} ETH`),
+      h("td", { class: "num" }, r.review === null || r.review === undefined ? "—" : `${r.review}/5`)))));
+}
+
 export async function render(main, [id], ctx) {
   document.title = `Model #${id} · DRLaaS`;
   const m = await api(`/models/${encodeURIComponent(id)}`, { signal: ctx.signal });
   const card = m.card || {};
-  const env = card.env || m.env;
+  const env = m.env_spec || m.env;
   const base = `${API_BASE}/models/${encodeURIComponent(m.id ?? id)}/download`;
-  const finalMetrics = card.metrics && typeof card.metrics === "object" && !Array.isArray(card.metrics)
-    ? Object.entries(card.metrics).filter(([k, v]) => k !== "curve" && (typeof v === "number" || typeof v === "string"))
-    : [];
   const arch = card.architecture || {};
   const obs = card.observation || {};
-  const actions = card.action_space || {};
-  const training = card.training || {};
   const curve = modelCurve(m);
+  const title = m.name || `${m.kind || "Model"} #${m.id ?? id}`;
 
   main.appendChild(h("section", { id: "model-page", "data-model-id": m.id ?? id },
     h("p", { class: "crumbs" }, link("/models", "Models"), " / ", `#${m.id ?? id}`),
-    h("div", { class: "page-head" },
-      h("h1", {}, `${card.model || obs.kind?.toUpperCase() || "Model"} · ${envSummary(env)}`)),
+    h("div", { class: "page-head" }, h("h1", { id: "model-title" }, title),
+      h("span", { class: "muted" }, [m.kind, envSummary(env)].filter(Boolean).join(" · "))),
     m.description ? h("p", { class: "lead", id: "model-description" }, m.description) : null,
+    h("p", { class: "muted", id: "model-owner" }, "Shared by ", shortAddr(m.owner), ` · domain ${m.domain ?? "—"}`),
 
     h("div", { class: "cid-row" }, h("span", { class: "label" }, "CID"),
       h("code", { class: "mono", id: "model-cid" }, m.cid || "—"), m.cid ? copyButton(m.cid) : null),
@@ -63,36 +144,37 @@ export async function render(main, [id], ctx) {
       h("a", { href: `${base}?file=model.safetensors`, download: "model.safetensors", class: "button" }, "Download weights (model.safetensors)"),
       h("a", { href: `${base}?file=model.json`, download: "model.json", class: "button" }, "Download card (model.json)")),
 
-    h("div", { class: "grid2" },
-      h("div", { class: "panel" }, h("h2", {}, "On chain"), defList([
-        ["Owner", shortAddr(ownerAddress(m))],
-        ["Owner reputation", h("span", { id: "owner-reputation" }, num(ownerReputation(m), 3))],
-        ["Model reputation", num(m.reputation, 3)],
-        ["Environment (on chain)", Array.isArray(m.env) ? h("code", { class: "mono" }, `[${m.env.join(", ")}]`) : undefined],
-        ["Owner rating", m.owner_rating !== undefined ? num(m.owner_rating, 3) : undefined],
-        ["Rating", num(m.rating, 3)],
-        ["Allocations", num(m.allocations)],
-        ["Domain", m.domain ?? "—"],
-      ])),
-      h("div", { class: "panel", id: "model-card" }, h("h2", {}, "Card"), defList([
-        ["Format", card.format],
-        ["Created", card.created ? formatTime(card.created) : undefined],
-        ["Observation", obs.kind ? `${obs.kind.toUpperCase()}${obs.window ? `, window ${obs.window}` : ""}` : undefined],
-        ["Environment", env ? envSummary(env) : undefined],
-        ["Grid area", env && env.area_m ? `${env.area_m.join(" × ")} m` : undefined],
-        ["Reward", env && env.reward],
-        ["Max steps", env && env.max_steps],
-        ["Actions", actions.per_agent_actions !== undefined ? `${actions.per_agent_actions} per agent${actions.joint ? " (joint)" : ""}` : undefined],
-        ["Parameters", arch.total_parameters !== undefined ? `${num(arch.total_parameters)} (actor ${num(arch.actor_parameters)}, critic ${num(arch.critic_parameters)})` : undefined],
-        ["Trained for", training.env_steps !== undefined ? `${num(training.env_steps)} steps, ${num(training.updates)} updates, ${num(training.wall_time_s, 1)} s` : undefined],
-        ["Code", card.code ? (typeof card.code === "object" ? (card.code.version || card.code.commit || JSON.stringify(card.code)) : card.code) : undefined],
-      ]))),
+    h("div", { class: "panel", id: "model-heldout" }, h("h2", {}, "How well it searches"),
+      m.heldout ? heldoutTable(m.heldout)
+        : m.final_eval ? finalEval(m.final_eval)
+          : h("p", { class: "muted" }, "The card states no evaluation figures.")),
 
     h("div", { class: "panel" }, h("h2", {}, "Training curve"),
       h("div", { class: "charts", id: "model-curve" },
-        curve.length ? curvePanels(curve) : h("p", { class: "muted" }, "This model's card has no curve points.")),
-      finalMetrics.length ? h("div", {}, h("h3", {}, "Final metrics"),
-        defList(finalMetrics.map(([k, v]) => [k, num(v, 4)]), "kv compact")) : null),
+        curve.length ? curvePanels(curve) : h("p", { class: "muted" }, "This model's card has no training curve.")),
+      curve.length ? h("p", { class: "muted" }, `Per update: success rate, mean episode length and mean moving cost of the episodes that ended in it`
+        + `${m.curve_updates && m.curve_updates > curve.length ? ` (${num(m.curve_updates)} updates averaged into ${curve.length} points)` : ""}.`) : null),
 
-    Object.keys(card).length ? rawJson("Full card (model.json)", card) : null));
+    h("div", { class: "grid2" },
+      h("div", { class: "panel", id: "model-chain" }, h("h2", {}, "On chain"), defList([
+        ["Model reputation", h("span", { id: "model-reputation" }, num(m.reputation, 3))],
+        ["Owner reputation", h("span", { id: "owner-reputation" }, num(m.owner_reputation, 3))],
+        ["Owner rating", num(m.owner_rating, 3)],
+        ["Requests", num(m.allocations)],
+        ["Environment", Array.isArray(m.env) ? envSummary(m.env) : undefined],
+      ])),
+      h("div", { class: "panel", id: "model-provenance" }, h("h2", {}, "Provenance"), provenance(m))),
+    h("div", { class: "panel" }, h("h2", {}, "Latest model requests"), requestsTable(m.requests)),
+
+    h("div", { class: "panel", id: "model-card" }, h("h2", {}, "Card"), defList([
+      ["Format", card.format],
+      ["Created", card.created ? formatTime(card.created) : undefined],
+      ["Observation", obs.kind ? `${String(obs.kind).toUpperCase()}${obs.window ? `, window ${obs.window}` : ""}` : undefined],
+      ["Environment", env ? envSummary(env) : undefined],
+      ["Grid area", env && Array.isArray(env.area_m) ? `${env.area_m.join(" × ")} m` : undefined],
+      ["Reward", env && env.reward],
+      ["Max steps", env && env.max_steps],
+      ["Parameters", arch.total_parameters !== undefined ? `${num(arch.total_parameters)} (actor ${num(arch.actor_parameters)}, critic ${num(arch.critic_parameters)})` : undefined],
+      ["Code", card.code && typeof card.code === "object" ? (card.code.version || card.code.git_commit) : undefined],
+    ]), Object.keys(card).length ? rawJson("Full card (model.json)", card) : null)));
 }

@@ -41,7 +41,13 @@ const FIELDS = {
   "min_ram_gb": ["Min RAM (GB)", "1", "int"],
   "deadline_s": ["Deadline (s)", "3600", "int", () => ["time the workers have to submit"]],
   "payment_eth": ["Payment per worker (ETH)", "0.01", "text"],
+  "experts": ["Expert models (CIDs)", "", "text", () => ["model CIDs, comma-separated (Models page)", "empty = none"]],
+  "experts_from_mmc": ["Or buy K experts from the MMC", "0", "int", () => [`0 to ${MAX_EXPERTS}`, "the K shared models closest to this environment, each paid its price to its owner"]],
+  "algorithm.demonstration.rate": ["Expert rate R_E", "", "real", (b) => [range(b), "share of expert-guided episodes; empty = 0.2 with one expert, 0.1 with several"]],
 };
+/** Experts (MEDC, thesis Alg. 5.1): at most this many; a CID as the content store writes it. */
+const MAX_EXPERTS = 16;
+const CID_RE = /^b(?:afkrei|afybei)[a-z2-7]{52}$/;
 /** Form field -> its path in the request body schema, where the two differ. */
 const SCHEMA_PATH = { "env.walls_min": "env.walls[0]", "env.walls_max": "env.walls[1]", payment_eth: "payment_wei" };
 const GROUPS = [
@@ -49,11 +55,13 @@ const GROUPS = [
   ["observation", "Observation", ["observation.kind", "observation.window"]],
   ["budget", "Training budget", ["budget.steps", "budget.minutes", "seed"]],
   ["recruit", "Recruitment and payment", ["domain", "num_workers", "min_reputation", "min_rating", "min_cpu_cores", "min_ram_gb", "deadline_s", "payment_eth"]],
+  ["medc", "Experts (optional: MEDC, demonstrations from shared models)", ["experts", "experts_from_mmc", "algorithm.demonstration.rate"]],
 ];
 /** Server loc (after "body") -> the field showing its error. */
 const LOC_ALIASES = {
   "env.walls.0": "env.walls_min", "env.walls.1": "env.walls_max", "env.walls": "env.walls_max",
   "payment_wei": "payment_eth", "env": "env", "observation": "observation", "budget": "budget",
+  "expert_allocation": "experts_from_mmc", "algorithm.demonstration": "algorithm.demonstration.rate",
 };
 
 const fid = (name) => `f-${name.replace(/\./g, "-")}`;
@@ -98,7 +106,9 @@ function parseIntensity(text, schema) {
   return { kind, values };
 }
 
-/** Form values (strings) -> {body, errors: {field: msg}}; `schema` (or null) gives the bounds. */
+/** Form values (strings) -> {body, errors: {field: msg}, buyExperts: K}; `schema` (or null)
+ *  gives the bounds. K > 0: ask the MMC for K experts before submitting (POST /models/requests,
+ *  then the task names the allocation: `expert_allocation`). */
 export function buildTask(v, schema) {
   const errors = {};
   const number = (name, { required = true } = {}) => {
@@ -162,7 +172,19 @@ export function buildTask(v, schema) {
     if (why) { errors.payment_eth = why; paymentWei = undefined; }
   } catch (err) { errors.payment_eth = err.message; }
 
-  if (Object.keys(errors).length) return { body: null, errors };
+  // Experts: named CIDs, or K bought from the MMC; R_E applies only with one of them.
+  const experts = (v.experts ?? "").split(/[\s,]+/).filter(Boolean);
+  const notCid = experts.find((c) => !CID_RE.test(c));
+  if (notCid) errors.experts = `${notCid} is not a model CID (bafkrei…/bafybei…, 59 characters)`;
+  else if (new Set(experts).size !== experts.length) errors.experts = "an expert is named twice";
+  else if (experts.length > MAX_EXPERTS) errors.experts = `at most ${MAX_EXPERTS} experts`;
+  const buy = number("experts_from_mmc", { required: false });
+  if (buy !== undefined && !(buy >= 0 && buy <= MAX_EXPERTS)) errors.experts_from_mmc = `0 to ${MAX_EXPERTS}`;
+  else if (buy > 0 && experts.length) errors.experts_from_mmc = "name experts or buy them, not both";
+  const rate = number("algorithm.demonstration.rate", { required: false });
+  if (rate !== undefined && !experts.length && !(buy > 0)) errors["algorithm.demonstration.rate"] = "applies only with experts";
+
+  if (Object.keys(errors).length) return { body: null, errors, buyExperts: 0 };
   const budget = {};
   if (steps !== undefined) budget.steps = steps;
   if (minutes !== undefined) budget.minutes = minutes;
@@ -180,7 +202,9 @@ export function buildTask(v, schema) {
     payment_wei: paymentWei, // decimal string; serialised as a bare integer (see toJson)
   };
   if (seed !== undefined) body.seed = seed;
-  return { body, errors };
+  if (experts.length) body.experts = experts;
+  if (rate !== undefined) body.algorithm = { demonstration: { rate } };
+  return { body, errors, buyExperts: buy > 0 ? buy : 0 };
 }
 
 /** A wei amount against the schema's bounds, exactly (BigInt: wei passes 2^53). */
@@ -218,6 +242,7 @@ export async function render(main, params, ctx) {
   const signedIn = Boolean(getToken());
   const formError = h("div", { id: "form-error", role: "alert" });
   const result = h("div", { id: "submit-result" });
+  let purchase = null; // {key, answer}: the experts bought for this form's environment
 
   const control = (name) => {
     const [label, def, input, help] = FIELDS[name];
@@ -278,7 +303,7 @@ export async function render(main, params, ctx) {
     e.preventDefault();
     clearErrors();
     result.replaceChildren();
-    const { body, errors } = buildTask(values(), schema);
+    const { body, errors, buyExperts } = buildTask(values(), schema);
     for (const [field, msg] of Object.entries(errors)) showError(field, msg);
     if (!body) {
       const first = form.querySelector("[aria-invalid]");
@@ -289,9 +314,22 @@ export async function render(main, params, ctx) {
     const button = form.querySelector("#submit-task");
     button.disabled = true;
     try {
+      let bought = null;
+      if (buyExperts) { // the MMC's paid model-sharing allocation (Eq. 10-13 / 22-23)
+        const request = { domain: body.domain, env: body.env, num_models: buyExperts };
+        const key = JSON.stringify(request);
+        if (!purchase || purchase.key !== key) { // bought once: a refused task does not buy again
+          purchase = { key, answer: await api("/models/requests", { method: "POST", body: request }) };
+        }
+        bought = purchase.answer;
+        body.expert_allocation = bought.alloc_id;
+      }
       const answer = await api("/tasks", { method: "POST", rawBody: toJson(body) });
+      purchase = null;
       const tid = answer.task_id ?? answer.id;
       result.replaceChildren(h("div", { class: "ok-box", role: "status" },
+        bought ? h("p", { id: "bought-experts" }, `Allocation #${bought.alloc_id}: ${bought.models.length} expert(s) bought, `,
+          bought.models.map((m, i) => [i ? ", " : "", h("code", { class: "mono" }, m.cid), ` (QoS ${fmt(m.qos)})`]), ". ") : null,
         h("strong", {}, `Task #${tid} created. `),
         `${Array.isArray(answer.offered) ? answer.offered.length : (answer.offered ?? 0)} worker(s) offered. Spec CID `, h("code", { class: "mono" }, answer.spec_cid || "—"), ". ",
         link(`/tasks/${encodeURIComponent(tid)}`, "Follow it live →")));

@@ -1,6 +1,8 @@
-// One task: GET /api/tasks/{id} (spec, status, timeline, offers, outcomes, progress), polled
-// every 2 s; each section is redrawn only when its data changed, so a half-filled review form
-// survives the polling.
+// One task: GET /api/tasks/{id} (spec, status, timeline, offers, outcomes, progress, experts),
+// polled every 2 s; each section is redrawn only when its data changed, so a half-filled review
+// form survives the polling. Experts (MEDC): the models the spec names, with their QoS weight,
+// the MMC model and allocation they came from, and the requester's review of each
+// (POST /models/requests/{alloc_id}/reviews, MMC updateModelRep).
 
 import { api } from "../api.js";
 import { curvePanels } from "../chart.js";
@@ -42,6 +44,7 @@ export async function render(main, [id], ctx) {
     curve: section("task-curve", "Live training curve"),
     offers: section("task-offers", "Offers"),
     outcomes: section("task-outcomes", "Outcomes"),
+    experts: section("task-experts", "Experts (MEDC)"),
     timeline: section("task-timeline", "Timeline"),
   };
   const message = h("div", { id: "task-message" });
@@ -49,7 +52,7 @@ export async function render(main, [id], ctx) {
     h("p", { class: "crumbs" }, link("/tasks", "Tasks"), " / ", `#${id}`),
     head, updated, message, actions,
     h("div", { class: "grid2" }, sections.summary.el, sections.timeline.el),
-    sections.curve.el, sections.offers.el, sections.outcomes.el));
+    sections.curve.el, sections.offers.el, sections.outcomes.el, sections.experts.el));
 
   let task = null;
   const draw = (name, key, build) => {
@@ -157,6 +160,29 @@ export async function render(main, [id], ctx) {
             h("td", {}, cell));
         })))
       : h("p", { class: "muted" }, "No outcome submitted yet."));
+
+    const experts = Array.isArray(t.experts) ? t.experts : [];
+    sections.experts.el.hidden = !experts.length;
+    draw("experts", [JSON.stringify(experts), isRequester], () => experts.length
+      ? h("table", { class: "list", id: "experts-table" },
+        h("thead", {}, h("tr", {}, ["Model", "QoS weight", "Reputation", "Allocation", "Review", ""].map((c) => h("th", {}, c)))),
+        h("tbody", {}, experts.map((x) => {
+          const reviewed = x.review !== undefined && x.review !== null;
+          let cell = null;
+          if (isRequester && !reviewed && x.alloc_id && x.model_id) {
+            const sel = h("select", { "aria-label": "Expert review 0-5" }, [5, 4, 3, 2, 1, 0].map((v) => h("option", { value: String(v) }, `${v}/5`)));
+            cell = h("span", {}, sel, h("button", { type: "button", class: "small", onclick: () =>
+              act("Expert review", `/models/requests/${encodeURIComponent(x.alloc_id)}/reviews`, { model_id: x.model_id, review: Number(sel.value) }) }, "Review"));
+          }
+          return h("tr", { "data-cid": x.cid },
+            h("td", {}, x.model_id ? link(`/models/${x.model_id}`, shortCid(x.cid)) : shortCid(x.cid)),
+            h("td", { class: "num" }, x.qos === null || x.qos === undefined ? "equal" : num(x.qos, 4)),
+            h("td", { class: "num" }, num(x.reputation, 3)),
+            h("td", {}, x.alloc_id ? `#${x.alloc_id}` : h("span", { class: "muted" }, "named by CID")),
+            h("td", {}, reviewed ? `${x.review}/5` : h("span", { class: "muted" }, "not reviewed")),
+            h("td", {}, cell));
+        })))
+      : null);
 
     const timeline = Array.isArray(t.timeline) ? t.timeline : [];
     draw("timeline", [JSON.stringify(timeline)], () => timeline.length

@@ -22,16 +22,25 @@ export function specCid(t) {
   return t.spec_cid ?? t.description;
 }
 
+/** "10×10 · 3 agents · 0 walls · 4 moves · I=1e9" (grid first: what a task list is scanned for). */
+export function taskEnvSummary(env) {
+  const { rows, cols, ...rest } = env;
+  const tail = envSummary(rest);
+  return rows !== undefined && cols !== undefined ? `${rows}×${cols} · ${tail}` : tail;
+}
+
 function row(t) {
   const offered = count(t.offered);
   const env = taskEnv(t);
   return h("tr", { "data-task-id": t.id, "data-status": t.status },
     h("td", {}, link(`/tasks/${encodeURIComponent(t.id)}`, `#${t.id}`)),
     h("td", { class: "status" }, statusPill(t.status)),
-    h("td", {}, env ? envSummary(env) : shortCid(specCid(t))),
+    h("td", { class: "env" }, env ? taskEnvSummary(env)
+      : h("span", { class: "muted", title: "the description is not a readable task spec" }, "spec ", shortCid(specCid(t)))),
     h("td", {}, shortAddr(t.requester)),
     h("td", { class: "num" }, offered !== undefined ? `${offered} / ${t.num_workers ?? "—"}` : (t.num_workers ?? "—")),
-    h("td", { class: "num" }, formatWei(t.reward_wei ?? t.payment_wei)),
+    h("td", { class: "num reward", title: t.reward_wei ? `${t.reward_wei} wei` : undefined },
+      t.reward_eth ? `${t.reward_eth} ETH` : formatWei(t.reward_wei ?? t.payment_wei)),
     h("td", {}, formatTime(t.deadline ?? t.created_at)));
 }
 
@@ -68,7 +77,7 @@ export async function render(main, _params, ctx) {
     if (!tbody) {
       tbody = h("tbody");
       clear(body).appendChild(h("table", { class: "list", id: "tasks-table" },
-        h("thead", {}, h("tr", {}, ["#", "Status", "Spec", "Requester", "Offered / workers", "Reward / worker", "Deadline"]
+        h("thead", {}, h("tr", {}, ["#", "Status", "Environment", "Requester", "Offered / workers", "Reward / worker", "Deadline"]
           .map((c) => h("th", {}, c)))), tbody));
     }
     const old = new Map([...tbody.children].map((tr) => [tr.dataset.taskId, tr]));

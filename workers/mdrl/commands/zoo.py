@@ -51,3 +51,24 @@ def train_command(
         held = json.loads((target / "model.json").read_text())["zoo"]["heldout"]
         typer.echo(json.dumps({"model": str(target), **{r: {k: held[r][k] for k in
                    ("success", "time", "cost", "oracle_time")} for r in ("poisson", "expected")}}))
+
+
+@app.command("complete")
+def complete_command(
+    names: Annotated[list[str] | None, typer.Argument(help="Zoo models (default: all).")] = None,
+    models: Annotated[Path, typer.Option(help="Zoo directory.")] = Path("models"),
+    runs: Annotated[Path | None, typer.Option(
+        help="Run directories: also attach each model's training curve from RUNS/NAME.")] = None,
+) -> None:
+    """Bring cards made before cards had them up to date: the baselines' held-out figures (on
+    the card's own episodes) and, with --runs, the training curve of the model's own run."""
+    from workers.mdrl.zoo import ZOO, add_baselines, attach_run_curve
+
+    for name in names or [n for n in ZOO if (models / n / "model.json").is_file()]:
+        held = add_baselines(models / name)
+        line = {"model": name, "baselines": {r: {b: round(f["time"], 2) for b, f in
+                                                 held[r]["baselines"].items()}
+                                             for r in ("poisson", "expected") if r in held}}
+        if runs is not None:
+            line["curve_points"] = len(attach_run_curve(models / name, runs / name)["points"])
+        typer.echo(json.dumps(line))

@@ -1,0 +1,135 @@
+"""The experts of a training task (MEDC, thesis Alg. 5.1 and the model-sharing flow of 7.8):
+checked when the task is created, and shown with the task.
+
+A requester names expert models by CID in the spec (``experts``), or names one of its MMC
+allocations (``expert_allocation``: the paid model-sharing task of Eq. 10-13 / 22-23) and the
+gateway writes the allocated models' CIDs with the QoS the MMC computed for them (the
+``ModelAllocated`` events) into the spec: R_S = QoS_i / sum QoS is then each expert's chance to
+guide an episode (Table 5.3). Every expert must be a canonical CID whose bundle the content
+store holds with a ``drlaas-model/1`` card: the workers fetch and verify it again
+(``workers.daemon.experts``), this only refuses early what no worker could use.
+"""
+
+from __future__ import annotations
+
+import json
+from typing import Any
+
+from sqlalchemy import select
+from sqlalchemy.orm import Session
+
+from backend.api.errors import RuleError
+from backend.api.writes import field_error
+from backend.db import models as m
+from backend.schemas.common import from_fixed
+from backend.store import CID, ContentStore, InvalidCID, NotFound, StoreError, StoreUnavailable
+from backend.store.bundle import MODEL_FILES, read_bundle
+
+MAX_CARD_BYTES = 1 << 20
+CARD_FORMAT = "drlaas-model/1"
+
+
+def allocation_experts(session: Session, alloc_id: int, caller: str) -> list[Any]:
+    """The ``experts`` of a spec from the caller's allocation ``alloc_id``: ``{model, qos}``
+    per allocated model (QoS as the MMC emitted it), or plain CIDs when every QoS is 0."""
+    alloc = session.get(m.AllocationRow, alloc_id)
+    loc = ("body", "expert_allocation")
+    if alloc is None:
+        field_error(
+            loc, f"no model allocation {alloc_id} (or not indexed yet)", "allocation_not_found"
+        )
+    if alloc.requester != caller:
+        raise RuleError(
+            403,
+            "not_allocation_requester",
+            f"allocation {alloc_id} belongs to {alloc.requester}, not {caller}",
+        )
+    rows = session.execute(
+        select(m.AllocatedModel.qos, m.ModelRow.cid)
+        .join(m.ModelRow, m.ModelRow.id == m.AllocatedModel.model_id)
+        .where(m.AllocatedModel.alloc_id == alloc_id)
+        .order_by(m.AllocatedModel.qos.desc(), m.AllocatedModel.model_id)
+    ).all()
+    if not rows:
+        field_error(loc, f"allocation {alloc_id} holds no model", "allocation_empty")
+    if not any(q for q, _ in rows):
+        return [cid for _, cid in rows]
+    return [{"model": cid, "qos": from_fixed(q)} for q, cid in rows]
+
+
+def check_experts(store: ContentStore, refs: tuple[str, ...]) -> None:
+    """422 naming ``experts[i]`` unless each is a canonical CID of a model bundle in the store
+    (its two files, a ``drlaas-model/1`` card); 503 while the store is down."""
+    for i, ref in enumerate(refs):
+        loc = ("body", "experts", i)
+        try:
+            canonical = str(CID.parse(ref).v1())
+        except (InvalidCID, ValueError):
+            field_error(
+                loc,
+                f"{ref!r} is not a model CID: a platform task names its experts by "
+                f"the CID of their bundle (no paths, no built-ins)",
+                "expert_not_cid",
+            )
+        if canonical != ref:
+            field_error(
+                loc,
+                f"give the CID in the store's canonical form: {canonical}",
+                "expert_not_canonical",
+            )
+        try:
+            files = read_bundle(store, ref)
+            if sorted(files) != sorted(MODEL_FILES):
+                raise ValueError(f"the bundle holds {sorted(files)}, not {list(MODEL_FILES)}")
+            card_cid, size = files["model.json"]
+            if size > MAX_CARD_BYTES:
+                raise ValueError(f"its card is {size} bytes, the bound is {MAX_CARD_BYTES}")
+            card = json.loads(store.get(card_cid, max_size=MAX_CARD_BYTES))
+            if not isinstance(card, dict) or card.get("format") != CARD_FORMAT:
+                raise ValueError(f"its model.json is not a {CARD_FORMAT} card")
+        except NotFound:
+            field_error(loc, f"the content store does not hold {ref}", "expert_not_found")
+        except StoreUnavailable as exc:
+            raise RuleError(
+                503, "store_unavailable", f"content store: {exc}", headers={"Retry-After": "5"}
+            ) from None
+        except (ValueError, RecursionError, StoreError) as exc:
+            field_error(loc, f"{ref} is not a usable model: {exc}", "expert_invalid")
+
+
+def task_experts(
+    session: Session, spec: dict[str, Any] | None, requester: str
+) -> list[dict[str, Any]]:
+    """The experts a task's spec names, each with its QoS weight, its MMC model (id,
+    reputation) when listed, and the requester's latest allocation of that model (id and
+    review, for ``updateModelRep``)."""
+    items = (spec or {}).get("experts") or []
+    weighted = any(isinstance(x, dict) for x in items)
+    out = []
+    for x in items[:64]:
+        cid = x.get("model") if isinstance(x, dict) else x
+        if not isinstance(cid, str):
+            continue
+        qos = float(x.get("qos", 1.0)) if isinstance(x, dict) else 1.0
+        model = session.scalars(select(m.ModelRow).where(m.ModelRow.cid == cid)).first()
+        alloc = None
+        if model is not None:
+            alloc = session.execute(
+                select(m.AllocatedModel.alloc_id, m.AllocatedModel.review)
+                .join(m.AllocationRow, m.AllocationRow.id == m.AllocatedModel.alloc_id)
+                .where(
+                    m.AllocatedModel.model_id == model.id, m.AllocationRow.requester == requester
+                )
+                .order_by(m.AllocatedModel.alloc_id.desc())
+            ).first()
+        out.append(
+            {
+                "cid": cid,
+                "qos": qos if weighted else None,
+                "model_id": model.id if model else None,
+                "reputation": from_fixed(model.reputation) if model else None,
+                "alloc_id": alloc.alloc_id if alloc else None,
+                "review": alloc.review if alloc else None,
+            }
+        )
+    return out

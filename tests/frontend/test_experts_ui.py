@@ -1,0 +1,123 @@
+"""Experts (MEDC) in the web UI: the submit form names expert CIDs or buys K from the MMC
+(POST /models/requests, then the task names the allocation), refuses a bad CID on its field, and
+the task page lists the experts with the requester's review (POST /models/requests/{id}/reviews)."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from typing import Any
+
+import pytest
+from fastapi import Request
+
+from tests.frontend.conftest import LiveServer, sign_in_as_alice
+from tests.frontend.fake_api import ALICE, FakeState, make_fake_app
+
+expect = pytest.importorskip("playwright.sync_api", reason="pip install playwright").expect
+
+CID_A = "bafkreigh2akiscaildcqabsyg3dfr6chu3fgpregiymsck7e7aqa4s52zy"
+CID_B = "bafkreihdwdcefgh4dqkjv67uzcmw7ojee6xedzdetojuzjevtenxquvyku"
+
+
+@pytest.fixture(scope="module")
+def fake_mmc() -> Iterator[tuple[LiveServer, FakeState, list]]:
+    """The fake gateway plus the two MMC routes the expert UI calls (recorded in ``calls``)."""
+    state, calls = FakeState(), []
+    app = make_fake_app(state)
+
+    @app.post("/api/models/requests", status_code=201)
+    async def request_models(request: Request) -> dict:
+        calls.append(("request", await request.json()))
+        return {"alloc_id": 9, "models": [{"id": 2, "cid": CID_B, "qos": 0.625}]}
+
+    @app.post("/api/models/requests/{alloc_id}/reviews")
+    async def review(alloc_id: int, request: Request) -> dict:
+        calls.append(("review", alloc_id, await request.json()))
+        return {"tx_hash": "0x" + "1" * 64, "block_number": 1, "status": 1, "events": []}
+
+    routes = app.router.routes  # before the UI's catch-all mount (added last)
+    routes[:] = [*routes[:-3], *routes[-2:], routes[-3]]
+    with LiveServer(app) as server:
+        yield server, state, calls
+
+
+@pytest.fixture
+def mmc(fake_mmc: tuple[LiveServer, FakeState, list]) -> tuple[LiveServer, FakeState, list]:
+    fake_mmc[1].reset()
+    fake_mmc[2].clear()
+    return fake_mmc
+
+
+def small_task(page: Any) -> None:
+    page.fill("#f-env-agents", "2")
+    page.fill("#f-env-rows", "6")
+    page.fill("#f-env-cols", "6")
+
+
+def test_the_form_names_experts_or_buys_them(page: Any, mmc: Any) -> None:
+    server, state, calls = mmc
+    page.goto(f"{server.url}/submit")
+    sign_in_as_alice(page)
+    small_task(page)
+    page.fill("#f-experts", f"{CID_A}, oracle")
+    page.click("#submit-task")
+    expect(page.locator("#err-experts")).to_contain_text("oracle is not a model CID")
+    page.fill("#f-experts", CID_A)
+    page.fill("#f-experts_from_mmc", "2")
+    page.click("#submit-task")
+    expect(page.locator("#err-experts_from_mmc")).to_contain_text("not both")
+    assert state.posted_tasks == [] and calls == []
+
+    page.fill("#f-experts_from_mmc", "0")
+    page.fill("#f-algorithm-demonstration-rate", "0.3")
+    page.click("#submit-task")
+    expect(page.locator("#submit-result")).to_contain_text("created")
+    assert state.posted_tasks[-1]["experts"] == [CID_A]
+    assert state.posted_tasks[-1]["algorithm"] == {"demonstration": {"rate": 0.3}}
+    assert "expert_allocation" not in state.posted_tasks[-1] and calls == []
+
+    page.fill("#f-experts", "")
+    page.fill("#f-algorithm-demonstration-rate", "")  # this fake cannot resolve allocations
+    page.fill("#f-experts_from_mmc", "1")
+    page.click("#submit-task")
+    expect(page.locator("#bought-experts")).to_contain_text("Allocation #9")
+    expect(page.locator("#bought-experts")).to_contain_text(CID_B)
+    assert calls == [
+        ("request", {"domain": 0, "env": state.posted_tasks[-1]["env"], "num_models": 1})
+    ]
+    assert state.posted_tasks[-1]["expert_allocation"] == 9
+    assert "experts" not in state.posted_tasks[-1]
+
+
+def test_the_task_page_lists_experts_and_takes_the_review(page: Any, mmc: Any) -> None:
+    server, state, calls = mmc
+    tid = next(t["id"] for t in state.tasks if t["requester"] == ALICE)
+    state.task(tid)["experts"] = [
+        {
+            "cid": CID_B,
+            "qos": 0.625,
+            "model_id": 2,
+            "reputation": 0.0,
+            "alloc_id": 9,
+            "review": None,
+        },
+        {
+            "cid": CID_A,
+            "qos": None,
+            "model_id": None,
+            "reputation": None,
+            "alloc_id": None,
+            "review": None,
+        },
+    ]
+    page.goto(f"{server.url}/tasks/{tid}")
+    sign_in_as_alice(page)
+    rows = page.locator("#experts-table tbody tr")
+    expect(rows).to_have_count(2)
+    expect(rows.nth(1)).to_contain_text("named by CID")
+    expect(rows.nth(1).locator("button")).to_have_count(0)  # no allocation: nothing to review
+    expect(rows.nth(0)).to_contain_text("#9")
+    rows.nth(0).locator("select").select_option("4")
+    rows.nth(0).locator("button").click()
+    expect(page.locator("#task-message")).to_contain_text("Expert review: sent")
+    assert calls == [("review", 9, {"model_id": 2, "review": 4})]

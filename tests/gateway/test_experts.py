@@ -1,0 +1,111 @@
+"""Experts of a training task through the gateway (backend/api/experts.py): an MMC allocation
+read back, its models and QoS written into the task spec, the caller's ownership of the
+allocation, expert CIDs checked, the task page listing its experts with their review."""
+
+from __future__ import annotations
+
+from fastapi.testclient import TestClient
+
+from backend.services.chain import ChainService
+from backend.store.bundle import add_bundle
+
+from .conftest import Login, P, addr, register, task_body
+from .test_models import ENV2, ENV3, _share, card_of
+
+
+def test_experts_from_an_allocation_named_checked_and_reviewed(
+    client: TestClient, login: Login, service: ChainService
+) -> None:
+    register(client, login, ["user1", "user2"], {"user3": {}, "user4": {}})
+    a = _share(client, login, "user3", ENV2, 0, "two agents walled")
+    b = _share(client, login, "user4", ENV3, 0, "three agents")
+    r = client.post(
+        f"{P}/models/requests",
+        json={"domain": 0, "env": ENV2, "num_models": 2},
+        headers=login("user1"),
+    )
+    assert r.status_code == 201, r.text
+    alloc = r.json()
+    got = client.get(f"{P}/models/requests/{alloc['alloc_id']}")
+    assert got.status_code == 200, got.text
+    detail = got.json()
+    assert detail["requester"] == addr(service, "user1") and detail["num_models"] == 2
+    assert [(x["id"], x["cid"], x["qos"]) for x in detail["models"]] == [
+        (x["id"], x["cid"], x["qos"]) for x in alloc["models"]
+    ]
+    owners = {x["owner"] for x in detail["models"]}
+    assert owners == {addr(service, "user3"), addr(service, "user4")}
+    assert [x["review"] for x in detail["models"]] == [None, None]
+    mine = client.get(f"{P}/models/requests", params={"requester": addr(service, "user1")})
+    assert [x["alloc_id"] for x in mine.json()["data"]] == [alloc["alloc_id"]]
+    assert (
+        client.get(f"{P}/models/requests", params={"requester": addr(service, "user2")}).json()[
+            "data"
+        ]
+        == []
+    )
+    assert client.get(f"{P}/models/requests/99").json()["detail"]["rule"] == "allocation_not_found"
+
+    # another requester cannot use (nor see in its spec) user1's paid allocation
+    body = task_body(expert_allocation=alloc["alloc_id"])
+    r = client.post(f"{P}/tasks", json=body, headers=login("user2"))
+    assert r.status_code == 403 and r.json()["detail"]["rule"] == "not_allocation_requester"
+    r = client.post(f"{P}/tasks", json=task_body(expert_allocation=77), headers=login("user1"))
+    assert r.status_code == 422 and r.json()["detail"][0]["type"] == "allocation_not_found"
+    both = task_body(expert_allocation=alloc["alloc_id"], experts=[a["cid"]])
+    r = client.post(f"{P}/tasks", json=both, headers=login("user1"))
+    assert r.status_code == 422 and r.json()["detail"][0]["loc"] == ["body", "expert_allocation"]
+
+    r = client.post(f"{P}/tasks", json=body, headers=login("user1"))
+    assert r.status_code == 201, r.text
+    task = client.get(f"{P}/tasks/{r.json()['task_id']}").json()
+    by_cid = {x["model"]: x["qos"] for x in task["spec"]["experts"]}
+    assert by_cid == {x["cid"]: x["qos"] for x in alloc["models"]}  # the QoS the MMC emitted
+    shown = {x["cid"]: x for x in task["experts"]}
+    assert set(shown) == {a["cid"], b["cid"]}
+    assert (
+        shown[a["cid"]]["model_id"] == a["id"] and shown[a["cid"]]["alloc_id"] == alloc["alloc_id"]
+    )
+    # Eq. 11: allocated once, not reviewed yet
+    assert shown[a["cid"]]["review"] is None and shown[a["cid"]]["reputation"] == 0.0
+
+    # the requester reviews an expert it used: the task page and the listing show it
+    r = client.post(
+        f"{P}/models/requests/{alloc['alloc_id']}/reviews",
+        json={"model_id": a["id"], "review": 5},
+        headers=login("user1"),
+    )
+    assert r.status_code == 200, r.text
+    task = client.get(f"{P}/tasks/{task['id']}").json()
+    shown = {x["cid"]: x for x in task["experts"]}
+    assert shown[a["cid"]]["review"] == 5 and shown[a["cid"]]["reputation"] == 1.0
+    assert shown[b["cid"]]["review"] is None
+    listed = {x["id"]: x for x in client.get(f"{P}/models").json()["data"]}
+    assert listed[a["id"]]["reputation"] == 1.0 and listed[b["id"]]["reputation"] < 1.0
+
+
+def test_named_experts_must_be_model_cids_in_the_store(client: TestClient, login: Login) -> None:
+    register(client, login, ["user1"], {"user3": {}})
+    store = client.app.state.store  # type: ignore[attr-defined]
+    model = add_bundle(store, {"model.safetensors": b"w" * 64, "model.json": card_of(ENV2, "m")})
+    loose = store.add(b"just some bytes")
+    not_card = add_bundle(store, {"model.safetensors": b"w", "model.json": b'{"format": "x"}'})
+    absent = "bafkreigh2akiscaildcqabsyg3dfr6chu3fgpregiymsck7e7aqa4s52zy"
+    cases = {
+        "oracle": "expert_not_cid",
+        "runs/m": "expert_not_cid",
+        absent: "expert_not_found",
+        loose: "expert_invalid",
+        not_card: "expert_invalid",
+    }
+    for ref, rule in cases.items():
+        r = client.post(f"{P}/tasks", json=task_body(experts=[model, ref]), headers=login("user1"))
+        assert r.status_code == 422, (ref, r.text)
+        err = r.json()["detail"][0]
+        assert (err["type"], err["loc"]) == (rule, ["body", "experts", 1]), (ref, err)
+    r = client.post(
+        f"{P}/tasks",
+        json=task_body(experts=[{"model": model, "qos": 0.3}]),
+        headers=login("user1"),
+    )
+    assert r.status_code == 201, r.text

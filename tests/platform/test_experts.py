@@ -1,0 +1,266 @@
+"""Expert models of MEDC jobs on the worker (workers/daemon/experts.py, job.py, handler.py):
+fetched by CID and verified (tampered, oversize, pickled, bad-card bundles refused with an error
+naming the CID), a job that cannot use its experts fails on chain, and a resumed MEDC job keeps
+its selector (thesis Alg. 5.1)."""
+
+from __future__ import annotations
+
+import json
+import pickle
+from pathlib import Path
+
+import pytest
+import torch
+from safetensors.torch import load_file
+
+from backend.chain.client import Chain
+from backend.chain.platform import OfferState
+from backend.store import EmbeddedStore, StoreUnavailable
+from backend.store.bundle import add_bundle, read_bundle, upload_model
+from workers.daemon import job as jobs
+from workers.daemon.experts import ExpertFetchError, fetch_experts
+from workers.daemon.handler import OfferHandler
+from workers.mdrl.trainingspec import TrainingSpec
+
+from .helpers import TINY_SPEC, deploy, post_task, register
+
+torch.set_num_threads(1)
+EXPERT = Path(__file__).resolve().parents[2] / "models" / "odmtl-2a"  # window 5, fits 6x6
+
+
+@pytest.fixture
+def store(tmp_path: Path) -> EmbeddedStore:
+    return EmbeddedStore(tmp_path / "ipfs")
+
+
+def medc_spec(*cids: str, qos: tuple[float, ...] = (), rate: float = 0.5) -> TrainingSpec:
+    experts = (
+        [{"model": c, "qos": q} for c, q in zip(cids, qos, strict=True)] if qos else list(cids)
+    )
+    return TrainingSpec.from_dict(
+        {**TINY_SPEC, "experts": experts, "algorithm": {"demonstration": {"rate": rate}}}
+    )
+
+
+def bundle(store: EmbeddedStore, **changes: bytes) -> str:
+    files = {n: (EXPERT / n).read_bytes() for n in ("model.safetensors", "model.json")}
+    return add_bundle(store, {**files, **changes})
+
+
+def refused(store: EmbeddedStore, cid: str, tmp_path: Path, **kw) -> str:
+    with pytest.raises(ExpertFetchError) as err:
+        fetch_experts(store, [cid], tmp_path / "job", **kw)
+    assert err.value.cid == cid and cid in str(err.value)
+    assert not list((tmp_path / "job" / "experts").glob("*/model.json"))  # nothing kept
+    return err.value.reason
+
+
+def test_a_good_expert_is_verified_kept_and_not_fetched_again(store, tmp_path: Path) -> None:
+    cid = upload_model(store, EXPERT)
+    dirs = fetch_experts(store, [cid], tmp_path / "job")
+    got = dirs[cid]
+    assert got.parent == tmp_path / "job" / "experts"
+    for name in ("model.safetensors", "model.json"):
+        assert (got / name).read_bytes() == (EXPERT / name).read_bytes()
+
+    class Down(EmbeddedStore):
+        def _read_block(self, cid, max_bytes):  # noqa: ANN001
+            raise StoreUnavailable("test", "down")
+
+    # a restarted job finds its experts in the job directory: no fetch at all
+    assert fetch_experts(Down(tmp_path / "ipfs"), [cid], tmp_path / "job") == dirs
+    with pytest.raises(StoreUnavailable):  # a new job with the store down: retry later
+        fetch_experts(Down(tmp_path / "ipfs"), [cid], tmp_path / "job2")
+
+
+def test_tampered_bytes_are_refused(store, tmp_path: Path) -> None:
+    cid = upload_model(store, EXPERT)
+    weights_cid, _ = read_bundle(store, cid)["model.safetensors"]
+    block = store.block_path(weights_cid)
+    data = bytearray(block.read_bytes())
+    data[100] ^= 0xFF
+    block.write_bytes(bytes(data))
+    assert "model.safetensors" in refused(store, cid, tmp_path)
+
+
+def test_oversize_pickled_and_bad_card_bundles_are_refused(store, tmp_path: Path) -> None:
+    good = upload_model(store, EXPERT)
+    size = (EXPERT / "model.safetensors").stat().st_size
+    assert "more than the bound" in refused(store, good, tmp_path, max_weights=size - 1)
+
+    tensors = {k: v.numpy() for k, v in load_file(EXPERT / "model.safetensors").items()}
+    pickled = bundle(store, **{"model.safetensors": pickle.dumps(tensors)})
+    assert "pickle" in refused(store, pickled, tmp_path)
+    zipped = bundle(store, **{"model.safetensors": b"PK\x03\x04" + b"\0" * 64})
+    assert "zip archive" in refused(store, zipped, tmp_path)
+    raw = (EXPERT / "model.safetensors").read_bytes()
+    truncated = bundle(store, **{"model.safetensors": raw[:-8]})
+    assert "byte range" in refused(store, truncated, tmp_path)
+
+    card = json.loads((EXPERT / "model.json").read_text())
+    wrong = bundle(store, **{"model.json": json.dumps({**card, "format": "other/1"}).encode()})
+    assert "not a drlaas-model/1 card" in refused(store, wrong, tmp_path)
+    not_json = bundle(store, **{"model.json": b"{not json"})
+    assert "not JSON" in refused(store, not_json, tmp_path)
+    bad_env = bundle(store, **{"model.json": json.dumps({**card, "env": {"rows": -1}}).encode()})
+    assert "cannot be rebuilt" in refused(store, bad_env, tmp_path)
+
+    extra = bundle(store, **{"run.py": b"print('hi')"})
+    assert "exactly" in refused(store, extra, tmp_path)
+    assert "not a model CID" in refused(store, "experts/mine", tmp_path)
+    absent = store.key("bafkreigh2akiscaildcqabsyg3dfr6chu3fgpregiymsck7e7aqa4s52zy")
+    assert "manifest" in refused(store, absent, tmp_path)
+
+
+def test_a_resumed_medc_job_keeps_its_selector(store, tmp_path: Path) -> None:
+    cid = upload_model(store, EXPERT)
+    spec = medc_spec(cid, qos=(0.7,))
+
+    def train(job: Path, crash_at: int | None = None) -> Path:
+        def hook(point: dict) -> None:
+            if point["update"] == crash_at:
+                raise KeyboardInterrupt  # the worker killed after this update's checkpoint
+
+        dirs = fetch_experts(store, spec.experts, job)
+        return jobs.run_job(spec, job, checkpoint_every=1, on_progress=hook, experts=dirs)[0]
+
+    straight = train(tmp_path / "a")
+    with pytest.raises(KeyboardInterrupt):
+        train(tmp_path / "b", crash_at=2)
+    state = json.loads((jobs.run_dir(tmp_path / "b") / "checkpoint" / "state.json").read_text())
+    assert state["selector"]["config"]["models"] == [cid]  # by CID, not by local path
+    resumed = train(tmp_path / "b")
+    card_a = json.loads((straight / "model.json").read_text())["training"]["experts"]
+    card_b = json.loads((resumed / "model.json").read_text())["training"]["experts"]
+    assert card_a == card_b  # episodes each expert guided, decisions, followed: one run
+    assert card_a["experts"][0]["ref"] == cid and card_a["experts"][0]["qos"] == 0.7
+    assert card_a["experts"][0]["episodes"] > 0 and card_a["own_episodes"] > 0
+    wa, wb = load_file(straight / "model.safetensors"), load_file(resumed / "model.safetensors")
+    assert all(torch.equal(wa[k], wb[k]) for k in wa)
+
+
+# -- the offer pipeline -----------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def chain() -> Chain:
+    return Chain.embedded(accounts=6)
+
+
+@pytest.fixture
+def env(chain: Chain, store: EmbeddedStore):
+    snap = chain.snapshot()
+    p = deploy(chain)
+    actors = register(p, chain.accounts[1], chain.accounts[2:3])
+    yield p, actors
+    chain.revert(snap)
+
+
+def test_an_expert_failing_verification_fails_the_job_on_chain(env, store, tmp_path) -> None:
+    p, actors = env
+    cid = bundle(store, **{"model.safetensors": pickle.dumps({"w": [1.0]})})
+    spec = {**TINY_SPEC, "experts": [cid]}
+    task_id, offered, _ = post_task(p, store, actors.requester, spec=spec)
+    h = OfferHandler(
+        account=p.chain._keys[offered[0]],
+        platform=p,
+        store=store,
+        data_dir=tmp_path / "w",
+    )
+    out = h.handle(task_id, offered[0])
+    assert out["status"] == "failed" and out["offer"] == "failed"
+    assert f"expert {cid}: model.safetensors is a pickle" in out["reason"]
+    assert p.tmc.offer(task_id, offered[0])["state"] == OfferState.FAILED
+    assert not (jobs.run_dir(h.job_dir(task_id)) / "checkpoint").exists()  # never trained
+    again = h.handle(task_id, offered[0])  # redelivered: no crash loop, nothing retried
+    assert again["status"] == "offer failed"
+
+
+def test_an_offer_naming_a_path_as_expert_is_declined(env, store, tmp_path) -> None:
+    p, actors = env
+    spec = {**TINY_SPEC, "experts": ["runs/my-model"]}  # the core's form, not the platform's
+    task_id, offered, _ = post_task(p, store, actors.requester, spec=spec)
+    h = OfferHandler(
+        account=p.chain._keys[offered[0]], platform=p, store=store, data_dir=tmp_path / "w"
+    )
+    out = h.handle(task_id, offered[0])
+    assert out["status"] == "declined" and "expert runs/my-model: not a model CID" in out["reason"]
+    assert p.tmc.offer(task_id, offered[0])["state"] == OfferState.DECLINED
+
+
+def test_an_medc_offer_trains_with_its_expert_and_the_card_lists_it(env, store, tmp_path) -> None:
+    p, actors = env
+    cid = upload_model(store, EXPERT)
+    spec = {**TINY_SPEC, "experts": [{"model": cid, "qos": 0.25}]}
+    task_id, offered, _ = post_task(p, store, actors.requester, spec=spec)
+    h = OfferHandler(
+        account=p.chain._keys[offered[0]], platform=p, store=store, data_dir=tmp_path / "w"
+    )
+    h._post_progress = lambda tid, point: None  # type: ignore[method-assign]
+    out = h.handle(task_id, offered[0])
+    assert out["status"] == "submitted", out
+    card_cid, _ = read_bundle(store, out["cid"])["model.json"]
+    card = json.loads(store.get(card_cid))
+    listed = card["training"]["experts"]["experts"]
+    assert [(e["ref"], e["qos"]) for e in listed] == [(cid, 0.25)]
+    assert (h.job_dir(task_id) / "experts" / cid / "model.safetensors").is_file()
+
+
+# -- the requester's CLI ----------------------------------------------------------------------
+
+
+def test_task_submit_expert_options_are_checked_before_anything_is_sent(tmp_path: Path) -> None:
+    from typer.testing import CliRunner
+
+    from drlaas.cli import app
+
+    cid = "bafkreigh2akiscaildcqabsyg3dfr6chu3fgpregiymsck7e7aqa4s52zy"
+    key = tmp_path / "r.key"
+    base = ["task", "submit", "--key", str(key), "--gateway", "http://127.0.0.1:9"]
+    cases = {
+        ("--experts", "oracle"): "model CIDs",
+        ("--experts", cid, "--experts-from-mmc", "2"): "give one of",
+        ("--expert-qos", "1"): "--expert-qos weighs --experts",
+        ("--experts", cid, "--expert-qos", "1,2"): "2 weight(s) for 1 expert(s)",
+        ("--expert-rate", "0.5"): "need experts",
+        ("--experts", cid, "--expert-rate", "1.5"): "algorithm.demonstration.rate",
+        ("--expert-allocation", "3", "--expert-price-wei", "5"): "prices --experts-from-mmc",
+    }
+    for args, msg in cases.items():
+        res = CliRunner().invoke(app, [*base, *args])
+        text = " ".join(res.output.replace("│", " ").split())
+        assert res.exit_code == 2 and msg in text, (args, res.output)
+    assert not key.exists()  # refused before a key was even created
+
+    from drlaas.commands.client.tasks import task_body
+
+    body = task_body(
+        grid="6x6",
+        agents=2,
+        walls="0",
+        kind="odmtl",
+        window=3,
+        steps=1000,
+        minutes=5,
+        seed=1,
+        workers=1,
+        payment_wei=1,
+        deadline_s=600,
+        domain=0,
+        spec=None,
+        experts=cid,
+        expert_qos="0.4",
+        expert_threshold=0.1,
+    )
+    assert body["experts"] == [{"model": cid, "qos": 0.4}]
+    assert body["algorithm"] == {"demonstration": {"threshold": 0.1}}
+    assert TrainingSpec.from_dict({k: body[k] for k in ("env", "budget", "experts", "algorithm")})
+
+
+def test_an_expert_that_cannot_serve_the_task_is_named(store, tmp_path: Path) -> None:
+    dmtl = Path(__file__).resolve().parents[2] / "models" / "dmtl-2a"  # full 10x10 maps
+    cid = upload_model(store, dmtl)
+    spec = medc_spec(cid)
+    dirs = fetch_experts(store, spec.experts, tmp_path / "job")
+    with pytest.raises(ExpertFetchError, match=f"expert {cid}: cannot guide this task: .*10x10"):
+        jobs.make_selector(spec, dirs)

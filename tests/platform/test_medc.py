@@ -1,0 +1,121 @@
+"""MEDC on the embedded stack (issue 10, deliverable 7), through the CLI: a model is shared on
+the MMC -> a new requester (its own key: every write signed locally and relayed) buys it as an
+expert (allocateModel) while submitting a task -> the worker daemon pulls and verifies it and
+trains with it (thesis Alg. 5.1, tiny budget) -> the outcome card lists the expert's CID and
+the QoS the MMC gave it -> the requester's review moves the expert's reputation, on chain and
+in the REST listing."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from backend.chain.platform import cid_hash
+from backend.store import make_store
+from backend.store.bundle import upload_model
+from drlaas.cli import app
+from drlaas.commands.up import running_platform
+from workers.daemon.gateway import Gateway
+
+from .conftest import worker_logs
+
+EXPERT = Path(__file__).resolve().parents[2] / "models" / "odmtl-2a"  # fits a 6x6 2-agent task
+
+
+def test_medc_task_with_an_mmc_expert_end_to_end(data_dir: Path, tmp_path: Path) -> None:
+    cli = CliRunner()
+
+    def run(*args: str) -> dict:
+        res = cli.invoke(app, [*args, "--gateway", p.url, "--json"])
+        assert res.exit_code == 0, f"{args}: {res.output}\n{worker_logs(p)}"
+        return json.loads(res.stdout)
+
+    with running_platform(workers=1, data_dir=data_dir) as p:
+        p.wait_registered()
+        # the worker shares a model of its own (an upload, not an outcome)
+        owner_key = next((p.data_dir / "keys").glob("*.key"))
+        cid = upload_model(make_store(p.data_dir / "ipfs"), EXPERT)
+        env = json.loads((EXPERT / "model.json").read_text())["env"]
+        shared = run(
+            "model", "share", "--key", str(owner_key), "--cid", cid, "--env", json.dumps(env)
+        )
+        assert "events" in shared or shared.get("cid") == cid
+
+        # a requester with a fresh key buys one expert from the MMC and submits the task
+        req = tmp_path / "requester.key"
+        run("requester", "register", "--key", str(req))
+        out = cli.invoke(
+            app,
+            [
+                "task",
+                "submit",
+                "--key",
+                str(req),
+                "--grid",
+                "6x6",
+                "--agents",
+                "2",
+                "--steps",
+                "1900",
+                "--minutes",
+                "3",
+                "--seed",
+                "5",
+                "--payment-wei",
+                str(10**15),
+                "--deadline-s",
+                "3600",
+                "--experts-from-mmc",
+                "1",
+                "--expert-rate",
+                "0.5",
+                "--gateway",
+                p.url,
+                "--json",
+            ],
+        )
+        assert out.exit_code == 0, out.output
+        task = json.loads(out.stdout)
+        alloc_id = task["expert_allocation"]
+        alloc = run("model", "allocation", str(alloc_id))
+        assert [m["cid"] for m in alloc["models"]] == [cid]
+        model_id, qos = alloc["models"][0]["id"], alloc["models"][0]["qos"]
+        assert qos > 0
+
+        run("task", "wait", str(task["task_id"]), "--timeout", "240")
+        pulled = run("task", "pull", str(task["task_id"]), "--out", str(tmp_path / "outcome"))
+        card = json.loads((Path(pulled["path"]) / "model.json").read_text())
+        used = card["training"]["experts"]
+        assert [(e["ref"], e["qos"]) for e in used["experts"]] == [(cid, qos)]
+        assert used["rate"] == 0.5 and used["experts"][0]["episodes"] > 0
+        # the worker kept the verified expert in the job directory (a resume needs no fetch)
+        assert list((p.data_dir / "workers").glob(f"*/jobs/*/{task['task_id']}/experts/{cid}"))
+
+        # the requester reviews the expert it used
+        mmc = p.chain.platform.mmc
+        before = mmc.contract.functions.getModel(model_id).call()[0]
+        run(
+            "model",
+            "review",
+            str(alloc_id),
+            "--model",
+            str(model_id),
+            "--review",
+            "4",
+            "--key",
+            str(req),
+        )
+        after = mmc.contract.functions.getModel(model_id).call()[0]
+        assert (before[-1], after[-1]) == (0, 4)  # totalReview on chain
+        assert int(mmc.contract.functions.modelOfCid(cid_hash(cid)).call()) == model_id
+        anon = Gateway(p.url)
+        listed = {m["id"]: m for m in anon.get("/models")["data"]}
+        assert listed[model_id]["reputation"] == pytest.approx(4 / 5)  # Eq. 11: 4 / (1 * 5)
+        experts = anon.get(f"/tasks/{task['task_id']}")["experts"]
+        assert [(e["cid"], e["alloc_id"], e["review"]) for e in experts] == [(cid, alloc_id, 4)]
+        shown = cli.invoke(app, ["task", "show", str(task["task_id"]), "--gateway", p.url])
+        assert shown.exit_code == 0 and "experts" in shown.stdout and cid[:20] in shown.stdout
+        anon.close()

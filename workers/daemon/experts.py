@@ -1,0 +1,247 @@
+"""Expert models of an MEDC job (thesis Alg. 5.1; platform flow of Ch. 5 and 7.8): fetched from
+the content store by CID, verified, kept in the job directory.
+
+A task spec names its experts by model CID (``experts``: bundle manifests, as the MMC lists
+them). Nothing from the network is trusted, so before an expert guides training here:
+
+* the CID must parse, and the manifest must name exactly ``model.safetensors`` and
+  ``model.json`` with sizes within :data:`MAX_WEIGHTS_BYTES` / :data:`MAX_CARD_BYTES` (checked
+  before a byte of them is fetched);
+* every block is verified against its CID as it arrives (``ContentStore.get_to_file``) and the
+  file must have the size the manifest declares;
+* the weights must be a well-formed safetensors file (a pickle or a zip archive, e.g. a
+  ``torch.save`` file, is refused by its first bytes and never unpickled);
+* the card must be a ``drlaas-model/1`` card whose env and observation this code can rebuild.
+
+A verified expert lives in ``<job>/experts/<CID v1>/``, renamed into place only once complete,
+so a restarted job resumes with the same files and never fetches them again.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import struct
+import tempfile
+from pathlib import Path
+from typing import Any
+
+from backend.store import CID, ContentStore, InvalidCID, StoreError, StoreUnavailable
+from backend.store.bundle import MODEL_FILES, read_bundle
+
+EXPERTS_DIR = "experts"
+MAX_WEIGHTS_BYTES = 64 * 2**20
+"""Bound on an expert's weights (the zoo's largest model is ~0.1 MiB)."""
+MAX_CARD_BYTES = 1 << 20
+"""Bound on an expert's card (the gateway's bound on cards it reads)."""
+MAX_HEADER_BYTES = 1 << 20
+"""Bound on the JSON header of a safetensors file."""
+_DTYPE_BYTES = {
+    "F64": 8,
+    "F32": 4,
+    "F16": 2,
+    "BF16": 2,
+    "I64": 8,
+    "I32": 4,
+    "I16": 2,
+    "I8": 1,
+    "U8": 1,
+    "BOOL": 1,
+}
+
+
+class ExpertFetchError(ValueError):
+    """An expert CID that cannot be used: the message names the CID and what is wrong."""
+
+    def __init__(self, cid: str, reason: str):
+        super().__init__(f"expert {cid}: {reason}")
+        self.cid, self.reason = cid, reason
+
+
+def expert_key(ref: str) -> str:
+    """The canonical CIDv1 text of an expert reference; ExpertFetchError if it is not a CID
+    (a platform task cannot name a path on the worker's disk nor a built-in)."""
+    try:
+        return str(CID.parse(ref).v1())
+    except (InvalidCID, ValueError):
+        raise ExpertFetchError(
+            ref, "not a model CID (a platform task names its experts by the CID of their bundle)"
+        ) from None
+
+
+def fetch_experts(
+    store: ContentStore,
+    refs: tuple[str, ...] | list[str],
+    job_dir: Path,
+    *,
+    max_weights: int = MAX_WEIGHTS_BYTES,
+) -> dict[str, Path]:
+    """{reference as the spec writes it: verified model directory} for every expert."""
+    return {ref: fetch_expert(store, ref, job_dir, max_weights=max_weights) for ref in refs}
+
+
+def fetch_expert(
+    store: ContentStore, ref: str, job_dir: Path, *, max_weights: int = MAX_WEIGHTS_BYTES
+) -> Path:
+    """The verified model directory of expert ``ref`` under ``job_dir/experts`` (fetched once).
+
+    :class:`StoreUnavailable` propagates (try again later); every other failure is an
+    :class:`ExpertFetchError` naming the CID."""
+    key = expert_key(ref)
+    final = Path(job_dir) / EXPERTS_DIR / key
+    if all((final / name).is_file() for name in MODEL_FILES):
+        return final  # verified before it was renamed into place
+    final.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(dir=final.parent, prefix=f".{key}."))
+    try:
+        _download(store, ref, tmp, max_weights)
+        check_safetensors(tmp / "model.safetensors", ref)
+        check_card(tmp / "model.json", ref)
+        shutil.rmtree(final, ignore_errors=True)  # a half-written leftover of an older layout
+        os.replace(tmp, final)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return final
+
+
+def _download(store: ContentStore, ref: str, dest: Path, max_weights: int) -> None:
+    bounds = {"model.safetensors": max_weights, "model.json": MAX_CARD_BYTES}
+    try:
+        files = read_bundle(store, ref)
+    except StoreUnavailable:
+        raise
+    except StoreError as exc:  # not found, mismatch, not a manifest, too large
+        raise ExpertFetchError(ref, f"cannot read its bundle manifest: {exc}") from None
+    if sorted(files) != sorted(MODEL_FILES):
+        raise ExpertFetchError(
+            ref,
+            f"the bundle must hold exactly {list(MODEL_FILES)} (weights "
+            f"as safetensors + card), it holds {sorted(files)}",
+        )
+    for name in MODEL_FILES:
+        file_cid, size = files[name]
+        if size > bounds[name]:
+            raise ExpertFetchError(
+                ref, f"{name} is {size} bytes, more than the bound of {bounds[name]} bytes"
+            )
+        try:
+            got = store.get_to_file(file_cid, dest / name, max_size=max(size, 1))
+        except StoreUnavailable:
+            raise
+        except StoreError as exc:
+            raise ExpertFetchError(ref, f"{name} ({file_cid}) failed verification: {exc}") from None
+        if got != size:
+            raise ExpertFetchError(ref, f"{name} has {got} bytes, its manifest says {size}")
+
+
+def check_safetensors(path: Path, ref: str) -> None:
+    """A well-formed safetensors file: u64 header length, a JSON header of tensors whose
+    dtype, shape and byte ranges fit the file exactly. Refuses pickles and archives by name."""
+    size = path.stat().st_size
+    with path.open("rb") as f:
+        head = f.read(8)
+        if head[:1] == b"\x80" or head[:2] == b"PK":
+            kind = "a pickle" if head[:1] == b"\x80" else "a zip archive (torch.save)"
+            raise ExpertFetchError(
+                ref,
+                f"model.safetensors is {kind}, not safetensors: refused "
+                "(models are never unpickled)",
+            )
+        if len(head) < 8:
+            raise ExpertFetchError(ref, "model.safetensors is too short to be safetensors")
+        (n,) = struct.unpack("<Q", head)
+        if n > min(MAX_HEADER_BYTES, size - 8):
+            raise ExpertFetchError(
+                ref,
+                f"model.safetensors: header length {n} does not fit "
+                f"the file ({size} bytes) or the bound",
+            )
+        try:
+            header = json.loads(f.read(n))
+        except ValueError:
+            raise ExpertFetchError(ref, "model.safetensors: its header is not JSON") from None
+    if not isinstance(header, dict):
+        raise ExpertFetchError(ref, "model.safetensors: its header is not a JSON object")
+    data, spans = size - 8 - n, []
+    for name, t in header.items():
+        if name == "__metadata__":
+            continue
+        ok = (
+            isinstance(t, dict)
+            and t.get("dtype") in _DTYPE_BYTES
+            and isinstance(t.get("shape"), list)
+            and all(isinstance(d, int) and d >= 0 for d in t["shape"])
+            and isinstance(t.get("data_offsets"), list)
+            and len(t["data_offsets"]) == 2
+            and all(isinstance(o, int) for o in t["data_offsets"])
+        )
+        if not ok:
+            raise ExpertFetchError(ref, f"model.safetensors: bad entry for tensor {name!r}")
+        begin, end = t["data_offsets"]
+        count = 1
+        for d in t["shape"]:
+            count *= d
+        if not 0 <= begin <= end <= data or end - begin != count * _DTYPE_BYTES[t["dtype"]]:
+            raise ExpertFetchError(
+                ref, f"model.safetensors: tensor {name!r} does not fit its byte range"
+            )
+        spans.append((begin, end))
+    if not spans:
+        raise ExpertFetchError(ref, "model.safetensors holds no tensor")
+    spans.sort()
+    if (
+        spans[0][0] != 0
+        or spans[-1][1] != data
+        or any(a[1] != b[0] for a, b in zip(spans, spans[1:], strict=False))
+    ):
+        raise ExpertFetchError(ref, "model.safetensors: tensors overlap or leave gaps")
+
+
+def check_card(path: Path, ref: str) -> dict[str, Any]:
+    """The expert's card, if it is one this worker can rebuild a model from."""
+    from workers.mdrl.modelio import CARD_FORMAT
+    from workers.mdrl.observations import ObservationSpec
+    from workers.mdrl.spec import EnvSpec
+
+    try:
+        card = json.loads(path.read_bytes())
+    except (ValueError, RecursionError):
+        raise ExpertFetchError(ref, "model.json (its card) is not JSON") from None
+    if not isinstance(card, dict) or card.get("format") != CARD_FORMAT:
+        got = card.get("format") if isinstance(card, dict) else type(card).__name__
+        raise ExpertFetchError(ref, f"model.json is not a {CARD_FORMAT} card (format {got!r})")
+    try:
+        EnvSpec.from_dict(card["env"])
+        obs = {
+            k: v for k, v in card["observation"].items() if k not in ("actor_shape", "critic_shape")
+        }
+        ObservationSpec.from_dict(obs)
+        if not isinstance(card["observation"]["actor_shape"], list):
+            raise TypeError("actor_shape must be a list")
+    except (KeyError, TypeError, ValueError, AttributeError) as exc:
+        raise ExpertFetchError(
+            ref,
+            f"model.json: its env/observation cannot be rebuilt here ({type(exc).__name__}: {exc})",
+        ) from None
+    return card
+
+
+def load_job_experts(
+    refs: tuple[str, ...], dirs: dict[str, Path], task: Any, seed: int
+) -> list[Any]:
+    """The experts of a job, each named by its CID (what the outcome's card lists) while its
+    weights come from its verified directory; the i-th is seeded ``seed + i`` as
+    ``experts.load_experts`` does."""
+    from workers.mdrl.experts import load_expert
+
+    experts = []
+    for i, ref in enumerate(refs):
+        try:
+            expert = load_expert(str(dirs[ref]), task, seed + i)
+        except Exception as exc:  # noqa: BLE001 - a model that cannot serve the task
+            raise ExpertFetchError(ref, f"cannot guide this task: {exc}") from None
+        expert.name = ref
+        experts.append(expert)
+    return experts
