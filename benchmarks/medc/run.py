@@ -22,7 +22,7 @@ interrupted benchmark re-runs only what is missing; a killed run restarts from s
 
 Usage: python benchmarks/medc/run.py --steps 1000000 --seeds 0,1,2
        [--tasks A3W2,A3W3] [--methods sparse,sr,dc,medc,medc-faulty,il,frl]
-       [--experts models/ch4-a1w0,models/ch4-a1w3,models/ch4-a2w2] [--qos 1,1,1]
+       [--grid 30] [--experts train | DIR,DIR,...] [--expert-steps 1000000] [--qos 1,1,1]
        [--episodes 1000] [--eval-every 5] [--out runs/medc] [--png benchmarks/medc/curves.png]
 """
 
@@ -49,19 +49,45 @@ from workers.mdrl.train import RunConfig, Trainer
 from workers.mdrl.zoo import HELDOUT_SEED
 
 METHODS = ("sparse", "sr", "dc", "medc", "medc-faulty", "il", "frl")
-DEFAULT_EXPERTS = "models/ch4-a1w0,models/ch4-a1w3,models/ch4-a2w2"
+EXPERT_USERS = ("A1W0", "A1W3", "A2W2")
 CURVE_EPISODES = 100
 CURVE_SEED = 1_000_003
 REACH = 1.05
 """A run "reaches" a level when its mean held-out episode length is within 5% of it."""
 
 
-def user_preset(user: str, reward: str) -> Any:
-    """The Ch. 4 preset of a thesis user name such as A3W2 (agents 3, walls 2)."""
+def user_preset(user: str, reward: str, grid: int = 30) -> Any:
+    """The Ch. 4 preset of a thesis user name such as A3W2 (agents 3, walls 2), on a
+    ``grid`` x ``grid`` map of 50 m cells (30 = the thesis; smaller grids are the same setting
+    scaled down so that it trains on this CPU)."""
     m = re.fullmatch(r"A(\d+)W(\d+)", user)
     if not m:
         raise ValueError(f"user {user!r}: expected A<agents>W<walls>, e.g. A3W2")
-    return get_preset(f"ch4-a{m[1]}w{m[2]}-{reward}")
+    preset = get_preset(f"ch4-a{m[1]}w{m[2]}-{reward}")
+    if grid == preset.env.rows:
+        return preset
+    if grid <= preset.observation.window:
+        raise ValueError(f"--grid {grid}: must exceed the window w = {preset.observation.window}")
+    env = dataclasses.replace(preset.env, rows=grid, cols=grid, area_m=(50.0 * grid, 50.0 * grid))
+    return dataclasses.replace(preset, name=f"{preset.name}-{grid}x{grid}", env=env)
+
+
+def train_experts(users: list[str], grid: int, steps: int, out: Path) -> list[str]:
+    """The experts of the benchmark (shaped reward, seed 0), trained once and cached: the
+    thesis' A1W0, A1W3, A2W2 semi-experts (free multi-agent, complex single-agent, ...)."""
+    dirs = []
+    for user in users:
+        model = out / "experts" / f"{user}-{grid}x{grid}-{steps}" / "model"
+        if not (model / "model.json").is_file():
+            preset = user_preset(user, "sr", grid)
+            run = RunConfig(seed=0, total_steps=steps, eval_every=0, eval_episodes=CURVE_EPISODES,
+                            eval_seed=CURVE_SEED, checkpoint_every=0, tensorboard=False,
+                            progress=False)
+            trainer = Trainer(preset.env, preset.observation, preset.ppo, run, out=model.parent)
+            trainer.train()
+            print(f"expert {user}: {trainer.last_eval}", file=sys.stderr, flush=True)
+        dirs.append(str(model))
+    return dirs
 
 
 def faulty_refs(good: str, actions: int) -> list[str]:
@@ -72,14 +98,14 @@ def faulty_refs(good: str, actions: int) -> list[str]:
 
 
 def train_run(task: str, method: str, seed: int, steps: int, experts: list[str],
-              qos: list[float], eval_every: int, out: Path) -> dict[str, Any]:
+              qos: list[float], eval_every: int, out: Path, grid: int) -> dict[str, Any]:
     """Train one (task, method, seed) and return its curve and held-out figures."""
-    preset = user_preset(task, "sr" if method == "sr" else "sparse")
+    preset = user_preset(task, "sr" if method == "sr" else "sparse", grid)
     env, obs, ppo = preset.env, preset.observation, preset.ppo
     run = RunConfig(seed=seed, total_steps=steps, eval_every=eval_every,
                     eval_episodes=CURVE_EPISODES, eval_seed=CURVE_SEED, checkpoint_every=0,
                     tensorboard=False, progress=False)
-    run_dir = out / f"{task}-{method}-s{seed}-{steps}"
+    run_dir = out / f"{task}-{grid}x{grid}-{method}-s{seed}-{steps}"
     if run_dir.exists():  # a killed run: start it again from scratch
         for f in sorted(run_dir.rglob("*"), reverse=True):
             f.unlink() if f.is_file() else f.rmdir()
@@ -87,7 +113,7 @@ def train_run(task: str, method: str, seed: int, steps: int, experts: list[str],
     if method == "frl":
         from workers.mdrl.frl import THESIS_USERS, FederatedTrainer
 
-        users = [(u, user_preset(u, "sparse").env) for u in THESIS_USERS]
+        users = [(u, user_preset(u, "sparse", grid).env) for u in THESIS_USERS]
         trainer: Any = FederatedTrainer(users, obs, ppo, run, target=task, out=run_dir)
     elif method == "il":
         from workers.mdrl.il import ImitationTrainer
@@ -108,7 +134,8 @@ def train_run(task: str, method: str, seed: int, steps: int, experts: list[str],
     trainer.train()
     wall = time.perf_counter() - start
     policy = trainer.trainer.policy() if method == "frl" else trainer.policy()
-    return {"task": task, "method": method, "seed": seed, "steps": trainer.global_step,
+    return {"task": task, "grid": grid, "method": method, "seed": seed,
+            "steps": trainer.global_step,
             "wall_s": wall, "curve": read_curve(run_dir / "metrics.csv"),
             "heldout": heldout(policy, env)}
 
@@ -158,6 +185,12 @@ def steps_to(runs: list[dict], level: float) -> float:
     return float(steps[hit[0]]) if len(hit) else math.inf
 
 
+def last_level(runs: list[dict]) -> float:
+    """The final level of a method on its learning curve: the seed-mean episode length at the
+    last evaluation point (the curve's episodes, so that ``steps_to`` compares like with like)."""
+    return float(mean_curve(runs)[1][-1])
+
+
 def final(runs: list[dict], key: str) -> tuple[float, tuple[float, float]]:
     """Mean over seeds of a held-out figure, with the t-interval over the seeds (the per-run
     interval for one seed)."""
@@ -173,12 +206,12 @@ def report(results: list[dict]) -> str:
         by = {m: [r for r in results if r["task"] == task and r["method"] == m]
               for m in METHODS}
         by = {m: rs for m, rs in by.items() if rs}
-        sr_level = final(by["sr"], "time")[0] if "sr" in by else math.nan
+        sr_level = last_level(by["sr"]) if "sr" in by else math.nan
         oracle = next(iter(by.values()))[0]["heldout"]["oracle_time"]
         lines += [f"\n## {task} (oracle {oracle:.2f} steps; held-out "
                   f"{next(iter(by.values()))[0]['heldout']['episodes']} episodes)",
                   "| method | seeds | env steps | wall-clock | success | time (95% CI) | "
-                  "cost (95% CI) | time / oracle | steps to SR's final level |",
+                  "cost (95% CI) | time / oracle | steps to SR's final curve level |",
                   "|---|---|---|---|---|---|---|---|---|"]
         for m, rs in by.items():
             t, t_ci = final(rs, "time")
@@ -202,7 +235,7 @@ def targets(by: dict[str, list[dict]], sr_level: float) -> list[str]:
         out.append(f"- MEDC reaches SR's final level ({sr_level:.2f}) in {_steps(a)} env steps, "
                    f"SR in {_steps(b)}: ratio {_ratio(a, b)} (target <= 1)")
     if {"medc", "sparse"} <= set(by):
-        own = final(by["sparse"], "time")[0]
+        own = last_level(by["sparse"])
         s = steps_to(by["sparse"], own)
         a = steps_to(by["medc"], sr_level) if not math.isnan(sr_level) else math.nan
         out.append(f"- sparse alone reaches its own final level ({own:.2f}) in {_steps(s)}; "
@@ -272,7 +305,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seeds", default="0,1,2")
     p.add_argument("--tasks", default="A3W2,A3W3")
     p.add_argument("--methods", default=",".join(METHODS))
-    p.add_argument("--experts", default=DEFAULT_EXPERTS)
+    p.add_argument("--grid", type=int, default=30, help="map side in 50 m cells (30 = thesis)")
+    p.add_argument("--experts", default="train",
+                   help="expert model dirs, comma-separated, or 'train' = train A1W0, A1W3 and "
+                        "A2W2 on the shaped reward first (cached under --out/experts)")
+    p.add_argument("--expert-steps", type=int, default=1_000_000)
     p.add_argument("--qos", default="", help="QoS weight per expert (default equal)")
     p.add_argument("--episodes", type=int, default=HELDOUT_EPISODES)
     p.add_argument("--eval-every", type=int, default=5)
@@ -284,30 +321,35 @@ def main(argv: list[str] | None = None) -> int:
     bad = [m for m in methods if m not in METHODS]
     if bad:
         p.error(f"unknown methods {bad}; known: {', '.join(METHODS)}")
-    experts = [e for e in args.experts.split(",") if e]
+    args.out.mkdir(parents=True, exist_ok=True)
+    if args.experts == "train":
+        experts = train_experts(list(EXPERT_USERS), args.grid, args.expert_steps, args.out)
+    else:
+        experts = [e for e in args.experts.split(",") if e]
     qos = [float(q) for q in args.qos.split(",") if q]
     if qos and len(qos) != len(experts):
         p.error(f"--qos: {len(qos)} weight(s) for {len(experts)} expert(s)")
     seeds = [int(s) for s in args.seeds.split(",") if s]
-    args.out.mkdir(parents=True, exist_ok=True)
     results = []
     for task in [t for t in args.tasks.split(",") if t]:
         for method in methods:
             for seed in seeds:
-                cached = args.out / f"{task}-{method}-s{seed}-{args.steps}.json"
+                g = args.grid
+                cached = args.out / f"{task}-{g}x{g}-{method}-s{seed}-{args.steps}.json"
                 if cached.is_file():
                     r = json.loads(cached.read_text())
                 else:
                     r = train_run(task, method, seed, args.steps, experts, qos,
-                                  args.eval_every, args.out)
+                                  args.eval_every, args.out, args.grid)
                     cached.write_text(json.dumps(r))
                 results.append(r)
                 h = r["heldout"]
                 print(f"{task} {method} seed {seed}: time {h['time']:.2f} cost {h['cost']:.2f} "
                       f"success {h['success']:.3f} ({r['wall_s'] / 60:.1f} min)",
                       file=sys.stderr, flush=True)
-    print(f"MEDC benchmark: {args.steps} env steps of the task user per run, seeds {args.seeds}, "
-          f"experts {experts}; trained on Poisson readings, evaluated on them")
+    print(f"MEDC benchmark: Ch. 4 setting on {args.grid}x{args.grid} cells of 50 m, "
+          f"{args.steps} env steps of the task user per run, seeds {args.seeds}, experts "
+          f"{experts}; trained and evaluated on Poisson readings")
     print(report(results))
     if args.png:
         plot(results, args.png)
