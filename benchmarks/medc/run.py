@@ -1,0 +1,361 @@
+"""MEDC against its benchmarks on the Ch. 4 walls setting (issue 10; thesis Fig. 4.9-4.11, 5.5-5.8).
+
+For each task user (A3W2, A3W3: 3 agents, 2 or 3 walls, 30 x 30, 8 moves) and each seed, every
+method trains for the same env-step budget of the task user:
+
+  sparse       PPO on the sparse reward (Eq. 9, S = 50) alone
+  sr           PPO on the shaped BFS reward (MDRL-SR, Eq. 8)
+  dc           sparse + Demonstration Cloning with the first expert (Alg. 4.1, E = 0.2)
+  medc         sparse + MEDC with all experts, roulette over their QoS (Alg. 5.1, R_E = 0.1)
+  medc-faulty  sparse + MEDC with only faulty experts: 5 random, 5 biased, 5 malicious
+  il           sparse + IL-assisted RL with the same experts (il.py: 20% behaviour cloning)
+  frl          sparse + FedAvg across the eight users A1W0 ... A3W3 (frl.py), seen from the task
+
+Every run evaluates its greedy policy on the same 100 held-out episodes every few updates (the
+curve) and at the end on ``--episodes`` held-out episodes (``zoo.HELDOUT_SEED``) next to the
+oracle. Output: a table per task (final time / cost / success, mean over seeds with a 95% CI;
+env steps to reach SR's final level), the issue's target ratios, and ``--png`` with the curves
+(episode length against env steps and against wall-clock, mean over seeds, min-max band).
+
+Each finished run is cached as JSON under ``--out`` (``TASK-METHOD-sSEED-STEPS.json``), so an
+interrupted benchmark re-runs only what is missing; a killed run restarts from scratch.
+
+Usage: python benchmarks/medc/run.py --steps 1000000 --seeds 0,1,2
+       [--tasks A3W2,A3W3] [--methods sparse,sr,dc,medc,medc-faulty,il,frl]
+       [--grid 30] [--experts train | DIR,DIR,...] [--expert-steps 1000000] [--qos 1,1,1]
+       [--episodes 1000] [--eval-every 5] [--out runs/medc] [--png benchmarks/medc/curves.png]
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import math
+import re
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from workers.mdrl.baselines import OraclePolicy
+from workers.mdrl.evaluate import evaluate, t_interval
+from workers.mdrl.experts import load_experts
+from workers.mdrl.medc import DemonstrationSelector
+from workers.mdrl.presets import get_preset
+from workers.mdrl.train import RunConfig, Trainer
+from workers.mdrl.zoo import HELDOUT_SEED
+
+METHODS = ("sparse", "sr", "dc", "medc", "medc-faulty", "il", "frl")
+EXPERT_USERS = ("A1W0", "A1W3", "A2W2")
+CURVE_EPISODES = 100
+CURVE_SEED = 1_000_003
+REACH = 1.05
+"""A run "reaches" a level when its mean held-out episode length is within 5% of it."""
+
+
+def user_preset(user: str, reward: str, grid: int = 30) -> Any:
+    """The Ch. 4 preset of a thesis user name such as A3W2 (agents 3, walls 2), on a
+    ``grid`` x ``grid`` map of 50 m cells (30 = the thesis; smaller grids are the same setting
+    scaled down so that it trains on this CPU)."""
+    m = re.fullmatch(r"A(\d+)W(\d+)", user)
+    if not m:
+        raise ValueError(f"user {user!r}: expected A<agents>W<walls>, e.g. A3W2")
+    preset = get_preset(f"ch4-a{m[1]}w{m[2]}-{reward}")
+    if grid == preset.env.rows:
+        return preset
+    if grid <= preset.observation.window:
+        raise ValueError(f"--grid {grid}: must exceed the window w = {preset.observation.window}")
+    env = dataclasses.replace(preset.env, rows=grid, cols=grid, area_m=(50.0 * grid, 50.0 * grid))
+    return dataclasses.replace(preset, name=f"{preset.name}-{grid}x{grid}", env=env)
+
+
+def train_experts(users: list[str], grid: int, steps: int, out: Path) -> list[str]:
+    """The experts of the benchmark (shaped reward, seed 0), trained once and cached: the
+    thesis' A1W0, A1W3, A2W2 semi-experts (free multi-agent, complex single-agent, ...)."""
+    dirs = []
+    for user in users:
+        model = out / "experts" / f"{user}-{grid}x{grid}-{steps}" / "model"
+        if not (model / "model.json").is_file():
+            preset = user_preset(user, "sr", grid)
+            run = RunConfig(seed=0, total_steps=steps, eval_every=0, eval_episodes=CURVE_EPISODES,
+                            eval_seed=CURVE_SEED, checkpoint_every=0, tensorboard=False,
+                            progress=False)
+            trainer = Trainer(preset.env, preset.observation, preset.ppo, run, out=model.parent)
+            trainer.train()
+            print(f"expert {user}: {trainer.last_eval}", file=sys.stderr, flush=True)
+        dirs.append(str(model))
+    return dirs
+
+
+def faulty_refs(good: str, actions: int) -> list[str]:
+    """5 random, 5 biased (each always one move), 5 malicious (the worst-ranked valid action
+    of a good expert) - the faulty experts of Sec. 5.4.1."""
+    return (["random"] * 5 + [f"biased:{1 + i % (actions - 1)}" for i in range(5)]
+            + [f"malicious:{good}"] * 5)
+
+
+def train_run(task: str, method: str, seed: int, steps: int, experts: list[str],
+              qos: list[float], eval_every: int, out: Path, grid: int) -> dict[str, Any]:
+    """Train one (task, method, seed) and return its curve and held-out figures."""
+    preset = user_preset(task, "sr" if method == "sr" else "sparse", grid)
+    env, obs, ppo = preset.env, preset.observation, preset.ppo
+    run = RunConfig(seed=seed, total_steps=steps, eval_every=eval_every,
+                    eval_episodes=CURVE_EPISODES, eval_seed=CURVE_SEED, checkpoint_every=0,
+                    tensorboard=False, progress=False)
+    run_dir = out / f"{task}-{grid}x{grid}-{method}-s{seed}-{steps}"
+    if run_dir.exists():  # a killed run: start it again from scratch
+        for f in sorted(run_dir.rglob("*"), reverse=True):
+            f.unlink() if f.is_file() else f.rmdir()
+    start = time.perf_counter()
+    if method == "frl":
+        from workers.mdrl.frl import THESIS_USERS, FederatedTrainer
+
+        users = [(u, user_preset(u, "sparse", grid).env) for u in THESIS_USERS]
+        trainer: Any = FederatedTrainer(users, obs, ppo, run, target=task, out=run_dir)
+    elif method == "il":
+        from workers.mdrl.il import ImitationTrainer
+
+        trainer = ImitationTrainer(env, obs, ppo, run, out=run_dir,
+                                   experts=load_experts(experts, env, seed), qos=qos or None)
+    else:
+        selector = None
+        if method == "dc":
+            selector = DemonstrationSelector(load_experts(experts[:1], env, seed), seed=seed)
+        elif method == "medc":
+            selector = DemonstrationSelector(load_experts(experts, env, seed), qos or None,
+                                             seed=seed)
+        elif method == "medc-faulty":
+            refs = faulty_refs(experts[0], env.num_actions)
+            selector = DemonstrationSelector(load_experts(refs, env, seed), seed=seed)
+        trainer = Trainer(env, obs, ppo, run, out=run_dir, selector=selector)
+    trainer.train()
+    wall = time.perf_counter() - start
+    policy = trainer.trainer.policy() if method == "frl" else trainer.policy()
+    return {"task": task, "grid": grid, "method": method, "seed": seed,
+            "steps": trainer.global_step,
+            "wall_s": wall, "curve": read_curve(run_dir / "metrics.csv"),
+            "heldout": heldout(policy, env)}
+
+
+def read_curve(metrics: Path) -> list[dict[str, float]]:
+    """(env steps, wall-clock, success, time, cost) at every evaluation of a run."""
+    import csv
+
+    points = []
+    with metrics.open() as f:
+        for row in csv.DictReader(f):
+            if row.get("eval_time"):
+                points.append({"step": int(row["global_step"]), "wall": float(row["wall_time"]),
+                               "success": float(row["eval_success"]),
+                               "time": float(row["eval_time"]),
+                               "cost": float(row["eval_cost"])})
+    return points
+
+
+def heldout(policy: Any, env: Any, episodes: int | None = None) -> dict[str, Any]:
+    episodes = episodes or HELDOUT_EPISODES
+    test = dataclasses.replace(env, readings="poisson")
+    s = evaluate(policy, test, episodes, seed=HELDOUT_SEED).summary
+    oracle = evaluate(OraclePolicy(), test, episodes, seed=HELDOUT_SEED)
+    return {"episodes": episodes, "success": s["success_rate"], "time": s["time_mean"],
+            "time_ci": s["time_ci"], "cost": s["cost_mean"], "cost_ci": s["cost_ci"],
+            "oracle_time": oracle.time_mean}
+
+
+HELDOUT_EPISODES = 1000
+
+
+# ---------------------------------------------------------------------------- analysis
+def mean_curve(runs: list[dict], key: str = "time") -> tuple[np.ndarray, np.ndarray]:
+    """Steps and the mean over seeds of ``key`` at the evaluation points all runs share."""
+    common = sorted(set.intersection(*(set(p["step"] for p in r["curve"]) for r in runs)))
+    vals = np.array([[next(p[key] for p in r["curve"] if p["step"] == s) for s in common]
+                     for r in runs])
+    return np.array(common), vals.mean(0)
+
+
+def steps_to(runs: list[dict], level: float) -> float:
+    """Env steps at which the seed-mean held-out episode length first gets within REACH of
+    ``level`` (inf if it never does)."""
+    steps, curve = mean_curve(runs)
+    hit = np.flatnonzero(curve <= level * REACH)
+    return float(steps[hit[0]]) if len(hit) else math.inf
+
+
+def last_level(runs: list[dict]) -> float:
+    """The final level of a method on its learning curve: the seed-mean episode length at the
+    last evaluation point (the curve's episodes, so that ``steps_to`` compares like with like)."""
+    return float(mean_curve(runs)[1][-1])
+
+
+def final(runs: list[dict], key: str) -> tuple[float, tuple[float, float]]:
+    """Mean over seeds of a held-out figure, with the t-interval over the seeds (the per-run
+    interval for one seed)."""
+    v = np.array([r["heldout"][key] for r in runs])
+    ci = t_interval(v) if len(v) > 1 else tuple(runs[0]["heldout"].get(f"{key}_ci",
+                                                                       (math.nan, math.nan)))
+    return float(v.mean()), (float(ci[0]), float(ci[1]))
+
+
+def report(results: list[dict]) -> str:
+    lines = []
+    for task in dict.fromkeys(r["task"] for r in results):
+        by = {m: [r for r in results if r["task"] == task and r["method"] == m]
+              for m in METHODS}
+        by = {m: rs for m, rs in by.items() if rs}
+        sr_level = last_level(by["sr"]) if "sr" in by else math.nan
+        oracle = next(iter(by.values()))[0]["heldout"]["oracle_time"]
+        lines += [f"\n## {task} (oracle {oracle:.2f} steps; held-out "
+                  f"{next(iter(by.values()))[0]['heldout']['episodes']} episodes)",
+                  "| method | seeds | env steps | wall-clock | success | time (95% CI) | "
+                  "cost (95% CI) | time / oracle | steps to SR's final curve level |",
+                  "|---|---|---|---|---|---|---|---|---|"]
+        for m, rs in by.items():
+            t, t_ci = final(rs, "time")
+            c, c_ci = final(rs, "cost")
+            reach = steps_to(rs, sr_level) if not math.isnan(sr_level) else math.nan
+            lines.append(
+                f"| {m} | {len(rs)} | {rs[0]['steps'] / 1e6:.2f}M | "
+                f"{np.mean([r['wall_s'] for r in rs]) / 60:.1f} min | "
+                f"{100 * np.mean([r['heldout']['success'] for r in rs]):.1f}% | "
+                f"{t:.2f} [{t_ci[0]:.2f}, {t_ci[1]:.2f}] | {c:.2f} [{c_ci[0]:.2f}, {c_ci[1]:.2f}] "
+                f"| {t / oracle:.2f} | {_steps(reach)} |")
+        lines += targets(by, sr_level)
+    return "\n".join(lines)
+
+
+def targets(by: dict[str, list[dict]], sr_level: float) -> list[str]:
+    """The issue's targets as measured ratios."""
+    out = ["", "Targets:"]
+    if {"medc", "sr"} <= set(by):
+        a, b = steps_to(by["medc"], sr_level), steps_to(by["sr"], sr_level)
+        out.append(f"- MEDC reaches SR's final level ({sr_level:.2f}) in {_steps(a)} env steps, "
+                   f"SR in {_steps(b)}: ratio {_ratio(a, b)} (target <= 1)")
+    if {"medc", "sparse"} <= set(by):
+        own = last_level(by["sparse"])
+        s = steps_to(by["sparse"], own)
+        a = steps_to(by["medc"], sr_level) if not math.isnan(sr_level) else math.nan
+        out.append(f"- sparse alone reaches its own final level ({own:.2f}) in {_steps(s)}; "
+                   f"MEDC reaches SR's in {_steps(a)}: ratio {_ratio(a, s)} (target <= 1/3)")
+    if {"medc-faulty", "sparse"} <= set(by):
+        f, f_ci = final(by["medc-faulty"], "time")
+        s, s_ci = final(by["sparse"], "time")
+        out.append(f"- faulty-only MEDC {f:.2f} [{f_ci[0]:.2f}, {f_ci[1]:.2f}] vs sparse "
+                   f"{s:.2f} [{s_ci[0]:.2f}, {s_ci[1]:.2f}] (target: not worse beyond the "
+                   "seed noise)")
+    for other in ("frl", "il"):
+        if {"medc", other} <= set(by):
+            steps, m = mean_curve(by["medc"])
+            steps_o, o = mean_curve(by[other])
+            shared = np.intersect1d(steps, steps_o)
+            wins = int(sum(m[steps == s][0] < o[steps_o == s][0] for s in shared))
+            out.append(f"- MEDC vs {other.upper()}: shorter mean episodes at {wins} of "
+                       f"{len(shared)} shared evaluation points; final "
+                       f"{final(by['medc'], 'time')[0]:.2f} vs {final(by[other], 'time')[0]:.2f}")
+    return out
+
+
+def _steps(x: float) -> str:
+    return "never" if math.isinf(x) else ("-" if math.isnan(x) else f"{x / 1e6:.2f}M")
+
+
+def _ratio(a: float, b: float) -> str:
+    if math.isnan(a) or math.isnan(b) or math.isinf(b):
+        return "n/a"
+    return "inf" if math.isinf(a) else f"{a / b:.2f}"
+
+
+def plot(results: list[dict], path: Path) -> None:
+    """Episode length against env steps and wall-clock per task (cf. Fig. 4.9, 5.5-5.8)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    tasks = list(dict.fromkeys(r["task"] for r in results))
+    fig, axes = plt.subplots(len(tasks), 2, figsize=(11, 4 * len(tasks)), squeeze=False)
+    for row, task in zip(axes, tasks, strict=True):
+        for m in METHODS:
+            rs = [r for r in results if r["task"] == task and r["method"] == m]
+            if not rs:
+                continue
+            steps, mean = mean_curve(rs)
+            vals = np.array([[next(p["time"] for p in r["curve"] if p["step"] == s)
+                              for s in steps] for r in rs])
+            walls = np.array([[next(p["wall"] for p in r["curve"] if p["step"] == s)
+                               for s in steps] for r in rs]).mean(0)
+            for ax, x in ((row[0], steps / 1e6), (row[1], walls / 60)):
+                ax.plot(x, mean, label=m)
+                ax.fill_between(x, vals.min(0), vals.max(0), alpha=0.15)
+        row[0].set(title=f"{task}: episode length vs env steps", xlabel="env steps (M)",
+                   ylabel="held-out episode length")
+        row[1].set(title=f"{task}: episode length vs wall-clock", xlabel="minutes")
+        row[0].legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+
+
+def main(argv: list[str] | None = None) -> int:
+    global HELDOUT_EPISODES
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--steps", type=int, default=1_000_000)
+    p.add_argument("--seeds", default="0,1,2")
+    p.add_argument("--tasks", default="A3W2,A3W3")
+    p.add_argument("--methods", default=",".join(METHODS))
+    p.add_argument("--grid", type=int, default=30, help="map side in 50 m cells (30 = thesis)")
+    p.add_argument("--experts", default="train",
+                   help="expert model dirs, comma-separated, or 'train' = train A1W0, A1W3 and "
+                        "A2W2 on the shaped reward first (cached under --out/experts)")
+    p.add_argument("--expert-steps", type=int, default=1_000_000)
+    p.add_argument("--qos", default="", help="QoS weight per expert (default equal)")
+    p.add_argument("--episodes", type=int, default=HELDOUT_EPISODES)
+    p.add_argument("--eval-every", type=int, default=5)
+    p.add_argument("--out", type=Path, default=Path("runs/medc"))
+    p.add_argument("--png", type=Path, default=None)
+    args = p.parse_args(argv)
+    HELDOUT_EPISODES = args.episodes
+    methods = [m for m in args.methods.split(",") if m]
+    bad = [m for m in methods if m not in METHODS]
+    if bad:
+        p.error(f"unknown methods {bad}; known: {', '.join(METHODS)}")
+    args.out.mkdir(parents=True, exist_ok=True)
+    if args.experts == "train":
+        experts = train_experts(list(EXPERT_USERS), args.grid, args.expert_steps, args.out)
+    else:
+        experts = [e for e in args.experts.split(",") if e]
+    qos = [float(q) for q in args.qos.split(",") if q]
+    if qos and len(qos) != len(experts):
+        p.error(f"--qos: {len(qos)} weight(s) for {len(experts)} expert(s)")
+    seeds = [int(s) for s in args.seeds.split(",") if s]
+    results = []
+    for task in [t for t in args.tasks.split(",") if t]:
+        for method in methods:
+            for seed in seeds:
+                g = args.grid
+                cached = args.out / f"{task}-{g}x{g}-{method}-s{seed}-{args.steps}.json"
+                if cached.is_file():
+                    r = json.loads(cached.read_text())
+                else:
+                    r = train_run(task, method, seed, args.steps, experts, qos,
+                                  args.eval_every, args.out, args.grid)
+                    cached.write_text(json.dumps(r))
+                results.append(r)
+                h = r["heldout"]
+                print(f"{task} {method} seed {seed}: time {h['time']:.2f} cost {h['cost']:.2f} "
+                      f"success {h['success']:.3f} ({r['wall_s'] / 60:.1f} min)",
+                      file=sys.stderr, flush=True)
+    print(f"MEDC benchmark: Ch. 4 setting on {args.grid}x{args.grid} cells of 50 m, "
+          f"{args.steps} env steps of the task user per run, seeds {args.seeds}, experts "
+          f"{experts}; trained and evaluated on Poisson readings")
+    print(report(results))
+    if args.png:
+        plot(results, args.png)
+        print(f"\ncurves: {args.png}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

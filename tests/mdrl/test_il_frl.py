@@ -1,0 +1,149 @@
+"""The MEDC benchmarks: IL-assisted RL (il.py) and federated RL (frl.py)."""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from workers.mdrl.experts import OracleExpert
+from workers.mdrl.frl import FederatedTrainer
+from workers.mdrl.il import ImitationTrainer
+from workers.mdrl.observations import ObservationSpec
+from workers.mdrl.ppo import PPOConfig
+from workers.mdrl.spec import EnvSpec
+from workers.mdrl.train import RunConfig
+
+SMALL_PPO = PPOConfig(num_envs=32, horizon=512, update_epochs=4, num_minibatches=2,
+                      learning_rate=3e-3, anneal_lr=False)
+
+
+def _run(steps: int, **kw) -> RunConfig:
+    return RunConfig(seed=kw.pop("seed", 0), total_steps=steps, eval_every=kw.pop("eval_every", 0),
+                     eval_episodes=20, checkpoint_every=0, tensorboard=False, progress=False, **kw)
+
+
+def _oracle_agreement(trainer, env_spec: EnvSpec, batch: int = 64) -> float:
+    """Share of agent decisions where the actor's greedy action is the oracle's first choice."""
+    from workers.mdrl.env import TargetLocalizationEnv
+
+    env = TargetLocalizationEnv(env_spec, batch, seed=123)
+    actor, _ = trainer.observer.observe(env)
+    mask = torch.from_numpy(trainer.head.policy_mask(env.action_mask()))
+    n = mask.shape[1]
+    with torch.no_grad():
+        logits = trainer.agent.logits(torch.as_tensor(actor).reshape(batch * n, *actor.shape[2:]),
+                                      mask.reshape(batch * n, -1))
+    mine = logits.argmax(-1).reshape(batch, n).numpy()
+    best = OracleExpert().scores(env, None).argmax(-1)
+    return float((mine == best).mean())
+
+
+def test_imitation_stages_clone_the_expert(tmp_path):
+    """With only imitation stages, behaviour cloning of the oracle drives the cross-entropy
+    down and the actor's greedy actions towards the oracle's first choices."""
+    env = EnvSpec(rows=6, cols=6, agents=2)
+    obs = ObservationSpec(kind="odmtl", window=3)
+    trainer = ImitationTrainer(env, obs, SMALL_PPO, _run(24 * 512), out=tmp_path,
+                               experts=[OracleExpert()], il_share=1.0)
+    before = _oracle_agreement(trainer, env)
+    trainer.train()
+    after = _oracle_agreement(trainer, env)
+    assert trainer.imitation_updates == trainer.update_idx == 24
+    with (tmp_path / "metrics.csv").open() as f:
+        ce = [float(r["policy_loss"]) for r in csv.DictReader(f)]
+    assert ce[-1] < 0.7 * ce[0], ce
+    assert after > before + 0.1, (before, after)
+
+
+def test_imitation_is_every_fifth_update_and_recorded(tmp_path):
+    env = EnvSpec(rows=6, cols=6, agents=2)
+    obs = ObservationSpec(kind="odmtl", window=3)
+    ppo = PPOConfig(num_envs=16, horizon=256, update_epochs=1, num_minibatches=1)
+    trainer = ImitationTrainer(env, obs, ppo, _run(10 * 256), out=tmp_path,
+                               experts=[OracleExpert()], il_share=0.2)
+    trainer.train()
+    with (tmp_path / "metrics.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    imitation = [int(r["update"]) for r in rows if r["approx_kl"] == ""]
+    assert len(rows) == 10 and imitation == [5, 10]  # updates 5 and 10 (1-based) cloned
+    card = json.loads((tmp_path / "model" / "model.json").read_text())
+    assert card["training"]["method"]["imitation_updates"] == 2
+    assert card["training"]["method"]["experts"][0]["ref"] == "oracle"
+
+
+def test_imitation_rejects_bad_settings():
+    env, obs = EnvSpec(rows=6, cols=6), ObservationSpec(kind="odmtl", window=3)
+    with pytest.raises(ValueError, match="il_share"):
+        ImitationTrainer(env, obs, SMALL_PPO, _run(100), experts=[OracleExpert()], il_share=0)
+    with pytest.raises(ValueError, match="at least one expert"):
+        ImitationTrainer(env, obs, SMALL_PPO, _run(100), experts=[])
+
+
+USERS = [("A1W0", EnvSpec(rows=8, cols=8, agents=1, moves=8)),
+         ("A2W1", EnvSpec(rows=8, cols=8, agents=2, moves=8, walls=(1, 1))),
+         ("A3W1", EnvSpec(rows=8, cols=8, agents=3, moves=8, walls=(1, 1)))]
+
+
+def test_fedavg_gives_every_user_the_mean_of_their_weights():
+    obs = ObservationSpec(kind="odmtl", window=3)
+    frl = FederatedTrainer(USERS, obs, SMALL_PPO, _run(1000), target="A3W1")
+    # the users start from one global model even though their seeds differ
+    first = [t.agent.state_dict() for t in frl.trainers.values()]
+    for k in first[0]:
+        assert all(torch.equal(first[0][k], s[k]) for s in first[1:])
+    with torch.no_grad():
+        for i, t in enumerate(frl.trainers.values()):
+            for p in t.agent.parameters():
+                p.add_(float(i + 1))  # user i drifts by i + 1
+    before = {k: v.clone() for k, v in first[0].items()}  # user 0 after its drift
+    frl.average()
+    for t in frl.trainers.values():
+        for k, v in t.agent.state_dict().items():
+            # mean of (w + 1, w + 2, w + 3) = w + 2 = user 0's drifted weights + 1
+            assert torch.allclose(v, before[k] + 1.0, atol=1e-5), k
+    assert frl.rounds == 1
+
+
+def test_frl_trains_and_reports_from_the_target(tmp_path):
+    obs = ObservationSpec(kind="odmtl", window=3)
+    frl = FederatedTrainer(USERS, obs, SMALL_PPO, _run(3 * 512, eval_every=1),
+                           target="A2W1", out=tmp_path)
+    frl.train()
+    assert frl.global_step == 3 * 512
+    assert all(t.global_step == 3 * 512 for t in frl.trainers.values())
+    states = [t.agent.state_dict() for t in frl.trainers.values()]
+    for k in states[0]:
+        assert all(torch.equal(states[0][k], s[k]) for s in states[1:])  # averaged last
+    with (tmp_path / "metrics.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    assert len(rows) == 3 and all(not math.isnan(float(r["eval_time"])) for r in rows)
+    card = json.loads((tmp_path / "model" / "model.json").read_text())
+    assert card["env"]["agents"] == 2 and card["training"]["method"]["rounds"] == 3
+    assert card["training"]["method"]["env_steps_all_users"] == 3 * 3 * 512
+    # every user sees walls and the others map: one input set, so one architecture
+    assert card["observation"]["walls"] is True and card["observation"]["others"] is True
+
+
+def test_frl_refuses_users_it_cannot_average():
+    obs = ObservationSpec(kind="odmtl", window=3)
+    mixed = [*USERS, ("A1W0-4", EnvSpec(rows=8, cols=8, agents=1, moves=4))]
+    with pytest.raises(ValueError, match="same move set"):
+        FederatedTrainer(mixed, obs, SMALL_PPO, _run(100), target="A1W0")
+    with pytest.raises(ValueError, match="target user"):
+        FederatedTrainer(USERS, obs, SMALL_PPO, _run(100), target="A9W9")
+    with pytest.raises(ValueError, match="distinct"):
+        FederatedTrainer([USERS[0], USERS[0]], obs, SMALL_PPO, _run(100), target="A1W0")
+
+
+def test_frl_budget_is_required():
+    obs = ObservationSpec(kind="odmtl", window=3)
+    frl = FederatedTrainer(USERS[:1], obs, SMALL_PPO,
+                           RunConfig(progress=False, tensorboard=False), target="A1W0")
+    with pytest.raises(ValueError, match="budget"):
+        frl.train()
+    assert np.isfinite(frl.elapsed)

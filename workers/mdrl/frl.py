@@ -1,0 +1,144 @@
+"""Federated RL (FRL), the thesis' model-averaging benchmark for MEDC (Sec. 2.2.5, 5.4.2 [54, 55]).
+
+Several users train the same architecture with PPO, each on its own environment (the thesis'
+eight users A1W0, A3W0, A2W1, A2W2, A2W3, A3W1, A3W2, A3W3); after every ``local_updates``
+updates their weights are averaged (FedAvg, equal weights: every user collects the same number
+of env steps) and the global model goes back to every user, who carries on from it with its
+own optimiser state. Results are read "from the perspective of" one target user (A3W2 or
+A3W3): its env steps are the x-axis, its environment is where the global model is evaluated.
+
+Averaging needs one architecture for all users, so every user sees the same input set: wall
+maps even where there are no walls and the others map even for a lone agent
+(``ObservationSpec(walls=True, others=True)``); all users must share the move set. This is
+the constraint the thesis holds against FRL (Sec. 5.1): MEDC's experts need not share anything.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from workers.mdrl.observations import ObservationSpec
+from workers.mdrl.ppo import PPOConfig
+from workers.mdrl.spec import EnvSpec
+from workers.mdrl.train import RunConfig, Trainer
+
+THESIS_USERS = ("A1W0", "A3W0", "A2W1", "A2W2", "A2W3", "A3W1", "A3W2", "A3W3")
+"""The eight FRL users of Sec. 5.4.2: A = agents, W = walls."""
+
+
+def federated_input(obs_spec: ObservationSpec) -> ObservationSpec:
+    """The one input set every FRL user shares (module docstring)."""
+    return dataclasses.replace(obs_spec, walls=True, others=True)
+
+
+class FederatedTrainer:
+    """FedAvg over per-user PPO trainers; ``train()`` runs until the target user's step or
+    time budget (``run``) is used. ``out`` receives the target user's metrics.csv and model."""
+
+    def __init__(self, users: Sequence[tuple[str, EnvSpec]], obs_spec: ObservationSpec,
+                 ppo: PPOConfig, run: RunConfig, target: str, local_updates: int = 1,
+                 out: str | Path | None = None):
+        names = [name for name, _ in users]
+        if len(set(names)) != len(names):
+            raise ValueError(f"FRL users must have distinct names, got {names}")
+        if target not in names:
+            raise ValueError(f"FRL target user {target!r} is not one of {names}")
+        if local_updates < 1:
+            raise ValueError(f"local_updates must be >= 1, got {local_updates}")
+        moves = {spec.moves for _, spec in users}
+        if len(moves) != 1:
+            raise ValueError(f"FRL averages one actor: all users need the same move set, got "
+                             f"{sorted(moves)}")
+        obs = federated_input(obs_spec)
+        self.run, self.target, self.local_updates = run, target, local_updates
+        self.out = Path(out) if out is not None else None
+        self.trainers: dict[str, Trainer] = {}
+        for i, (name, spec) in enumerate(users):
+            user_run = dataclasses.replace(
+                run, seed=run.seed * 1009 + i, eval_every=0, checkpoint_every=0,
+                progress=False, tensorboard=False, total_steps=None, minutes=None)
+            self.trainers[name] = Trainer(spec, obs, ppo, user_run,
+                                          out=self.out if name == target else None)
+        shapes = {name: tuple((k, tuple(v.shape)) for k, v in t.agent.state_dict().items())
+                  for name, t in self.trainers.items()}
+        if len(set(shapes.values())) != 1:
+            raise ValueError("FRL users ended up with different network shapes; give every "
+                             "user the same observation kind, window and move set")
+        self.global_model = {k: v.clone() for k, v in self.trainer.agent.state_dict().items()}
+        self._broadcast()
+        self.rounds = 0
+        self.elapsed = 0.0
+
+    @property
+    def trainer(self) -> Trainer:
+        """The target user's trainer (its env steps and environment are what is reported)."""
+        return self.trainers[self.target]
+
+    @property
+    def global_step(self) -> int:
+        return self.trainer.global_step
+
+    def _broadcast(self) -> None:
+        for t in self.trainers.values():
+            t.agent.load_state_dict(self.global_model)
+
+    @torch.no_grad()
+    def average(self) -> None:
+        """FedAvg: the global model is the mean of the users' weights; everyone gets it back."""
+        states = [t.agent.state_dict() for t in self.trainers.values()]
+        self.global_model = {k: torch.stack([s[k].float() for s in states]).mean(0).to(v.dtype)
+                             for k, v in states[0].items()}
+        self._broadcast()
+        self.rounds += 1
+
+    def budget_left(self) -> bool:
+        return self.run.budget_left(self.global_step, self.elapsed)
+
+    def train(self) -> dict[str, Any]:
+        """Local PPO updates on every user, FedAvg every ``local_updates`` updates, greedy
+        evaluation of the global model on the target's env every ``run.eval_every`` rounds."""
+        if self.run.total_steps is None and self.run.minutes is None:
+            raise ValueError("FederatedTrainer.train: give a budget (total_steps and/or minutes)")
+        torch.set_num_threads(self.run.threads)
+        target = self.trainer
+        target._open_outputs()
+        t0, elapsed0 = time.perf_counter(), self.elapsed
+        while self.budget_left():
+            step0 = self.global_step
+            u0 = time.perf_counter()
+            for _ in range(self.local_updates):
+                for name, t in self.trainers.items():
+                    stats = t.collect()
+                    losses = t.update()
+                    t.update_idx += 1
+                    if name == self.target:
+                        episode_stats, loss_stats = stats, losses
+            self.average()
+            last = not self.run.budget_left(self.global_step, elapsed0 + time.perf_counter() - t0)
+            every = self.run.eval_every
+            evals: dict[str, float] = {}
+            if last or (every and self.rounds % every == 0):
+                evals = target.evaluate()
+                target.last_eval = evals
+            self.elapsed = elapsed0 + (time.perf_counter() - t0)
+            sps = (self.global_step - step0) / max(time.perf_counter() - u0, 1e-9)
+            row = {"update": target.update_idx, "global_step": self.global_step,
+                   "wall_time": self.elapsed, "sps": sps, **loss_stats, **episode_stats, **evals}
+            target._log(row)
+        target.elapsed = self.elapsed
+        if self.out is not None:
+            target.save_model(self.out / "model")
+            from workers.mdrl.il import _add_training_note
+
+            steps = sum(t.global_step for t in self.trainers.values())
+            _add_training_note(self.out / "model", {
+                "method": "FRL (FedAvg across users)", "users": list(self.trainers),
+                "target": self.target, "local_updates": self.local_updates,
+                "rounds": self.rounds, "env_steps_all_users": steps})
+        return target.last_metrics
