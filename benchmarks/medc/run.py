@@ -240,6 +240,9 @@ def targets(by: dict[str, list[dict]], sr_level: float) -> list[str]:
         a = steps_to(by["medc"], sr_level) if not math.isnan(sr_level) else math.nan
         out.append(f"- sparse alone reaches its own final level ({own:.2f}) in {_steps(s)}; "
                    f"MEDC reaches SR's in {_steps(a)}: ratio {_ratio(a, s)} (target <= 1/3)")
+        b = steps_to(by["medc"], own)
+        out.append(f"- MEDC reaches sparse's final level in {_steps(b)}: {_ratio(b, s)} of "
+                   "the steps sparse needs")
     if {"medc-faulty", "sparse"} <= set(by):
         f, f_ci = final(by["medc-faulty"], "time")
         s, s_ci = final(by["sparse"], "time")
