@@ -10,7 +10,7 @@ from .common import MAX_ID, Address, Domain, EventPublic, Fraction, ListPublic, 
 
 MAX_EXTRA_METRICS = 16
 _SPEC = trainingspec_json_schema()["properties"]
-SPEC_FIELDS = ("env", "observation", "algorithm", "budget", "seed", "experts")
+SPEC_FIELDS = ("env", "observation", "algorithm", "budget", "seed", "experts", "outcome_key")
 """Fields of the body that make the TrainingSpec document (the rest are task parameters)."""
 
 
@@ -32,6 +32,7 @@ class TaskCreate(BaseModel):
     budget: _spec_field("budget")  # type: ignore[valid-type]
     seed: _spec_field("seed") = None  # type: ignore[valid-type]
     experts: _spec_field("experts") = None  # type: ignore[valid-type]
+    outcome_key: _spec_field("outcome_key") = None  # type: ignore[valid-type]
     domain: Domain = 0
     num_workers: int = Field(default=1, ge=1, le=16)
     min_reputation: Fraction = 0.0

@@ -36,9 +36,10 @@ import {QoSMath} from "./QoSMath.sol";
  * Rep_i * Rep_m / D_m when D_m > 0; the decided ranking (exact matches first, then
  * Rep_i * Rep_m / D_m) is documented in docs/chain.md and not applied yet.
  *
- * Public models: a model's CID is readable by anyone ({getModel}, {ModelAdded}); the decided
- * design (docs/chain.md, "Outcomes are public before payment") encrypts the weights and
- * releases the key to buyers, so the CID alone gives nothing away.
+ * Public models: a listed model is public ({getModel}, {ModelAdded}, its files in the store);
+ * prices pay for allocation and ranking, not for secrecy. A task outcome sealed to its
+ * requester is listed only once its owner publishes the files (docs/chain.md, "Outcomes are
+ * public before payment").
  * Candidates (issue 8, allocation that scales): only the models of the owners in the
  * domain's UMC candidate pool (at most UMC.MAX_POOL_SIZE approved Active workers) are
  * considered, and an owner lists at most {maxModelsPerOwner} models (admin setting, at most

@@ -43,10 +43,11 @@ import {QoSMath} from "./QoSMath.sol";
  * Reviews: the requester reviews each outcome until deadline + reviewWindow; after that the
  * outcome is the worker's (paid at close) and {reviewOutcome} reverts.
  *
- * Public outcomes: an outcome CID is public once submitted, before the requester pays. The
- * decided design (docs/chain.md, "Outcomes are public before payment") is that workers upload
- * outcomes encrypted to the requester's key, so the CID on chain opens nothing for anyone
- * else; the key release against payment is documented there, not implemented yet.
+ * Sealed outcomes: an outcome CID is public once submitted, before the requester pays; with
+ * the spec's outcome_key the worker uploads the weights only sealed to the requester's key,
+ * so the CID (the plaintext bundle's) opens the card for anyone and the weights for the
+ * requester only. Key release against payment was decided against: the contract cannot check
+ * a wrapped key (docs/chain.md, "Outcomes are public before payment").
  *
  * Recruitment decisions (docs/chain.md): the accepted GPU series are one consortium policy
  * ({acceptedGpus}: which hardware the consortium trusts), while a task's own compute needs

@@ -83,6 +83,9 @@ UNSCHEMATIC_REJECTIONS: dict[str, tuple[str, ...]] = {
         r"give experts or expert_allocation, not both",
         # algorithm.demonstration (nested) needs experts or expert_allocation (top level)
         r"applies only when experts are named",
+        # outcome_key: a point of secp256k1 whose address is the caller's (sealed outcomes)
+        r"not a point of secp256k1",
+        r"^outcome_key_not_requester ",
     ),
     "POST /api/models": (
         *_ENV_RELATIONS,

@@ -13,6 +13,7 @@ from fastapi.testclient import TestClient
 from backend.chain.platform import OfferState, TaskStatus
 from backend.services.chain import ChainService
 from backend.settings import Settings
+from backend.store.sealed import public_key_hex
 from workers.mdrl.trainingspec import TrainingSpec
 
 from .conftest import ENV, Login, P, addr, register, task_body
@@ -299,3 +300,24 @@ def test_sign_locally_then_relay(client: TestClient, service: ChainService, sett
     assert [e["name"] for e in r.json()["events"]] == ["RequesterAdded"]
     assert service.platform.umc.call("isRequester", me.address)
     assert client.post(f"{P}/tx", json={"raw": "0x12"}, headers=headers).status_code == 422
+
+
+def test_outcome_key_must_be_the_requesters(
+    client: TestClient, login: Login, service: ChainService
+) -> None:
+    """A task's outcome is sealed to its requester only: a key of another address is a 422
+    naming ``outcome_key``, nothing sent; the requester's own key is stored in the spec."""
+    register(client, login, ["user1"], {})
+    assert service.demo_keys is not None
+    other = public_key_hex(bytes(Account.create().key))
+    before = service.block_number()
+    r = client.post(f"{P}/tasks", json=task_body(outcome_key=other), headers=login("user1"))
+    assert r.status_code == 422, r.text
+    (err,) = r.json()["detail"]
+    assert err["loc"] == ["body", "outcome_key"] and err["type"] == "outcome_key_not_requester"
+    assert service.block_number() == before
+    own = public_key_hex(bytes(service.demo_keys.account("user1").key))
+    r = client.post(f"{P}/tasks", json=task_body(outcome_key=own), headers=login("user1"))
+    assert r.status_code == 201, r.text
+    spec = client.get(f"{P}/tasks/{r.json()['task_id']}").json()["spec"]
+    assert spec["outcome_key"] == own.lower()

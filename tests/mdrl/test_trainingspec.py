@@ -70,6 +70,8 @@ def test_round_trip_and_defaults() -> None:
         ({"experts": ["a/../b"]}, "experts[0]"),
         ({"experts": ["m1", "m1"]}, "experts"),
         ({"format": "other/2"}, "format"),
+        ({"outcome_key": "0x1234"}, "outcome_key"),
+        ({"outcome_key": "0x" + "01" * 64}, "outcome_key"),  # hex of the length, off the curve
     ],
 )
 def test_errors_name_the_dotted_field(change: dict, field: str) -> None:
@@ -147,3 +149,15 @@ def test_the_core_type_imports_nothing_from_the_platform() -> None:
         mods = [n.module or "" for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)]
         mods += [a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names]
         assert not [m for m in mods if m.startswith(("backend", "workers.daemon"))], name
+
+
+def test_outcome_key_round_trips_and_is_optional() -> None:
+    # the public key of private key 1 is the curve's generator point G
+    g = (
+        "0x79be667ef9dcbbac55a06295ce870b07029bfcdb2dce28d959f2815b16f81798"
+        "483ada7726a3c4655da4fbfc0e1108a8fd17b448a68554199c47d08ffb10d4b8"
+    )
+    spec = TrainingSpec.from_dict({**GOOD, "outcome_key": g.upper().replace("0X", "0x")})
+    assert spec.outcome_key == g
+    assert TrainingSpec.from_dict(spec.to_dict()) == spec
+    assert "outcome_key" not in TrainingSpec.from_dict(GOOD).to_dict()  # old spec CIDs stay

@@ -12,8 +12,9 @@ import torch
 
 from backend.chain.client import Chain
 from backend.chain.platform import OfferState
-from backend.store import EmbeddedStore, IpfsRpcStore, StoreUnavailable
+from backend.store import EmbeddedStore, IpfsRpcStore, NotFound, StoreUnavailable
 from backend.store.bundle import MODEL_FILES, pull_model, read_bundle
+from backend.store.sealed import public_key_hex, pull_model_with_key
 from workers.daemon.handler import OfferHandler, Transient
 from workers.mdrl.modelio import load_model
 from workers.mdrl.resources import estimate
@@ -153,6 +154,36 @@ def test_bad_spec_is_declined_naming_the_field(env, tmp_path: Path) -> None:
     task_id, offered, _ = post_task(p, store, actors.requester, spec=bad)
     out = handler_for(p, offered[0], store, tmp_path).handle(task_id, offered[0])
     assert out["status"] == "declined" and "budget.steps" in out["reason"]
+
+
+def test_a_sealed_outcome_goes_to_the_requester_only(env, tmp_path: Path) -> None:
+    """``outcome_key``: the worker checks the key is the requester's on chain (the gateway's
+    check can be bypassed by a direct addTask), seals the weights to it and submits the
+    plaintext bundle's CID; publishing uploads the weights once the worker shares."""
+    p, actors, store = env
+    stranger = p.chain._keys[p.chain.accounts[6]]
+    misaddressed = {**TINY_SPEC, "outcome_key": public_key_hex(bytes(stranger.key))}
+    task_id, offered, _ = post_task(p, store, actors.requester, spec=misaddressed)
+    out = handler_for(p, offered[0], store, tmp_path).handle(task_id, offered[0])
+    assert out["status"] == "declined" and "not to the task's requester" in out["reason"]
+
+    requester = p.chain._keys[actors.requester]
+    sealed = {**TINY_SPEC, "outcome_key": public_key_hex(bytes(requester.key))}
+    task_id, offered, _ = post_task(p, store, actors.requester, spec=sealed)
+    h = handler_for(p, offered[0], store, tmp_path)
+    out = h.handle(task_id, offered[0])
+    assert out["status"] == "submitted"
+    with pytest.raises(NotFound):  # anyone reading the chain: the card, not the weights
+        pull_model(store, out["cid"], tmp_path / "anyone")
+    mine = pull_model_with_key(store, out["cid"], tmp_path / "mine", bytes(requester.key))
+    assert load_model(mine).card["env"]["rows"] == 6
+    published = h.publish_outcome(task_id)
+    assert published["cid"] == out["cid"] and published["env"]["rows"] == 6
+    assert (pull_model(store, out["cid"], tmp_path / "now") / "model.safetensors").read_bytes() == (
+        mine / "model.safetensors"
+    ).read_bytes()
+    with pytest.raises(LookupError, match="submitted no outcome"):
+        h.publish_outcome(task_id + 100)
 
 
 def test_store_down_is_a_clear_transient_error_then_the_retry_completes(

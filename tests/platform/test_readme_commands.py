@@ -24,7 +24,9 @@ import pytest
 import typer
 from typer.testing import CliRunner
 
-from backend.store.bundle import pull_model
+from backend.store import NotFound
+from backend.store.bundle import pull_model, read_bundle
+from backend.store.dag import compute_cid
 from drlaas.cli import app
 from drlaas.commands.up import REPO, running_platform
 from workers.daemon.keys import load_key
@@ -109,12 +111,47 @@ def test_readme_worker_and_requester_commands(data_dir: Path, tmp_path: Path) ->
             assert outcome["worker"] == address
             assert task["progress"], "the worker posted no training progress"
             assert max(pt["step"] for pt in task["progress"]) <= 2000 * 2  # the tiny budget
-            # the requester's download is the outcome on chain, byte for byte
+            # the outcome is sealed to the requester: the chain's CID gives anyone the card,
+            # not the weights; the requester's download (opened with its key) is the outcome
+            # on chain, file by file
+            store = p.app.state.store
+            with pytest.raises(NotFound):
+                pull_model(store, outcome["cid"], tmp_path / "anyone")
             out_dir = cwd / shlex.split(requester_cmds[-1])[-1]
-            reference = pull_model(p.app.state.store, outcome["cid"], tmp_path / "reference")
+            files = read_bundle(store, outcome["cid"])
             for name in ("model.safetensors", "model.json"):
-                assert (out_dir / name).read_bytes() == (reference / name).read_bytes()
+                assert compute_cid((out_dir / name).read_bytes()) == files[name][0]
             assert json.loads((out_dir / "model.json").read_text())["env"]["agents"] == 2
+            # a listed model must be fetchable: sharing it unpublished is refused, the
+            # worker's `worker share` publishes the files (after the requester accepted)
+            card_env = json.dumps(json.loads((out_dir / "model.json").read_text())["env"])
+            early = subprocess.run(
+                [
+                    "drlaas",
+                    "model",
+                    "share",
+                    "--cid",
+                    outcome["cid"],
+                    "--key",
+                    key.name,
+                    "--env",
+                    card_env,
+                ],
+                cwd=cwd,
+                env=env,
+                capture_output=True,
+                text=True,
+                timeout=300,
+            )
+            assert early.returncode != 0 and "model_weights_sealed" in early.stderr, early
+            run(f"drlaas task review 1 --worker {address} --review 5 --key me.key", cwd, env)
+            run(f"drlaas worker share 1 --key {key.name}", cwd, env)
+            published = pull_model(store, outcome["cid"], tmp_path / "published")
+            assert (published / "model.safetensors").read_bytes() == (
+                out_dir / "model.safetensors"
+            ).read_bytes()
+            listed = api.get("/models").json()["data"]
+            assert [x["cid"] for x in listed] == [outcome["cid"]], listed
             # the worker's own files are in the per-user default, nothing in the fresh dir
             assert (home / ".drlaas" / "workers" / address).is_dir()
             assert not (cwd / ".drlaas").exists()

@@ -174,6 +174,24 @@ def worker_command(
     )
 
 
+def open_worker(key: Path, gateway: str | None, data: Path | None) -> Any:
+    """This worker's :class:`~workers.daemon.handler.OfferHandler` outside the daemon (the
+    same services, chain identity and job directories as ``drlaas worker run`` with these
+    options), for commands that act on the daemon's finished jobs."""
+    from workers.daemon import tasks
+    from workers.daemon.keys import load_key
+    from workers.daemon.links import default_gateway, worker_settings
+
+    gateway = gateway or default_gateway()
+    settings, own_dir = worker_settings(gateway)
+    account = load_key(key)
+    os.environ["DRLAAS_WORKER_KEY"] = str(key)
+    if gateway:
+        os.environ["DRLAAS_GATEWAY"] = gateway
+    os.environ["DRLAAS_WORKER_DATA"] = str(data or own_dir / "workers" / account.address)
+    return tasks.runtime_from_env(settings)
+
+
 def main() -> None:
     typer.run(worker_command)
 

@@ -3,7 +3,9 @@
 ``OfferHandler.handle(task_id, worker)`` is idempotent: it reads the offer's state on chain and
 the job's state in ``<worker data>/jobs/<chain identity>/<task_id>/state.json`` and continues
 from where a previous attempt stopped (offered -> accepted -> trained -> uploaded ->
-submitted). Transient failures (content store or chain node unreachable) raise
+submitted). A spec with an ``outcome_key`` gets its weights sealed to the requester
+(``backend.store.sealed``): the chain gets the plaintext bundle's CID, the store only the card
+and the ciphertext. Transient failures (content store or chain node unreachable) raise
 :class:`Transient`; the Celery job retries those with backoff.
 
 An offer whose spec cannot be trained here (bad spec, estimated memory beyond this worker's RAM
@@ -35,6 +37,7 @@ from backend.chain.errors import ContractError
 from backend.chain.platform import OfferState, Platform, TaskStatus
 from backend.store import ContentStore, StoreError, StoreUnavailable
 from backend.store.bundle import read_bundle, upload_model
+from backend.store.sealed import address_of, parse_public_key, publish_model, seal_model
 from workers.daemon import job as jobs
 from workers.daemon.capabilities import ram_bytes
 from workers.daemon.experts import (
@@ -166,7 +169,7 @@ class OfferHandler:
             return self._report_failure(task_id)
         spec = self._fetch_spec(task_id)
         if state == OfferState.OFFERED:
-            reason = self._cannot_take(task_id, spec)
+            reason = self._cannot_take(task_id, spec, str(task["requester"]))
             if reason is not None:
                 self._transact("declineOffer", task_id)
                 self._save(task_id, phase="declined", reason=reason)
@@ -196,7 +199,11 @@ class OfferHandler:
             st = self._save(task_id, phase="trained")
         if st.get("phase") != "uploaded" or not st.get("cid"):
             try:
-                cid = upload_model(self.store, model_dir)
+                cid = (
+                    seal_model(self.store, model_dir, parse_public_key(spec.outcome_key))
+                    if spec.outcome_key is not None
+                    else upload_model(self.store, model_dir)
+                )
                 files = {name: entry[0] for name, entry in read_bundle(self.store, cid).items()}
             except StoreUnavailable as exc:
                 raise Transient(str(exc)) from exc
@@ -208,10 +215,16 @@ class OfferHandler:
         return {"task_id": task_id, "status": "submitted", "cid": cid, "tx": rc.tx_hash}
 
     # -- capacity and failure --------------------------------------------------------------
-    def _cannot_take(self, task_id: int, spec: TrainingSpec | SpecError) -> str | None:
+    def _cannot_take(
+        self, task_id: int, spec: TrainingSpec | SpecError, requester: str
+    ) -> str | None:
         """Why this worker must decline the offer (None: it can take it)."""
         if isinstance(spec, SpecError):
             return str(spec)
+        if spec.outcome_key is not None:  # seal only to the requester the chain names
+            owner = address_of(parse_public_key(spec.outcome_key))
+            if owner.lower() != requester.lower():
+                return f"outcome_key belongs to {owner}, not to the task's requester {requester}"
         try:  # experts are fetched after acceptance; one no worker can fetch is known now
             for ref in spec.experts:
                 expert_key(ref)
@@ -249,6 +262,28 @@ class OfferHandler:
             return out | {"offer": f"not abandoned: {exc.name}"}
         self._save(task_id, offer="failed")
         return out | {"offer": "failed"}
+
+    def publish_outcome(self, task_id: int) -> dict[str, Any]:
+        """Upload the plaintext files of this worker's submitted outcome of ``task_id`` (a
+        sealed outcome's weights become public here, so it can be shared as an MMC model);
+        ``{cid, env, domain}`` for ``POST /models``. LookupError when no outcome was submitted."""
+        st = self._state(task_id)
+        if st.get("phase") != "submitted" or not st.get("cid"):
+            raise LookupError(
+                f"task {task_id}: this worker submitted no outcome on this chain "
+                f"(job state: {st.get('phase', 'none')}, {self.job_dir(task_id)})"
+            )
+        model_dir = jobs.run_dir(self.job_dir(task_id)) / "model"
+        try:
+            publish_model(self.store, st["cid"], model_dir)
+        except StoreUnavailable as exc:
+            raise Transient(str(exc)) from exc
+        card = json.loads((model_dir / "model.json").read_text())
+        return {
+            "cid": st["cid"],
+            "env": card.get("env", {}),
+            "domain": int(self.platform.tmc.task(task_id)["domain"]),
+        }
 
     def _fetch_spec(self, task_id: int) -> TrainingSpec | SpecError:
         """The verified spec, or the SpecError saying why it cannot be trained."""

@@ -232,6 +232,9 @@ class TrainingSpec:
     experts: tuple[str, ...] = ()
     expert_qos: tuple[float, ...] = ()
     """QoS weight per expert (R_S = QoS_i / sum QoS, Table 5.3); empty = equal weights."""
+    outcome_key: str | None = None
+    """The requester's secp256k1 public key (``0x`` + 128 hex digits): the worker seals the
+    outcome's weights to it (backend/store/sealed.py); None = the outcome is public."""
 
     @property
     def ppo(self) -> PPOConfig:
@@ -272,7 +275,8 @@ class TrainingSpec:
         """Check ``doc`` field by field, then the cross-field rules; SpecError names the field."""
         if not isinstance(doc, dict):
             raise SpecError("spec", "expected a JSON object")
-        top = {"format", "env", "observation", "algorithm", "budget", "seed", "experts"}
+        top = {"format", "env", "observation", "algorithm", "budget", "seed", "experts",
+               "outcome_key"}
         for key in doc:
             if key not in top:
                 raise SpecError(key, f"unknown field (known: {sorted(top)})")
@@ -299,6 +303,9 @@ class TrainingSpec:
             seed=seed,
             experts=experts,
             expert_qos=qos,
+            outcome_key=_OUTCOME_KEY.check(doc["outcome_key"], "outcome_key")
+            if doc.get("outcome_key") is not None
+            else None,
         )
         spec._check_cross_fields()
         return spec
@@ -330,7 +337,7 @@ class TrainingSpec:
                 if self.expert_qos
                 else list(self.experts)
             ),
-        }
+        } | ({"outcome_key": self.outcome_key} if self.outcome_key else {})
 
 
 def parse_env(doc: Any, field: str = "env") -> EnvSpec:
@@ -429,6 +436,32 @@ class _ExpertRef:
 
 _EXPERT_REF = _ExpertRef()
 
+OUTCOME_KEY_PATTERN = "^0x[0-9a-fA-F]{128}$"
+
+
+class _OutcomeKey:
+    """An uncompressed secp256k1 public key (x || y), checked to be on the curve."""
+
+    def check(self, v: Any, field: str) -> str:
+        if not isinstance(v, str) or not re.match(OUTCOME_KEY_PATTERN, v):
+            raise SpecError(field, "expected 0x + 128 hex digits (a secp256k1 public key)")
+        x, y = int(v[2:66], 16), int(v[66:], 16)
+        if x >= _SECP256K1_P or y >= _SECP256K1_P or (y * y - x**3 - 7) % _SECP256K1_P:
+            raise SpecError(field, "not a point of secp256k1")
+        return v.lower()
+
+    def schema(self) -> dict[str, Any]:
+        return {
+            "type": "string",
+            "pattern": OUTCOME_KEY_PATTERN,
+            "description": "the requester's secp256k1 public key: the worker seals the "
+            "outcome's weights to it (its address must be the task's requester)",
+        }
+
+
+_SECP256K1_P = 2**256 - 2**32 - 977
+_OUTCOME_KEY = _OutcomeKey()
+
 
 def trainingspec_json_schema() -> dict[str, Any]:
     """JSON Schema (2020-12 / OpenAPI 3.1) of a spec document, from the same rules as the parser.
@@ -460,6 +493,7 @@ def trainingspec_json_schema() -> dict[str, Any]:
             "budget": budget,
             "seed": _SEED.schema(),
             "experts": experts,
+            "outcome_key": _OUTCOME_KEY.schema(),
         },
         "required": ["env", "budget"],
         "additionalProperties": False,

@@ -53,7 +53,8 @@ from backend.schemas.models import (
 )
 from backend.services.specs import SpecError, env_attributes, validate_env
 from backend.store import CIDMismatch, ContentTooLarge, NotFound, StoreError, StoreUnavailable
-from backend.store.bundle import bundle_entry
+from backend.store.bundle import bundle_entry, read_bundle
+from backend.store.sealed import sealed_envelopes
 
 router = APIRouter(prefix="/models", tags=["models"])
 log = logging.getLogger(__name__)
@@ -95,6 +96,25 @@ def _env_spec(env: dict[str, Any], loc: tuple[str, ...]) -> Any:
 
 def _env_attrs(env: dict[str, Any], loc: tuple[str, ...]) -> list[int]:
     return env_attributes(_env_spec(env, loc))
+
+
+def _check_published(store: StoreDep, cid: str) -> None:
+    """409 ``model_weights_sealed`` when a file of bundle ``cid`` is sealed to a requester
+    (``backend.store.sealed``) and its plaintext is not in the store: a listed model must be
+    fetchable by whoever is allocated it, so its owner publishes the files first."""
+    try:
+        sealed = sealed_envelopes(store, cid)
+        files = read_bundle(store, cid)
+    except (ValueError, StoreError) as exc:
+        field_error(("body", "cid"), f"the bundle is unusable: {exc}", "card_invalid")
+    for name in sealed:
+        if name in files and not store.has(files[name][0]):
+            raise RuleError(
+                409,
+                "model_weights_sealed",
+                f"{name} of {cid} is sealed to its task's requester and not published: the "
+                "worker shares it with `drlaas worker share TASK_ID`, which uploads the files",
+            )
 
 
 def _check_card_env(store: StoreDep, cid: str, declared: Any) -> None:
@@ -472,6 +492,13 @@ def _stream_bundle_file(
         raise RuleError(404, "content_not_found", f"the store does not hold {cid}") from None
     except (ValueError, StoreError) as exc:
         raise RuleError(502, "bundle_invalid", f"{what}'s bundle is unusable: {exc}") from None
+    if file in sealed_envelopes(store, cid) and not store.has(file_cid):
+        raise RuleError(
+            404,
+            "content_sealed",
+            f"{what}'s {file} is sealed to the task's requester, who opens it locally with "
+            "its key: `drlaas task pull TASK_ID --key KEY`",
+        )
     if size > settings.max_upload_bytes:
         raise RuleError(
             413,
@@ -528,6 +555,7 @@ def share_model(
     ``models_outcome_not_accepted``)."""
     declared = _env_spec(body.env, ("body", "env"))
     _check_card_env(store, body.cid, declared)
+    _check_published(store, body.cid)
     listed = int(chain.call(chain.platform.mmc, "modelOfCid", cid_hash(body.cid)))
     if listed:
         raise RuleError(409, "model_already_listed", f"{body.cid} is listed as model {listed}")

@@ -48,6 +48,7 @@ from backend.services.specs import (
 )
 from backend.settings import Settings
 from backend.store.bundle import canonical_json
+from backend.store.sealed import address_of, parse_public_key
 from workers.mdrl.trainingspec import TrainingSpec
 
 router = APIRouter(prefix="/tasks", tags=["tasks"])
@@ -78,6 +79,21 @@ def build_spec(
     except SpecLimitExceeded as exc:
         raise RuleError(422, exc.rule, exc.msg) from None
     return spec
+
+
+def check_outcome_key(spec: TrainingSpec, requester: str) -> None:
+    """422 ``outcome_key_not_requester`` when the key the outcome is to be sealed to is not
+    the caller's: a worker seals to the task's requester only (and checks it again)."""
+    if spec.outcome_key is None:
+        return
+    owner = address_of(parse_public_key(spec.outcome_key))
+    if owner.lower() != requester.lower():
+        field_error(
+            ("body", "outcome_key"),
+            f"the key belongs to {owner}, not to the requester {requester}: outcomes are "
+            "sealed to the task's requester",
+            "outcome_key_not_requester",
+        )
 
 
 def check_duration(chain: ChainDep, deadline_s: int) -> None:
@@ -141,6 +157,7 @@ def create_task(
             )
         experts = allocation_experts(session, body.expert_allocation, user.address)
     spec = build_spec(body, settings, experts)
+    check_outcome_key(spec, user.address)
     check_experts(store, spec.experts)
     check_duration(chain, body.deadline_s)
     check_min_reward(chain, body.payment_wei, body.deadline_s)

@@ -21,7 +21,9 @@ from typing import Annotated, Any
 import typer
 
 from backend.store import CID, InvalidCID
-from drlaas.commands.client.models import pull, request_models
+from backend.store.gateway_blocks import GatewayBlocks
+from backend.store.sealed import public_key_hex, pull_model_with_key
+from drlaas.commands.client.models import request_models
 from drlaas.commands.client.session import (
     DEFAULT_GATEWAY,
     GatewayOpt,
@@ -38,6 +40,7 @@ from drlaas.commands.client.session import (
     write,
 )
 from workers.daemon.gateway import Gateway, GatewayError
+from workers.daemon.keys import load_key
 from workers.mdrl.medc import parse_list
 from workers.mdrl.spec import parse_grid, parse_walls
 from workers.mdrl.specfields import check_object
@@ -179,6 +182,13 @@ def task_submit(
     expert_threshold: Annotated[
         float | None, typer.Option(help="l: follow an expert action only above this probability")
     ] = None,
+    public_outcome: Annotated[
+        bool,
+        typer.Option(
+            help="let the outcome's weights be public (default: sealed to your key, "
+            "readable by you only until the worker shares the model)"
+        ),
+    ] = False,
     as_json: JsonOpt = False,
 ) -> None:
     """Submit a training task: the spec goes to the content store, the chain recruits."""
@@ -209,6 +219,8 @@ def task_submit(
         expert_threshold=expert_threshold,
     )
     with connect_funded(gateway, key) as gw:
+        if not public_outcome and gw.account is not None:
+            body.setdefault("outcome_key", public_key_hex(bytes(gw.account.key)))
         try:
             if experts_from_mmc is not None:
                 alloc = request_models(
@@ -431,18 +443,29 @@ def task_pull(
         Path | None, typer.Option("--out", help="directory (default ./task-<ID>-model)")
     ] = None,
     worker: Annotated[str | None, typer.Option(help="whose outcome (default: the first)")] = None,
+    key: Annotated[
+        Path | None,
+        typer.Option(
+            "--key", envvar="DRLAAS_KEY", help="your key: opens an outcome sealed to you"
+        ),
+    ] = None,
     gateway: GatewayOpt = DEFAULT_GATEWAY,
     as_json: JsonOpt = False,
 ) -> None:
     """Download a task's outcome model through the gateway, verified against its CID (the
-    requester does not have to wait until the worker shares it)."""
+    requester does not have to wait until the worker shares it; a sealed outcome is opened
+    here with the requester's --key and checked against the CID on chain)."""
     outcomes = read(gateway, f"/tasks/{task_id}").get("outcomes") or []
     chosen = [o for o in outcomes if worker is None or o["worker"].lower() == worker.lower()]
     if not chosen:
         fail(LookupError(f"task {task_id} has no outcome" + (f" from {worker}" if worker else "")))
     cid = chosen[0]["cid"]
+    private_key = bytes(load_key(key).key) if key is not None else None
     try:
-        path = pull(gateway, cid, out if out is not None else Path(f"task-{task_id}-model"))
+        with GatewayBlocks(gateway) as store:
+            path = pull_model_with_key(
+                store, cid, out if out is not None else Path(f"task-{task_id}-model"), private_key
+            )
     except Exception as exc:  # noqa: BLE001 - shown to the user with its type
         fail(RuntimeError(f"cannot pull {cid}: {type(exc).__name__}: {exc}"))
     emit(

@@ -20,11 +20,12 @@ from drlaas.commands.client.session import (
     write,
 )
 from workers.daemon.capabilities import measure
-from workers.daemon.command import parse_domains, worker_command
+from workers.daemon.command import open_worker, parse_domains, worker_command
 from workers.daemon.gateway import GatewayError
 
 worker_app = typer.Typer(
-    help="Your worker: register, status, run (the daemon).", no_args_is_help=True
+    help="Your worker: register, status, run (the daemon), share (an outcome as a model).",
+    no_args_is_help=True,
 )
 
 
@@ -84,3 +85,40 @@ worker_app.command(
     "run",
     help="Run the worker daemon: register on chain, then accept, train and submit offered tasks.",
 )(worker_command)
+
+
+@worker_app.command("share")
+def worker_share(
+    task_id: int,
+    key: KeyOpt,
+    description: str = "",
+    data: Annotated[
+        Path | None, typer.Option(help="the daemon's --data, if it was given one")
+    ] = None,
+    gateway: GatewayOpt = DEFAULT_GATEWAY,
+    as_json: JsonOpt = False,
+) -> None:
+    """Share your submitted outcome of TASK_ID as a model (MMC.addModel, once its requester
+    accepted it): uploads the model's files from the daemon's job directory first, so an
+    outcome sealed to its requester becomes public now."""
+    try:
+        handler = open_worker(key, gateway, data)
+        model = handler.publish_outcome(task_id)
+    except Exception as exc:  # noqa: BLE001 - shown to the user with its type
+        fail(exc)
+    with connect_funded(gateway, key) as gw:
+        try:
+            out = write(
+                gw,
+                "POST",
+                "/models",
+                {
+                    "cid": model["cid"],
+                    "env": model["env"],
+                    "domain": model["domain"],
+                    "description": description or f"outcome of task {task_id}",
+                },
+            )
+        except GatewayError as exc:
+            fail(exc)
+    emit(out, as_json, lambda d: typer.echo(f"model {d.get('id', '?')} shared: {model['cid']}"))
