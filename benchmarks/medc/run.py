@@ -8,6 +8,9 @@ method trains for the same env-step budget of the task user:
   dc           sparse + Demonstration Cloning with the first expert (Alg. 4.1, E = 0.2)
   medc         sparse + MEDC with all experts, roulette over their QoS (Alg. 5.1, R_E = 0.1)
   medc-faulty  sparse + MEDC with only faulty experts: 5 random, 5 biased, 5 malicious
+  medc-credit, medc-faulty-credit
+               the same with the expert credit rule (medc.py, ``credit``: experts whose
+               guided episodes run longer than the agents' own fade out)
   il           sparse + IL-assisted RL with the same experts (il.py: 20% behaviour cloning)
   frl          sparse + FedAvg across the eight users A1W0 ... A3W3 (frl.py), seen from the task
 
@@ -48,7 +51,8 @@ from workers.mdrl.presets import get_preset
 from workers.mdrl.train import RunConfig, Trainer
 from workers.mdrl.zoo import HELDOUT_SEED
 
-METHODS = ("sparse", "sr", "dc", "medc", "medc-faulty", "il", "frl")
+METHODS = ("sparse", "sr", "dc", "medc", "medc-faulty", "medc-credit", "medc-faulty-credit",
+           "il", "frl")
 EXPERT_USERS = ("A1W0", "A1W3", "A2W2")
 CURVE_EPISODES = 100
 CURVE_SEED = 1_000_003
@@ -124,12 +128,13 @@ def train_run(task: str, method: str, seed: int, steps: int, experts: list[str],
         selector = None
         if method == "dc":
             selector = DemonstrationSelector(load_experts(experts[:1], env, seed), seed=seed)
-        elif method == "medc":
+        elif method in ("medc", "medc-credit"):
             selector = DemonstrationSelector(load_experts(experts, env, seed), qos or None,
-                                             seed=seed)
-        elif method == "medc-faulty":
+                                             seed=seed, credit=method.endswith("-credit"))
+        elif method in ("medc-faulty", "medc-faulty-credit"):
             refs = faulty_refs(experts[0], env.num_actions)
-            selector = DemonstrationSelector(load_experts(refs, env, seed), seed=seed)
+            selector = DemonstrationSelector(load_experts(refs, env, seed), seed=seed,
+                                             credit=method.endswith("-credit"))
         trainer = Trainer(env, obs, ppo, run, out=run_dir, selector=selector)
     trainer.train()
     wall = time.perf_counter() - start
@@ -243,12 +248,13 @@ def targets(by: dict[str, list[dict]], sr_level: float) -> list[str]:
         b = steps_to(by["medc"], own)
         out.append(f"- MEDC reaches sparse's final level in {_steps(b)}: {_ratio(b, s)} of "
                    "the steps sparse needs")
-    if {"medc-faulty", "sparse"} <= set(by):
-        f, f_ci = final(by["medc-faulty"], "time")
-        s, s_ci = final(by["sparse"], "time")
-        out.append(f"- faulty-only MEDC {f:.2f} [{f_ci[0]:.2f}, {f_ci[1]:.2f}] vs sparse "
-                   f"{s:.2f} [{s_ci[0]:.2f}, {s_ci[1]:.2f}] (target: not worse beyond the "
-                   "seed noise)")
+    for faulty in ("medc-faulty", "medc-faulty-credit"):
+        if {faulty, "sparse"} <= set(by):
+            f, f_ci = final(by[faulty], "time")
+            s, s_ci = final(by["sparse"], "time")
+            out.append(f"- {faulty} {f:.2f} [{f_ci[0]:.2f}, {f_ci[1]:.2f}] vs sparse "
+                       f"{s:.2f} [{s_ci[0]:.2f}, {s_ci[1]:.2f}] (target: not worse beyond the "
+                       "seed noise)")
     for other in ("frl", "il"):
         if {"medc", other} <= set(by):
             steps, m = mean_curve(by["medc"])

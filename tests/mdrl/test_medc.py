@@ -151,6 +151,54 @@ def test_roulette_wheel_follows_qos_and_rate():
     assert sel.card()["experts"][2]["selection_probability"] == pytest.approx(5 / 8)
 
 
+def test_credit_rule_fades_experts_that_lengthen_episodes():
+    """credit=True: an expert whose guided episodes take 3x the agents' own keeps
+    (1/3)**CREDIT_POWER of its weight and the guidance share drops with it; a helpful one
+    keeps all of it. Without credit both stay at R_S (the rule is what changes it)."""
+    length = {-1: 30, 0: 20, 1: 90}  # episode length by guide: own, good, faulty
+
+    def drive(credit):
+        experts = [FixedExpert(np.zeros((1, 1, 5)), n) for n in ("good", "faulty")]
+        sel = DemonstrationSelector(experts, rate=0.5, seed=1, credit=credit)
+        ids = np.arange(64)
+        sel.episode_start(ids)
+        for _ in range(100):  # as select() would count: each env runs its guide's length
+            sel.steps_in_episode[ids] = [length[int(g)] for g in sel.current[ids]]
+            sel.episode_start(ids)
+        before = sel.episodes.copy()
+        for _ in range(100):
+            sel.steps_in_episode[ids] = [length[int(g)] for g in sel.current[ids]]
+            sel.episode_start(ids)
+        return sel, sel.episodes - before
+
+    sel, late = drive(credit=True)
+    f = sel.credit_factors()
+    assert f[0] == 1.0 and f[1] == pytest.approx((30 / 90) ** 4, rel=0.05)
+    assert sel.mean_length[0] == pytest.approx(20) and sel.mean_length[2] == pytest.approx(30)
+    assert late[1] < 0.05 * late[0]  # the faulty expert guides next to nothing any more
+    card = sel.card()
+    assert card["credit"]["rate_in_force"] == pytest.approx(0.5 * (1 + f[1]) / 2)
+    assert card["experts"][1]["credit"] == pytest.approx(f[1])
+    plain, late_plain = drive(credit=False)
+    assert stats.chisquare(late_plain).pvalue > 1e-3  # equal shares without the rule
+    assert "credit" not in plain.card()
+
+
+def test_credit_counts_steps_through_the_trainer():
+    """Wired through Trainer: select() counts steps, episode_start() folds finished episodes,
+    and the run's card reports the running means; the config round-trips through the
+    checkpoint's selector state."""
+    obs = ObservationSpec(kind="odmtl")
+    sel = DemonstrationSelector(load_experts(["oracle", "random"], TASK), rate=0.5, seed=0,
+                                credit=True)
+    Trainer(TASK, obs, TINY_PPO, tiny_run(updates=6), selector=sel).train()
+    assert sel.judged.sum() > 0 and (sel.mean_length[sel.judged > 0] > 0).all()
+    assert sel.config.to_dict()["credit"] is True
+    assert DemonstrationConfig.from_dict({"models": ["oracle"], "credit": True}).credit
+    with pytest.raises(ValueError, match="credit"):
+        DemonstrationConfig.from_dict({"models": ["oracle"], "credit": "yes"})
+
+
 def test_defaults_follow_tables_4_1_and_5_3():
     one = DemonstrationConfig(("oracle",))
     assert (one.resolved_rate, one.threshold) == (0.2, 0.05)  # Table 4.1: E, l

@@ -43,6 +43,13 @@ MEDC_RATE = 0.1
 THRESHOLD = 0.05
 """Action probability threshold l (Tables 4.1 and 5.3)."""
 MAX_EXPERTS = 16
+CREDIT_EMA = 0.05
+"""Weight of one finished episode in the running mean episode lengths of the credit rule."""
+CREDIT_MIN_EPISODES = 8
+"""Episodes of an expert (and of the agents alone) before the credit rule judges it."""
+CREDIT_POWER = 4.0
+"""Credit factor min(1, (L_own / L_expert) ** CREDIT_POWER): an expert whose guided episodes
+take 1.5x the agents' own keeps 20% of its weight, 2x keeps 6%."""
 SEED_SALT = 0x4D454443  # "MEDC": the selector's stream differs from the trainer's for a seed
 
 
@@ -60,6 +67,9 @@ class DemonstrationConfig:
     (Table 4.1), R_E = 0.1 for several (Table 5.3)."""
     threshold: float = THRESHOLD
     """l: an agent follows the expert only on actions with probability > l under its policy."""
+    credit: bool = False
+    """Expert credit (ours, not in Alg. 5.1): an expert whose guided episodes run longer than
+    the agents' own loses selection weight and guidance share (``DemonstrationSelector``)."""
 
     def __post_init__(self) -> None:
         e = self.experts
@@ -92,7 +102,8 @@ class DemonstrationConfig:
 
     def to_dict(self) -> dict[str, Any]:
         return {"models": list(self.experts), "qos": list(self.weights),
-                "rate": self.resolved_rate, "threshold": self.threshold}
+                "rate": self.resolved_rate, "threshold": self.threshold} | (
+                    {"credit": True} if self.credit else {})
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> DemonstrationConfig:
@@ -100,7 +111,7 @@ class DemonstrationConfig:
         ``rate``, ``threshold``."""
         if not isinstance(d, dict):
             raise ValueError(f"config section [experts] must be a table/object, got {d!r}")
-        known = {"models", "qos", "rate", "threshold"}
+        known = {"models", "qos", "rate", "threshold", "credit"}
         unknown = sorted(set(d) - known)
         if unknown:
             raise ValueError(f"[experts]: unknown key(s) {unknown}; known: {sorted(known)}")
@@ -110,7 +121,11 @@ class DemonstrationConfig:
         qos = d.get("qos") or ()
         if not isinstance(qos, (list, tuple)):
             raise ValueError(f"[experts] qos: expected a list of numbers, got {qos!r}")
-        return cls(tuple(models), tuple(qos), d.get("rate"), d.get("threshold", THRESHOLD))
+        credit = d.get("credit", False)
+        if not isinstance(credit, bool):
+            raise ValueError(f"[experts] credit: expected true or false, got {credit!r}")
+        return cls(tuple(models), tuple(qos), d.get("rate"), d.get("threshold", THRESHOLD),
+                   credit)
 
 
 def _finite(x: Any) -> bool:
@@ -136,16 +151,22 @@ class DemonstrationSelector:
 
     def __init__(self, experts: Sequence[Any], qos: Sequence[float] | None = None,
                  rate: float | None = None, threshold: float = THRESHOLD, seed: int = 0,
-                 generator: torch.Generator | None = None):
+                 generator: torch.Generator | None = None, credit: bool = False):
         if not experts:
             raise ValueError("DemonstrationSelector needs at least one expert")
         config = DemonstrationConfig(tuple(e.name for e in experts), tuple(qos or ()), rate,
-                                     threshold)
+                                     threshold, credit)
         self.config, self.experts = config, list(experts)
         self.rate, self.threshold = config.resolved_rate, float(config.threshold)
         w = np.asarray(config.weights, dtype=np.float64)
-        self.wheel = np.cumsum(w / w.sum())  # roulette wheel, R_S = QoS_i / sum QoS
+        self.qos_share = w / w.sum()  # R_S = QoS_i / sum QoS
+        self.wheel = np.cumsum(self.qos_share)  # roulette wheel over R_S
         self.wheel[-1] = 1.0
+        self.credit = bool(config.credit)
+        k = len(self.experts)
+        self.steps_in_episode = np.zeros(0, dtype=np.int64)  # per env (credit rule)
+        self.mean_length = np.zeros(k + 1)  # running mean episode length; index k = own
+        self.judged = np.zeros(k + 1, dtype=np.int64)  # finished episodes seen per guide
         self.rng = np.random.default_rng([seed, SEED_SALT])
         self._sampler = SampleSelector(generator or torch.Generator().manual_seed(seed))
         self.current = np.full(0, -1, dtype=np.int64)  # per env: guiding expert, -1 = own
@@ -162,7 +183,8 @@ class DemonstrationSelector:
         from workers.mdrl.experts import load_experts
 
         experts = load_experts(config.experts, task, seed=seed)
-        return cls(experts, config.qos, config.rate, config.threshold, seed, generator)
+        return cls(experts, config.qos, config.rate, config.threshold, seed, generator,
+                   config.credit)
 
     def bind(self, generator: torch.Generator) -> None:
         """Sample with the trainer's generator (``Trainer`` calls this), so rate 0 is plain PPO."""
@@ -178,13 +200,58 @@ class DemonstrationSelector:
             grown = np.full(env_ids.max() + 1, -1, dtype=np.int64)
             grown[:len(self.current)] = self.current
             self.current = grown
+            steps = np.zeros(env_ids.max() + 1, dtype=np.int64)
+            steps[:len(self.steps_in_episode)] = self.steps_in_episode
+            self.steps_in_episode = steps
+        rate, wheel = self.rate, self.wheel
+        if self.credit:
+            self._judge(env_ids)
+            rate, wheel = self._credited()
         check = self.rng.random(len(env_ids))
         spin = self.rng.random(len(env_ids))
-        pick = np.minimum(np.searchsorted(self.wheel, spin, side="right"), len(self.wheel) - 1)
-        chosen = np.where(check < self.rate, pick, -1)
+        pick = np.minimum(np.searchsorted(wheel, spin, side="right"), len(wheel) - 1)
+        chosen = np.where(check < rate, pick, -1)
         self.current[env_ids] = chosen
         self.episodes += np.bincount(chosen[chosen >= 0], minlength=len(self.experts))
         self.own_episodes += int((chosen < 0).sum())
+
+    def _judge(self, env_ids: np.ndarray) -> None:
+        """Fold the episodes that just ended in ``env_ids`` into their guide's running mean."""
+        ended = env_ids[self.steps_in_episode[env_ids] > 0]
+        k = len(self.experts)
+        for env in ended:
+            g = int(self.current[env]) if self.current[env] >= 0 else k
+            length = float(self.steps_in_episode[env])
+            n = self.judged[g]
+            alpha = 1.0 / (n + 1) if n < 1.0 / CREDIT_EMA else CREDIT_EMA  # mean, then EMA
+            self.mean_length[g] += alpha * (length - self.mean_length[g])
+            self.judged[g] += 1
+        self.steps_in_episode[env_ids] = 0
+
+    def credit_factors(self) -> np.ndarray:
+        """Per expert, min(1, (L_own / L_expert) ** CREDIT_POWER) once both have
+        CREDIT_MIN_EPISODES finished episodes (1 before): experts that lead the agents into
+        longer episodes than they manage alone fade out (faulty experts, Sec. 5.4.1)."""
+        k = len(self.experts)
+        factors = np.ones(k)
+        if self.judged[k] < CREDIT_MIN_EPISODES:
+            return factors
+        own = self.mean_length[k]
+        seen = self.judged[:k] >= CREDIT_MIN_EPISODES
+        ratio = own / np.maximum(self.mean_length[:k], 1e-9)
+        factors[seen] = np.minimum(1.0, ratio[seen] ** CREDIT_POWER)
+        return factors
+
+    def _credited(self) -> tuple[float, np.ndarray]:
+        """(rate, wheel) in force under the credit rule: R_S reweighted by the credit factors,
+        R_E scaled by the share of QoS weight the experts keep."""
+        kept = self.qos_share * self.credit_factors()
+        total = float(kept.sum())
+        if total <= 0:
+            return 0.0, self.wheel
+        wheel = np.cumsum(kept / total)
+        wheel[-1] = 1.0
+        return self.rate * total, wheel
 
     # ------------------------------------------------------------------ per step
     def select(self, logp: torch.Tensor, mask: torch.Tensor, env: Any) -> torch.Tensor:
@@ -195,6 +262,7 @@ class DemonstrationSelector:
         if len(self.current) < b:
             raise ValueError(f"DemonstrationSelector: episode_start was not called for all "
                              f"{b} envs")
+        self.steps_in_episode[:b] += 1
         current = self.current[:b]
         for i, expert in enumerate(self.experts):
             rows = np.flatnonzero(current == i)
@@ -238,7 +306,9 @@ class DemonstrationSelector:
         return {"config": self.config.to_dict(), "rng": self.rng.bit_generator.state,
                 "current": self.current.tolist(), "episodes": self.episodes.tolist(),
                 "own_episodes": self.own_episodes, "decisions": self.decisions.tolist(),
-                "followed": self.followed.tolist(), "experts": experts}
+                "followed": self.followed.tolist(), "experts": experts,
+                "steps_in_episode": self.steps_in_episode.tolist(),
+                "mean_length": self.mean_length.tolist(), "judged": self.judged.tolist()}
 
     def load_state_dict(self, d: dict[str, Any]) -> None:
         if d["config"]["models"] != list(self.config.experts):
@@ -250,6 +320,12 @@ class DemonstrationSelector:
         self.own_episodes = int(d["own_episodes"])
         self.decisions = np.asarray(d["decisions"], dtype=np.int64)
         self.followed = np.asarray(d["followed"], dtype=np.int64)
+        if "mean_length" in d:  # checkpoints from before the credit rule lack it
+            self.steps_in_episode = np.asarray(d["steps_in_episode"], dtype=np.int64)
+            self.mean_length = np.asarray(d["mean_length"], dtype=np.float64)
+            self.judged = np.asarray(d["judged"], dtype=np.int64)
+        else:
+            self.steps_in_episode = np.zeros(len(self.current), dtype=np.int64)
         for i, s in d.get("experts", {}).items():
             self.experts[int(i)].load_state_dict(s)
 
@@ -257,7 +333,8 @@ class DemonstrationSelector:
         """What the trained model's card lists under ``training.experts`` (Alg. 5.1 inputs and
         how much each expert was used)."""
         w = np.asarray(self.config.weights)
-        return {
+        factors = self.credit_factors() if self.credit else np.ones(len(self.experts))
+        out = {
             "method": "DC (Alg. 4.1)" if len(self.experts) == 1 else "MEDC (Alg. 5.1)",
             "rate": self.rate, "threshold": self.threshold,
             "own_episodes": self.own_episodes,
@@ -265,9 +342,15 @@ class DemonstrationSelector:
                 {"ref": e.name, "qos": float(w[i]), "selection_probability": float(w[i] / w.sum()),
                  "episodes": int(self.episodes[i]), "decisions": int(self.decisions[i]),
                  "followed": int(self.followed[i])}
+                | ({"mean_length": float(self.mean_length[i]), "credit": float(factors[i])}
+                   if self.credit else {})
                 for i, e in enumerate(self.experts)
             ],
         }
+        if self.credit:
+            out["credit"] = {"own_mean_length": float(self.mean_length[-1]),
+                             "rate_in_force": self._credited()[0]}
+        return out
 
 
 def _marginals(p_joint: torch.Tensor, n: int, a: int) -> torch.Tensor:
@@ -299,6 +382,7 @@ def resume_selector(meta: dict[str, Any]) -> DemonstrationSelector | None:
     from workers.mdrl.spec import EnvSpec
 
     c = state["config"]
-    config = DemonstrationConfig(tuple(c["models"]), tuple(c["qos"]), c["rate"], c["threshold"])
+    config = DemonstrationConfig(tuple(c["models"]), tuple(c["qos"]), c["rate"], c["threshold"],
+                                 bool(c.get("credit", False)))
     return DemonstrationSelector.from_config(config, EnvSpec.from_dict(meta["env"]),
                                              seed=int(meta["run"]["seed"]))
