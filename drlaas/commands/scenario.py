@@ -5,9 +5,11 @@ A requester and three workers register; a training task is submitted; the chain 
 worker trains with a short budget while its progress shows; the model's manifest goes to the
 content store and its CID on chain; the requester reviews it; reputations change; the model
 owner shares it and it shows in the listing; a second requester asks for experts (a
-model-sharing task) and receives that model's CID. Finally the workers publish the model zoo
-(``models/``: one trained model per thesis row, uploaded with its card), so the listing shows
-what the platform sells.
+model-sharing task), receives that model's CID and trains a second task with it as the
+expert (MEDC, thesis Alg. 5.1: the outcome's card lists the expert and the episodes it
+guided), then reviews the expert, which moves its reputation on chain. Finally the workers
+publish the model zoo (``models/``: one trained model per thesis row, uploaded with its card),
+so the listing shows what the platform sells.
 
 The requesters are demo users whose keys the embedded gateway holds (``user1``, ``user2`` =
 eth-tester's deterministic keys, funded); the workers sign with their own key files from
@@ -221,11 +223,81 @@ def run_scenario(
     )
     if cid not in report["allocated"]:
         raise RuntimeError(f"the expert request did not return the trained model {cid}")
+    report["medc"] = _medc_task(req2, anon, alloc["alloc_id"], model["id"], steps, timeout, say)
     if zoo is not None and zoo.is_dir():
         report["zoo"] = _share_zoo(zoo, url, data_dir, [w["address"] for w in workers], say)
     for g in (req1, req2, anon, owner):
         g.close()
     return report
+
+
+def _medc_task(
+    req: Gateway,
+    anon: Gateway,
+    alloc_id: int,
+    model_id: int,
+    steps: int,
+    timeout: float,
+    say: Callable[[str], None],
+) -> dict[str, Any]:
+    """Train a task guided by the allocation's models (MEDC), read which experts the outcome's
+    card says were used, and review the expert (MMC updateModelRep, Eq. 10-11)."""
+    created = write(
+        req,
+        "POST",
+        "/tasks",
+        {
+            "env": SCENARIO_ENV,
+            "observation": {"kind": "odmtl", "window": 3},
+            "budget": {"steps": steps, "minutes": 2},
+            "seed": 8,
+            "num_workers": 1,
+            "payment_wei": 10**16,
+            "deadline_s": 3600,
+            "domain": 0,
+            "expert_allocation": alloc_id,
+            "algorithm": {"demonstration": {"rate": 0.5}},
+        },
+    )
+    task_id = created["task_id"]
+    say(
+        f"task {task_id}: MEDC with the experts of allocation {alloc_id}, offered to "
+        f"{created['offered']}"
+    )
+    detail = wait_for(
+        f"an outcome of MEDC task {task_id}",
+        lambda: anon.get(f"/tasks/{task_id}"),
+        lambda d: bool(d.get("outcomes")),
+        timeout=timeout,
+        every=0.5,
+    )
+    worker = detail["outcomes"][0]["worker"]
+    card = req.get(
+        f"/models/outcomes/{task_id}/{worker}/download", auth=True, params={"file": "model.json"}
+    )
+    used = card["training"]["experts"]["experts"]
+    say(
+        "  the outcome's card lists its experts: "
+        + ", ".join(
+            f"{e['ref']} (qos {e['qos']:.3f}, guided {e['episodes']} episodes)" for e in used
+        )
+    )
+    before = anon.get(f"/models/{model_id}")["reputation"]
+    write(req, "POST", f"/models/requests/{alloc_id}/reviews", {"model_id": model_id, "review": 4})
+    after = wait_for(
+        "the expert's reputation to change",
+        lambda: anon.get(f"/models/{model_id}"),
+        lambda m: m["reputation"] != before,
+        timeout=30,
+    )["reputation"]
+    say(f"review 4/5 of expert model {model_id}: reputation {before} -> {after}")
+    return {
+        "task_id": task_id,
+        "worker": worker,
+        "cid": detail["outcomes"][0]["cid"],
+        "experts": [{"ref": e["ref"], "episodes": e["episodes"]} for e in used],
+        "expert_reputation": [before, after],
+    }
 
 
 def _share_zoo(
@@ -246,8 +318,11 @@ def _share_zoo(
     if not owners:
         raise RuntimeError(f"no worker key files under {data_dir / 'keys'}")
     listed: dict[str, str] = {}
-    policies = sorted(p.parent for p in zoo.glob("*/model.json")  # not the walls CAE
-                      if "kind" not in json.loads(p.read_text()))
+    policies = sorted(
+        p.parent
+        for p in zoo.glob("*/model.json")  # not the walls CAE
+        if "kind" not in json.loads(p.read_text())
+    )
     for i, model_dir in enumerate(policies):
         card = json.loads((model_dir / "model.json").read_text())
         zoo_card = card.get("zoo", {})

@@ -86,7 +86,9 @@ def test_medc_task_with_an_mmc_expert_end_to_end(data_dir: Path, tmp_path: Path)
         assert qos > 0
 
         run("task", "wait", str(task["task_id"]), "--timeout", "240")
-        pulled = run("task", "pull", str(task["task_id"]), "--out", str(tmp_path / "outcome"))
+        pulled = run(  # sealed to the requester (task submit's default): opened with its key
+            "task", "pull", str(task["task_id"]), "--key", str(req), "--out", str(tmp_path / "o")
+        )
         card = json.loads((Path(pulled["path"]) / "model.json").read_text())
         used = card["training"]["experts"]
         assert [(e["ref"], e["qos"]) for e in used["experts"]] == [(cid, qos)]

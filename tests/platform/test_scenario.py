@@ -34,7 +34,7 @@ def test_scenario_end_to_end(
         submitted = tmc.contract.events.OutcomeSubmitted().get_logs(from_block=0)
         store = open_store(p.settings)
         # the CID on chain is the worker's manifest, and it pulls into a loadable model
-        assert [e["args"]["cid"] for e in submitted] == [report["cid"]]
+        assert [e["args"]["cid"] for e in submitted] == [report["cid"], report["medc"]["cid"]]
         assert submitted[0]["args"]["worker"] == report["worker"] in report["offered"]
         assert set(read_bundle(store, report["cid"])) == {
             "model.safetensors",
@@ -59,4 +59,11 @@ def test_scenario_end_to_end(
     assert report["progress_points"] >= 3  # the curve was visible while it trained
     assert report["reputation_after"] > report["reputation_before"]
     assert report["allocated"] == [report["cid"]]
+    # MEDC: the second task trained with the allocated model and its card says so; the
+    # requester's review of the expert moved the model's reputation (Eq. 11: 4 / (1 * 5))
+    medc = report["medc"]
+    assert [e["ref"] for e in medc["experts"]] == [report["cid"]]
+    assert medc["experts"][0]["episodes"] > 0
+    assert medc["expert_reputation"][1] == pytest.approx(4 / 5)
+    assert medc["cid"] != report["cid"]
     assert any("progress" in ln for ln in lines)
