@@ -152,9 +152,9 @@ def test_roulette_wheel_follows_qos_and_rate():
 
 
 def test_credit_rule_fades_experts_that_lengthen_episodes():
-    """credit=True: an expert whose guided episodes take 3x the agents' own keeps
-    (1/3)**CREDIT_POWER of its weight and the guidance share drops with it; a helpful one
-    keeps all of it. Without credit both stay at R_S (the rule is what changes it)."""
+    """credit=True: an expert whose guided episodes are no shorter than the agents' own loses
+    its weight and the guidance share drops with it; one that shortens them by 1/3 keeps all
+    of it. Without credit both stay at R_S (the rule is what changes it)."""
     length = {-1: 30, 0: 20, 1: 90}  # episode length by guide: own, good, faulty
 
     def drive(credit):
@@ -173,12 +173,15 @@ def test_credit_rule_fades_experts_that_lengthen_episodes():
 
     sel, late = drive(credit=True)
     f = sel.credit_factors()
-    assert f[0] == 1.0 and f[1] == pytest.approx((30 / 90) ** 4, rel=0.05)
+    assert f[0] == 1.0 and f[1] == 0.0
     assert sel.mean_length[0] == pytest.approx(20) and sel.mean_length[2] == pytest.approx(30)
-    assert late[1] < 0.05 * late[0]  # the faulty expert guides next to nothing any more
+    assert late[1] == 0 and late[0] > 0  # the faulty expert guides nothing any more
     card = sel.card()
-    assert card["credit"]["rate_in_force"] == pytest.approx(0.5 * (1 + f[1]) / 2)
-    assert card["experts"][1]["credit"] == pytest.approx(f[1])
+    assert card["credit"]["rate_in_force"] == pytest.approx(0.5 / 2)
+    assert card["experts"][1]["credit"] == 0.0
+    # between the two: 10% shorter than own is 0.4 of the weight ((30/27 - 1) / 0.25 = 0.44)
+    sel.mean_length[1] = 27.0
+    assert sel.credit_factors()[1] == pytest.approx((30 / 27 - 1) / 0.25)
     plain, late_plain = drive(credit=False)
     assert stats.chisquare(late_plain).pvalue > 1e-3  # equal shares without the rule
     assert "credit" not in plain.card()

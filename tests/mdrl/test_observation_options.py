@@ -109,3 +109,40 @@ def test_options_reject_unknown_values():
         ObservationSpec(belief="yes")
     spec = ObservationSpec(kind="dmtl", readings="mean", scale="fixed", belief=True)
     assert ObservationSpec.from_dict(spec.to_dict()) == spec
+
+
+@pytest.mark.parametrize(("readings", "scale"), [("mean", "fixed"), ("mean", "max"),
+                                                 ("last", "fixed")])
+def test_readings_maps_kept_between_steps_equal_a_fresh_computation(readings, scale):
+    """The observer updates its readings map only at the agents' cells after one step; after
+    resets, skipped steps (observe every other step), a second env and a restored env it
+    still equals, bit for bit, what a fresh observer computes."""
+    spec = EnvSpec(rows=8, cols=8, agents=3, walls=(0, 2), max_steps=12)
+    osp = ObservationSpec(kind="odmtl", window=3, readings=readings, scale=scale)
+    kept = make_observer(spec, osp)
+    env, other = TargetLocalizationEnv(spec, 16, seed=1), TargetLocalizationEnv(spec, 5, seed=2)
+    rng = np.random.default_rng(0)
+
+    def act(e):
+        keys = rng.random(e.action_mask().shape) * e.action_mask()
+        e.step(keys.argmax(-1))
+
+    def check(e):
+        got = kept.observe(e)
+        fresh = make_observer(spec, osp).observe(e)
+        for a, b in zip(got, fresh, strict=True):
+            np.testing.assert_array_equal(a, b)
+
+    saved = None
+    for step in range(40):  # several episodes (max_steps 12): resets on the way
+        act(env)
+        if step % 5 != 3:  # now and then two steps between observations
+            check(env)
+        if step % 7 == 0:
+            act(other)
+            check(other)
+        if step == 10:
+            saved = env.state_dict()
+    env.load_state_dict(*saved)  # the same object jumps back in time
+    check(env)
+    assert kept._readings_cache or (readings, scale) == ("last", "max")

@@ -45,11 +45,13 @@ THRESHOLD = 0.05
 MAX_EXPERTS = 16
 CREDIT_EMA = 0.05
 """Weight of one finished episode in the running mean episode lengths of the credit rule."""
-CREDIT_MIN_EPISODES = 8
+CREDIT_MIN_EPISODES = 4
 """Episodes of an expert (and of the agents alone) before the credit rule judges it."""
-CREDIT_POWER = 4.0
-"""Credit factor min(1, (L_own / L_expert) ** CREDIT_POWER): an expert whose guided episodes
-take 1.5x the agents' own keeps 20% of its weight, 2x keeps 6%."""
+CREDIT_MARGIN = 0.25
+"""Credit factor clip((L_own / L_expert - 1) / CREDIT_MARGIN, 0, 1): an expert keeps its full
+weight while its guided episodes are at least 1/(1 + CREDIT_MARGIN) of the agents' own length
+(20% shorter), and none once they are no shorter: an expert that does not shorten episodes
+only takes experience away from the agents' own policy."""
 SEED_SALT = 0x4D454443  # "MEDC": the selector's stream differs from the trainer's for a seed
 
 
@@ -229,9 +231,10 @@ class DemonstrationSelector:
         self.steps_in_episode[env_ids] = 0
 
     def credit_factors(self) -> np.ndarray:
-        """Per expert, min(1, (L_own / L_expert) ** CREDIT_POWER) once both have
-        CREDIT_MIN_EPISODES finished episodes (1 before): experts that lead the agents into
-        longer episodes than they manage alone fade out (faulty experts, Sec. 5.4.1)."""
+        """Per expert, clip((L_own / L_expert - 1) / CREDIT_MARGIN, 0, 1) once both have
+        CREDIT_MIN_EPISODES finished episodes (1 before): experts that do not lead the agents
+        to the target faster than they manage alone fade out (faulty experts, Sec. 5.4.1; and
+        every expert once the agents outgrow it)."""
         k = len(self.experts)
         factors = np.ones(k)
         if self.judged[k] < CREDIT_MIN_EPISODES:
@@ -239,7 +242,7 @@ class DemonstrationSelector:
         own = self.mean_length[k]
         seen = self.judged[:k] >= CREDIT_MIN_EPISODES
         ratio = own / np.maximum(self.mean_length[:k], 1e-9)
-        factors[seen] = np.minimum(1.0, ratio[seen] ** CREDIT_POWER)
+        factors[seen] = np.clip((ratio[seen] - 1.0) / CREDIT_MARGIN, 0.0, 1.0)
         return factors
 
     def _credited(self) -> tuple[float, np.ndarray]:

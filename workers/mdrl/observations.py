@@ -363,6 +363,8 @@ class Observer:
         self._pair_i, self._pair_j = np.divmod(np.arange(agents * agents), agents)
         self._arange_ww = np.arange(w * w)
         self._buffers: dict[tuple, np.ndarray] = {}  # scratch space per batch size
+        # readings maps of the last envs observed (mean / fixed scale), updated cell by cell
+        self._readings_cache: dict[int, tuple[Any, np.ndarray, np.ndarray, np.ndarray]] = {}
         self._belief = BeliefFilter(env_spec) if obs_spec.belief else None
         if obs_spec.scale == "fixed":
             self._log_ref = np.float32(np.log1p(reference_count(env_spec)))
@@ -480,15 +482,46 @@ class Observer:
 
     def _readings_map(self, env: Any) -> np.ndarray:
         """(B, C) float32 readings as the options say: last or mean per cell, raw or fixed-scale
-        (``log(1 + r) / log(1 + r_ref)``; the 'max' scale is applied by the builders)."""
-        if self.obs_spec.readings == "mean":
-            total = np.asarray(env.reading_sum, dtype=np.float64)
-            # a cell never visited has sum 0, so max(visits, 1) gives it mean 0 without a mask
-            maps = total / np.maximum(np.asarray(env.visits), 1)
-        elif self.obs_spec.scale == "fixed":
-            maps = np.array(env.readings, dtype=np.float64)
-        else:  # last readings, max scale: the env's map as it is (the builders never write it)
+        (``log(1 + r) / log(1 + r_ref)``; the 'max' scale is applied by the builders).
+
+        The transformed maps are kept per env (the last two observed) and, for a row that
+        stepped once since (same ``episode_id``, ``t`` one more), only the agents' current
+        cells, the only cells a step reads at, are recomputed; every other row (reset, several
+        steps or none, restored) is recomputed whole. Same formula per cell, so the result is
+        bit-identical; callers never write into it."""
+        if self.obs_spec.readings != "mean" and self.obs_spec.scale != "fixed":
+            # last readings, max scale: the env's map as it is (the builders never write it)
             return np.ascontiguousarray(env.readings, dtype=np.float32)
+        episode, t = getattr(env, "episode_id", None), getattr(env, "t", None)
+        if episode is None or t is None:  # a duck-typed env (expert adapters): no history
+            return self._readings_cells(env, slice(None), slice(None))
+        cached = self._readings_cache.get(id(env))
+        if cached is None or cached[0] is not env or cached[3].shape != np.shape(env.readings):
+            maps = self._readings_cells(env, slice(None), slice(None))
+        else:
+            _, old_episode, old_t, maps = cached
+            same = old_episode == episode
+            stepped = np.flatnonzero(same & (t == old_t + 1))
+            redo = np.flatnonzero(~same | (t != old_t + 1))  # not one step: trust nothing
+            if len(stepped):
+                rows = stepped[:, None]
+                cells = np.asarray(env.pos)[stepped]
+                maps[rows, cells] = self._readings_cells(env, rows, cells)
+            if len(redo):
+                maps[redo] = self._readings_cells(env, redo, slice(None))
+        if id(env) not in self._readings_cache and len(self._readings_cache) >= 2:
+            self._readings_cache.pop(next(iter(self._readings_cache)))
+        self._readings_cache[id(env)] = (env, np.array(episode), np.array(t), maps)
+        return maps
+
+    def _readings_cells(self, env: Any, rows: Any, cells: Any) -> np.ndarray:
+        """The transformed readings of ``[rows, cells]`` (index arrays or slices), float32."""
+        if self.obs_spec.readings == "mean":
+            total = np.asarray(env.reading_sum, dtype=np.float64)[rows, cells]
+            # a cell never visited has sum 0, so max(visits, 1) gives it mean 0 without a mask
+            maps = total / np.maximum(np.asarray(env.visits)[rows, cells], 1)
+        else:
+            maps = np.array(np.asarray(env.readings)[rows, cells], dtype=np.float64)
         if self.obs_spec.scale == "fixed":
             np.log1p(maps, out=maps)
             maps /= self._log_ref
