@@ -448,7 +448,7 @@ def test_train_command_with_experts_lists_them_on_the_card(tmp_path):
     out = tmp_path / "run"
     runner = CliRunner()
     args = ["train", "--config", str(cfg), "--steps", "256", "--seed", "5", "--out", str(out),
-            "--no-progress", "--no-tensorboard", "--experts", "oracle,biased:1",
+            "--no-progress", "--no-tensorboard", "--expert-credit", "--experts", "oracle,biased:1",
             "--expert-qos", "3,1", "--expert-rate", "0.5"]
     res = runner.invoke(make_app(), args)
     assert res.exit_code == 0, res.output
@@ -457,11 +457,12 @@ def test_train_command_with_experts_lists_them_on_the_card(tmp_path):
     assert card["threshold"] == 0.1  # from the config file's section
     assert [(e["ref"], e["qos"]) for e in card["experts"]] == [("oracle", 3.0), ("biased:1", 1.0)]
     assert sum(e["episodes"] for e in card["experts"]) > 0
+    assert "own_mean_length" in card["credit"] and "credit" in card["experts"][0]
     res = runner.invoke(make_app(), ["train", "--resume", str(out), "--steps", "384",
                                      "--no-progress", "--no-tensorboard"])
     assert res.exit_code == 0, res.output
     again = json.loads((out / "model" / "model.json").read_text())["training"]["experts"]
-    assert again["own_episodes"] > card["own_episodes"]
+    assert again["own_episodes"] > card["own_episodes"] and "credit" in again  # resumed as run
     bad = runner.invoke(make_app(), args[:-4] + ["--expert-qos", "1", "--out", str(tmp_path / "x")])
     assert bad.exit_code != 0 and "qos" in bad.output
 
@@ -480,6 +481,10 @@ def test_task_spec_carries_experts_with_qos_and_settings():
     import jsonschema_rs
 
     assert jsonschema_rs.Draft202012Validator(schema).is_valid(spec.to_dict())
+    assert not demo.credit
+    credited = TrainingSpec.from_dict({**doc, "algorithm": {"demonstration": {"credit": True}}})
+    assert credited.demonstration().credit
+    assert TrainingSpec.from_dict(credited.to_dict()) == credited
     plain = TrainingSpec.from_dict({**doc, "experts": ["a"], "algorithm": {}})
     assert plain.to_dict()["experts"] == ["a"] and plain.demonstration().resolved_rate == 0.2
     for change, field in [
@@ -488,6 +493,7 @@ def test_task_spec_carries_experts_with_qos_and_settings():
         ({"experts": [{"model": "a", "qos": 0}]}, "experts"),
         ({"algorithm": {"demonstration": {"threshold": 1.5}}}, "algorithm.demonstration.threshold"),
         ({"experts": [], "algorithm": {"demonstration": {"rate": 0.1}}}, "algorithm.demonstration"),
+        ({"algorithm": {"demonstration": {"credit": "yes"}}}, "algorithm.demonstration.credit"),
     ]:
         with pytest.raises(SpecError) as info:
             TrainingSpec.from_dict({**doc, **change})

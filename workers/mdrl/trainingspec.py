@@ -127,6 +127,8 @@ DEMONSTRATION_RULES: dict[str, Any] = {
                           "one expert (Table 4.1), 0.1 for several (Table 5.3)")),
     "threshold": Real(0.0, 0.99, doc="l: follow an expert's action only if its probability "
                       "under the learner's policy exceeds l (Tables 4.1, 5.3: 0.05)"),
+    "credit": Bool(doc="expert credit (ours): experts whose guided episodes are no shorter "
+                   "than the agents' own fade out (medc.py); default false, as Alg. 5.1"),
 }
 """``algorithm.demonstration``: how the ``experts`` guide training (DC / MEDC, medc.py)."""
 EXPERT_QOS = Real(0.0, 1e6, doc="QoS weight; the expert is picked with R_S = QoS / sum QoS "
@@ -252,7 +254,8 @@ class TrainingSpec:
 
         d = self.algorithm.demonstration
         return DemonstrationConfig(self.experts, self.expert_qos, d.get("rate"),
-                                   d.get("threshold", DemonstrationConfig.threshold))
+                                   d.get("threshold", DemonstrationConfig.threshold),
+                                   d.get("credit", False))
 
     @property
     def minutes(self) -> float | None:

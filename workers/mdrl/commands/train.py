@@ -49,6 +49,10 @@ def train(
     expert_threshold: Annotated[float | None, typer.Option(help="l: follow the expert only on "
                                                                 "actions with own probability "
                                                                 "> l (default 0.05).")] = None,
+    expert_credit: Annotated[bool | None, typer.Option(
+        "--expert-credit/--no-expert-credit", help="expert credit (medc.py): experts whose "
+        "guided episodes are no shorter than the agents' own fade out (default off, as Alg. "
+        "5.1)")] = None,
 ) -> None:
     """Train with PPO (Alg. 3.3); writes metrics, TensorBoard, checkpoints and model files."""
     import dataclasses
@@ -68,7 +72,7 @@ def train(
                      ("checkpoint_every", checkpoint_every)):
         if val is not None:
             run_changes[key] = val
-    expert_options = (experts, expert_qos, expert_rate, expert_threshold)
+    expert_options = (experts, expert_qos, expert_rate, expert_threshold, expert_credit)
     if resume is not None:
         if num_envs is not None or config is not None or readings is not None or any(
                 o is not None for o in expert_options):
@@ -99,7 +103,7 @@ def train(
 
 
 # ------------------------------------------------------------------ experts (DC / MEDC)
-def _selector(chosen, seed, experts, qos, rate, threshold):
+def _selector(chosen, seed, experts, qos, rate, threshold, credit):
     """The DC / MEDC selector from the config's [experts] section and the --expert* options
     (--experts replaces the section's models and their QoS), or None without experts."""
     import dataclasses
@@ -112,11 +116,13 @@ def _selector(chosen, seed, experts, qos, rate, threshold):
         if experts is not None:
             demo = DemonstrationConfig(tuple(parse_list(experts, "--experts")), (),
                                        demo.rate if demo else None,
-                                       demo.threshold if demo else 0.05)
+                                       demo.threshold if demo else 0.05,
+                                       demo.credit if demo else False)
         if demo is None:
-            if any(o is not None for o in (qos, rate, threshold)):
-                raise typer.BadParameter("--expert-qos/--expert-rate/--expert-threshold need "
-                                         "--experts (or an [experts] section in --config)")
+            if any(o is not None for o in (qos, rate, threshold, credit)):
+                raise typer.BadParameter("--expert-qos/--expert-rate/--expert-threshold/"
+                                         "--expert-credit need --experts (or an [experts] "
+                                         "section in --config)")
             return None
         changes = {}
         if qos is not None:
@@ -128,6 +134,8 @@ def _selector(chosen, seed, experts, qos, rate, threshold):
             changes["rate"] = rate
         if threshold is not None:
             changes["threshold"] = threshold
+        if credit is not None:
+            changes["credit"] = credit
         demo = dataclasses.replace(demo, **changes)
         return DemonstrationSelector.from_config(demo, chosen.env, seed=seed)
     except (ValueError, ExpertError) as exc:
