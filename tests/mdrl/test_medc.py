@@ -187,21 +187,6 @@ def test_credit_rule_fades_experts_that_lengthen_episodes():
     assert "credit" not in plain.card()
 
 
-def test_credit_judges_a_crowd_of_experts_before_each_one():
-    """Ten experts that all lengthen episodes: after one round of episodes the group is
-    judged bad, so experts not judged yet keep only CREDIT_FLOOR of their weight."""
-    experts = [FixedExpert(np.zeros((1, 1, 5)), f"bad{i}") for i in range(10)]
-    sel = DemonstrationSelector(experts, rate=0.5, seed=2, credit=True)
-    ids = np.arange(64)
-    sel.episode_start(ids)
-    sel.steps_in_episode[ids] = np.where(sel.current[ids] >= 0, 90, 30)
-    sel.episode_start(ids)
-    assert sel.group_factor() == 0.0
-    unjudged = sel.judged[:10] < 4
-    assert unjudged.any() and (sel.credit_factors()[unjudged] == 0.1).all()
-    assert sel._credited()[0] <= 0.5 * 0.1 + 1e-12
-
-
 def test_credit_counts_steps_through_the_trainer():
     """Wired through Trainer: select() counts steps, episode_start() folds finished episodes,
     and the run's card reports the running means; the config round-trips through the

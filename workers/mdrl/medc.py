@@ -47,8 +47,6 @@ CREDIT_EMA = 0.05
 """Weight of one finished episode in the running mean episode lengths of the credit rule."""
 CREDIT_MIN_EPISODES = 4
 """Episodes of an expert (and of the agents alone) before the credit rule judges it."""
-CREDIT_FLOOR = 0.1
-"""Least factor of an expert not judged yet while the group of experts is judged bad."""
 CREDIT_MARGIN = 0.25
 """Credit factor clip((L_own / L_expert - 1) / CREDIT_MARGIN, 0, 1): an expert keeps its full
 weight while its guided episodes are at least 1/(1 + CREDIT_MARGIN) of the agents' own length
@@ -169,9 +167,8 @@ class DemonstrationSelector:
         self.credit = bool(config.credit)
         k = len(self.experts)
         self.steps_in_episode = np.zeros(0, dtype=np.int64)  # per env (credit rule)
-        # running mean episode length per guide: experts 0..k-1, k = own, k + 1 = any expert
-        self.mean_length = np.zeros(k + 2)
-        self.judged = np.zeros(k + 2, dtype=np.int64)  # finished episodes seen per guide
+        self.mean_length = np.zeros(k + 1)  # running mean episode length; index k = own
+        self.judged = np.zeros(k + 1, dtype=np.int64)  # finished episodes seen per guide
         self.rng = np.random.default_rng([seed, SEED_SALT])
         self._sampler = SampleSelector(generator or torch.Generator().manual_seed(seed))
         self.current = np.full(0, -1, dtype=np.int64)  # per env: guiding expert, -1 = own
@@ -227,38 +224,26 @@ class DemonstrationSelector:
         for env in ended:
             g = int(self.current[env]) if self.current[env] >= 0 else k
             length = float(self.steps_in_episode[env])
-            for guide in (g, k + 1) if g < k else (g,):
-                n = self.judged[guide]
-                alpha = 1.0 / (n + 1) if n < 1.0 / CREDIT_EMA else CREDIT_EMA  # mean, then EMA
-                self.mean_length[guide] += alpha * (length - self.mean_length[guide])
-                self.judged[guide] += 1
+            n = self.judged[g]
+            alpha = 1.0 / (n + 1) if n < 1.0 / CREDIT_EMA else CREDIT_EMA  # mean, then EMA
+            self.mean_length[g] += alpha * (length - self.mean_length[g])
+            self.judged[g] += 1
         self.steps_in_episode[env_ids] = 0
 
     def credit_factors(self) -> np.ndarray:
         """Per expert, clip((L_own / L_expert - 1) / CREDIT_MARGIN, 0, 1) once both have
-        CREDIT_MIN_EPISODES finished episodes: experts that do not lead the agents to the
-        target faster than they manage alone fade out (faulty experts, Sec. 5.4.1; and every
-        expert once the agents outgrow it). An expert not judged yet gets the group's factor
-        (all guided episodes together), at least CREDIT_FLOOR so that it is judged in time."""
+        CREDIT_MIN_EPISODES finished episodes (1 before): experts that do not lead the agents
+        to the target faster than they manage alone fade out (faulty experts, Sec. 5.4.1; and
+        every expert once the agents outgrow it)."""
         k = len(self.experts)
+        factors = np.ones(k)
         if self.judged[k] < CREDIT_MIN_EPISODES:
-            return np.ones(k)
-        factors = np.full(k, max(self.group_factor(), CREDIT_FLOOR))
+            return factors
         own = self.mean_length[k]
         seen = self.judged[:k] >= CREDIT_MIN_EPISODES
         ratio = own / np.maximum(self.mean_length[:k], 1e-9)
         factors[seen] = np.clip((ratio[seen] - 1.0) / CREDIT_MARGIN, 0.0, 1.0)
         return factors
-
-    def group_factor(self) -> float:
-        """The same rule for all guided episodes together: it judges a crowd of experts after
-        CREDIT_MIN_EPISODES guided episodes in all, long before each expert has that many (15
-        faulty experts at R_E = 0.1 would otherwise guide ~60 episodes before being cut)."""
-        k = len(self.experts)
-        if min(self.judged[k], self.judged[k + 1]) < CREDIT_MIN_EPISODES:
-            return 1.0
-        ratio = self.mean_length[k] / max(self.mean_length[k + 1], 1e-9)
-        return float(np.clip((ratio - 1.0) / CREDIT_MARGIN, 0.0, 1.0))
 
     def _credited(self) -> tuple[float, np.ndarray]:
         """(rate, wheel) in force under the credit rule: R_S reweighted by the credit factors,
@@ -340,9 +325,8 @@ class DemonstrationSelector:
         self.followed = np.asarray(d["followed"], dtype=np.int64)
         if "mean_length" in d:  # checkpoints from before the credit rule lack it
             self.steps_in_episode = np.asarray(d["steps_in_episode"], dtype=np.int64)
-            saved = len(d["mean_length"])
-            self.mean_length[:saved] = d["mean_length"]
-            self.judged[:saved] = d["judged"]
+            self.mean_length = np.asarray(d["mean_length"], dtype=np.float64)
+            self.judged = np.asarray(d["judged"], dtype=np.int64)
         else:
             self.steps_in_episode = np.zeros(len(self.current), dtype=np.int64)
         for i, s in d.get("experts", {}).items():
@@ -367,10 +351,7 @@ class DemonstrationSelector:
             ],
         }
         if self.credit:
-            k = len(self.experts)
-            out["credit"] = {"own_mean_length": float(self.mean_length[k]),
-                             "guided_mean_length": float(self.mean_length[k + 1]),
-                             "group_factor": self.group_factor(),
+            out["credit"] = {"own_mean_length": float(self.mean_length[-1]),
                              "rate_in_force": self._credited()[0]}
         return out
 
