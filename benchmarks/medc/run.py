@@ -46,6 +46,7 @@ import numpy as np
 from workers.mdrl.baselines import OraclePolicy
 from workers.mdrl.evaluate import evaluate, t_interval
 from workers.mdrl.experts import load_experts
+from workers.mdrl.medc import THRESHOLD as PAPER_THRESHOLD
 from workers.mdrl.medc import DemonstrationSelector
 from workers.mdrl.presets import get_preset
 from workers.mdrl.train import RunConfig, Trainer
@@ -127,14 +128,17 @@ def train_run(task: str, method: str, seed: int, steps: int, experts: list[str],
     else:
         selector = None
         if method == "dc":
-            selector = DemonstrationSelector(load_experts(experts[:1], env, seed), seed=seed)
+            selector = DemonstrationSelector(load_experts(experts[:1], env, seed), seed=seed,
+                                             threshold=THRESHOLD)
         elif method in ("medc", "medc-credit"):
             selector = DemonstrationSelector(load_experts(experts, env, seed), qos or None,
-                                             seed=seed, credit=method.endswith("-credit"))
+                                             seed=seed, credit=method.endswith("-credit"),
+                                             threshold=THRESHOLD)
         elif method in ("medc-faulty", "medc-faulty-credit"):
             refs = faulty_refs(experts[0], env.num_actions)
             selector = DemonstrationSelector(load_experts(refs, env, seed), seed=seed,
-                                             credit=method.endswith("-credit"))
+                                             credit=method.endswith("-credit"),
+                                             threshold=THRESHOLD)
         trainer = Trainer(env, obs, ppo, run, out=run_dir, selector=selector)
     trainer.train()
     wall = time.perf_counter() - start
@@ -171,6 +175,8 @@ def heldout(policy: Any, env: Any, episodes: int | None = None) -> dict[str, Any
 
 
 HELDOUT_EPISODES = 1000
+THRESHOLD = PAPER_THRESHOLD
+"""l of the DC / MEDC runs (``--threshold``)."""
 
 
 # ---------------------------------------------------------------------------- analysis
@@ -308,7 +314,7 @@ def plot(results: list[dict], path: Path) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    global HELDOUT_EPISODES
+    global HELDOUT_EPISODES, THRESHOLD
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--steps", type=int, default=1_000_000)
     p.add_argument("--seeds", default="0,1,2")
@@ -324,8 +330,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--eval-every", type=int, default=5)
     p.add_argument("--out", type=Path, default=Path("runs/medc"))
     p.add_argument("--png", type=Path, default=None)
+    p.add_argument("--threshold", type=float, default=PAPER_THRESHOLD,
+                   help="l of DC / MEDC (default 0.05, Tables 4.1 / 5.3); runs are cached "
+                   "under --out, so give another --out for another l")
     args = p.parse_args(argv)
     HELDOUT_EPISODES = args.episodes
+    THRESHOLD = args.threshold
     methods = [m for m in args.methods.split(",") if m]
     bad = [m for m in methods if m not in METHODS]
     if bad:
