@@ -98,6 +98,6 @@ def test_scenario_on_real_services(
         except Exception as exc:
             raise AssertionError(f"{exc}\n{worker_logs(p)}") from exc
     events = platform.tmc.contract.events.OutcomeSubmitted().get_logs(from_block=0)
-    assert [e["args"]["cid"] for e in events] == [report["cid"]]
+    assert [e["args"]["cid"] for e in events] == [report["cid"], report["medc"]["cid"]]
     assert report["allocated"] == [report["cid"]]
     assert report["reputation_after"] > report["reputation_before"]
