@@ -172,11 +172,10 @@ def open_sealed(store: Any, bundle_cid: str, name: str, private_key: bytes) -> b
     if env["cipher_size"] != size + _GCM_OVERHEAD:
         raise InvalidContent(f"envelope {envelope_cid}: cipher_size does not match {size} bytes")
     priv = ec.derive_private_key(int.from_bytes(private_key, "big"), ec.SECP256K1())
-    own = public_key_hex(private_key)
-    if address_of(bytes.fromhex(own[2:])).lower() != env["recipient"].lower():
+    own = address_of(parse_public_key(public_key_hex(private_key)))
+    if own.lower() != env["recipient"].lower():
         raise SealedContent(
-            f"{name} of {bundle_cid} is sealed to {env['recipient']}; this key is "
-            f"{address_of(bytes.fromhex(own[2:]))}"
+            f"{name} of {bundle_cid} is sealed to {env['recipient']}; this key is {own}"
         )
     try:
         epk = _curve_point(parse_public_key(env["epk"]))
