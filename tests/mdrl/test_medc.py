@@ -187,6 +187,55 @@ def test_credit_rule_fades_experts_that_lengthen_episodes():
     assert "credit" not in plain.card()
 
 
+def test_credit_puts_experts_on_probation_before_ppo_learns_from_them():
+    """credit=True: PPO learns (policy-loss weight) from an expert's episodes only once it and
+    the agents' own episodes have CREDIT_MIN_EPISODES judged episodes each, and then by its
+    credit factor; own episodes always weigh 1. Without credit there are no weights."""
+    length = {-1: 30, 0: 20, 1: 90}  # own, good, faulty
+    experts = [FixedExpert(np.zeros((1, 1, 5)), n) for n in ("good", "faulty")]
+    sel = DemonstrationSelector(experts, rate=0.5, seed=3, credit=True)
+    ids = np.arange(8)
+    sel.episode_start(ids)
+    first = sel.sample_weights(8)
+    assert (first[sel.current[ids] >= 0] == 0).all()  # nobody judged yet: probation
+    assert (first[sel.current[ids] < 0] == 1).all()
+    for _ in range(40):
+        sel.steps_in_episode[ids] = [length[int(g)] for g in sel.current[ids]]
+        sel.episode_start(ids)
+    assert (sel.judged >= 4).all()
+    np.testing.assert_array_equal(sel.learning_weights(), [1.0, 0.0])
+    w = sel.sample_weights(8)
+    expected = np.append(sel.learning_weights(), 1.0)[sel.current[ids]]
+    np.testing.assert_array_equal(w, expected)
+    assert sel.card()["experts"][1]["learning_weight"] == 0.0
+    again = DemonstrationSelector(experts, rate=0.5, seed=3, credit=True)
+    again.load_state_dict(json.loads(json.dumps(sel.state_dict())))
+    np.testing.assert_array_equal(again.sample_weights(8), w)
+    plain = DemonstrationSelector(experts, rate=0.5, seed=3)
+    plain.episode_start(ids)
+    assert plain.sample_weights(8) is None
+
+
+def test_guided_steps_on_probation_do_not_move_the_policy():
+    """Through Trainer: with every episode guided by an expert still on probation, the policy
+    loss is 0 and the actor does not change (only the critic and entropy terms act, and with
+    ent_coef 0 the actor keeps its weights); without the credit rule the same run moves it."""
+    obs = ObservationSpec(kind="odmtl")
+    ppo = PPOConfig(**{**TINY_PPO.to_dict(), "ent_coef": 0.0})
+
+    def actor_after(credit):
+        sel = DemonstrationSelector(load_experts(["biased:1"], TASK), rate=1.0, seed=0,
+                                    credit=credit)
+        trainer = Trainer(TASK, obs, ppo, tiny_run(updates=1), selector=sel)
+        before = [p.detach().clone() for p in trainer.agent.actor.parameters()]
+        trainer.train()
+        after = list(trainer.agent.actor.parameters())
+        return max((a - b).abs().max().item() for a, b in zip(after, before, strict=True))
+
+    assert actor_after(credit=True) == 0.0
+    assert actor_after(credit=False) > 0.0
+
+
 def test_credit_counts_steps_through_the_trainer():
     """Wired through Trainer: select() counts steps, episode_start() folds finished episodes,
     and the run's card reports the running means; the config round-trips through the

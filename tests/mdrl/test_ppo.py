@@ -81,6 +81,27 @@ def test_clipped_loss_matches_hand_computation():
     assert grad[2].item() == pytest.approx(-(3.0 * 1.1) / 3)
 
 
+def test_sample_weights_scale_each_surrogate_and_zero_drops_it():
+    """weights (expert probation): weight w scales a sample's policy gradient by w and the
+    mean still runs over all samples; weight 0 gives that sample no policy gradient."""
+    old = torch.log(torch.tensor([0.5, 0.5, 0.5]))
+    adv = torch.tensor([1.0, -1.0, 2.0])
+    v = torch.zeros(2)
+    ent = torch.zeros(3)
+    new = torch.log(torch.tensor([0.55, 0.45, 0.5])).requires_grad_()  # ratios in range
+    out = ppo_losses(new, old, adv, v, v, ent, clip_coef=0.2, vf_coef=0.5, ent_coef=0.0,
+                     weights=torch.tensor([1.0, 0.0, 0.5]))
+    r = torch.tensor([1.1, 0.9, 1.0])
+    assert out.pg_loss.item() == pytest.approx(-(1.1 * 1.0 + 0.0 + 0.5 * 2.0) / 3)
+    out.loss.backward()
+    assert new.grad[1].item() == 0.0
+    assert new.grad[0].item() == pytest.approx(-(r[0] * 1.0).item() / 3)
+    assert new.grad[2].item() == pytest.approx(-(0.5 * r[2] * 2.0).item() / 3)
+    with pytest.raises(ValueError, match="weights"):
+        ppo_losses(new, old, adv, v, v, ent, clip_coef=0.2, vf_coef=0.5, ent_coef=0.0,
+                   weights=torch.ones(2))
+
+
 def test_value_clipping_uses_the_larger_error():
     z = torch.zeros(1)
     out = ppo_losses(z, z, z, torch.tensor([1.0]), torch.tensor([0.0]), z, clip_coef=0.2,

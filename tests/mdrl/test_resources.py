@@ -49,7 +49,7 @@ def test_rollout_memory_by_hand() -> None:
     # DMTL, 1 agent, 4x4 grid: actor and critic see (3, 4, 4) maps, A = 5 actions, T*B = 8
     s = spec("dmtl", agents=1, rows=4, cols=4, ppo={"num_envs": 2, "horizon": 8})
     t, b = 4, 2
-    per_step = 1 * 48 * 4 + 48 * 4 + 1 * 5 + 1 * (8 + 4) + 9
+    per_step = 1 * 48 * 4 + 48 * 4 + 1 * 5 + 1 * (8 + 4) + 9 + 4  # + the step weight
     assert estimate(s).memory_parts["rollout"] == t * b * per_step
     params = lenet_params((3, 4, 4), 5) + lenet_params((3, 4, 4), 1)
     assert estimate(s).memory_parts["networks"] == params * 8

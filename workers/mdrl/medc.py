@@ -71,7 +71,9 @@ class DemonstrationConfig:
     """l: an agent follows the expert only on actions with probability > l under its policy."""
     credit: bool = False
     """Expert credit (ours, not in Alg. 5.1): an expert whose guided episodes run longer than
-    the agents' own loses selection weight and guidance share (``DemonstrationSelector``)."""
+    the agents' own loses selection weight and guidance share, and PPO learns from an expert's
+    episodes only once it has shown that it shortens them (``DemonstrationSelector``:
+    ``credit_factors``, ``learning_weights``)."""
 
     def __post_init__(self) -> None:
         e = self.experts
@@ -172,7 +174,7 @@ class DemonstrationSelector:
         self.rng = np.random.default_rng([seed, SEED_SALT])
         self._sampler = SampleSelector(generator or torch.Generator().manual_seed(seed))
         self.current = np.full(0, -1, dtype=np.int64)  # per env: guiding expert, -1 = own
-        k = len(self.experts)
+        self.weight = np.ones(0)  # per env: policy-loss weight of its episode (credit rule)
         self.episodes = np.zeros(k, dtype=np.int64)
         self.decisions = np.zeros(k, dtype=np.int64)
         self.followed = np.zeros(k, dtype=np.int64)
@@ -205,6 +207,9 @@ class DemonstrationSelector:
             steps = np.zeros(env_ids.max() + 1, dtype=np.int64)
             steps[:len(self.steps_in_episode)] = self.steps_in_episode
             self.steps_in_episode = steps
+            weight = np.ones(env_ids.max() + 1)
+            weight[:len(self.weight)] = self.weight
+            self.weight = weight
         rate, wheel = self.rate, self.wheel
         if self.credit:
             self._judge(env_ids)
@@ -214,6 +219,9 @@ class DemonstrationSelector:
         pick = np.minimum(np.searchsorted(wheel, spin, side="right"), len(wheel) - 1)
         chosen = np.where(check < rate, pick, -1)
         self.current[env_ids] = chosen
+        if self.credit:
+            trust = np.append(self.learning_weights(), 1.0)  # index -1 = own episode
+            self.weight[env_ids] = trust[chosen]
         self.episodes += np.bincount(chosen[chosen >= 0], minlength=len(self.experts))
         self.own_episodes += int((chosen < 0).sum())
 
@@ -244,6 +252,25 @@ class DemonstrationSelector:
         ratio = own / np.maximum(self.mean_length[:k], 1e-9)
         factors[seen] = np.clip((ratio[seen] - 1.0) / CREDIT_MARGIN, 0.0, 1.0)
         return factors
+
+    def learning_weights(self) -> np.ndarray:
+        """Per expert, the policy-loss weight of the episodes it guides under the credit rule:
+        0 while it is on probation (fewer than CREDIT_MIN_EPISODES judged episodes, of its own
+        or of the agents alone), then its credit factor. PPO thus learns only from experts that
+        have shown they shorten episodes; the first guided episodes of a faulty expert, which
+        the selection weight alone cannot avoid, teach the policy nothing."""
+        k = len(self.experts)
+        if self.judged[k] < CREDIT_MIN_EPISODES:
+            return np.zeros(k)
+        return np.where(self.judged[:k] >= CREDIT_MIN_EPISODES, self.credit_factors(), 0.0)
+
+    def sample_weights(self, envs: int) -> np.ndarray | None:
+        """Policy-loss weight (envs,) of each env's current step (``rollout.step_weights``):
+        1 in the agents' own episodes, ``learning_weights`` in guided ones; None (all 1, Alg.
+        5.1 as written) without the credit rule."""
+        if not self.credit:
+            return None
+        return self.weight[:envs]
 
     def _credited(self) -> tuple[float, np.ndarray]:
         """(rate, wheel) in force under the credit rule: R_S reweighted by the credit factors,
@@ -311,7 +338,8 @@ class DemonstrationSelector:
                 "own_episodes": self.own_episodes, "decisions": self.decisions.tolist(),
                 "followed": self.followed.tolist(), "experts": experts,
                 "steps_in_episode": self.steps_in_episode.tolist(),
-                "mean_length": self.mean_length.tolist(), "judged": self.judged.tolist()}
+                "mean_length": self.mean_length.tolist(), "judged": self.judged.tolist(),
+                "weight": self.weight.tolist()}
 
     def load_state_dict(self, d: dict[str, Any]) -> None:
         if d["config"]["models"] != list(self.config.experts):
@@ -327,8 +355,11 @@ class DemonstrationSelector:
             self.steps_in_episode = np.asarray(d["steps_in_episode"], dtype=np.int64)
             self.mean_length = np.asarray(d["mean_length"], dtype=np.float64)
             self.judged = np.asarray(d["judged"], dtype=np.int64)
+            self.weight = np.asarray(d.get("weight", np.ones(len(self.current))),
+                                     dtype=np.float64)
         else:
             self.steps_in_episode = np.zeros(len(self.current), dtype=np.int64)
+            self.weight = np.ones(len(self.current))
         for i, s in d.get("experts", {}).items():
             self.experts[int(i)].load_state_dict(s)
 
@@ -337,6 +368,7 @@ class DemonstrationSelector:
         how much each expert was used)."""
         w = np.asarray(self.config.weights)
         factors = self.credit_factors() if self.credit else np.ones(len(self.experts))
+        learning = self.learning_weights() if self.credit else np.ones(len(self.experts))
         out = {
             "method": "DC (Alg. 4.1)" if len(self.experts) == 1 else "MEDC (Alg. 5.1)",
             "rate": self.rate, "threshold": self.threshold,
@@ -345,7 +377,8 @@ class DemonstrationSelector:
                 {"ref": e.name, "qos": float(w[i]), "selection_probability": float(w[i] / w.sum()),
                  "episodes": int(self.episodes[i]), "decisions": int(self.decisions[i]),
                  "followed": int(self.followed[i])}
-                | ({"mean_length": float(self.mean_length[i]), "credit": float(factors[i])}
+                | ({"mean_length": float(self.mean_length[i]), "credit": float(factors[i]),
+                    "learning_weight": float(learning[i])}
                    if self.credit else {})
                 for i, e in enumerate(self.experts)
             ],

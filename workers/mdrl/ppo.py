@@ -160,13 +160,16 @@ def ppo_losses(
     ent_coef: float,
     old_values: torch.Tensor | None = None,
     clip_vloss: bool = False,
+    weights: torch.Tensor | None = None,
 ) -> PPOLosses:
     """The clipped PPO objective (Eq. 2) with value loss and entropy bonus (Eq. 4).
 
     Policy tensors (`new_logp`, `old_logp`, `advantages`, `entropy`) share one shape (for
     CLDE: one entry per agent sample); value tensors (`new_values`, `returns`) share another
     (one entry per env step, the centralized critic). Advantages are used as given
-    (normalise before calling if wanted).
+    (normalise before calling if wanted). ``weights`` (policy shape, optional) scales each
+    sample's clipped surrogate; the mean still runs over all samples, so weight 0 drops a
+    sample from the policy gradient (expert probation, ``medc.DemonstrationSelector``).
     """
     if not (new_logp.shape == old_logp.shape == advantages.shape == entropy.shape):
         raise ValueError("ppo_losses: new_logp, old_logp, advantages, entropy shapes differ: "
@@ -179,6 +182,11 @@ def ppo_losses(
     ratio = log_ratio.exp()  # r_t(theta) of Eq. 2
     surrogate = torch.min(ratio * advantages,
                           ratio.clamp(1.0 - clip_coef, 1.0 + clip_coef) * advantages)
+    if weights is not None:
+        if weights.shape != surrogate.shape:
+            raise ValueError(f"ppo_losses: weights {tuple(weights.shape)} differ from the "
+                             f"policy samples {tuple(surrogate.shape)}")
+        surrogate = surrogate * weights
     pg_loss = -surrogate.mean()
     if clip_vloss:
         if old_values is None:

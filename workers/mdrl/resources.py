@@ -104,7 +104,9 @@ def estimate(spec: TrainingSpec) -> ResourceEstimate:
     obs_bytes = (
         b * (np_ * actor_in + critic_in) * F32 + c * window * F32 + b * np_ * ap * (1 + 3 * F32)
     )
-    rollout = t * b * (np_ * actor_in * F32 + critic_in * F32 + np_ * ap + np_ * (I64 + F32) + 9)
+    # per step: actor and critic maps, masks, actions + log-probs, value + reward + done (9 B)
+    # and the policy-loss weight (4 B, rollout.RolloutBuffer.weights)
+    rollout = t * b * (np_ * actor_in * F32 + critic_in * F32 + np_ * ap + np_ * (I64 + F32) + 13)
     params = lenet_params(layout.actor_shape, ap) + lenet_params(layout.critic_shape, 1)
     networks = params * F32 * 2  # weights + gradients
     optimizer = params * F32 * 2  # Adam's two moments

@@ -62,6 +62,13 @@ class ActionSelector(Protocol):
     def select(self, logp: torch.Tensor, mask: torch.Tensor, env: Any) -> torch.Tensor: ...
 
 
+def step_weights(selector: Any, envs: int) -> np.ndarray | None:
+    """Policy-loss weight (B,) of each env's step just selected, if the selector gives one
+    (``sample_weights(envs)``, e.g. MEDC's expert probation), else None = all 1."""
+    fn = getattr(selector, "sample_weights", None)
+    return None if fn is None else fn(envs)
+
+
 class SampleSelector:
     """Samples from the policy (Gumbel-max with an explicit torch.Generator: reproducible)."""
 
@@ -113,6 +120,8 @@ class RolloutBuffer:
     values: torch.Tensor  # float32 [T, B]  (centralized critic, one value per env step)
     rewards: torch.Tensor  # float32 [T, B]  (team reward, Eq. 5)
     dones: torch.Tensor  # bool [T, B]  (episode ended with this step: terminated or truncated)
+    weights: torch.Tensor  # float32 [T, B]  (policy-loss weight of the step; 1 unless a
+    #                        selector gives one, ``step_weights``)
 
     @classmethod
     def allocate(cls, steps: int, envs: int, policy_agents: int, policy_actions: int,
@@ -127,6 +136,7 @@ class RolloutBuffer:
             values=torch.zeros((t, b), dtype=torch.float32),
             rewards=torch.zeros((t, b), dtype=torch.float32),
             dones=torch.zeros((t, b), dtype=torch.bool),
+            weights=torch.ones((t, b), dtype=torch.float32),
         )
 
     @property

@@ -34,6 +34,7 @@ from workers.mdrl.rollout import (
     RolloutBuffer,
     SampleSelector,
     policy_step,
+    step_weights,
 )
 from workers.mdrl.spec import EnvSpec
 
@@ -109,14 +110,17 @@ class Trainer:
 
     def __init__(self, env_spec: EnvSpec, obs_spec: ObservationSpec, ppo: PPOConfig,
                  run: RunConfig, out: str | Path | None = None,
-                 selector: ActionSelector | None = None):
+                 selector: ActionSelector | None = None, walls_encoder: Any = None):
+        """``walls_encoder``: a ``cae.WallsEmbedder`` to use instead of loading
+        ``obs_spec.walls_embedding`` from disk (a platform job fetches the CAE by CID and keeps
+        the CID in the spec, so the model's card names it, not the worker's path)."""
         self.env_spec, self.obs_spec, self.ppo, self.run = env_spec, obs_spec, ppo, run
         self.out = Path(out) if out is not None else None
         torch.set_num_threads(run.threads)
         # environment: B envs stepped together as arrays
         self.env = TargetLocalizationEnv(env_spec, ppo.num_envs, seed=run.seed)
         # observer: env state -> actor (B, Np, C, H, W) and critic (B, C, H, W) maps
-        self.observer = make_observer(env_spec, obs_spec)
+        self.observer = make_observer(env_spec, obs_spec, walls_encoder)
         self.head = PolicyHead(env_spec.num_actions, env_spec.agents,
                                joint=bool(self.observer.joint_actions))
         # agent: shared actor + centralized critic (Table 3.1); init from the seed only
@@ -143,6 +147,7 @@ class Trainer:
         self.last_metrics: dict[str, Any] = {}
         self.last_eval: dict[str, float] = {}
         self._rollout = (ppo.rollout_steps, ppo.num_envs)  # (T', k) of the last collect()
+        self._weighted = False  # the last collect() stored selector step weights
         self._writer: Any = None
 
     # ------------------------------------------------------------------ rollout
@@ -166,6 +171,7 @@ class Trainer:
         steps, last_envs = self.rollout_plan()
         self._rollout = (steps, last_envs)
         found, length, cost, returns = [], [], [], []
+        self._weighted = False  # any step weight from the selector in this rollout
         for t in range(steps):
             actor_obs, critic_obs = self.observer.observe(env)
             a_obs = buf.actor_obs[t]
@@ -176,6 +182,10 @@ class Trainer:
             actions, logp = policy_step(self.agent, a_obs, mask, self.selector, env)
             buf.actions[t] = actions
             buf.logp[t] = logp
+            weights = step_weights(self.selector, b)
+            if weights is not None:
+                buf.weights[t] = torch.from_numpy(np.asarray(weights, dtype=np.float32))
+                self._weighted = True
             buf.values[t] = self.agent.value(buf.critic_obs[t]).reshape(b)
             frozen = t == steps - 1 and last_envs < b
             if frozen:  # inactive envs do not step (their actions are not checked or applied)
@@ -245,6 +255,7 @@ class Trainer:
         b_values = values.reshape(t * b)[:m]
         b_adv = advantages.reshape(t * b)[:m]
         b_ret = returns.reshape(t * b)[:m]
+        b_weights = buf.weights[:t].reshape(t * b)[:m] if self._weighted else None
         mb_size = math.ceil(m / cfg.num_minibatches)
         sums: dict[str, float] = {}
         count = 0
@@ -265,7 +276,8 @@ class Trainer:
                 losses = ppo_losses(
                     new_logp, b_logp[idx], adv.unsqueeze(1).expand(k, n), new_values,
                     b_ret[idx], entropy, clip_coef=cfg.clip_coef, vf_coef=cfg.vf_coef,
-                    ent_coef=cfg.ent_coef, old_values=b_values[idx], clip_vloss=cfg.clip_vloss)
+                    ent_coef=cfg.ent_coef, old_values=b_values[idx], clip_vloss=cfg.clip_vloss,
+                    weights=None if b_weights is None else b_weights[idx].unsqueeze(1).expand(k, n))
                 self.optimizer.zero_grad(set_to_none=True)
                 losses.loss.backward()
                 # actor and critic are separate networks: clip each, so the critic's larger
@@ -457,7 +469,8 @@ class Trainer:
     @classmethod
     def resume(cls, path: str | Path, out: str | Path | None = None,
                run_overrides: dict[str, Any] | None = None,
-               selector: ActionSelector | None = None) -> Trainer:
+               selector: ActionSelector | None = None,
+               walls_encoder: Any = None) -> Trainer:
         """Rebuild a trainer from a checkpoint dir (or a run dir holding `checkpoint/`)."""
         path = Path(path)
         if (path / "checkpoint").is_dir():
@@ -467,7 +480,8 @@ class Trainer:
         env_spec, ppo = EnvSpec.from_dict(meta["env"]), PPOConfig.from_dict(meta["ppo"])
         obs_spec = ObservationSpec.from_dict(meta["observation"])
         trainer = cls(env_spec, obs_spec, ppo, run,
-                      out=out if out is not None else path.parent, selector=selector)
+                      out=out if out is not None else path.parent, selector=selector,
+                      walls_encoder=walls_encoder)
         saved = meta.get("walls_encoder", {}).get("digest")
         embedder = trainer.observer.embedder
         if saved is not None and (embedder is None or embedder.card["digest"] != saved):
