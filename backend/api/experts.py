@@ -27,6 +27,8 @@ from backend.store.bundle import MODEL_FILES, read_bundle
 
 MAX_CARD_BYTES = 1 << 20
 CARD_FORMAT = "drlaas-model/1"
+CAE_KIND = "cae"
+"""``kind`` of a walls CAE's card (``workers.mdrl.cae``); a policy's card has none."""
 
 
 def allocation_experts(session: Session, alloc_id: int, caller: str) -> list[Any]:
@@ -61,40 +63,57 @@ def check_experts(store: ContentStore, refs: tuple[str, ...]) -> None:
     """422 naming ``experts[i]`` unless each is a canonical CID of a model bundle in the store
     (its two files, a ``drlaas-model/1`` card); 503 while the store is down."""
     for i, ref in enumerate(refs):
-        loc = ("body", "experts", i)
-        try:
-            canonical = str(CID.parse(ref).v1())
-        except (InvalidCID, ValueError):
-            field_error(
-                loc,
-                f"{ref!r} is not a model CID: a platform task names its experts by "
-                f"the CID of their bundle (no paths, no built-ins)",
-                "expert_not_cid",
+        _check_model(store, ref, ("body", "experts", i), "expert")
+
+
+def check_walls_cae(store: ContentStore, ref: str | None) -> None:
+    """The same for a spec's walls CAE (``observation.walls_embedding``, Ch. 4), whose card
+    must be a CAE's (kind ``cae``); codes ``walls_cae_*``."""
+    if ref is not None:
+        _check_model(store, ref, ("body", "observation", "walls_embedding"), "walls_cae")
+
+
+def _check_model(store: ContentStore, ref: str, loc: tuple[Any, ...], what: str) -> None:
+    try:
+        canonical = str(CID.parse(ref).v1())
+    except (InvalidCID, ValueError):
+        field_error(
+            loc,
+            f"{ref!r} is not a model CID: a platform task names its models by "
+            f"the CID of their bundle (no paths, no built-ins)",
+            f"{what}_not_cid",
+        )
+    if canonical != ref:
+        field_error(
+            loc,
+            f"give the CID in the store's canonical form: {canonical}",
+            f"{what}_not_canonical",
+        )
+    try:
+        files = read_bundle(store, ref)
+        if sorted(files) != sorted(MODEL_FILES):
+            raise ValueError(f"the bundle holds {sorted(files)}, not {list(MODEL_FILES)}")
+        card_cid, size = files["model.json"]
+        if size > MAX_CARD_BYTES:
+            raise ValueError(f"its card is {size} bytes, the bound is {MAX_CARD_BYTES}")
+        card = json.loads(store.get(card_cid, max_size=MAX_CARD_BYTES))
+        if not isinstance(card, dict) or card.get("format") != CARD_FORMAT:
+            raise ValueError(f"its model.json is not a {CARD_FORMAT} card")
+        is_cae = card.get("kind") == CAE_KIND
+        if is_cae != (what == "walls_cae"):
+            raise ValueError(
+                "its card is a walls CAE's, not a policy's"
+                if is_cae
+                else "its card is a policy's, not a walls CAE's"
             )
-        if canonical != ref:
-            field_error(
-                loc,
-                f"give the CID in the store's canonical form: {canonical}",
-                "expert_not_canonical",
-            )
-        try:
-            files = read_bundle(store, ref)
-            if sorted(files) != sorted(MODEL_FILES):
-                raise ValueError(f"the bundle holds {sorted(files)}, not {list(MODEL_FILES)}")
-            card_cid, size = files["model.json"]
-            if size > MAX_CARD_BYTES:
-                raise ValueError(f"its card is {size} bytes, the bound is {MAX_CARD_BYTES}")
-            card = json.loads(store.get(card_cid, max_size=MAX_CARD_BYTES))
-            if not isinstance(card, dict) or card.get("format") != CARD_FORMAT:
-                raise ValueError(f"its model.json is not a {CARD_FORMAT} card")
-        except NotFound:
-            field_error(loc, f"the content store does not hold {ref}", "expert_not_found")
-        except StoreUnavailable as exc:
-            raise RuleError(
-                503, "store_unavailable", f"content store: {exc}", headers={"Retry-After": "5"}
-            ) from None
-        except (ValueError, RecursionError, StoreError) as exc:
-            field_error(loc, f"{ref} is not a usable model: {exc}", "expert_invalid")
+    except NotFound:
+        field_error(loc, f"the content store does not hold {ref}", f"{what}_not_found")
+    except StoreUnavailable as exc:
+        raise RuleError(
+            503, "store_unavailable", f"content store: {exc}", headers={"Retry-After": "5"}
+        ) from None
+    except (ValueError, RecursionError, StoreError) as exc:
+        field_error(loc, f"{ref} is not a usable model: {exc}", f"{what}_invalid")
 
 
 def task_experts(

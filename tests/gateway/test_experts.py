@@ -109,3 +109,34 @@ def test_named_experts_must_be_model_cids_in_the_store(client: TestClient, login
         headers=login("user1"),
     )
     assert r.status_code == 201, r.text
+
+
+def test_a_named_walls_cae_must_be_a_cae_bundle_in_the_store(
+    client: TestClient, login: Login
+) -> None:
+    """observation.walls_embedding (Ch. 4): a canonical CID of a bundle whose card is a walls
+    CAE's; a policy's bundle, bytes or an absent CID are 422 naming the field."""
+    register(client, login, ["user1"], {"user3": {}})
+    store = client.app.state.store  # type: ignore[attr-defined]
+    cae_card = b'{"format": "drlaas-model/1", "kind": "cae", "grid": [6, 6], "embedding": 8}'
+    cae = add_bundle(store, {"model.safetensors": b"w" * 64, "model.json": cae_card})
+    policy = add_bundle(store, {"model.safetensors": b"w" * 64, "model.json": card_of(ENV2, "m")})
+    absent = "bafkreigh2akiscaildcqabsyg3dfr6chu3fgpregiymsck7e7aqa4s52zy"
+
+    def post(ref: str) -> object:
+        obs = {"kind": "odmtl", "window": 3, "walls_embedding": ref, "walls_embedding_size": 8}
+        return client.post(f"{P}/tasks", json=task_body(observation=obs), headers=login("user1"))
+
+    for ref, rule in {
+        "models/cae": "walls_cae_not_cid",
+        absent: "walls_cae_not_found",
+        policy: "walls_cae_invalid",
+    }.items():
+        r = post(ref)
+        assert r.status_code == 422, (ref, r.text)
+        err = r.json()["detail"][0]
+        assert (err["type"], err["loc"]) == (rule, ["body", "observation", "walls_embedding"])
+    r = post(cae)
+    assert r.status_code == 201, r.text
+    spec = client.get(f"{P}/tasks/{r.json()['task_id']}").json()["spec"]
+    assert spec["observation"]["walls_embedding"] == cae

@@ -70,6 +70,8 @@ def test_round_trip_and_defaults() -> None:
         ({"experts": ["a/../b"]}, "experts[0]"),
         ({"experts": ["m1", "m1"]}, "experts"),
         ({"format": "other/2"}, "format"),
+        ({"observation": {"walls_embedding": "/etc/cae"}}, "observation.walls_embedding"),
+        ({"observation": {"walls_embedding_size": 0}}, "observation.walls_embedding_size"),
         ({"outcome_key": "0x1234"}, "outcome_key"),
         ({"outcome_key": "0x" + "01" * 64}, "outcome_key"),  # hex of the length, off the curve
     ],
@@ -81,6 +83,21 @@ def test_errors_name_the_dotted_field(change: dict, field: str) -> None:
     with pytest.raises(SpecError) as info:
         TrainingSpec.from_dict(doc)
     assert info.value.field == field, info.value
+
+
+def test_a_walls_cae_is_named_by_cid_and_round_trips() -> None:
+    """observation.walls_embedding (Ch. 4 CAE) by model CID, with its d; off by default."""
+    cid = "bafybeigdyrzt5sfp7udm7hu76uh7y26nf3efuylqabf3oclgtqy55fbzdi"
+    doc = {**GOOD, "observation": {**GOOD.get("observation", {}), "walls_embedding": cid,
+                                   "walls_embedding_size": 32}}
+    spec = TrainingSpec.from_dict(doc)
+    assert spec.observation.walls_embedding == cid and spec.observation.walls_embedding_size == 32
+    assert TrainingSpec.from_dict(spec.to_dict()) == spec
+    assert "walls_embedding" not in TrainingSpec.from_dict(GOOD).to_dict()["observation"]
+    schema = trainingspec_json_schema()
+    v = jsonschema_rs.Draft202012Validator(schema, validate_formats=True)
+    assert v.is_valid(spec.to_dict())
+    assert not v.is_valid({**doc, "observation": {"walls_embedding": "../x"}})
 
 
 def test_integral_numbers_are_integers_as_in_json_schema() -> None:

@@ -18,7 +18,7 @@ from backend.chain.platform import OfferState
 from backend.store import EmbeddedStore, StoreUnavailable
 from backend.store.bundle import add_bundle, read_bundle, upload_model
 from workers.daemon import job as jobs
-from workers.daemon.experts import ExpertFetchError, fetch_experts
+from workers.daemon.experts import ExpertFetchError, fetch_experts, fetch_walls_cae
 from workers.daemon.handler import OfferHandler
 from workers.mdrl.trainingspec import TrainingSpec
 
@@ -206,6 +206,90 @@ def test_an_medc_offer_trains_with_its_expert_and_the_card_lists_it(env, store, 
     assert (h.job_dir(task_id) / "experts" / cid / "model.safetensors").is_file()
 
 
+def walls_cae(tmp_path: Path, grid: tuple[int, int] = (6, 6), d: int = 16) -> Path:
+    """An (untrained) walls CAE for the 6 x 6 tiny task, written as the product writes one."""
+    from workers.mdrl.cae import WallsCAE, save_cae
+    from workers.mdrl.spec import EnvSpec
+
+    torch.manual_seed(0)
+    return save_cae(
+        tmp_path / "cae",
+        WallsCAE(grid, embedding=d),
+        EnvSpec(rows=grid[0], cols=grid[1], walls=(1, 2)),
+    )
+
+
+def cae_spec(cid: str, d: int = 16) -> dict:
+    return {
+        **TINY_SPEC,
+        "env": {**TINY_SPEC["env"], "walls": [1, 2]},
+        "observation": {
+            **TINY_SPEC["observation"],
+            "walls_embedding": cid,
+            "walls_embedding_size": d,
+        },
+    }
+
+
+def test_a_task_naming_a_walls_cae_trains_with_it_and_the_card_names_its_cid(
+    env, store, tmp_path
+) -> None:
+    """observation.walls_embedding (Ch. 4 CAE) by CID: the worker fetches and verifies it,
+    trains with its encoder, and the outcome's card names the CAE by CID, not by a path on
+    the worker; the card's encoder digest is the CAE's."""
+    from workers.mdrl.cae import load_cae_card
+
+    p, actors = env
+    local = walls_cae(tmp_path)
+    cid = upload_model(store, local)
+    task_id, offered, _ = post_task(p, store, actors.requester, spec=cae_spec(cid))
+    h = OfferHandler(
+        account=p.chain._keys[offered[0]], platform=p, store=store, data_dir=tmp_path / "w"
+    )
+    h._post_progress = lambda tid, point: None  # type: ignore[method-assign]
+    out = h.handle(task_id, offered[0])
+    assert out["status"] == "submitted", out
+    card_cid, _ = read_bundle(store, out["cid"])["model.json"]
+    card = json.loads(store.get(card_cid))
+    assert card["observation"]["walls_embedding"] == cid
+    assert card["walls_encoder"]["source"] == cid
+    assert card["walls_encoder"]["digest"] == load_cae_card(local)["encoder_digest"]
+    assert (h.job_dir(task_id) / "cae" / cid / "model.safetensors").is_file()
+
+
+def test_a_walls_cae_that_is_not_one_fails_the_job_naming_its_cid(env, store, tmp_path) -> None:
+    p, actors = env
+    policy = upload_model(store, EXPERT)  # a policy's bundle where a CAE belongs
+    with pytest.raises(ExpertFetchError) as err:
+        fetch_walls_cae(store, policy, tmp_path / "job")
+    reason = err.value.reason
+    assert "not a walls CAE card" in reason
+    assert not list((tmp_path / "job" / "cae").glob("*/model.json"))  # nothing kept
+    task_id, offered, _ = post_task(p, store, actors.requester, spec=cae_spec(policy))
+    h = OfferHandler(
+        account=p.chain._keys[offered[0]], platform=p, store=store, data_dir=tmp_path / "w"
+    )
+    out = h.handle(task_id, offered[0])
+    assert out["status"] == "failed" and f"expert {policy}" in out["reason"]
+    assert "walls CAE" in out["reason"]
+    wrong_grid = upload_model(store, walls_cae(tmp_path / "big", grid=(8, 8)))
+    task_id, offered, _ = post_task(p, store, actors.requester, spec=cae_spec(wrong_grid))
+    h2 = OfferHandler(
+        account=p.chain._keys[offered[0]], platform=p, store=store, data_dir=tmp_path / "w2"
+    )
+    out = h2.handle(task_id, offered[0])  # a CAE for another grid: the mismatch is named
+    assert out["status"] == "failed" and "8x8" in out["reason"], out
+
+
+def test_the_expert_credit_rule_of_a_spec_reaches_the_selector(store, tmp_path: Path) -> None:
+    cid = upload_model(store, EXPERT)
+    doc = {**TINY_SPEC, "experts": [cid], "algorithm": {"demonstration": {"credit": True}}}
+    dirs = fetch_experts(store, [cid], tmp_path / "job")
+    assert jobs.make_selector(TrainingSpec.from_dict(doc), dirs).credit
+    plain = {**TINY_SPEC, "experts": [cid]}
+    assert not jobs.make_selector(TrainingSpec.from_dict(plain), dirs).credit
+
+
 # -- the requester's CLI ----------------------------------------------------------------------
 
 
@@ -255,6 +339,34 @@ def test_task_submit_expert_options_are_checked_before_anything_is_sent(tmp_path
     assert body["experts"] == [{"model": cid, "qos": 0.4}]
     assert body["algorithm"] == {"demonstration": {"threshold": 0.1}}
     assert TrainingSpec.from_dict({k: body[k] for k in ("env", "budget", "experts", "algorithm")})
+
+
+def test_model_push_adds_a_cae_or_a_model_to_the_platform_store(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """`drlaas model push DIR`: the directory is checked (a CAE or a policy that loads), added
+    to the platform's store (here the embedded one of DRLAAS_DATA_DIR) and its CID printed,
+    which the worker then fetches and verifies as a walls CAE."""
+    from typer.testing import CliRunner
+
+    from drlaas.cli import app
+
+    monkeypatch.setenv("DRLAAS_DATA_DIR", str(tmp_path / "platform"))
+    monkeypatch.setenv("DRLAAS_IPFS", "embedded")
+    cae = walls_cae(tmp_path)
+    res = CliRunner().invoke(app, ["model", "push", str(cae), "--json"])
+    assert res.exit_code == 0, res.output
+    out = json.loads(res.output)
+    assert out["kind"] == "walls CAE"
+    platform_store = EmbeddedStore(tmp_path / "platform" / "ipfs")
+    assert fetch_walls_cae(platform_store, out["cid"], tmp_path / "job").is_dir()
+    res = CliRunner().invoke(app, ["model", "push", str(EXPERT), "--json"])
+    assert res.exit_code == 0 and json.loads(res.output)["kind"] == "model", res.output
+    bad = tmp_path / "bad"
+    bad.mkdir()
+    (bad / "model.json").write_text('{"format": "drlaas-model/1", "kind": "cae"}')
+    res = CliRunner().invoke(app, ["model", "push", str(bad)])
+    assert res.exit_code == 1 and "not a model or walls CAE directory" in res.output
 
 
 def test_an_expert_that_cannot_serve_the_task_is_named(store, tmp_path: Path) -> None:

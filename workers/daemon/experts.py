@@ -1,5 +1,6 @@
-"""Expert models of an MEDC job (thesis Alg. 5.1; platform flow of Ch. 5 and 7.8): fetched from
-the content store by CID, verified, kept in the job directory.
+"""Expert models of an MEDC job (thesis Alg. 5.1; platform flow of Ch. 5 and 7.8), and the walls
+CAE a Ch. 4 task may name (``observation.walls_embedding``): fetched from the content store by
+CID, verified, kept in the job directory.
 
 A task spec names its experts by model CID (``experts``: bundle manifests, as the MMC lists
 them). Nothing from the network is trusted, so before an expert guides training here:
@@ -13,8 +14,9 @@ them). Nothing from the network is trusted, so before an expert guides training 
   ``torch.save`` file, is refused by its first bytes and never unpickled);
 * the card must be a ``drlaas-model/1`` card whose env and observation this code can rebuild.
 
-A verified expert lives in ``<job>/experts/<CID v1>/``, renamed into place only once complete,
-so a restarted job resumes with the same files and never fetches them again.
+A verified expert lives in ``<job>/experts/<CID v1>/`` (a CAE in ``<job>/cae/<CID v1>/``),
+renamed into place only once complete, so a restarted job resumes with the same files and never
+fetches them again.
 """
 
 from __future__ import annotations
@@ -31,6 +33,7 @@ from backend.store import CID, ContentStore, InvalidCID, StoreError, StoreUnavai
 from backend.store.bundle import MODEL_FILES, read_bundle
 
 EXPERTS_DIR = "experts"
+CAE_DIR = "cae"
 MAX_WEIGHTS_BYTES = 64 * 2**20
 """Bound on an expert's weights (the zoo's largest model is ~0.1 MiB)."""
 MAX_CARD_BYTES = 1 << 20
@@ -88,8 +91,22 @@ def fetch_expert(
 
     :class:`StoreUnavailable` propagates (try again later); every other failure is an
     :class:`ExpertFetchError` naming the CID."""
+    return _fetch_verified(store, ref, Path(job_dir) / EXPERTS_DIR, max_weights, check_card)
+
+
+def fetch_walls_cae(
+    store: ContentStore, ref: str, job_dir: Path, *, max_weights: int = MAX_WEIGHTS_BYTES
+) -> Path:
+    """The verified walls CAE (Ch. 4, ``observation.walls_embedding``) of a task under
+    ``job_dir/cae``: the same checks as an expert's, with a CAE card instead of a policy's."""
+    return _fetch_verified(store, ref, Path(job_dir) / CAE_DIR, max_weights, check_cae_card)
+
+
+def _fetch_verified(
+    store: ContentStore, ref: str, parent: Path, max_weights: int, check: Any
+) -> Path:
     key = expert_key(ref)
-    final = Path(job_dir) / EXPERTS_DIR / key
+    final = parent / key
     if all((final / name).is_file() for name in MODEL_FILES):
         return final  # verified before it was renamed into place
     final.parent.mkdir(parents=True, exist_ok=True)
@@ -97,7 +114,7 @@ def fetch_expert(
     try:
         _download(store, ref, tmp, max_weights)
         check_safetensors(tmp / "model.safetensors", ref)
-        check_card(tmp / "model.json", ref)
+        check(tmp / "model.json", ref)
         shutil.rmtree(final, ignore_errors=True)  # a half-written leftover of an older layout
         os.replace(tmp, final)
     except BaseException:
@@ -226,6 +243,44 @@ def check_card(path: Path, ref: str) -> dict[str, Any]:
             f"model.json: its env/observation cannot be rebuilt here ({type(exc).__name__}: {exc})",
         ) from None
     return card
+
+
+def check_cae_card(path: Path, ref: str) -> dict[str, Any]:
+    """The card of a walls CAE (``cae.save_cae``) with the fields its encoder is rebuilt from."""
+    from workers.mdrl.cae import CARD, load_cae_card
+
+    try:
+        card = load_cae_card(path.parent)
+        if path.name != CARD:
+            raise ValueError(f"expected {CARD}")
+        grid, d = card["grid"], card["embedding"]
+        channels = card["architecture"]["channels"]
+        ok = (
+            isinstance(grid, list)
+            and len(grid) == 2
+            and all(isinstance(g, int) and 2 <= g <= 1024 for g in grid)
+            and isinstance(d, int)
+            and 1 <= d <= 1024
+            and isinstance(channels, list)
+            and 1 <= len(channels) <= 8
+            and all(isinstance(c, int) and 1 <= c <= 1024 for c in channels)
+        )
+        if not ok:
+            raise ValueError("grid, embedding or architecture.channels out of range")
+    except (KeyError, TypeError, ValueError, RecursionError) as exc:
+        raise ExpertFetchError(ref, f"model.json is not a walls CAE card ({exc})") from None
+    return card
+
+
+def load_walls_encoder(ref: str, directory: Path) -> Any:
+    """The frozen encoder (``cae.WallsEmbedder``) of a verified CAE directory, named by its
+    CID: the trained model's card then records the CID, not this worker's path."""
+    from workers.mdrl.cae import WallsEmbedder, load_cae
+
+    try:
+        return WallsEmbedder(load_cae(directory).encoder, ref)
+    except Exception as exc:  # noqa: BLE001 - weights that do not fit their card
+        raise ExpertFetchError(ref, f"cannot load the walls CAE: {exc}") from None
 
 
 def load_job_experts(

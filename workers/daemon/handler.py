@@ -45,6 +45,7 @@ from workers.daemon.experts import (
     ExpertFetchError,
     expert_key,
     fetch_experts,
+    fetch_walls_cae,
 )
 from workers.daemon.gateway import Gateway, GatewayError
 from workers.daemon.links import task_spec_cid
@@ -225,9 +226,12 @@ class OfferHandler:
             owner = address_of(parse_public_key(spec.outcome_key))
             if owner.lower() != requester.lower():
                 return f"outcome_key belongs to {owner}, not to the task's requester {requester}"
-        try:  # experts are fetched after acceptance; one no worker can fetch is known now
+        try:  # experts (and a walls CAE) are fetched after acceptance; a reference no worker
+            # can fetch is known now
             for ref in spec.experts:
                 expert_key(ref)
+            if spec.observation.walls_embedding is not None:
+                expert_key(spec.observation.walls_embedding)
         except ExpertFetchError as exc:
             return str(exc)
         busy = self.active_jobs(exclude=task_id)
@@ -308,6 +312,7 @@ class OfferHandler:
             raise RuntimeError(f"task {task_id}: deadline {deadline} leaves no time to train")
         minutes = min(spec.minutes, left_min) if spec.minutes is not None else left_min
         experts = self._fetch_experts(task_id, spec)
+        walls_cae = self._fetch_walls_cae(task_id, spec)
 
         def first(step: int) -> None:
             self._save(task_id, first_step_at=self.clock(), resumed_from_step=step)
@@ -322,6 +327,7 @@ class OfferHandler:
             on_progress=lambda p: self._post_progress(task_id, p),
             on_first_step=first,
             experts=experts,
+            walls_cae=walls_cae,
         )
         return model_dir
 
@@ -338,6 +344,19 @@ class OfferHandler:
             raise Transient(f"cannot fetch the task's expert models: {exc}") from exc
         self._save(task_id, experts=list(spec.experts))
         return dirs
+
+    def _fetch_walls_cae(self, task_id: int, spec: TrainingSpec) -> Path | None:
+        """The spec's walls CAE (``observation.walls_embedding``), verified, in the job
+        directory; ExpertFetchError names the CID, Transient if the store is down."""
+        ref = spec.observation.walls_embedding
+        if ref is None:
+            return None
+        try:
+            return fetch_walls_cae(
+                self.store, ref, self.job_dir(task_id), max_weights=self.max_expert_bytes
+            )
+        except StoreUnavailable as exc:
+            raise Transient(f"cannot fetch the task's walls CAE: {exc}") from exc
 
     def _transact(self, fn: str, *args: Any) -> Any:
         try:

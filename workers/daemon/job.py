@@ -18,7 +18,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any, cast
 
-from workers.daemon.experts import load_job_experts
+from workers.daemon.experts import load_job_experts, load_walls_encoder
 from workers.mdrl.curve import attach_curve
 from workers.mdrl.train import RunConfig, Trainer
 from workers.mdrl.trainingspec import TrainingSpec
@@ -98,7 +98,9 @@ def make_selector(spec: TrainingSpec, experts: dict[str, Path] | None) -> Any:
     if missing:
         raise ValueError(f"experts {missing} were not fetched for this job")
     loaded = load_job_experts(demo.experts, experts or {}, spec.env, spec.seed)
-    return DemonstrationSelector(loaded, demo.qos, demo.rate, demo.threshold, seed=spec.seed)
+    return DemonstrationSelector(
+        loaded, demo.qos, demo.rate, demo.threshold, seed=spec.seed, credit=demo.credit
+    )
 
 
 def make_trainer(
@@ -108,11 +110,20 @@ def make_trainer(
     minutes: float | None = None,
     checkpoint_every: int = CHECKPOINT_EVERY,
     experts: dict[str, Path] | None = None,
+    walls_cae: Path | None = None,
 ) -> JobTrainer:
     """A trainer for ``spec`` in ``job_dir``: resumed from its checkpoint when there is one.
     ``minutes`` (e.g. capped by the task deadline) overrides the spec's time budget;
-    ``experts`` maps the spec's expert CIDs to their verified directories."""
+    ``experts`` maps the spec's expert CIDs to their verified directories; ``walls_cae`` is
+    the verified directory of the spec's ``observation.walls_embedding`` CID."""
     selector = make_selector(spec, experts)
+    encoder = None
+    if spec.observation.walls_embedding is not None:
+        if walls_cae is None:
+            raise ValueError(
+                f"walls CAE {spec.observation.walls_embedding} was not fetched for this job"
+            )
+        encoder = load_walls_encoder(spec.observation.walls_embedding, walls_cae)
     out = run_dir(job_dir)
     budget_minutes = spec.minutes if minutes is None else minutes
     overrides = {
@@ -125,7 +136,9 @@ def make_trainer(
     if has_checkpoint(job_dir):
         return cast(
             JobTrainer,
-            JobTrainer.resume(out, out=out, run_overrides=overrides, selector=selector),
+            JobTrainer.resume(
+                out, out=out, run_overrides=overrides, selector=selector, walls_encoder=encoder
+            ),
         )
     run = RunConfig(
         seed=spec.seed,
@@ -138,7 +151,9 @@ def make_trainer(
         checkpoint_every=checkpoint_every,
         minutes=budget_minutes,
     )
-    return JobTrainer(spec.env, spec.observation, spec.ppo, run, out=out, selector=selector)
+    return JobTrainer(
+        spec.env, spec.observation, spec.ppo, run, out=out, selector=selector, walls_encoder=encoder
+    )
 
 
 def run_job(
@@ -150,6 +165,7 @@ def run_job(
     minutes: float | None = None,
     checkpoint_every: int = CHECKPOINT_EVERY,
     experts: dict[str, Path] | None = None,
+    walls_cae: Path | None = None,
 ) -> tuple[Path, dict[str, Any]]:
     """Train (or finish training) ``spec`` in ``job_dir``; returns (model dir, last metrics).
 
@@ -157,7 +173,12 @@ def run_job(
     job = Path(job_dir)
     job.mkdir(parents=True, exist_ok=True)
     trainer = make_trainer(
-        spec, job, minutes=minutes, checkpoint_every=checkpoint_every, experts=experts
+        spec,
+        job,
+        minutes=minutes,
+        checkpoint_every=checkpoint_every,
+        experts=experts,
+        walls_cae=walls_cae,
     )
     log = job / "progress.jsonl"
 

@@ -98,6 +98,8 @@ OBSERVATION_RULES: dict[str, Any] = {
     "scale": Choice(("max", "fixed"), doc="readings / episode max (thesis) or log physical"),
     "belief": Bool(doc="add the team's posterior map of the target cell"),
     "others": Nullable(Bool(doc="others map; null = iff more than one agent")),
+    "walls_embedding": None,  # set below: a walls CAE (Ch. 4) by model CID, or null
+    "walls_embedding_size": Int(1, 1024, doc="d of the walls CAE (Ch. 4: 128)"),
 }
 PPO_RULES: dict[str, Any] = {
     "learning_rate": Real(1e-7, 1.0),
@@ -438,6 +440,7 @@ class _ExpertRef:
 
 
 _EXPERT_REF = _ExpertRef()
+OBSERVATION_RULES["walls_embedding"] = Nullable(_EXPERT_REF)
 
 OUTCOME_KEY_PATTERN = "^0x[0-9a-fA-F]{128}$"
 

@@ -11,7 +11,12 @@ from sqlalchemy.exc import IntegrityError
 
 from backend.api.deps import ChainDep, CurrentUser, IndexerDep, SessionDep, SettingsDep, StoreDep
 from backend.api.errors import RuleError, rule_responses
-from backend.api.experts import allocation_experts, check_experts, task_experts
+from backend.api.experts import (
+    allocation_experts,
+    check_experts,
+    check_walls_cae,
+    task_experts,
+)
 from backend.api.pagecache import cached_page
 from backend.api.schemas import Address
 from backend.api.writes import catch_up, field_error, receipt_public
@@ -159,6 +164,7 @@ def create_task(
     spec = build_spec(body, settings, experts)
     check_outcome_key(spec, user.address)
     check_experts(store, spec.experts)
+    check_walls_cae(store, spec.observation.walls_embedding)
     check_duration(chain, body.deadline_s)
     check_min_reward(chain, body.payment_wei, body.deadline_s)
     spec_cid = store.add(canonical_json(spec.to_dict()))

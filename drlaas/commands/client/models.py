@@ -32,7 +32,8 @@ from workers.daemon.gateway import Gateway, GatewayError
 from workers.mdrl.spec import parse_grid, parse_walls
 
 model_app = typer.Typer(
-    help="Shared models: list, show, pull, share, request (from the MMC), allocation, review.",
+    help="Shared models: list, show, pull, push (to the store), share, request (from the "
+    "MMC), allocation, review.",
     no_args_is_help=True,
 )
 
@@ -177,6 +178,55 @@ def model_pull(
     except Exception as exc:  # noqa: BLE001 - shown to the user with its type
         fail(RuntimeError(f"cannot pull {cid}: {type(exc).__name__}: {exc}"))
     emit({"cid": cid, "path": str(path)}, as_json, lambda d: typer.echo(f"model {cid} -> {path}"))
+
+
+@model_app.command("push")
+def model_push(
+    directory: Annotated[Path, typer.Argument(help="a model or walls CAE directory")],
+    gateway: GatewayOpt = DEFAULT_GATEWAY,
+    as_json: JsonOpt = False,
+) -> None:
+    """Add a model or a walls CAE (model.safetensors + model.json) to the platform's content
+    store and print its bundle CID: what a task spec names in ``experts`` or
+    ``observation.walls_embedding``. Checked here first (safetensors + a card that rebuilds);
+    the store is the platform's (DRLAAS_IPFS, or the embedded one of a gateway on this
+    machine), as for the worker daemon."""
+    from backend.store.bundle import upload_model
+    from workers.daemon.links import open_store, worker_settings
+
+    kind = _check_local_model(directory)
+    try:
+        settings, _ = worker_settings(gateway)
+        cid = upload_model(open_store(settings), directory)
+    except Exception as exc:  # noqa: BLE001 - shown to the user with its type
+        fail(RuntimeError(f"cannot push {directory}: {type(exc).__name__}: {exc}"))
+    emit(
+        {"cid": cid, "kind": kind, "path": str(directory)},
+        as_json,
+        lambda d: typer.echo(f"{kind} {directory} -> {cid}"),
+    )
+
+
+def _check_local_model(directory: Path) -> str:
+    """``"walls CAE"`` or ``"model"`` if ``directory`` loads as one (never unpickles)."""
+    card_path = directory / "model.json"
+    try:
+        card = json.loads(card_path.read_text())
+    except (OSError, ValueError) as exc:
+        fail(ValueError(f"{directory}: no readable model.json ({exc})"))
+    try:
+        if isinstance(card, dict) and card.get("kind") == "cae":
+            from workers.mdrl.cae import load_cae
+
+            load_cae(directory)
+            return "walls CAE"
+        from workers.mdrl.modelio import load_model
+
+        load_model(directory)
+        return "model"
+    except Exception as exc:  # noqa: BLE001 - what is wrong with the files, for the user
+        fail(ValueError(f"{directory} is not a model or walls CAE directory: {exc}"))
+    raise AssertionError("unreachable")
 
 
 @model_app.command("share")
