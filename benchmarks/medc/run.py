@@ -25,7 +25,8 @@ interrupted benchmark re-runs only what is missing; a killed run restarts from s
 
 Usage: python benchmarks/medc/run.py --steps 1000000 --seeds 0,1,2
        [--tasks A3W2,A3W3] [--methods sparse,sr,dc,medc,medc-faulty,il,frl]
-       [--grid 30] [--experts train | DIR,DIR,...] [--expert-steps 1000000] [--qos 1,1,1]
+       [--grid 30] [--belief] [--experts train | DIR,DIR,...] [--expert-steps 1000000]
+       [--qos 1,1,1]
        [--episodes 1000] [--eval-every 5] [--out runs/medc] [--png benchmarks/medc/curves.png]
 """
 
@@ -57,6 +58,9 @@ METHODS = ("sparse", "sr", "dc", "medc", "medc-faulty", "medc-credit", "medc-fau
 EXPERT_USERS = ("A1W0", "A1W3", "A2W2")
 CURVE_EPISODES = 100
 CURVE_SEED = 1_000_003
+BELIEF = False
+"""--belief: the product presets of the 10 x 10 scale-down (``ch4-a{N}w{K}-{r}-10x10``: the
+team's belief map and 5 x 5 windows) instead of the thesis observation scaled down."""
 REACH = 1.05
 """A run "reaches" a level when its mean held-out episode length is within 5% of it."""
 
@@ -68,6 +72,10 @@ def user_preset(user: str, reward: str, grid: int = 30) -> Any:
     m = re.fullmatch(r"A(\d+)W(\d+)", user)
     if not m:
         raise ValueError(f"user {user!r}: expected A<agents>W<walls>, e.g. A3W2")
+    if BELIEF:
+        if grid != 10:
+            raise ValueError(f"--belief: the product presets are 10x10, not {grid}x{grid}")
+        return get_preset(f"ch4-a{m[1]}w{m[2]}-{reward}-10x10")
     preset = get_preset(f"ch4-a{m[1]}w{m[2]}-{reward}")
     if grid == preset.env.rows:
         return preset
@@ -314,7 +322,7 @@ def plot(results: list[dict], path: Path) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    global HELDOUT_EPISODES, THRESHOLD
+    global HELDOUT_EPISODES, THRESHOLD, BELIEF
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--steps", type=int, default=1_000_000)
     p.add_argument("--seeds", default="0,1,2")
@@ -333,7 +341,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--threshold", type=float, default=PAPER_THRESHOLD,
                    help="l of DC / MEDC (default 0.05, Tables 4.1 / 5.3); runs are cached "
                    "under --out, so give another --out for another l")
+    p.add_argument("--belief", action="store_true",
+                   help="with --grid 10: the product presets ch4-a{N}w{K}-{r}-10x10 (belief "
+                   "map, 5 x 5 windows) for every user; give another --out (runs are cached)")
     args = p.parse_args(argv)
+    BELIEF = args.belief
     HELDOUT_EPISODES = args.episodes
     THRESHOLD = args.threshold
     methods = [m for m in args.methods.split(",") if m]
@@ -366,7 +378,8 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"{task} {method} seed {seed}: time {h['time']:.2f} cost {h['cost']:.2f} "
                       f"success {h['success']:.3f} ({r['wall_s'] / 60:.1f} min)",
                       file=sys.stderr, flush=True)
-    print(f"MEDC benchmark: Ch. 4 setting on {args.grid}x{args.grid} cells of 50 m, "
+    print(f"MEDC benchmark: Ch. 4 setting on {args.grid}x{args.grid} cells of 50 m"
+          f"{' (product presets: belief map, w = 5)' if BELIEF else ''}, "
           f"{args.steps} env steps of the task user per run, seeds {args.seeds}, experts "
           f"{experts}; trained and evaluated on Poisson readings")
     print(report(results))

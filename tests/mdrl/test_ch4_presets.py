@@ -64,6 +64,24 @@ def test_presets_build_the_stated_env_and_step(name):
             assert np.isin(result.reward + moving, (1.0, -1.0)).all()
 
 
+@pytest.mark.parametrize("name", ["ch4-a3w3-sr-10x10", "ch4-a1w0-sparse-10x10"])
+def test_scaled_down_presets_are_the_ch4_users_on_10x10_cells_of_50m(name):
+    """The 10 x 10 scale-down keeps the Ch. 4 setting (50 m cells, 8 moves, exact walls, the
+    same reward) and adds the belief map, whose filter models the walls."""
+    small, full = get_preset(name), get_preset(name.removesuffix("-10x10"))
+    spec = small.env
+    assert (spec.rows, spec.cols, spec.cell_size_m) == (10, 10, (50.0, 50.0))
+    assert spec.replace(rows=30, cols=30, area_m=(1500.0, 1500.0)) == full.env
+    assert small.observation.belief and small.observation.window == 5
+    assert small.observation.walls
+    env = TargetLocalizationEnv(spec, 16, seed=1)
+    observer = make_observer(spec, small.observation)
+    actor, critic = observer.observe(env)
+    assert "belief" in " ".join(observer.actor_channels + observer.critic_channels)
+    assert actor.shape[3:] == (5, 5) and np.isfinite(actor).all() and np.isfinite(critic).all()
+    assert (wall_count(env.walls, 10, 10) == spec.walls[0]).all()
+
+
 def test_table41_variant_is_table_41():
     p = get_preset("ch4-a3w3-sr-t41")
     assert p.ppo == PPOConfig(update_epochs=20)
