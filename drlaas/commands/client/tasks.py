@@ -445,9 +445,7 @@ def task_pull(
     worker: Annotated[str | None, typer.Option(help="whose outcome (default: the first)")] = None,
     key: Annotated[
         Path | None,
-        typer.Option(
-            "--key", envvar="DRLAAS_KEY", help="your key: opens an outcome sealed to you"
-        ),
+        typer.Option("--key", envvar="DRLAAS_KEY", help="your key: opens an outcome sealed to you"),
     ] = None,
     gateway: GatewayOpt = DEFAULT_GATEWAY,
     as_json: JsonOpt = False,
