@@ -307,6 +307,7 @@ def test_task_submit_expert_options_are_checked_before_anything_is_sent(tmp_path
         ("--expert-qos", "1"): "--expert-qos weighs --experts",
         ("--experts", cid, "--expert-qos", "1,2"): "2 weight(s) for 1 expert(s)",
         ("--expert-rate", "0.5"): "need experts",
+        ("--expert-credit",): "need experts",
         ("--experts", cid, "--expert-rate", "1.5"): "algorithm.demonstration.rate",
         ("--expert-allocation", "3", "--expert-price-wei", "5"): "prices --experts-from-mmc",
     }
@@ -335,9 +336,10 @@ def test_task_submit_expert_options_are_checked_before_anything_is_sent(tmp_path
         experts=cid,
         expert_qos="0.4",
         expert_threshold=0.1,
+        expert_credit=True,
     )
     assert body["experts"] == [{"model": cid, "qos": 0.4}]
-    assert body["algorithm"] == {"demonstration": {"threshold": 0.1}}
+    assert body["algorithm"] == {"demonstration": {"threshold": 0.1, "credit": True}}
     assert TrainingSpec.from_dict({k: body[k] for k in ("env", "budget", "experts", "algorithm")})
 
 

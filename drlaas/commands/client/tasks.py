@@ -70,6 +70,7 @@ def task_body(
     expert_qos: str | None = None,
     expert_rate: float | None = None,
     expert_threshold: float | None = None,
+    expert_credit: bool = False,
 ) -> dict[str, Any]:
     """POST /tasks body from options, or from a JSON file (``--spec``) that options fill in.
     The spec part is checked locally with the core's TrainingSpec (the gateway's own parser).
@@ -87,7 +88,7 @@ def task_body(
         doc["experts"] = expert_list(experts, expert_qos)
     elif expert_qos is not None:
         raise typer.BadParameter("--expert-qos weighs --experts", param_hint="--expert-qos")
-    demo = {"rate": expert_rate, "threshold": expert_threshold}
+    demo = {"rate": expert_rate, "threshold": expert_threshold, "credit": expert_credit or None}
     demo = {k: v for k, v in demo.items() if v is not None}
     try:
         TrainingSpec.from_dict(doc)
@@ -182,6 +183,14 @@ def task_submit(
     expert_threshold: Annotated[
         float | None, typer.Option(help="l: follow an expert action only above this probability")
     ] = None,
+    expert_credit: Annotated[
+        bool,
+        typer.Option(
+            help="expert credit rule: PPO learns from an expert only once its episodes are "
+            "shorter than the agents' own, and unhelpful experts fade out (resilience to "
+            "faulty shared models; not in Alg. 5.1)"
+        ),
+    ] = False,
     public_outcome: Annotated[
         bool,
         typer.Option(
@@ -195,8 +204,8 @@ def task_submit(
     sources = [o for o in (experts, experts_from_mmc, expert_allocation) if o is not None]
     if len(sources) > 1:
         raise typer.BadParameter("give one of --experts, --experts-from-mmc, --expert-allocation")
-    if not sources and (expert_rate is not None or expert_threshold is not None):
-        raise typer.BadParameter("--expert-rate/--expert-threshold need experts")
+    if not sources and (expert_rate is not None or expert_threshold is not None or expert_credit):
+        raise typer.BadParameter("--expert-rate/--expert-threshold/--expert-credit need experts")
     if expert_price_wei is not None and experts_from_mmc is None:
         raise typer.BadParameter("--expert-price-wei prices --experts-from-mmc")
     body = task_body(
@@ -217,6 +226,7 @@ def task_submit(
         expert_qos=expert_qos,
         expert_rate=expert_rate,
         expert_threshold=expert_threshold,
+        expert_credit=expert_credit,
     )
     with connect_funded(gateway, key) as gw:
         if not public_outcome and gw.account is not None:
