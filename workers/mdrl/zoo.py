@@ -52,6 +52,11 @@ ZOO: dict[str, ZooEntry] = {
     **{f"dmtl-{n}a": ZooEntry(f"dmtl-{n}a-10x10", minutes=6) for n in (1, 2, 3, 4, 10)},
     **{f"cmtl-{n}a": ZooEntry(f"cmtl-{n}a-10x10", minutes=6) for n in (1, 2, 3)},
     "odmtl-generalist": ZooEntry("generalist", minutes=20),
+    # Ch. 4 (issue 10), on the 10 x 10 scale-down of the walls setting with the belief map: the
+    # experts of the MEDC benchmark (the thesis' A1W0, A1W3, A2W2) and the final A3W3 policy
+    **{f"ch4-{u}-10x10": ZooEntry(f"ch4-{u}-sr-10x10", minutes=5)
+       for u in ("a1w0", "a1w3", "a2w2")},
+    "ch4-a3w3-10x10": ZooEntry("ch4-a3w3-sr-10x10", minutes=60),
 }
 
 
