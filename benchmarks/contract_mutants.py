@@ -85,7 +85,7 @@ def run_invariants(workdir: Path, all_tests: bool = False) -> tuple[bool, list[s
     # forge lists the failures after "Failing tests:"; an invariant's name follows its
     # shrunk call sequence, a test's its [FAIL: reason]
     section = text.split("Failing tests:", 1)[1] if "Failing tests:" in text else ""
-    failing = sorted(set(re.findall(r"\b((?:invariant|test)_\w+)\(\)", section)))
+    failing = sorted(set(re.findall(r"\b((?:invariant|test)\w*)\(", section)))
     if out.returncode != 0 and not failing:
         failing = ["(build or run error) " + text.strip().splitlines()[-1][:120]]
     return out.returncode == 0, failing, time.perf_counter() - t0
