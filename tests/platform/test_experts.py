@@ -188,10 +188,9 @@ def test_an_offer_naming_a_path_as_expert_is_declined(env, store, tmp_path) -> N
     assert p.tmc.offer(task_id, offered[0])["state"] == OfferState.DECLINED
 
 
-def test_an_medc_offer_trains_with_its_expert_and_the_card_lists_it(env, store, tmp_path) -> None:
-    p, actors = env
-    cid = upload_model(store, EXPERT)
-    spec = {**TINY_SPEC, "experts": [{"model": cid, "qos": 0.25}]}
+def train_offer(p, actors, store, spec: dict, tmp_path: Path):
+    """Post ``spec``, let its first offeree's handler train and submit it; (handler, task id,
+    the outcome's card as the store holds it)."""
     task_id, offered, _ = post_task(p, store, actors.requester, spec=spec)
     h = OfferHandler(
         account=p.chain._keys[offered[0]], platform=p, store=store, data_dir=tmp_path / "w"
@@ -200,7 +199,14 @@ def test_an_medc_offer_trains_with_its_expert_and_the_card_lists_it(env, store, 
     out = h.handle(task_id, offered[0])
     assert out["status"] == "submitted", out
     card_cid, _ = read_bundle(store, out["cid"])["model.json"]
-    card = json.loads(store.get(card_cid))
+    return h, task_id, json.loads(store.get(card_cid))
+
+
+def test_an_medc_offer_trains_with_its_expert_and_the_card_lists_it(env, store, tmp_path) -> None:
+    p, actors = env
+    cid = upload_model(store, EXPERT)
+    spec = {**TINY_SPEC, "experts": [{"model": cid, "qos": 0.25}]}
+    h, task_id, card = train_offer(p, actors, store, spec, tmp_path)
     listed = card["training"]["experts"]["experts"]
     assert [(e["ref"], e["qos"]) for e in listed] == [(cid, 0.25)]
     assert (h.job_dir(task_id) / "experts" / cid / "model.safetensors").is_file()
@@ -242,15 +248,7 @@ def test_a_task_naming_a_walls_cae_trains_with_it_and_the_card_names_its_cid(
     p, actors = env
     local = walls_cae(tmp_path)
     cid = upload_model(store, local)
-    task_id, offered, _ = post_task(p, store, actors.requester, spec=cae_spec(cid))
-    h = OfferHandler(
-        account=p.chain._keys[offered[0]], platform=p, store=store, data_dir=tmp_path / "w"
-    )
-    h._post_progress = lambda tid, point: None  # type: ignore[method-assign]
-    out = h.handle(task_id, offered[0])
-    assert out["status"] == "submitted", out
-    card_cid, _ = read_bundle(store, out["cid"])["model.json"]
-    card = json.loads(store.get(card_cid))
+    h, task_id, card = train_offer(p, actors, store, cae_spec(cid), tmp_path)
     assert card["observation"]["walls_embedding"] == cid
     assert card["walls_encoder"]["source"] == cid
     assert card["walls_encoder"]["digest"] == load_cae_card(local)["encoder_digest"]
