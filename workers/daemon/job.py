@@ -98,9 +98,7 @@ def make_selector(spec: TrainingSpec, experts: dict[str, Path] | None) -> Any:
     if missing:
         raise ValueError(f"experts {missing} were not fetched for this job")
     loaded = load_job_experts(demo.experts, experts or {}, spec.env, spec.seed)
-    return DemonstrationSelector(
-        loaded, demo.qos, demo.rate, demo.threshold, seed=spec.seed, credit=demo.credit
-    )
+    return DemonstrationSelector.from_config(demo, spec.env, seed=spec.seed, experts=loaded)
 
 
 def make_trainer(

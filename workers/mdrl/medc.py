@@ -182,11 +182,15 @@ class DemonstrationSelector:
 
     @classmethod
     def from_config(cls, config: DemonstrationConfig, task: Any, seed: int = 0,
-                    generator: torch.Generator | None = None) -> DemonstrationSelector:
-        """Load the configured experts for a task (EnvSpec) and build the selector."""
-        from workers.mdrl.experts import load_experts
+                    generator: torch.Generator | None = None,
+                    experts: Sequence[Any] | None = None) -> DemonstrationSelector:
+        """The selector of ``config`` for a task (EnvSpec): its experts loaded here, or
+        ``experts`` already loaded (e.g. fetched and verified by the worker daemon), with every
+        setting of the config (rate, threshold, credit) carried over."""
+        if experts is None:
+            from workers.mdrl.experts import load_experts
 
-        experts = load_experts(config.experts, task, seed=seed)
+            experts = load_experts(config.experts, task, seed=seed)
         return cls(experts, config.qos, config.rate, config.threshold, seed, generator,
                    config.credit)
 
