@@ -64,6 +64,16 @@ class _DurableChannel(kombu_sqla.Channel):
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
         self._rows: dict[str, int] = {}  # delivery tag -> kombu_message.id of fetched rows
+        self._hostname = self.connection.client.hostname
+
+    def _open(self) -> Any:
+        """The engine and session factory, also once kombu has detached this channel from its
+        connection (``close_channel`` sets ``connection = None``, and a late ack or the QoS
+        restore at shutdown or garbage collection may still need the session): measured as an
+        intermittent ``'NoneType' object has no attribute 'client'``."""
+        if self.connection is None:
+            return self._engines[self._hostname]
+        return super()._open()
 
     def _get(self, queue: str, timeout: Any = None) -> dict[str, Any]:
         q = self._get_or_create(queue)

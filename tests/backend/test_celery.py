@@ -230,3 +230,35 @@ def test_worker_queue_is_per_checksummed_address() -> None:
     assert worker_queue(addr) == "worker.0x7E5F4552091A69125d5DfCb7b8C2659029395Bdf"
     with pytest.raises(ValueError, match="not an Ethereum address"):
         worker_queue("bob")
+
+
+def test_a_detached_embedded_channel_still_settles_its_messages(tmp_path: Path) -> None:
+    """kombu's ``close_channel`` sets ``channel.connection = None``; a late ack (or the QoS
+    restore at shutdown) must still reach the row, not fail on ``connection.client``."""
+    from kombu import Connection
+
+    from backend.celery_app import EmbeddedSQLATransport
+
+    with Connection(
+        f"sqlite:///{tmp_path / 'broker.sqlite'}", transport=EmbeddedSQLATransport
+    ) as conn:
+        channel = conn.channel()
+        channel.queue_declare("q")
+        for body in ("first", "second"):
+            channel.basic_publish(channel.prepare_message(body), "", "q")
+        acked, restored = channel.basic_get("q"), channel.basic_get("q")
+        conn.transport.close_channel(channel)
+        assert channel.connection is None
+        channel.basic_ack(acked.delivery_tag)
+        channel._restore(restored)  # what the QoS restore does for an unacked message
+
+        fresh = conn.channel()
+        again = fresh.basic_get("q")
+        assert again is not None and again.body == b"second"  # restored, visible in place
+        assert fresh.basic_get("q") is None  # the acked one is gone for good
+
+        # A channel detached before its first database use (no session yet) still restores.
+        late = conn.channel()
+        conn.transport.close_channel(late)
+        late._restore(again)
+        assert fresh.basic_get("q").body == b"second"
