@@ -66,14 +66,38 @@ def check_experts(store: ContentStore, refs: tuple[str, ...]) -> None:
         _check_model(store, ref, ("body", "experts", i), "expert")
 
 
-def check_walls_cae(store: ContentStore, ref: str | None) -> None:
+def check_walls_cae(store: ContentStore, ref: str | None, grid: tuple[int, int], size: int) -> None:
     """The same for a spec's walls CAE (``observation.walls_embedding``, Ch. 4), whose card
-    must be a CAE's (kind ``cae``); codes ``walls_cae_*``."""
-    if ref is not None:
-        _check_model(store, ref, ("body", "observation", "walls_embedding"), "walls_cae")
+    must be a CAE's (kind ``cae``) for this grid with embedding size ``size``
+    (``observation.walls_embedding_size``): a worker could not use any other, so the job would
+    fail only after it was paid for. Codes ``walls_cae_*``."""
+    if ref is None:
+        return
+    loc = ("body", "observation", "walls_embedding")
+    card = _check_model(store, ref, loc, "walls_cae")
+    cae_grid = card.get("grid")
+    if cae_grid != list(grid):
+        field_error(
+            loc,
+            f"this walls CAE was trained for a {_grid(cae_grid)} grid, "
+            f"the task's is {grid[0]} x {grid[1]}",
+            "walls_cae_grid_mismatch",
+        )
+    if card.get("embedding") != size:
+        field_error(
+            ("body", "observation", "walls_embedding_size"),
+            f"the walls CAE embeds in d = {card.get('embedding')!r}, "
+            f"the spec says walls_embedding_size = {size}",
+            "walls_cae_size_mismatch",
+        )
 
 
-def _check_model(store: ContentStore, ref: str, loc: tuple[Any, ...], what: str) -> None:
+def _grid(g: Any) -> str:
+    return f"{g[0]} x {g[1]}" if isinstance(g, list) and len(g) == 2 else repr(g)
+
+
+def _check_model(store: ContentStore, ref: str, loc: tuple[Any, ...], what: str) -> dict[str, Any]:
+    """The bundle's card once ``ref`` passes (else a 422 / 503, see callers)."""
     try:
         canonical = str(CID.parse(ref).v1())
     except (InvalidCID, ValueError):
@@ -106,6 +130,7 @@ def _check_model(store: ContentStore, ref: str, loc: tuple[Any, ...], what: str)
                 if is_cae
                 else "its card is a policy's, not a walls CAE's"
             )
+        return card
     except NotFound:
         field_error(loc, f"the content store does not hold {ref}", f"{what}_not_found")
     except StoreUnavailable as exc:

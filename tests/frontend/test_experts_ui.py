@@ -121,3 +121,48 @@ def test_the_task_page_lists_experts_and_takes_the_review(page: Any, mmc: Any) -
     rows.nth(0).locator("button").click()
     expect(page.locator("#task-message")).to_contain_text("Expert review: sent")
     assert calls == [("review", 9, {"model_id": 2, "review": 4})]
+
+
+def test_the_form_sets_the_walls_cae_and_the_expert_credit(page: Any, mmc: Any) -> None:
+    """observation.walls_embedding (a CAE by CID, with its d) and
+    algorithm.demonstration.credit: each refused on its field where it cannot apply, and sent
+    in the body where it can."""
+    server, state, _ = mmc
+    page.goto(f"{server.url}/submit")
+    sign_in_as_alice(page)
+    small_task(page)
+    page.fill("#f-observation-walls_embedding", "runs/cae")
+    page.fill("#f-observation-walls_embedding_size", "64")
+    page.select_option("#f-algorithm-demonstration-credit", "true")
+    page.click("#submit-task")
+    expect(page.locator("#err-observation-walls_embedding")).to_contain_text("not a model CID")
+    expect(page.locator("#err-algorithm-demonstration-credit")).to_contain_text("only with experts")
+    page.fill("#f-observation-walls_embedding", "")
+    page.click("#submit-task")
+    expect(page.locator("#err-observation-walls_embedding_size")).to_contain_text(
+        "only with a walls autoencoder"
+    )
+    assert state.posted_tasks == []
+
+    page.fill("#f-env-walls_max", "2")
+    page.fill("#f-observation-walls_embedding", CID_B)
+    page.fill("#f-experts", CID_A)
+    page.click("#submit-task")
+    expect(page.locator("#submit-result")).to_contain_text("created")
+    body = state.posted_tasks[-1]
+    assert body["observation"] == {
+        "kind": "odmtl",
+        "window": 3,
+        "walls_embedding": CID_B,
+        "walls_embedding_size": 64,
+    }
+    assert body["algorithm"] == {"demonstration": {"credit": True}}
+    assert body["experts"] == [CID_A]
+
+    page.select_option("#f-algorithm-demonstration-credit", "false")  # off: Alg. 5.1, not sent
+    page.fill("#f-observation-walls_embedding", "")
+    page.fill("#f-observation-walls_embedding_size", "")
+    page.click("#submit-task")
+    expect(page.locator("#submit-result")).to_contain_text("created")
+    assert "algorithm" not in state.posted_tasks[-1]
+    assert state.posted_tasks[-1]["observation"] == {"kind": "odmtl", "window": 3}

@@ -4,12 +4,15 @@ allocation, expert CIDs checked, the task page listing its experts with their re
 
 from __future__ import annotations
 
+import json
+from typing import Any
+
 from fastapi.testclient import TestClient
 
 from backend.services.chain import ChainService
 from backend.store.bundle import add_bundle
 
-from .conftest import Login, P, addr, register, task_body
+from .conftest import ENV, Login, P, addr, register, task_body
 from .test_models import ENV2, ENV3, _share, card_of
 
 
@@ -118,24 +121,38 @@ def test_a_named_walls_cae_must_be_a_cae_bundle_in_the_store(
     CAE's; a policy's bundle, bytes or an absent CID are 422 naming the field."""
     register(client, login, ["user1"], {"user3": {}})
     store = client.app.state.store  # type: ignore[attr-defined]
-    cae_card = b'{"format": "drlaas-model/1", "kind": "cae", "grid": [6, 6], "embedding": 8}'
-    cae = add_bundle(store, {"model.safetensors": b"w" * 64, "model.json": cae_card})
+
+    def cae_bundle(grid: list[int]) -> str:
+        card = {"format": "drlaas-model/1", "kind": "cae", "grid": grid, "embedding": 8}
+        return add_bundle(
+            store, {"model.safetensors": b"w" * 64, "model.json": json.dumps(card).encode()}
+        )
+
+    cae = cae_bundle([ENV["rows"], ENV["cols"]])
+    other_grid = cae_bundle([6, 6])
     policy = add_bundle(store, {"model.safetensors": b"w" * 64, "model.json": card_of(ENV2, "m")})
     absent = "bafkreigh2akiscaildcqabsyg3dfr6chu3fgpregiymsck7e7aqa4s52zy"
 
-    def post(ref: str) -> object:
-        obs = {"kind": "odmtl", "window": 3, "walls_embedding": ref, "walls_embedding_size": 8}
+    def post(ref: str, size: int = 8) -> Any:
+        obs = {"kind": "odmtl", "window": 3, "walls_embedding": ref, "walls_embedding_size": size}
         return client.post(f"{P}/tasks", json=task_body(observation=obs), headers=login("user1"))
 
     for ref, rule in {
         "models/cae": "walls_cae_not_cid",
         absent: "walls_cae_not_found",
         policy: "walls_cae_invalid",
+        other_grid: "walls_cae_grid_mismatch",
     }.items():
         r = post(ref)
         assert r.status_code == 422, (ref, r.text)
         err = r.json()["detail"][0]
         assert (err["type"], err["loc"]) == (rule, ["body", "observation", "walls_embedding"])
+    assert "6 x 6 grid, the task's is 8 x 8" in post(other_grid).text
+    r = post(cae, size=16)  # the CAE's d is 8
+    assert r.status_code == 422, r.text
+    err = r.json()["detail"][0]
+    assert err["type"] == "walls_cae_size_mismatch", err
+    assert err["loc"] == ["body", "observation", "walls_embedding_size"]
     r = post(cae)
     assert r.status_code == 201, r.text
     spec = client.get(f"{P}/tasks/{r.json()['task_id']}").json()["spec"]

@@ -164,7 +164,12 @@ def create_task(
     spec = build_spec(body, settings, experts)
     check_outcome_key(spec, user.address)
     check_experts(store, spec.experts)
-    check_walls_cae(store, spec.observation.walls_embedding)
+    check_walls_cae(
+        store,
+        spec.observation.walls_embedding,
+        (spec.env.rows, spec.env.cols),
+        spec.observation.walls_embedding_size,
+    )
     check_duration(chain, body.deadline_s)
     check_min_reward(chain, body.payment_wei, body.deadline_s)
     spec_cid = store.add(canonical_json(spec.to_dict()))

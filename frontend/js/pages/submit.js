@@ -13,6 +13,7 @@ import { boundError, boundsOf, fmt, inputAttrs, requestSchema } from "../schema.
 const LABELS = {
   "env.moves": { 4: "4 (up/down/left/right)", 8: "8 (with diagonals)" },
   "observation.kind": { odmtl: "ODMTL (windowed maps)", dmtl: "DMTL (per-agent maps)", cmtl: "CMTL (centralized)" },
+  "algorithm.demonstration.credit": { false: "off (Alg. 5.1)", true: "on (experts on probation, weighted by credit)" },
 };
 /** "1 to 16" from a field's bounds ("" without both). */
 const range = (b) => (b && b.min !== undefined && b.max !== undefined ? `${fmt(b.min)} to ${fmt(b.max)}` : "");
@@ -30,6 +31,8 @@ const FIELDS = {
   "env.intensity": ["Source intensity (photons/min)", "1e9", "text", () => ["1e9, a set 1e8,5e8,1e9 or a range 1e8:1e9"]],
   "observation.kind": ["Observation", "odmtl", "select"],
   "observation.window": ["Window w (ODMTL)", "3", "int", (b) => [b && b.odd ? "odd" : "", range(b), "w < min(rows, cols)"]],
+  "observation.walls_embedding": ["Walls autoencoder (CID)", "", "text", () => ["a walls CAE (drlaas cae train, then drlaas model push)", "empty = wall maps only", "trained on this grid size"]],
+  "observation.walls_embedding_size": ["CAE embedding size d", "", "int", (b) => [range(b), "empty = 128 (Ch. 4); must be the CAE's d"]],
   "budget.steps": ["Budget: environment steps", "20000", "int", (b) => [range(b), "training stops at exactly this many"]],
   "budget.minutes": ["Budget: minutes", "10", "real", (b) => [range(b), "training stops at whichever comes first"]],
   "seed": ["Seed", "0", "int"],
@@ -44,6 +47,7 @@ const FIELDS = {
   "experts": ["Expert models (CIDs)", "", "text", () => ["model CIDs, comma-separated (Models page)", "empty = none"]],
   "experts_from_mmc": ["Or buy K experts from the MMC", "0", "int", () => [`0 to ${MAX_EXPERTS}`, "the K shared models closest to this environment, each paid its price to its owner"]],
   "algorithm.demonstration.rate": ["Expert rate R_E", "", "real", (b) => [range(b), "share of expert-guided episodes; empty = 0.2 with one expert, 0.1 with several"]],
+  "algorithm.demonstration.credit": ["Expert credit", "false", "select", () => ["on: learn from an expert's episodes only once it has been judged against the agents' own, weighted by its credit (guards against faulty experts)"]],
 };
 /** Experts (MEDC, thesis Alg. 5.1): at most this many; a CID as the content store writes it. */
 const MAX_EXPERTS = 16;
@@ -52,10 +56,10 @@ const CID_RE = /^b(?:afkrei|afybei)[a-z2-7]{52}$/;
 const SCHEMA_PATH = { "env.walls_min": "env.walls[0]", "env.walls_max": "env.walls[1]", payment_eth: "payment_wei" };
 const GROUPS = [
   ["env", "Environment", ["env.agents", "env.rows", "env.cols", "env.walls_min", "env.walls_max", "env.moves", "env.intensity"]],
-  ["observation", "Observation", ["observation.kind", "observation.window"]],
+  ["observation", "Observation", ["observation.kind", "observation.window", "observation.walls_embedding", "observation.walls_embedding_size"]],
   ["budget", "Training budget", ["budget.steps", "budget.minutes", "seed"]],
   ["recruit", "Recruitment and payment", ["domain", "num_workers", "min_reputation", "min_rating", "min_cpu_cores", "min_ram_gb", "deadline_s", "payment_eth"]],
-  ["medc", "Experts (optional: MEDC, demonstrations from shared models)", ["experts", "experts_from_mmc", "algorithm.demonstration.rate"]],
+  ["medc", "Experts (optional: MEDC, demonstrations from shared models)", ["experts", "experts_from_mmc", "algorithm.demonstration.rate", "algorithm.demonstration.credit"]],
 ];
 /** Server loc (after "body") -> the field showing its error. */
 const LOC_ALIASES = {
@@ -149,6 +153,11 @@ export function buildTask(v, schema) {
   if (window !== undefined && grid && !(window < Math.min(rows, cols))) {
     errors["observation.window"] = `must be less than ${Math.min(rows, cols)} (the smaller grid side)`;
   }
+  // The walls CAE (Ch. 4): a model CID the gateway checks is a CAE bundle in its store.
+  const cae = (v["observation.walls_embedding"] ?? "").trim();
+  if (cae && !CID_RE.test(cae)) errors["observation.walls_embedding"] = `${cae} is not a model CID (bafkrei…/bafybei…, 59 characters)`;
+  const caeSize = number("observation.walls_embedding_size", { required: false });
+  if (caeSize !== undefined && !cae) errors["observation.walls_embedding_size"] = "applies only with a walls autoencoder";
 
   const steps = number("budget.steps", { required: false });
   const minutes = number("budget.minutes", { required: false });
@@ -183,6 +192,8 @@ export function buildTask(v, schema) {
   else if (buy > 0 && experts.length) errors.experts_from_mmc = "name experts or buy them, not both";
   const rate = number("algorithm.demonstration.rate", { required: false });
   if (rate !== undefined && !experts.length && !(buy > 0)) errors["algorithm.demonstration.rate"] = "applies only with experts";
+  const credit = (v["algorithm.demonstration.credit"] ?? "false") === "true";
+  if (credit && !experts.length && !(buy > 0)) errors["algorithm.demonstration.credit"] = "applies only with experts";
 
   if (Object.keys(errors).length) return { body: null, errors, buyExperts: 0 };
   const budget = {};
@@ -190,7 +201,11 @@ export function buildTask(v, schema) {
   if (minutes !== undefined) budget.minutes = minutes;
   const body = {
     env: { agents, rows, cols, walls: [wlo, whi], moves, intensity },
-    observation: kind === "odmtl" ? { kind, window } : { kind },
+    observation: {
+      ...(kind === "odmtl" ? { kind, window } : { kind }),
+      ...(cae ? { walls_embedding: cae } : {}),
+      ...(caeSize !== undefined ? { walls_embedding_size: caeSize } : {}),
+    },
     budget,
     domain,
     num_workers: numWorkers,
@@ -203,7 +218,10 @@ export function buildTask(v, schema) {
   };
   if (seed !== undefined) body.seed = seed;
   if (experts.length) body.experts = experts;
-  if (rate !== undefined) body.algorithm = { demonstration: { rate } };
+  const demonstration = {};
+  if (rate !== undefined) demonstration.rate = rate;
+  if (credit) demonstration.credit = true;
+  if (Object.keys(demonstration).length) body.algorithm = { demonstration };
   return { body, errors, buyExperts: buy > 0 ? buy : 0 };
 }
 
