@@ -387,6 +387,17 @@ contract PlatformHandler {
         _end(s);
     }
 
+    /// @dev A submitted offer of any task, searching from the task that seed picks (0 if none).
+    function _anySubmitted(uint256 seed) internal view returns (uint256 id, address worker) {
+        uint256 n = tmc.taskCount();
+        for (uint256 i; i < n; ++i) {
+            uint256 cand = 1 + ((seed + i) % n);
+            address[] memory list = tmc.offerees(cand);
+            address w = _submitted(cand, list, address(0));
+            if (w != address(0)) return (cand, w);
+        }
+    }
+
     function _submitted(uint256 id, address[] memory list, address fallback_) internal view returns (address) {
         for (uint256 i; i < list.length; ++i) {
             if (tmc.getOffer(id, list[i]).state == TasksManager.OfferState.Submitted) return list[i];
@@ -590,17 +601,39 @@ contract PlatformHandler {
             actor = actorSeed % 2 == 0 ? _other(requesters, t.requester, actorSeed) : _pick(workers, actorSeed);
             address[] memory list = tmc.offerees(id);
             address w = list.length == 0 ? _pick(workers, targetSeed) : list[targetSeed % list.length];
-            if (a == 5) data = abi.encodeCall(TasksManager.allocateTask, (id));
-            else if (a == 6) data = abi.encodeCall(TasksManager.reviewOutcome, (id, _submitted(id, list, w), 5, true));
-            else if (a == 7) data = abi.encodeCall(TasksManager.cancelOpenSlots, (id));
-            else if (a == 8) {
-                // a worker answering or submitting for an offer that is not its own
-                actor = _other(workers, w, actorSeed);
-                TasksManager.OfferState st = tmc.getOffer(id, actor).state;
-                if (st == TasksManager.OfferState.Offered || st == TasksManager.OfferState.Accepted) return;
-                data = actorSeed % 3 == 0
+            if (a == 5) {
+                data = abi.encodeCall(TasksManager.allocateTask, (id));
+            } else if (a == 6) {
+                // reviewing a submitted outcome of a task that is not the actor's: the offer must
+                // be Submitted for the role check to be the only thing in the way, and submitted
+                // offers are short-lived in a campaign, so look for one in every task
+                (uint256 sid, address sw) = _anySubmitted(targetSeed);
+                if (sid != 0) {
+                    (id, w) = (sid, sw);
+                    (t,) = tmc.getTask(id);
+                    actor = actorSeed % 2 == 0 ? _other(requesters, t.requester, actorSeed) : _pick(workers, actorSeed);
+                }
+                data = abi.encodeCall(TasksManager.reviewOutcome, (id, sid != 0 ? w : _submitted(id, list, w), 5, true));
+            } else if (a == 7) {
+                data = abi.encodeCall(TasksManager.cancelOpenSlots, (id));
+            } else if (a == 8) {
+                // a worker answering or submitting for an offer that is not its own: the first
+                // worker from actorSeed on that holds no live offer of this task (the choice of
+                // call uses other bits of the seed than the choice of worker)
+                actor = address(0);
+                for (uint256 i; i < workers.length; ++i) {
+                    address cand = workers[(actorSeed + i) % workers.length];
+                    TasksManager.OfferState st = tmc.getOffer(id, cand).state;
+                    if (st != TasksManager.OfferState.Offered && st != TasksManager.OfferState.Accepted) {
+                        actor = cand;
+                        break;
+                    }
+                }
+                if (actor == address(0)) return;
+                uint256 call_ = (actorSeed / workers.length) % 3;
+                data = call_ == 0
                     ? abi.encodeCall(TasksManager.acceptOffer, (id))
-                    : actorSeed % 3 == 1
+                    : call_ == 1
                         ? abi.encodeCall(TasksManager.declineOffer, (id))
                         : abi.encodeCall(TasksManager.submitOutcome, (id, string(abi.encodePacked("x", ++_cidNonce))));
             } else {
