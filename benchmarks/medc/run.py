@@ -13,6 +13,9 @@ method trains for the same env-step budget of the task user:
                guided episodes run longer than the agents' own fade out)
   il           sparse + IL-assisted RL with the same experts (il.py: 20% behaviour cloning)
   frl          sparse + FedAvg across the eight users A1W0 ... A3W3 (frl.py), seen from the task
+  sparse-cae, sr-cae
+               sparse / SR with the walls CAE's embedding (``--cae DIR``, Fig. 4.2) in place of
+               the downsized wall maps: does the embedding beat the maps?
 
 Every run evaluates its greedy policy on the same 100 held-out episodes every few updates (the
 curve) and at the end on ``--episodes`` held-out episodes (``zoo.HELDOUT_SEED``) next to the
@@ -26,6 +29,7 @@ interrupted benchmark re-runs only what is missing; a killed run restarts from s
 Usage: python benchmarks/medc/run.py --steps 1000000 --seeds 0,1,2
        [--tasks A3W2,A3W3] [--methods sparse,sr,dc,medc,medc-faulty,il,frl]
        [--grid 30] [--belief] [--experts train | DIR,DIR,...] [--expert-steps 1000000]
+       [--cae DIR]
        [--qos 1,1,1]
        [--episodes 1000] [--eval-every 5] [--out runs/medc] [--png benchmarks/medc/curves.png]
 """
@@ -54,13 +58,15 @@ from workers.mdrl.train import RunConfig, Trainer
 from workers.mdrl.zoo import HELDOUT_SEED
 
 METHODS = ("sparse", "sr", "dc", "medc", "medc-faulty", "medc-credit", "medc-faulty-credit",
-           "il", "frl")
+           "il", "frl", "sparse-cae", "sr-cae")
 EXPERT_USERS = ("A1W0", "A1W3", "A2W2")
 CURVE_EPISODES = 100
 CURVE_SEED = 1_000_003
 BELIEF = False
 """--belief: the product presets of the 10 x 10 scale-down (``ch4-a{N}w{K}-{r}-10x10``: the
 team's belief map and 5 x 5 windows) instead of the thesis observation scaled down."""
+CAE: str | None = None
+"""--cae: the walls CAE directory of the ``-cae`` methods (trained for the benchmark's grid)."""
 REACH = 1.05
 """A run "reaches" a level when its mean held-out episode length is within 5% of it."""
 
@@ -113,8 +119,15 @@ def faulty_refs(good: str, actions: int) -> list[str]:
 def train_run(task: str, method: str, seed: int, steps: int, experts: list[str],
               qos: list[float], eval_every: int, out: Path, grid: int) -> dict[str, Any]:
     """Train one (task, method, seed) and return its curve and held-out figures."""
-    preset = user_preset(task, "sr" if method == "sr" else "sparse", grid)
+    preset = user_preset(task, "sr" if method in ("sr", "sr-cae") else "sparse", grid)
     env, obs, ppo = preset.env, preset.observation, preset.ppo
+    if method.endswith("-cae"):
+        from workers.mdrl.cae import load_cae_card
+
+        if CAE is None:
+            raise SystemExit(f"method {method}: give the walls CAE with --cae DIR")
+        obs = dataclasses.replace(obs, walls_embedding=CAE,
+                                  walls_embedding_size=int(load_cae_card(CAE)["embedding"]))
     run = RunConfig(seed=seed, total_steps=steps, eval_every=eval_every,
                     eval_episodes=CURVE_EPISODES, eval_seed=CURVE_SEED, checkpoint_every=0,
                     tensorboard=False, progress=False)
@@ -269,6 +282,12 @@ def targets(by: dict[str, list[dict]], sr_level: float) -> list[str]:
             out.append(f"- {faulty} {f:.2f} [{f_ci[0]:.2f}, {f_ci[1]:.2f}] vs sparse "
                        f"{s:.2f} [{s_ci[0]:.2f}, {s_ci[1]:.2f}] (target: not worse beyond the "
                        "seed noise)")
+    for plain in ("sparse", "sr"):
+        if {plain, f"{plain}-cae"} <= set(by):
+            a, a_ci = final(by[f"{plain}-cae"], "time")
+            b, b_ci = final(by[plain], "time")
+            out.append(f"- {plain} with the walls CAE {a:.2f} [{a_ci[0]:.2f}, {a_ci[1]:.2f}] vs "
+                       f"with the wall maps {b:.2f} [{b_ci[0]:.2f}, {b_ci[1]:.2f}]")
     for other in ("frl", "il"):
         if {"medc", other} <= set(by):
             steps, m = mean_curve(by["medc"])
@@ -322,7 +341,7 @@ def plot(results: list[dict], path: Path) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    global HELDOUT_EPISODES, THRESHOLD, BELIEF
+    global HELDOUT_EPISODES, THRESHOLD, BELIEF, CAE
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--steps", type=int, default=1_000_000)
     p.add_argument("--seeds", default="0,1,2")
@@ -344,8 +363,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--belief", action="store_true",
                    help="with --grid 10: the product presets ch4-a{N}w{K}-{r}-10x10 (belief "
                    "map, 5 x 5 windows) for every user; give another --out (runs are cached)")
+    p.add_argument("--cae", default=None,
+                   help="walls CAE directory for the -cae methods (drlaas cae train, same grid)")
     args = p.parse_args(argv)
     BELIEF = args.belief
+    CAE = args.cae
     HELDOUT_EPISODES = args.episodes
     THRESHOLD = args.threshold
     methods = [m for m in args.methods.split(",") if m]
