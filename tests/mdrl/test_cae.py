@@ -312,24 +312,32 @@ def test_every_map_channel_is_unchanged_by_the_embedding(tiny_cae, options):
         assert dropped <= {"ds_walls"}
 
 
-def test_shipped_30x30_cae_holds_its_card_on_fresh_layouts():
+SHIPPED_CAES = {"cae-30x30": (30, 128, 7), "cae-10x10": (10, 32, 5)}
+"""Shipped walls CAEs: grid side, d, and the window of the presets they serve."""
+
+
+@pytest.mark.parametrize("name", sorted(SHIPPED_CAES))
+def test_shipped_cae_holds_its_card_on_fresh_layouts(name):
     from workers.mdrl.cae import predict, reconstruction_figures
 
-    path = ZOO / "cae-30x30"
+    path = ZOO / name
     if not (path / "model.json").is_file():
-        pytest.skip("models/cae-30x30 not present")
+        pytest.skip(f"models/{name} not present")
+    side, d, window = SHIPPED_CAES[name]
     assert (path / "model.safetensors").stat().st_size < 400 * 1024
     card = load_cae_card(path)
     spec = EnvSpec.from_dict(card["env"])
-    assert (spec.rows, spec.cols, tuple(spec.walls), card["embedding"]) == (30, 30, (1, 3), 128)
+    assert (spec.rows, spec.cols, tuple(spec.walls), card["embedding"]) == (side, side, (1, 3), d)
     held = card["heldout"]
     assert held["cae"]["cell_error"] < 0.1 * held["empty"]["cell_error"]
     fresh = wall_layouts(spec, 500, seed=424242)
     got = reconstruction_figures(predict(load_cae(path), fresh), fresh)
-    # 500 x 900 cells: the card's misclassified-cell rate and IoU must hold up to sampling
+    # 500 maps: the card's misclassified-cell rate and IoU must hold up to sampling
     assert got["cell_error"] < 2 * held["cae"]["cell_error"] + 1e-3
     assert got["wall_iou"] > held["cae"]["wall_iou"] - 0.03
-    # and it serves a Ch. 4 observation (w = 7: d = 128 rides in 3 planes of 7 x 7)
-    obs = ObservationSpec("odmtl", window=7, walls_embedding=str(path))
+    # and it serves a Ch. 4 observation (d rides in ceil(d / w^2) planes of w x w)
+    obs = ObservationSpec("odmtl", window=window, walls_embedding=str(path),
+                          walls_embedding_size=d)
     observer = make_observer(spec.replace(agents=3, moves=8), obs)
-    assert observer.actor_channels[-3:] == tuple(f"walls_code_{i}" for i in range(3))
+    planes = -(-d // (window * window))
+    assert observer.actor_channels[-planes:] == tuple(f"walls_code_{i}" for i in range(planes))
