@@ -1,10 +1,12 @@
 """Physics and invariants of the batched target-localization environment."""
 
+from collections import deque
+
 import numpy as np
 import pytest
 
 from workers.mdrl.env import UNREACHABLE, TargetLocalizationEnv
-from workers.mdrl.spec import MOVES_8, EnvSpec, IntensitySpec
+from workers.mdrl.spec import MOVES, MOVES_8, EnvSpec, IntensitySpec
 
 
 def random_actions(env, rng):
@@ -16,7 +18,8 @@ def random_actions(env, rng):
 def place(env, b, target, agents):
     """Put env b into a hand-made layout (no walls) and recompute what reset would."""
     env.walls[b] = False
-    env.next_cell[b] = env._move_table(env.walls[b : b + 1])[0]
+    env._valid[b] = env._valid_moves(env.walls[b : b + 1])[0]
+    env._next_stale[b] = True
     env.target[b] = target
     env.dist[b] = env._free_dist[target]
     env.mean_reading[b] = env.expected_counts(
@@ -242,20 +245,141 @@ def test_transmission_of_many_layouts_equals_each_layout_alone():
     together = env.expected_counts(env.target, env.walls, env.intensity)
     assert (together < env._free_gain[env.target] * env.intensity[:, None]).any()  # walls bite
     for b in range(env.num_envs):
-        alone = env.expected_counts(env.target[b : b + 1], env.walls[b : b + 1],
-                                    env.intensity[b : b + 1])[0]
+        alone = env.expected_counts(
+            env.target[b : b + 1], env.walls[b : b + 1], env.intensity[b : b + 1]
+        )[0]
         np.testing.assert_array_equal(together[b], alone)
 
 
-@pytest.mark.parametrize("moves", [4, 8])
-def test_graph_and_grid_searches_give_the_same_distances(moves):
-    # a few layouts (a typical reset) take the graph search, many the level-by-level one
-    spec = EnvSpec(rows=12, cols=9, agents=2, moves=moves, walls=(1, 3))
-    env = TargetLocalizationEnv(spec, 40, seed=8)
-    assert env._GRAPH_BFS_BELOW < 40
-    many = env._bfs(env.target, env.walls, env.next_cell)
-    np.testing.assert_array_equal(many, env.dist)
-    for lo in range(0, 40, 5):
-        few = env._bfs(env.target[lo : lo + 5], env.walls[lo : lo + 5], env.next_cell[lo : lo + 5])
-        np.testing.assert_array_equal(few, many[lo : lo + 5])
-    assert (many >= UNREACHABLE).any() and (many[many < UNREACHABLE] > 8).any()
+def reference_table(spec, walls):
+    """(C, A) move table of one layout, cell by cell from the rules (module docstring)."""
+    m, n = spec.rows, spec.cols
+    grid = walls.reshape(m, n)
+    free = lambda r, c: 0 <= r < m and 0 <= c < n and not grid[r, c]  # noqa: E731
+    table = np.full((m * n, spec.num_actions), -1)
+    for cell in range(m * n):
+        r, c = divmod(cell, n)
+        for a, (dr, dc) in enumerate(MOVES[spec.moves]):
+            corners = free(r + dr, c) and free(r, c + dc) if dr and dc else True
+            if free(r + dr, c + dc) and corners:
+                table[cell, a] = (r + dr) * n + c + dc
+    return table
+
+
+def reference_bfs(table, target):
+    """BFS steps to ``target`` over a move table, one cell at a time (moves are symmetric)."""
+    dist = np.full(len(table), UNREACHABLE)
+    dist[target] = 0
+    queue = deque([target])
+    while queue:
+        cell = queue.popleft()
+        for nxt in table[cell]:
+            if nxt >= 0 and dist[nxt] == UNREACHABLE:
+                dist[nxt] = dist[cell] + 1
+                queue.append(nxt)
+    return dist
+
+
+@pytest.mark.parametrize(
+    ("rows", "cols", "moves", "walls"),
+    [
+        (12, 9, 4, (1, 3)),
+        (12, 9, 8, (1, 3)),
+        (9, 30, 8, (3, 3)),
+        (6, 70, 8, (2, 4)),
+    ],
+)
+def test_moves_and_distances_equal_a_cell_by_cell_reference(rows, cols, moves, walls):
+    # up to 64 columns the BFS runs on bit rows, beyond on bool grids; both against a queue
+    spec = EnvSpec(rows=rows, cols=cols, agents=2, moves=moves, walls=walls)
+    env = TargetLocalizationEnv(spec, 12, seed=8)
+    rng = np.random.default_rng(0)
+    for _ in range(3):
+        for b in range(env.num_envs):
+            table = reference_table(spec, env.walls[b])
+            np.testing.assert_array_equal(env.next_cell[b], table)
+            np.testing.assert_array_equal(env.dist[b], reference_bfs(table, env.target[b]))
+            np.testing.assert_array_equal(env.action_mask()[b], table[env.pos[b]] >= 0)
+        for _ in range(40):  # on to other layouts (resets rebuild next_cell on demand)
+            env.step(random_actions(env, rng))
+    few = env._bfs(env.target[:3], env.walls[:3])
+    np.testing.assert_array_equal(few, env.dist[:3])
+    assert (env.dist >= UNREACHABLE).any() and (env.dist[env.dist < UNREACHABLE] > 8).any()
+
+
+def test_wall_layouts_equal_a_wall_by_wall_reference():
+    # the same draws as draw_walls, the cells placed one wall at a time
+    spec = EnvSpec(rows=9, cols=13, agents=2, walls=(0, 4))
+    got = TargetLocalizationEnv.draw_walls(spec, np.random.default_rng(3), 200)
+    rng = np.random.default_rng(3)
+    m, n, (lo, hi) = spec.rows, spec.cols, spec.walls
+    want = np.zeros((200, m, n), dtype=bool)
+    count = rng.integers(lo, hi + 1, size=200)
+    taken = np.zeros((200, 4, max(m, n)), dtype=bool)
+    for k in range(hi):
+        side = rng.integers(0, 4, size=200)
+        along = np.where(side < 2, n, m)
+        place = rng.integers(1, along - 1)
+        again = taken[np.arange(200), side, place]
+        while again.any():
+            side[again] = rng.integers(0, 4, size=int(again.sum()))
+            along = np.where(side < 2, n, m)
+            place[again] = rng.integers(1, along[again] - 1)
+            again = taken[np.arange(200), side, place]
+        taken[np.arange(200), side, place] = True
+        span = np.where(side < 2, m, n)
+        bounds = [spec.wall_length_range(int(s)) for s in span]
+        length = rng.integers([b[0] for b in bounds], [b[1] + 1 for b in bounds])
+        for b in np.flatnonzero(k < count):
+            for j in range(length[b]):
+                r, c = [(j, place[b]), (m - 1 - j, place[b]), (place[b], j), (place[b], n - 1 - j)][
+                    side[b]
+                ]
+                want[b, r, c] = True
+    np.testing.assert_array_equal(got, want.reshape(200, -1))
+    assert (want.sum((1, 2)) > 0).any() and (count == 0).any()
+
+
+def reference_transmission(env, target, walls):
+    """Beer-Lambert factor per detector: each wall slab crossed adds 1 / cos(theta), cell line
+    by cell line, the two orientations summed apart (the slab of a wall: its centre line, from
+    its side to the far edge of its last cell)."""
+    spec = env.spec
+    m, n = spec.rows, spec.cols
+    cy, cx = spec.cell_size_m
+    grid = walls.reshape(m, n)
+    qy, qx = env.centre_m[target]
+    out = np.empty(m * n)
+    for cell, (py, px) in enumerate(env.centre_m):
+        length = np.hypot(py - qy, px - qx)
+        slant, across = 0.0, 0.0
+        for col in range(n):  # slabs on column centre lines: walls from the top or bottom
+            top = int(np.cumprod(grid[:, col]).sum())
+            bottom = int(np.cumprod(grid[::-1, col]).sum())
+            aw = (col + 0.5) * cx
+            if (px - aw) * (qx - aw) < 0:
+                y = py + (px - aw) / ((px - aw) - (qx - aw)) * (qy - py)
+                if (top and y <= top * cy) or (bottom and y >= (m - bottom) * cy):
+                    slant += length / abs(px - qx)
+        for row in range(m):  # slabs on row centre lines: walls from the left or right
+            left = int(np.cumprod(grid[row]).sum())
+            right = int(np.cumprod(grid[row, ::-1]).sum())
+            aw = (row + 0.5) * cy
+            if (py - aw) * (qy - aw) < 0:
+                x = px + (py - aw) / ((py - aw) - (qy - aw)) * (qx - px)
+                if (left and x <= left * cx) or (right and x >= (n - right) * cx):
+                    across += length / abs(py - qy)
+        out[cell] = np.exp(-spec.wall_mu_per_cm * spec.wall_thickness_cm * (slant + across))
+    return out
+
+
+@pytest.mark.parametrize(("rows", "cols", "walls"), [(12, 9, (1, 3)), (12, 12, (10, 10))])
+def test_transmission_equals_a_slab_by_slab_reference(rows, cols, walls):
+    # 10 walls: lines that cross 4 or more slabs of one orientation (sums of 4+ equal terms)
+    spec = EnvSpec(rows=rows, cols=cols, agents=2, moves=8, walls=walls)
+    env = TargetLocalizationEnv(spec, 6, seed=0)
+    got = env._transmission(env.target, env.walls)
+    for b in range(env.num_envs):
+        want = reference_transmission(env, env.target[b], env.walls[b])
+        np.testing.assert_array_equal(got[b], want)
+    assert (got < 1).any()

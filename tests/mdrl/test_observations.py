@@ -10,6 +10,7 @@ from scipy import ndimage
 
 from workers.mdrl.observations import (
     ObservationSpec,
+    _Kept,
     decode_joint,
     downsize_matrix,
     encode_joint,
@@ -422,3 +423,70 @@ def test_odmtl_full_critic_sees_the_dmtl_joint_maps_and_leaves_the_actor_alone()
     np.testing.assert_allclose(c_full, c_dmtl, rtol=1e-6)
     with pytest.raises(ValueError, match="critic must be"):
         ObservationSpec("odmtl", critic="huge")
+
+
+# ----------------------------------------------------------------------------- kept maps
+
+
+@pytest.mark.parametrize(
+    ("rows", "window", "readings"),
+    [
+        (9, 5, "last"),
+        (9, 7, "mean"),
+        (12, 9, "last"),  # walls windows as bits (w <= 7), padded
+    ],
+)
+def test_odmtl_maps_kept_between_steps_equal_a_fresh_observer_and_the_reference(
+    rows, window, readings
+):
+    """For big batches the ODMTL observer keeps its maps per env and updates them at the
+    agents' cells after a step (the downsized visits in exact fixed point, the walls maps at
+    resets): through resets, skipped and repeated observations, agents sharing cells and
+    frozen envs it equals a fresh observer bit for bit, and the maps of small batches (float32
+    products) and the slow reference up to float32 round-off."""
+    from workers.mdrl.env import TargetLocalizationEnv
+    from workers.mdrl.spec import EnvSpec
+
+    spec = EnvSpec(rows=rows, cols=rows + 1, agents=4, moves=8, walls=(1, 3), max_steps=15)
+    osp = ObservationSpec("odmtl", window=window, readings=readings)
+    kept = make_observer(spec, osp)
+    kept.KEEP_FROM = 0  # keep the maps of this small batch too
+    env = TargetLocalizationEnv(spec, 24, seed=4)
+    rng = np.random.default_rng(0)
+    shared = 0
+    for step in range(60):
+        keys = rng.random(env.action_mask().shape) * env.action_mask()
+        env.active[:3] = step % 9 != 4  # now and then three envs sit a step out
+        env.step(keys.argmax(-1))
+        env.active[:3] = True
+        shared += sum(len(set(p)) < 4 for p in env.pos.tolist())
+        if step % 6 == 5:
+            continue  # two steps between observations
+        got = kept.observe(env)
+        if step % 10 == 0:
+            got = kept.observe(env)  # twice without a step
+        fresh = make_observer(spec, osp)
+        fresh.KEEP_FROM = 0
+        for a, b in zip(got, fresh.observe(env), strict=True):
+            np.testing.assert_array_equal(a, b)
+        for a, b in zip(got, make_observer(spec, osp).observe(env), strict=True):
+            np.testing.assert_allclose(a, b, rtol=0, atol=1e-6)
+    assert shared and isinstance(next(iter(kept._readings_cache.values())), _Kept)
+    if readings == "last":  # the reference reads the last readings
+        got = kept.observe(env)
+        ref_a, ref_c = reference(spec, osp, env)
+        np.testing.assert_allclose(got[0], ref_a, atol=1e-6)
+        np.testing.assert_allclose(got[1], ref_c, atol=1e-6)
+
+
+def test_visits_that_are_not_small_integers_take_the_float_products():
+    # fractional visits cannot go through the fixed-point product: the float32 one instead
+    rng = np.random.default_rng(5)
+    spec = make_spec(rows=7, cols=9, agents=3, walls=(0, 3))
+    obs = ObservationSpec("odmtl", window=5)
+    env = random_env(rng, spec, b=6)
+    env.visits = env.visits * np.float32(0.37)
+    actor, critic = make_observer(spec, obs).observe(env)
+    ref_a, ref_c = reference(spec, obs, env)
+    np.testing.assert_allclose(actor, ref_a, atol=1e-5)
+    np.testing.assert_allclose(critic, ref_c, atol=1e-5)

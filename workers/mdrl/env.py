@@ -2,8 +2,8 @@
 
 Thesis Ch. 3.2/3.7.1 (Poisson readings, Eq. 6; team rewards Eq. 5/8 and Eq. 9) and Ch. 4.3-4.4
 (walls from the sides, 8 directions + idle, invalid-move masks, the all-idle rule). What is fixed
-within an episode (BFS distance map, expected-reading map, the move table with walls) is computed
-once at reset, so a step is a handful of gathers over (B, N) arrays.
+within an episode (BFS distance map, expected-reading map, which moves the walls allow) is
+computed once at reset, so a step is a handful of gathers over (B, N) arrays.
 
 Walls (ours where the thesis is silent): a wall starts at one side of the area, at a cell drawn
 away from the corners, and runs perpendicular to that side for a random length of at most
@@ -20,8 +20,6 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from scipy.sparse import csr_matrix
-from scipy.sparse.csgraph import dijkstra
 
 from .spec import MOVES, EnvSpec
 
@@ -73,8 +71,9 @@ class TargetLocalizationEnv:
         nc = self.cell_col[:, None] + self.moves[None, :, 1]
         inside = (nr >= 0) & (nr < m) & (nc >= 0) & (nc < n)
         self._free_next = np.where(inside, nr * n + nc, -1)  # (C, A) move table without walls
-        # A spec without walls gives every env this table: steps and masks read the small shared
-        # table instead of gathering from next_cell (B * C * A entries, far beyond the caches).
+        # A spec without walls gives every env this table: masks read the small shared table
+        # instead of gathering from _valid (B * C * A entries, far beyond the caches). Steps
+        # always read it: a valid move goes where it would go without walls.
         self._one_table = spec.walls[1] == 0
         diff = (
             np.abs(self.cell_row[:, None] - self.cell_row[None]),
@@ -103,12 +102,25 @@ class TargetLocalizationEnv:
         self.idle_streak = np.zeros(B, dtype=np.int64)
         self.intensity = np.zeros(B, dtype=np.float64)
         self.cost = np.zeros(B, dtype=np.int64)
-        self.next_cell = np.zeros((B, C, A), dtype=np.int64)
+        # Which moves the walls allow, per env and cell: the move itself is always the wall-free
+        # one (``_free_next``), so bools are all a step needs (the int64 table ``next_cell`` is
+        # 8x larger, 66 MB at B = 1024 on 30 x 30, and is built only when asked for).
+        self._valid = np.zeros((B, C, A), dtype=bool)
+        self._next_cell = np.zeros((B, C, A), dtype=np.int64)
+        self._next_stale = np.ones(B, dtype=bool)  # rows of _next_cell not rebuilt since reset
         self.active = np.ones(B, dtype=bool)  # False: episode over and frozen (autoreset=False)
         self.history = np.zeros((B, HISTORY, N), dtype=np.int64)
         self._mask = np.zeros((B, N, A), dtype=bool)
         self._rows = np.arange(B)
         self._agent_offsets = np.arange(B * N).reshape(B, N) * A  # flat (b, i, 0) in (B, N, A)
+        if spec.walls[1] == 0:
+            self._valid[...] = self._free_next >= 0
+        elif C <= self._GEOMETRY_CELLS:  # 1 / cos(theta) per (source, detector) and slab axis
+            dy = self.centre_m[None, :, 0] - self.centre_m[:, None, 0]  # detector - source
+            dx = self.centre_m[None, :, 1] - self.centre_m[:, None, 1]
+            length = np.hypot(dy, dx)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                self._slant_y, self._slant_x = length / np.abs(dy), length / np.abs(dx)
         self.seed(seed)
         self.reset()
 
@@ -123,6 +135,20 @@ class TargetLocalizationEnv:
         "pos target walls dist mean_reading readings reading_sum visits episode_id t idle_streak "
         "intensity cost next_cell active history _mask"
     ).split()
+
+    #: Up to this many cells the (C, C) wall path factors are tables (6.5 MB each at 30 x 30).
+    _GEOMETRY_CELLS = 1024
+
+    @property
+    def next_cell(self) -> np.ndarray:
+        """int (B, C, A): destination of every move; -1 off the grid, into a wall or cutting a
+        corner. Built from ``walls`` on demand, only for envs reset since the last call (the
+        env itself only needs ``_valid``); a view, do not modify."""
+        stale = np.flatnonzero(self._next_stale)
+        if len(stale):
+            self._next_cell[stale] = np.where(self._valid[stale], self._free_next, -1)
+            self._next_stale[stale] = False
+        return self._next_cell
 
     def state_dict(self) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
         """(arrays, JSON-able extras) that restore this env exactly, mid-episode included."""
@@ -146,7 +172,10 @@ class TargetLocalizationEnv:
                 raise ValueError(
                     f"saved env array {name} has shape {value.shape}, expected {current.shape}"
                 )
-            current[...] = value
+            if name != "next_cell":  # derived from the walls, rebuilt below
+                current[...] = value
+        self._valid[...] = self._valid_moves(self.walls)
+        self._next_stale[...] = True
         self.layout_rng.bit_generator.state = extras["layout_rng"]
         self.noise_rng.bit_generator.state = extras["noise_rng"]
 
@@ -162,14 +191,15 @@ class TargetLocalizationEnv:
         R, C, N = len(rows), spec.num_cells, spec.agents
         walls = self.draw_walls(spec, rng, R)
         self.walls[rows] = walls
-        next_cell = self._move_table(walls)
-        self.next_cell[rows] = next_cell
+        if spec.walls[1]:  # without walls every env keeps the table set in __init__
+            self._valid[rows] = self._valid_moves(walls)
+            self._next_stale[rows] = True
 
         # Target among free cells; agents at distinct cells that can reach it.
         keys = rng.random((R, C))
         keys[walls] = 2.0
         target = keys.argmin(axis=1)
-        dist = self._bfs(target, walls, next_cell)
+        dist = self._bfs(target, walls)
         reachable = dist < UNREACHABLE
         short = reachable.sum(1) < N + 1
         if short.any():  # a pocket too small to hold the team: draw those layouts again
@@ -225,66 +255,127 @@ class TargetLocalizationEnv:
                 place[again] = rng.integers(1, along[again] - 1)
                 again = taken[np.arange(R), side, place]
             taken[np.arange(R), side, place] = True
-            lmin = np.array([spec.wall_length_range(int(s))[0] for s in span])
-            lmax = np.array([spec.wall_length_range(int(s))[1] for s in span])
+            lmin = np.where(vertical, *(spec.wall_length_range(s)[0] for s in (m, n)))
+            lmax = np.where(vertical, *(spec.wall_length_range(s)[1] for s in (m, n)))
             length = rng.integers(lmin, lmax + 1)
-            on = k < count
-            r = np.arange(m)[None, :, None]
-            c = np.arange(n)[None, None, :]
-            place_, length_ = place[:, None, None], length[:, None, None]
-            side_ = side[:, None, None]
-            cells = (
-                ((side_ == 0) & (c == place_) & (r < length_))
-                | ((side_ == 1) & (c == place_) & (r >= m - length_))
-                | ((side_ == 2) & (r == place_) & (c < length_))
-                | ((side_ == 3) & (r == place_) & (c >= n - length_))
-            )
-            walls |= cells & on[:, None, None]
+            # the wall's cells, counted from its side: step j of the wall is at depth j
+            depth = np.arange(max(m, n))[None, :]
+            deep = np.where(side[:, None] % 2 == 0, depth, span[:, None] - 1 - depth)
+            r = np.where(vertical[:, None], deep, place[:, None])
+            c = np.where(vertical[:, None], place[:, None], deep)
+            on = (depth < length[:, None]) & (k < count)[:, None]
+            b = np.broadcast_to(np.arange(R)[:, None], on.shape)
+            walls[b[on], r[on], c[on]] = True
         return walls.reshape(R, -1)
 
     def _move_table(self, walls: np.ndarray) -> np.ndarray:
         """(R, C, A) destination of every move; -1 off the grid, into a wall or cutting a corner."""
+        return np.where(self._valid_moves(walls), self._free_next, -1)
+
+    def _valid_moves(self, walls: np.ndarray) -> np.ndarray:
+        """bool (R, C, A): the move stays on the grid, its destination is free and (a diagonal)
+        it does not cut the corner of a wall cell."""
         R = len(walls)
-        table = np.broadcast_to(self._free_next, (R, *self._free_next.shape)).copy()
         if not walls.any():
-            return table
-        m, n = self.spec.rows, self.spec.cols
+            return np.broadcast_to(self._free_next >= 0, (R, *self._free_next.shape))
+        m, n, A = self.spec.rows, self.spec.cols, self.spec.num_actions
         free = np.zeros((R, m + 2, n + 2), dtype=bool)  # a border of walls around the grid
         free[:, 1:-1, 1:-1] = ~walls.reshape(R, m, n)
-        grid = table.reshape(R, m, n, -1)
+        valid = np.empty((R, m, n, A), dtype=bool)
         for a, (dr, dc) in enumerate(self.moves):
-            ok = free[:, 1 + dr : m + 1 + dr, 1 + dc : n + 1 + dc].copy()  # destination free
+            ok = valid[..., a]
+            np.copyto(ok, free[:, 1 + dr : m + 1 + dr, 1 + dc : n + 1 + dc])  # destination free
             if dr and dc:  # a diagonal needs both orthogonal neighbours free (no corner cutting)
                 ok &= free[:, 1 + dr : m + 1 + dr, 1 : n + 1]
                 ok &= free[:, 1 : m + 1, 1 + dc : n + 1 + dc]
-            grid[:, :, :, a][~ok] = -1
-        return table
+        return valid.reshape(R, m * n, A)
 
-    #: Below this many layouts a graph search per layout beats the level-by-level grid search.
-    _GRAPH_BFS_BELOW = 12
-
-    def _bfs(self, target: np.ndarray, walls: np.ndarray, next_cell: np.ndarray) -> np.ndarray:
+    def _bfs(self, target: np.ndarray, walls: np.ndarray) -> np.ndarray:
         """(R, C) BFS steps to the target (moves are symmetric, so search from the target).
 
-        Without walls: the closed form. A few layouts (a typical reset): scipy's search on the
-        graph of ``next_cell``. Many: level by level on the padded grid, where a cell joins the
-        next level if a move from the current level reaches it, i.e. it is free and (for a
-        diagonal) both orthogonal cells beside the move are free, as in ``_move_table``. The
-        grid search costs ~45 levels of array passes whatever the number of layouts, the graph
-        search a fixed cost per layout.
+        Without walls: the closed form. With walls: level by level, on bit rows (one uint64 per
+        grid row, bit c = column c) when the grid has at most 64 columns, else on bool grids.
+        A level of the bit search is ~10 array operations on (3, R, rows) words, so a reset's
+        few layouts cost ~0.8 ms (a scipy graph search per layout cost ~1.5 ms for ten) and
+        all 1024 at once ~40 ms (the bool grids: ~700 ms).
         """
-        R, C = walls.shape
         dist = self._free_dist[target].copy()
         hard = np.flatnonzero(walls.any(axis=1))
-        if not len(hard):
-            return dist
-        if len(hard) < self._GRAPH_BFS_BELOW:
-            dist[hard] = _graph_bfs(target[hard], next_cell[hard])
-            return dist
-        m, n, k = self.spec.rows, self.spec.cols, len(hard)
+        if len(hard):
+            search = self._bit_bfs if self.spec.cols <= 64 else self._grid_bfs
+            dist[hard] = search(target[hard], walls[hard])
+        return dist
+
+    def _bit_bfs(self, target: np.ndarray, walls: np.ndarray) -> np.ndarray:
+        """``_bfs`` for layouts with walls, rows as bit masks. A cell y joins the next level if
+        it is free and unseen and a move from a frontier cell x reaches it: a straight one, or
+        a diagonal (dr, dc) whose orthogonal cells x + (0, dc) and x + (dr, 0) = y - (0, dc)
+        are free (as in ``_valid_moves``). Levels are recorded as binary digits (bit planes)."""
+        k, m, n = len(target), self.spec.rows, self.spec.cols
+        grid = np.zeros((k, m, 64), dtype=bool)
+        grid[:, :, :n] = ~walls.reshape(k, m, n)
+        free = np.zeros((k, m + 2), dtype=np.uint64)  # rows 0 and m + 1: off the grid
+        free[:, 1:-1] = np.packbits(grid, axis=-1, bitorder="little").view("<u8")[..., 0]
+        inner = free[:, 1:-1]
+        one = np.uint64(1)
+        # a diagonal into y with column step dc needs y and y - (0, dc) free
+        corner = np.stack([inner & (inner << one), inner & (inner >> one)])
+        tr, tc = np.divmod(target, n)
+        # moves[0]: the frontier, moves[1], moves[2]: its free cells one column right, left
+        moves = np.zeros((3, k, m + 2), dtype=np.uint64)
+        front = moves[0]
+        front[np.arange(k), tr + 1] = one << tc.astype(np.uint64)
+        unseen = inner & ~front[:, 1:-1]
+        rows_on = np.empty((3, k, m), dtype=np.uint64)
+        levels = np.zeros((64, k, m), dtype=np.uint64)  # levels[d]: cells at distance d
+        d = 0
+        while True:
+            d += 1
+            if d == len(levels):
+                levels = np.concatenate([levels, np.zeros_like(levels)])
+            reached = levels[d]
+            np.left_shift(front, one, out=moves[1])
+            np.right_shift(front, one, out=moves[2])
+            moves[1:] &= free
+            np.bitwise_or(moves[:, :, :-2], moves[:, :, 2:], out=rows_on)  # one row up or down
+            if self.spec.moves == 8:
+                rows_on[1:] &= corner  # diagonals
+            else:
+                rows_on[1:] = 0
+            rows_on[1:] |= moves[1:, :, 1:-1]  # left and right
+            np.bitwise_or.reduce(rows_on, axis=0, out=reached)
+            reached &= unseen
+            unseen ^= reached
+            front[:, 1:-1] = reached
+            if d % 4 == 0 and not reached.any():  # an empty level: all later ones are too
+                break
+        digits = np.arange(d + 1)[:, None] >> np.arange(max(d.bit_length(), 1))[None, :] & 1
+        planes = [
+            np.bitwise_or.reduce(levels[: d + 1][digits[:, j] == 1], axis=0)
+            for j in range(digits.shape[1])
+        ]  # planes[j]: distance has binary digit j
+        dist = np.zeros((k, m, n), dtype=np.int32)
+        for j, plane in enumerate(planes):
+            bits = np.unpackbits(
+                plane.astype("<u8").view(np.uint8).reshape(k, m, 8), axis=-1, bitorder="little"
+            )[..., :n]
+            dist += bits.astype(np.int32) << j
+        lost = np.unpackbits(
+            (unseen | ~inner).astype("<u8").view(np.uint8).reshape(k, m, 8),
+            axis=-1,
+            bitorder="little",
+        )[..., :n].astype(bool)
+        dist[lost] = UNREACHABLE  # walls and free cells the search never reached
+        return dist.reshape(k, m * n)
+
+    def _grid_bfs(self, target: np.ndarray, walls: np.ndarray) -> np.ndarray:
+        """``_bfs`` for layouts with walls on bool grids (any width): a cell joins the next level
+        if a move from the current level reaches it, i.e. it is free and (for a diagonal) both
+        orthogonal cells beside the move are free, as in ``_valid_moves``."""
+        m, n, k = self.spec.rows, self.spec.cols, len(target)
         free = np.zeros((k, m + 2, n + 2), dtype=bool)  # a border of walls around the grid
         inner = free[:, 1:-1, 1:-1]
-        inner[...] = ~walls[hard].reshape(k, m, n)
+        inner[...] = ~walls.reshape(k, m, n)
         straight, diagonal = [], []
         for dr, dc in self.moves[1:]:
             shift = (slice(None), slice(1 - dr, m + 1 - dr), slice(1 - dc, n + 1 - dc))
@@ -296,7 +387,7 @@ class TargetLocalizationEnv:
                 straight.append(shift)
         sub = np.full((k, m, n), UNREACHABLE, dtype=np.int32)
         frontier = np.zeros((k, m + 2, n + 2), dtype=bool)
-        tr, tc = np.divmod(target[hard], n)
+        tr, tc = np.divmod(target, n)
         at = np.arange(k)
         frontier[at, tr + 1, tc + 1] = True
         sub[at, tr, tc] = 0
@@ -319,8 +410,7 @@ class TargetLocalizationEnv:
             unseen ^= reached
             np.copyto(sub, d, where=reached)
             frontier[:, 1:-1, 1:-1] = reached
-        dist[hard] = sub.reshape(k, C)
-        return dist
+        return sub.reshape(k, m * n)
 
     def expected_counts(
         self, target: np.ndarray, walls: np.ndarray, intensity: np.ndarray
@@ -338,7 +428,9 @@ class TargetLocalizationEnv:
         """Beer-Lambert exp(-mu t / cos(theta)) per wall crossed by the detector-source line.
 
         A wall is the run of wall cells that leaves a side; its slab lies on the centre line of
-        those cells, from the side to the far edge of its last cell.
+        those cells, from the side to the far edge of its last cell. 1 / cos(theta) is the same
+        for every slab of one orientation, so the path factor is that value times the number
+        of such slabs crossed (added up one slab at a time, as float sums go: ``_times``).
         """
         spec = self.spec
         m, n = spec.rows, spec.cols
@@ -350,13 +442,18 @@ class TargetLocalizationEnv:
             self.centre_m[target, 0][:, None],
             self.centre_m[target, 1][:, None],
         )  # sources (R, 1)
-        length = np.hypot(py - qy, px - qx)
+        if hasattr(self, "_slant_x"):
+            slant_x, slant_y = self._slant_x[target], self._slant_y[target]
+        else:
+            length = np.hypot(py - qy, px - qx)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                slant_x, slant_y = length / np.abs(px - qx), length / np.abs(py - qy)
         top = np.cumprod(grid, axis=1).sum(1)  # (R, n) run down from the top of each column
         bottom = np.cumprod(grid[:, ::-1], axis=1).sum(1)
         left = np.cumprod(grid, axis=2).sum(2)  # (R, m) run in from the left of each row
         right = np.cumprod(grid[:, :, ::-1], axis=2).sum(2)
-        slant = _slab_slant(px, qx, py, qy, length, top, bottom, cx, cy, m)
-        slant += _slab_slant(py, qy, px, qx, length, left, right, cy, cx, n)
+        slant = _times(slant_x, _slabs_hit(px, qx, py, qy, top, bottom, cx, cy, m))
+        slant += _times(slant_y, _slabs_hit(py, qy, px, qx, left, right, cy, cx, n))
         return np.exp(-spec.wall_mu_per_cm * spec.wall_thickness_cm * slant)
 
     # ------------------------------------------------------------------ stepping
@@ -369,8 +466,8 @@ class TargetLocalizationEnv:
         if self._one_table:
             mask = self._free_next[self.pos[rows]] >= 0
         else:
-            flat = self.next_cell.reshape(-1, self.spec.num_actions)
-            mask = flat[rows[:, None] * C + self.pos[rows]] >= 0
+            flat = self._valid.reshape(-1, self.spec.num_actions)
+            mask = np.take(flat, rows[:, None] * C + self.pos[rows], axis=0)
         mask[:, :, 0] &= (self.idle_streak[rows] < self.spec.idle_limit)[:, None]
         return mask
 
@@ -427,10 +524,7 @@ class TargetLocalizationEnv:
         act = actions[sel]
         old = self.pos[sel]
         C = spec.num_cells
-        if self._one_table:
-            new = self._free_next[old, act]
-        else:
-            new = self.next_cell.reshape(-1)[(rows[:, None] * C + old) * A + act]
+        new = self._free_next[old, act]  # a valid move (checked above) is the wall-free one
         moved = act != 0
         b = moved.sum(1)
         dist_flat = self.dist.reshape(-1)
@@ -484,60 +578,71 @@ class TargetLocalizationEnv:
         return not self.active.any()
 
 
-def _slab_slant(a_p, a_q, s_p, s_q, length, near, far, size_a, size_s, span) -> np.ndarray:
-    """Sum of 1/cos(theta) over the slabs at a = (j + 0.5) * size_a that the segment PQ crosses.
+def _slabs_hit(a_p, a_q, s_p, s_q, near, far, size_a, size_s, span) -> np.ndarray:
+    """(R, C) number of wall slabs at a = (j + 0.5) * size_a that the segment PQ crosses.
 
     ``a`` is the coordinate across the slabs, ``s`` the one along them; detectors ``a_p``,
     ``s_p`` are (1, C), sources ``a_q``, ``s_q`` (R, 1); ``near``/``far`` (R, lines) are the run
-    lengths from the two sides (0: no wall there). Each env adds its wall lines in increasing
-    order, evaluated either for the (env, line) pairs that hold a wall (envs with different
-    layouts, as at reset) or line by line over all envs (envs sharing one layout, as the belief
-    filter's C hypotheses), whichever touches fewer (env, line) pairs.
+    lengths from the two sides (0: no wall there). Evaluated either for the (env, line) pairs
+    that hold a wall (envs with different layouts, as at reset) or line by line over all envs
+    (envs sharing one layout, as the belief filter's C hypotheses), whichever touches fewer
+    (env, line) pairs.
     """
-    total = np.zeros(length.shape)
+    count = np.zeros((len(a_q), a_p.shape[1]), dtype=np.uint8)
     has = (near > 0) | (far > 0)
     rows, lines = np.nonzero(has)  # sorted by env, then line
     if not len(rows):
-        return total
+        return count
     shared = np.flatnonzero(has.any(0))
     if 2 * len(rows) >= len(shared) * len(has):
         for j in shared:
-            total += _line_slant(a_p, a_q, s_p, s_q, length, near[:, j : j + 1],
-                                 far[:, j : j + 1], j, size_a, size_s, span)
-        return total
-    add = _line_slant(a_p, a_q[rows], s_p, s_q[rows], length[rows], near[rows, lines][:, None],
-                      far[rows, lines][:, None], lines[:, None], size_a, size_s, span)
-    rank = np.arange(len(rows)) - np.searchsorted(rows, rows)  # k-th wall line of its env
-    for k in range(int(rank.max()) + 1):
-        sel = rank == k
-        total[rows[sel]] += add[sel]
-    return total
+            count += _line_hits(
+                a_p, a_q, s_p, s_q, near[:, j : j + 1], far[:, j : j + 1], j, size_a, size_s, span
+            )
+        return count
+    hit = _line_hits(
+        a_p,
+        a_q[rows],
+        s_p,
+        s_q[rows],
+        near[rows, lines][:, None],
+        far[rows, lines][:, None],
+        lines[:, None],
+        size_a,
+        size_s,
+        span,
+    )
+    if len(a_q) * len(rows) <= 4096:  # a few envs (a step's resets): one small product
+        pick = np.zeros((len(a_q), len(rows)), dtype=np.float32)  # env <- its pairs
+        pick[rows, np.arange(len(rows))] = 1.0
+        return (pick @ hit.astype(np.float32)).astype(np.uint8)  # small counts: exact
+    first = np.flatnonzero(np.r_[True, rows[1:] != rows[:-1]])  # each env's first pair
+    count[rows[first]] = np.add.reduceat(hit, first, axis=0)
+    return count
 
 
-def _line_slant(a_p, a_q, s_p, s_q, length, near, far, line, size_a, size_s, span) -> np.ndarray:
-    """1/cos(theta) where PQ crosses the wall(s) on slab ``line`` (broadcast), else 0."""
+def _line_hits(a_p, a_q, s_p, s_q, near, far, line, size_a, size_s, span) -> np.ndarray:
+    """uint8 1 where PQ crosses the wall(s) on slab ``line`` (broadcast), else 0."""
     aw = (line + 0.5) * size_a
     dp, dq = a_p - aw, a_q - aw
-    crosses = dp * dq < 0
     with np.errstate(divide="ignore", invalid="ignore"):
         s = s_p + dp / (dp - dq) * (s_q - s_p)
-        slant = length / np.abs(a_p - a_q)
-    hit = crosses & (((near > 0) & (s <= near * size_s))
-                     | ((far > 0) & (s >= (span - far) * size_s)))
-    return np.where(hit, slant, 0.0)
+    hit = ((near > 0) & (s <= near * size_s)) | ((far > 0) & (s >= (span - far) * size_s))
+    hit &= dp * dq < 0
+    return hit.view(np.uint8)
 
 
-def _graph_bfs(target: np.ndarray, next_cell: np.ndarray) -> np.ndarray:
-    """(k, C) BFS steps from ``target`` over the moves of ``next_cell`` (k, C, A), one graph
-    of k disconnected layouts; invalid moves become self-loops, so every cell has A - 1 edges
-    and the sparse layout needs no sorting."""
-    k, C, A = next_cell.shape
-    moves = next_cell[:, :, 1:]
-    base = (np.arange(k) * C)[:, None, None]
-    dest = np.where(moves >= 0, moves, np.arange(C)[None, :, None]) + base
-    edges = (np.ones(dest.size, dtype=np.float32), dest.reshape(-1),
-             np.arange(0, dest.size + 1, A - 1))
-    graph = csr_matrix(edges, shape=(k * C, k * C))
-    d = dijkstra(graph, indices=np.arange(k) * C + target, unweighted=True)
-    d = d.reshape(k, k, C)[np.arange(k), np.arange(k)]
-    return np.where(np.isfinite(d), d, UNREACHABLE).astype(np.int32)
+def _times(value: np.ndarray, count: np.ndarray) -> np.ndarray:
+    """``value`` added up ``count`` times from 0.0 (0 where ``count`` is 0, whatever ``value``).
+
+    Sums of 1, 2 or 3 equal terms are their products (x + x = 2x exactly, 2x + x = 3x rounded
+    once); from 4 terms on the sums go one term at a time, as a float sum does.
+    """
+    top = int(count.max()) if count.size else 0
+    if top <= 3:
+        with np.errstate(invalid="ignore"):
+            return np.where(count > 0, value * count, 0.0)
+    total = np.zeros(count.shape)
+    for k in range(top):
+        total += np.where(count > k, value, 0.0)
+    return total

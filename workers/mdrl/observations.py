@@ -62,6 +62,7 @@ Choices the thesis leaves open (ours):
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, fields
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -134,13 +135,17 @@ class ObservationSpec:
                 f"ObservationSpec.walls must be True, False or None, got {self.walls!r}"
             )
         if self.walls_embedding is not None and (
-                not isinstance(self.walls_embedding, str) or not self.walls_embedding):
-            raise ValueError("ObservationSpec.walls_embedding must be a CAE directory or None, "
-                             f"got {self.walls_embedding!r}")
+            not isinstance(self.walls_embedding, str) or not self.walls_embedding
+        ):
+            raise ValueError(
+                "ObservationSpec.walls_embedding must be a CAE directory or None, "
+                f"got {self.walls_embedding!r}"
+            )
         size = self.walls_embedding_size
         if isinstance(size, bool) or not isinstance(size, (int, np.integer)) or size < 1:
             raise ValueError(
-                f"ObservationSpec.walls_embedding_size must be a positive int, got {size!r}")
+                f"ObservationSpec.walls_embedding_size must be a positive int, got {size!r}"
+            )
 
     def to_dict(self) -> dict[str, Any]:
         """Fields as a dict; the walls-embedding fields only when the option is on, so specs,
@@ -211,8 +216,15 @@ def channel_layout(env_spec: Any, obs_spec: ObservationSpec) -> ChannelLayout:
     if embedding:
         actor += [f"walls_code_{i}" for i in range(-(-embedding // (h * wd)))]
         critic += [f"walls_code_{i}" for i in range(-(-embedding // (ch * cw)))]
-    return ChannelLayout(tuple(actor), tuple(critic), (len(actor), h, wd), (len(critic), ch, cw),
-                         walls_on, full_critic, embedding)
+    return ChannelLayout(
+        tuple(actor),
+        tuple(critic),
+        (len(actor), h, wd),
+        (len(critic), ch, cw),
+        walls_on,
+        full_critic,
+        embedding,
+    )
 
 
 # --------------------------------------------------------------------------- linear operators
@@ -268,8 +280,48 @@ def window_index(rows: int, cols: int, window: int) -> np.ndarray:
 
 def _inverse_max(maps: np.ndarray) -> np.ndarray:
     """1 / max over the last axis (cells), or 1 where the maximum is not > 0 (line 712)."""
-    top = maps.max(axis=-1)
+    return _inverse(maps.max(axis=-1))
+
+
+def _inverse(top: np.ndarray) -> np.ndarray:
+    """1 / top, or 1 where top is not > 0 (``_inverse_max`` of maps whose maxima are ``top``)."""
     return (1.0 / np.where(top > 0, top, 1)).astype(np.float32)
+
+
+#: Fixed-point scale of the downsizing matrix for integer maps (visits, walls): R * 2**40 is
+#: rounded to integers, so the products and every partial sum of ``counts @ R_q.T`` are
+#: integers below 2**53, exact in float64 in any order, as long as counts <= EXACT_COUNTS.
+FIXED_POINT = 2.0**40
+EXACT_COUNTS = 4096
+
+
+class _Kept:
+    """An ODMTL observer's maps of one env, brought up to date cell by cell (``Observer._sync``).
+
+    Per env row: the transformed readings map, flat and zero padded by w // 2 (a window is then
+    w slices of w cells), and its maximum; a copy of the visits, their maximum and their
+    downsized map in fixed point (exact, so the same whatever the order of the updates); the
+    walls, each cell's w x w walls window as the bits of one integer (w <= 7) or zero padded,
+    and their downsized map.
+    """
+
+    def __init__(self, env: Any, b: int, rows: int, cols: int, window: int) -> None:
+        p = window // 2
+        padded = (b, rows + 2 * p, cols + 2 * p)
+        self.env, self.episode, self.t = env, None, None
+        self.readings = np.zeros((b, rows * cols), dtype=np.float32)
+        self.padded = np.zeros(padded, dtype=np.float32)
+        self.readings_top = np.zeros(b, dtype=np.float32)
+        self.visits = np.zeros((b, rows * cols), dtype=np.float32)
+        self.visits_top = np.zeros(b, dtype=np.float32)
+        self.ds_visits = np.zeros((b, window * window))  # fixed point (FIXED_POINT)
+        self.exact = True  # visits are integers <= EXACT_COUNTS, so ds_visits is exact
+        self.walls = np.zeros((b, rows * cols), dtype=bool)
+        if window * window <= 64:
+            self.walls_windows = np.zeros((b, rows * cols), dtype="<u8")
+        else:
+            self.walls_padded = np.zeros(padded, dtype=np.uint8)
+        self.ds_walls = np.zeros((b, window * window), dtype=np.float32)
 
 
 def _normalise(maps: np.ndarray) -> np.ndarray:
@@ -319,8 +371,7 @@ def joint_mask(mask: np.ndarray) -> np.ndarray:
 class Observer:
     """Builds (actor, critic) observations for a batch of envs; see the module docstring."""
 
-    def __init__(self, env_spec: Any, obs_spec: ObservationSpec,
-                 walls_encoder: Any = None) -> None:
+    def __init__(self, env_spec: Any, obs_spec: ObservationSpec, walls_encoder: Any = None) -> None:
         rows, cols, agents = int(env_spec.rows), int(env_spec.cols), int(env_spec.agents)
         if rows < 1 or cols < 1 or agents < 1:
             raise ValueError(
@@ -359,9 +410,15 @@ class Observer:
             self._win = np.where(win < self.cells, win, 0)
             self._win_inside = (win < self.cells).astype(np.float32)
             self._pad = w // 2  # window centre lags by (w-1)/2 steps (3.6.1)
+            # integer (fixed-point) R^T for integer maps: exact products and sums in float64
+            self._rq_t = np.round(downsize_matrix(rows, cols, w).T * FIXED_POINT)  # (C, w*w)
+            # window elements as offsets from the window's first cell in the padded maps
+            width = cols + 2 * self._pad
+            self._win_offsets = (np.arange(w)[:, None] * width + np.arange(w)).reshape(-1)
+            self._window_bits = (8 * np.arange(w)[:, None] + np.arange(w)).reshape(-1)
         self._not_self = (~np.eye(agents, dtype=bool)).astype(np.int64)
         self._pair_i, self._pair_j = np.divmod(np.arange(agents * agents), agents)
-        self._arange_ww = np.arange(w * w)
+        self._one_hot = np.eye(w * w + 1, w * w, dtype=np.float32)  # row w * w: all zero
         self._buffers: dict[tuple, np.ndarray] = {}  # scratch space per batch size
         # readings maps of the last envs observed (mean / fixed scale), updated cell by cell
         self._readings_cache: dict[int, tuple[Any, np.ndarray, np.ndarray, np.ndarray]] = {}
@@ -380,14 +437,17 @@ class Observer:
         or loaded from ``obs_spec.walls_embedding``; checked against this grid and d."""
         from workers.mdrl.cae import WallsEmbedder
 
-        embedder = given if given is not None else WallsEmbedder.load(
-            self.obs_spec.walls_embedding)
+        embedder = given if given is not None else WallsEmbedder.load(self.obs_spec.walls_embedding)
         if tuple(embedder.grid) != (self.rows, self.cols):
-            raise ValueError(f"walls CAE {embedder.source!r} encodes {embedder.grid[0]}x"
-                             f"{embedder.grid[1]} maps; this env is {self.rows}x{self.cols}")
+            raise ValueError(
+                f"walls CAE {embedder.source!r} encodes {embedder.grid[0]}x"
+                f"{embedder.grid[1]} maps; this env is {self.rows}x{self.cols}"
+            )
         if embedder.size != self.embedding:
-            raise ValueError(f"walls CAE {embedder.source!r} has d = {embedder.size}; the "
-                             f"observation spec says walls_embedding_size = {self.embedding}")
+            raise ValueError(
+                f"walls CAE {embedder.source!r} has d = {embedder.size}; the "
+                f"observation spec says walls_embedding_size = {self.embedding}"
+            )
         return embedder
 
     def _write_embedding(self, env: Any, actor: np.ndarray, critic: np.ndarray) -> None:
@@ -465,13 +525,13 @@ class Observer:
         pos, b = self._check(env)
         if out is not None:
             self._check_out(out, b)
-        readings = self._readings_map(env)
-        visits = np.asarray(env.visits, dtype=np.float32)
-        # the walls map is binary, so it is already normalised
-        walls = np.asarray(env.walls, dtype=np.float32) if self.walls else None
         if self.kind == "odmtl":
-            actor, critic = self._observe_odmtl(env, pos, b, readings, visits, walls, out)
+            actor, critic = self._observe_odmtl(env, pos, b, out)
         else:
+            readings = self._readings_map(env)
+            visits = np.asarray(env.visits, dtype=np.float32)
+            # the walls map is binary, so it is already normalised
+            walls = np.asarray(env.walls, dtype=np.float32) if self.walls else None
             shown = readings if self.obs_spec.scale == "fixed" else _normalise(readings)
             actor, critic = self._observe_full(pos, b, shown, _normalise(visits), walls, out)
         if self._belief is not None:
@@ -496,7 +556,11 @@ class Observer:
         if episode is None or t is None:  # a duck-typed env (expert adapters): no history
             return self._readings_cells(env, slice(None), slice(None))
         cached = self._readings_cache.get(id(env))
-        if cached is None or cached[0] is not env or cached[3].shape != np.shape(env.readings):
+        if (
+            not isinstance(cached, tuple)  # (kept maps of the other ODMTL path: not ours)
+            or cached[0] is not env
+            or cached[3].shape != np.shape(env.readings)
+        ):
             maps = self._readings_cells(env, slice(None), slice(None))
         else:
             _, old_episode, old_t, maps = cached
@@ -515,13 +579,19 @@ class Observer:
         return maps
 
     def _readings_cells(self, env: Any, rows: Any, cells: Any) -> np.ndarray:
-        """The transformed readings of ``[rows, cells]`` (index arrays or slices), float32."""
+        """The transformed readings of ``[rows, cells]`` (index arrays or slices), float32;
+        ``cells`` None: ``rows`` are flat indices into the (B, C) maps."""
+
+        def at(maps: Any) -> np.ndarray:
+            maps = np.asarray(maps)
+            return maps.reshape(-1)[rows] if cells is None else maps[rows, cells]
+
         if self.obs_spec.readings == "mean":
-            total = np.asarray(env.reading_sum, dtype=np.float64)[rows, cells]
+            total = at(env.reading_sum).astype(np.float64, copy=False)
             # a cell never visited has sum 0, so max(visits, 1) gives it mean 0 without a mask
-            maps = total / np.maximum(np.asarray(env.visits)[rows, cells], 1)
+            maps = total / np.maximum(at(env.visits), 1)
         else:
-            maps = np.array(np.asarray(env.readings)[rows, cells], dtype=np.float64)
+            maps = np.array(at(env.readings), dtype=np.float64)
         if self.obs_spec.scale == "fixed":
             np.log1p(maps, out=maps)
             maps /= self._log_ref
@@ -531,10 +601,14 @@ class Observer:
         """Posterior map / its maximum into the last actor and critic channels (cells flat)."""
         post = self._belief.posterior(env).astype(np.float32)
         post *= _inverse_max(post)[:, None]
-        a = -1 - (self.actor_shape[0] - self.actor_channels.index("walls_code_0")
-                  if self.embedding else 0)  # the belief precedes the embedding planes
-        c = -1 - (self.critic_shape[0] - self.critic_channels.index("walls_code_0")
-                  if self.embedding else 0)
+        a = -1 - (
+            self.actor_shape[0] - self.actor_channels.index("walls_code_0") if self.embedding else 0
+        )  # the belief precedes the embedding planes
+        c = -1 - (
+            self.critic_shape[0] - self.critic_channels.index("walls_code_0")
+            if self.embedding
+            else 0
+        )
         if self.kind == "odmtl":
             centre = np.asarray(env.past_pos(self._pad))
             actor[:, :, a - 1] = self._gather_windows(post, self._window_index(centre))
@@ -610,11 +684,191 @@ class Observer:
             critic[:, 1 + j] = m
         return actor, critic
 
-    def _observe_odmtl(self, env, pos, b, readings, visits, walls, out):
+    def _sync(self, env: Any, b: int) -> _Kept:
+        """The kept maps of ``env`` (``_Kept``), up to date.
+
+        A row that stepped once since the last call (same ``episode_id``, ``t`` one more)
+        changed only at the agents' current cells, the only cells a step reads at, so only
+        those are recomputed (and the fixed-point downsized visits get the visits' change
+        there); every other row (reset, several steps or none, restored) is recomputed whole.
+        Same formulas per cell, so the maps equal a fresh computation bit for bit. Envs without
+        ``episode_id``/``t`` (duck-typed ones) get fresh maps every call.
+
+        The cell update runs on all rows (whole arrays index faster than a selection of rows)
+        and keeps each row consistent with itself, so the rows recomputed after it lose
+        nothing by it."""
+        episode, t = getattr(env, "episode_id", None), getattr(env, "t", None)
+        kept = self._readings_cache.get(id(env)) if episode is not None and t is not None else None
+        if not isinstance(kept, _Kept) or kept.env is not env or len(kept.readings) != b:
+            kept = _Kept(env, b, self.rows, self.cols, self.window)
+            redo = np.arange(b)
+        else:
+            self._sync_cells(env, kept)
+            redo = np.flatnonzero((kept.episode != episode) | (t != kept.t + 1))
+        if len(redo):
+            self._sync_rows(env, kept, redo)
+        if episode is not None and t is not None:
+            kept.episode, kept.t = np.array(episode), np.array(t)
+            if id(env) not in self._readings_cache and len(self._readings_cache) >= 2:
+                self._readings_cache.pop(next(iter(self._readings_cache)))
+            self._readings_cache[id(env)] = kept
+        return kept
+
+    def _sync_rows(self, env: Any, kept: _Kept, rows: np.ndarray) -> None:
+        """Recompute the kept maps of ``rows`` whole (the visits and walls products only for
+        rows whose visits or walls differ from the kept copy)."""
+        m, n, p = self.rows, self.cols, self._pad
+        if self.obs_spec.readings != "mean" and self.obs_spec.scale != "fixed":
+            readings = np.asarray(env.readings)[rows].astype(np.float32)
+        else:
+            readings = self._readings_cells(env, rows, slice(None))
+        kept.readings[rows] = readings
+        kept.padded[rows, p : p + m, p : p + n] = readings.reshape(-1, m, n)
+        if self.obs_spec.scale != "fixed":
+            kept.readings_top[rows] = readings.max(1)
+        visits = np.asarray(env.visits)[rows].astype(np.float32)
+        new = (visits != kept.visits[rows]).any(1)
+        if new.any():
+            rows, visits = rows[new], visits[new]
+            kept.visits[rows] = visits
+            kept.visits_top[rows] = visits.max(1)
+            kept.exact &= _small_counts(visits)
+            if kept.exact:
+                kept.ds_visits[rows] = visits.astype(np.float64) @ self._rq_t
+        if self.walls:
+            self._sync_walls(env, kept, rows)
+
+    def _sync_walls(self, env: Any, kept: _Kept, rows: np.ndarray) -> None:
+        """Windows and downsized map of the walls of ``rows`` whose walls changed."""
+        m, n, p, w = self.rows, self.cols, self._pad, self.window
+        walls = np.asarray(env.walls)[rows].astype(bool)
+        new = (walls != kept.walls[rows]).any(1)
+        if not new.any():
+            return
+        rows, walls = rows[new], walls[new]
+        kept.walls[rows] = walls
+        padded = np.zeros((len(rows), m + 2 * p, n + 2 * p), dtype=np.uint8)
+        padded[:, p : p + m, p : p + n] = walls.reshape(-1, m, n)
+        if hasattr(kept, "walls_windows"):  # byte i, bit j: window row i, column j
+            lines = padded[:, :, :n].copy()  # bit j: the cell j columns right of the first
+            for j in range(1, w):
+                lines |= padded[:, :, j : j + n] << np.uint8(j)
+            windows = np.zeros((len(rows), m, n, 8), dtype=np.uint8)
+            for i in range(w):
+                windows[..., i] = lines[:, i : i + m]
+            kept.walls_windows[rows] = windows.view("<u8").reshape(len(rows), m * n)
+        else:
+            kept.walls_padded[rows] = padded
+        kept.ds_walls[rows] = _fixed_point(walls, self._rq_t)
+
+    def _sync_cells(self, env: Any, kept: _Kept) -> None:
+        """Update the kept maps at the agents' current cells (right for rows that stepped once
+        since; for the others, they stay consistent: maxima and the downsized visits follow
+        the kept maps)."""
+        n, p = self.cols, self._pad
+        cells = np.asarray(env.pos)  # (B, N)
+        flat = (np.arange(len(cells)) * self.cells)[:, None] + cells  # into (B, C) maps
+        if self.obs_spec.readings != "mean" and self.obs_spec.scale != "fixed":
+            new = np.asarray(env.readings).reshape(-1)[flat].astype(np.float32)
+        else:
+            new = self._readings_cells(env, flat, None)
+        maps = kept.readings.reshape(-1)
+        top = self.obs_spec.scale != "fixed"  # the maximum only matters on the 'max' scale
+        old = maps[flat] if top else None
+        maps[flat] = new
+        r, col = np.divmod(cells, n)
+        padded = kept.padded
+        at = (np.arange(len(cells)) * padded[0].size)[:, None] + (r + p) * padded.shape[2]
+        at += col + p
+        padded.reshape(-1)[at] = new
+        if top:
+            _raise_max(kept.readings_top, kept.readings, old, new)
+        new = np.asarray(env.visits).reshape(-1)[flat].astype(np.float32)
+        maps = kept.visits.reshape(-1)
+        old = maps[flat]
+        maps[flat] = new
+        _raise_max(kept.visits_top, kept.visits, old, new)
+        kept.exact = kept.exact and _small_counts(new)
+        if kept.exact:
+            change = new - old
+            # an agent on the cell of an earlier agent: that cell's change is counted once
+            for i in range(1, cells.shape[1]):
+                change[:, i] *= ~(cells[:, :i] == cells[:, i : i + 1]).any(1)
+            for i in range(cells.shape[1]):
+                add = np.take(self._rq_t, cells[:, i], axis=0)
+                odd = np.flatnonzero(change[:, i] != 1)  # shared cells, resets
+                add[odd] *= change[odd, i, None]
+                kept.ds_visits += add
+
+    #: From this many cells in a batch (B * C) the maps are kept between calls (``_sync``):
+    #: 30 x 30 from B = 583 on. Below, the bookkeeping costs about what it saves.
+    KEEP_FROM = 1 << 19
+
+    def _odmtl_maps(self, env: Any, b: int, centre: np.ndarray) -> SimpleNamespace:
+        """What the ODMTL stacks are made of, per env (B, ...) or agent (B, N, ...), before
+        normalising: the readings map and its windows, 1 / max of readings and visits, the
+        downsized readings, visits and walls, the walls windows.
+
+        Small batches: computed here (float32 products). Big ones: kept between calls
+        (``_kept_maps``), where the visits and walls are downsized in exact fixed point, which
+        differs from the float32 products by round-off (<= 3e-7)."""
+        fixed = self.obs_spec.scale == "fixed"
+        if b * self.cells >= self.KEEP_FROM and getattr(env, "episode_id", None) is not None:
+            return self._kept_maps(env, b, centre, fixed)
+        readings = self._readings_map(env)
+        visits = np.asarray(env.visits, dtype=np.float32)
+        index = self._window_index(centre)
+        maps = SimpleNamespace(readings=readings, visits=visits)
+        maps.inv_r = np.ones(b, np.float32) if fixed else _inverse_max(readings)
+        maps.inv_v = _inverse_max(visits)
+        maps.win_r = self._gather_windows(readings, index)
+        walls = np.asarray(env.walls, dtype=np.float32) if self.walls else None
+        ds = self._downsize(
+            [readings, visits] + ([walls] if self.walls and not self.embedding else [])
+        )
+        maps.ds_r, maps.ds_v = ds[0], ds[1]
+        if self.walls:
+            maps.win_w = self._gather_windows(walls, index)
+            if not self.embedding:
+                maps.ds_w = np.ascontiguousarray(ds[2]).reshape(b, -1)
+        return maps
+
+    def _kept_maps(self, env: Any, b: int, centre: np.ndarray, fixed: bool) -> SimpleNamespace:
+        """``_odmtl_maps`` from the kept maps: windows are slices of the padded readings (and
+        bits of the walls windows), the visits and walls products are kept up to date."""
+        n, w, p, cols = self.agents, self.window, self._pad, self.cols
+        kept = self._sync(env, b)
+        maps = SimpleNamespace(readings=kept.readings, visits=kept.visits)
+        maps.inv_r = np.ones(b, np.float32) if fixed else _inverse(kept.readings_top)
+        maps.inv_v = _inverse(kept.visits_top)
+        # windows: w x w slices of the zero-padded maps, from each window's first cell
+        first = (centre // cols) * (cols + 2 * p) + centre % cols
+        first += (np.arange(b) * kept.padded[0].size)[:, None]
+        index = first[:, :, None] + self._win_offsets  # (B, N, w*w) into the padded maps
+        maps.win_r = kept.padded.reshape(-1)[index]
+        if kept.exact:
+            maps.ds_r = self._downsize([kept.readings])[0]
+            maps.ds_v = (kept.ds_visits / FIXED_POINT).astype(np.float32).reshape(b, w, w)
+        else:  # visits that are not small integers: a float32 product as for the readings
+            maps.ds_r, maps.ds_v = self._downsize([kept.readings, kept.visits])
+        if self.walls:
+            if hasattr(kept, "walls_windows"):
+                bits = kept.walls_windows[np.arange(b)[:, None], centre]  # (B, N)
+                bits = np.unpackbits(
+                    bits.view(np.uint8).reshape(b, n, 8), axis=-1, bitorder="little"
+                )  # (B, N, 64): bit 8 i + j
+                maps.win_w = bits[..., self._window_bits]
+            else:
+                maps.win_w = kept.walls_padded.reshape(-1)[index]
+            maps.ds_w = kept.ds_walls
+        return maps
+
+    def _observe_odmtl(self, env, pos, b, out):
         n, w, p, ww, cols = self.agents, self.window, self._pad, self.window**2, self.cols
         centre = np.asarray(env.past_pos(p))
         if centre.shape != pos.shape:
             raise ValueError(f"env.past_pos({p}) must have shape {pos.shape}, got {centre.shape}")
+        maps = self._odmtl_maps(env, b, centre)
         critic_cells = self.cells if self.full_critic else ww
         actor, critic = self._outputs(
             out, (b, n, self.actor_shape[0], ww), (b, self.critic_shape[0], critic_cells)
@@ -623,18 +877,16 @@ class Observer:
         actor_sq = actor.reshape(b, n, self.actor_shape[0], w, w)
         # Normalising then windowing/downsizing equals windowing/downsizing then scaling by
         # 1 / max (both are linear), which avoids writing normalised copies of the full maps.
-        inv_r = (np.ones(b, np.float32) if self.obs_spec.scale == "fixed"
-                 else _inverse_max(readings))
-        inv_v = _inverse_max(visits)
-        index = self._window_index(centre)
+        inv_r, inv_v = maps.inv_r, maps.inv_v
         # windowed own location: the current cell relative to the window centre
         dr = pos // cols - centre // cols + p
         dc = pos % cols - centre % cols + p
         inside = (dr >= 0) & (dr < w) & (dc >= 0) & (dc < w)
-        actor[:, :, 0] = (self._arange_ww == (dr * w + dc)[:, :, None]) & inside[:, :, None]
-        win_r = self._gather_windows(readings, index)
-        win_r *= inv_r[:, None, None]
-        actor[:, :, 1] = win_r
+        actor[:, :, 0] = self._one_hot[np.where(inside, dr * w + dc, ww)]
+        if self.obs_spec.scale == "fixed":  # the fixed scale's 1 / max is 1
+            actor[:, :, 1] = maps.win_r
+        else:
+            np.multiply(maps.win_r, inv_r[:, None, None], out=actor[:, :, 1])
         ds_loc = self._rt[pos]  # one-hot location maps downsize to columns of R: a gather
         actor[:, :, 2] = ds_loc
         ds_all = ds_loc[:, 0].copy()  # (B, w*w) downsized agent counts, not yet normalised
@@ -643,15 +895,12 @@ class Observer:
         at_cell, top_others = self._occupancy(pos, b)
         k = 3
         if self.has_others:
-            others = np.subtract(ds_all[:, None, :], ds_loc)
+            others = np.subtract(ds_all[:, None, :], ds_loc, out=actor[:, :, k])
             np.maximum(others, 0.0, out=others)  # clip float round-off
             others /= top_others[:, :, None]
-            actor[:, :, k] = others
             k += 1
-        ds = self._downsize([readings, visits]
-                          + ([walls] if walls is not None and not self.embedding else []))
-        ds_r = np.multiply(ds[0], inv_r[:, None, None], order="C")  # (B, w, w), C order
-        ds_v = np.multiply(ds[1], inv_v[:, None, None], order="C")
+        ds_r = np.multiply(maps.ds_r, inv_r[:, None, None], order="C")  # (B, w, w), C order
+        ds_v = np.multiply(maps.ds_v, inv_v[:, None, None], order="C")
         actor_sq[:, :, k] = ds_r[:, None]
         actor_sq[:, :, k + 1] = ds_v[:, None]
         top_count = at_cell.max(1, keepdims=True).astype(np.float32)
@@ -662,38 +911,64 @@ class Observer:
             for i in range(n):  # one agent at a time: indices unique, so += counts them all
                 counts[rows, pos[:, i]] += 1.0
             counts /= top_count
-            critic[:, 1] = readings * inv_r[:, None]
-            critic[:, 2] = visits * inv_v[:, None]
+            critic[:, 1] = maps.readings * inv_r[:, None]
+            critic[:, 2] = maps.visits * inv_v[:, None]
         else:
             critic_sq = critic.reshape(b, self.critic_shape[0], w, w)
             critic[:, 0] = ds_all / top_count
             critic_sq[:, 1] = ds_r
             critic_sq[:, 2] = ds_v
-        if walls is not None:
-            actor[:, :, k + 2] = self._gather_windows(walls, index)
+        if self.walls:
+            actor[:, :, k + 2] = maps.win_w
+            if self.full_critic:
+                critic[:, 3] = np.asarray(env.walls, dtype=np.float32)
             if not self.embedding:  # with a CAE its embedding replaces the downsized walls
-                ds_w = np.ascontiguousarray(ds[2])
-                actor_sq[:, :, k + 3] = ds_w[:, None]
-                if self.full_critic:
-                    critic[:, 3] = walls
-                else:
-                    critic_sq[:, 3] = ds_w
-            elif self.full_critic:
-                critic[:, 3] = walls
+                actor[:, :, k + 3] = maps.ds_w[:, None]
+                if not self.full_critic:
+                    critic[:, 3] = maps.ds_w
         return actor, critic
+
+
+def _fixed_point(counts: np.ndarray, rq_t: np.ndarray) -> np.ndarray:
+    """(B, C) small integer counts -> float32 (B, w*w) downsized: exact in fixed point, then
+    rounded once."""
+    return (counts.astype(np.float64) @ rq_t / FIXED_POINT).astype(np.float32)
+
+
+def _small_counts(counts: np.ndarray) -> bool:
+    """Counts the fixed-point products take exactly: integers in [0, EXACT_COUNTS]."""
+    return bool(
+        np.all(counts == np.round(counts))
+        and counts.min(initial=0) >= 0
+        and counts.max(initial=0) <= EXACT_COUNTS
+    )
+
+
+def _raise_max(top: np.ndarray, maps: np.ndarray, old: np.ndarray, new: np.ndarray) -> None:
+    """Keep ``top`` = row maxima of ``maps`` (B, C) after they changed from ``old`` to ``new``
+    (B, N) at a few cells: raised where a value grew, recomputed for the rows where a value
+    that was the maximum fell."""
+    fell = np.flatnonzero(((new < old) & (old >= top[:, None])).any(1))
+    np.maximum(top, new.max(1), out=top)
+    if len(fell):
+        top[fell] = maps[fell].max(1)
 
 
 def reference_count(env_spec: Any) -> float:
     """Expected count one cell side away from a source of the spec's strongest intensity
     (Eq. 6, no walls): the physical unit of the 'fixed' readings scale."""
-    cell_cm = min(float(a) / n for a, n in zip(env_spec.area_m, (env_spec.rows, env_spec.cols),
-                                              strict=True)) * 100.0
+    cell_cm = (
+        min(
+            float(a) / n
+            for a, n in zip(env_spec.area_m, (env_spec.rows, env_spec.cols), strict=True)
+        )
+        * 100.0
+    )
     strongest = max(env_spec.intensity.values)
     return strongest * env_spec.dwell_min * env_spec.detector_area_cm2 / (4 * np.pi * cell_cm**2)
 
 
-def make_observer(env_spec: Any, obs_spec: ObservationSpec,
-                  walls_encoder: Any = None) -> Observer:
+def make_observer(env_spec: Any, obs_spec: ObservationSpec, walls_encoder: Any = None) -> Observer:
     """Observer for an env spec (needs ``rows``, ``cols``, ``agents``, ``walls`` (min, max)).
     ``walls_encoder``: a ``cae.WallsEmbedder`` to use instead of loading
     ``obs_spec.walls_embedding`` (a model file carries its own encoder)."""
