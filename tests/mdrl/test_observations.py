@@ -471,7 +471,7 @@ def test_odmtl_maps_kept_between_steps_equal_a_fresh_observer_and_the_reference(
             np.testing.assert_array_equal(a, b)
         for a, b in zip(got, make_observer(spec, osp).observe(env), strict=True):
             np.testing.assert_allclose(a, b, rtol=0, atol=1e-6)
-    assert shared and isinstance(next(iter(kept._readings_cache.values())), _Kept)
+    assert shared and isinstance(next(iter(kept._kept.values())), _Kept)
     if readings == "last":  # the reference reads the last readings
         got = kept.observe(env)
         ref_a, ref_c = reference(spec, osp, env)

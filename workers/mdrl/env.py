@@ -133,8 +133,10 @@ class TargetLocalizationEnv:
 
     _STATE = (
         "pos target walls dist mean_reading readings reading_sum visits episode_id t idle_streak "
-        "intensity cost next_cell active history _mask"
+        "intensity cost active history _mask"
     ).split()
+    """The arrays of ``state_dict``; ``next_cell`` and ``_valid`` follow from ``walls`` (a
+    checkpoint that still holds ``next_cell`` loads: it is ignored)."""
 
     #: Up to this many cells the (C, C) wall path factors are tables (6.5 MB each at 30 x 30).
     _GEOMETRY_CELLS = 1024
@@ -172,8 +174,7 @@ class TargetLocalizationEnv:
                 raise ValueError(
                     f"saved env array {name} has shape {value.shape}, expected {current.shape}"
                 )
-            if name != "next_cell":  # derived from the walls, rebuilt below
-                current[...] = value
+            current[...] = value
         self._valid[...] = self._valid_moves(self.walls)
         self._next_stale[...] = True
         self.layout_rng.bit_generator.state = extras["layout_rng"]
@@ -267,10 +268,6 @@ class TargetLocalizationEnv:
             b = np.broadcast_to(np.arange(R)[:, None], on.shape)
             walls[b[on], r[on], c[on]] = True
         return walls.reshape(R, -1)
-
-    def _move_table(self, walls: np.ndarray) -> np.ndarray:
-        """(R, C, A) destination of every move; -1 off the grid, into a wall or cutting a corner."""
-        return np.where(self._valid_moves(walls), self._free_next, -1)
 
     def _valid_moves(self, walls: np.ndarray) -> np.ndarray:
         """bool (R, C, A): the move stays on the grid, its destination is free and (a diagonal)

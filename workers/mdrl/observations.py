@@ -422,6 +422,8 @@ class Observer:
         self._buffers: dict[tuple, np.ndarray] = {}  # scratch space per batch size
         # readings maps of the last envs observed (mean / fixed scale), updated cell by cell
         self._readings_cache: dict[int, tuple[Any, np.ndarray, np.ndarray, np.ndarray]] = {}
+        # the big-batch ODMTL path's kept maps of the last envs observed (``_sync``)
+        self._kept: dict[int, _Kept] = {}
         self._belief = BeliefFilter(env_spec) if obs_spec.belief else None
         if obs_spec.scale == "fixed":
             self._log_ref = np.float32(np.log1p(reference_count(env_spec)))
@@ -556,11 +558,7 @@ class Observer:
         if episode is None or t is None:  # a duck-typed env (expert adapters): no history
             return self._readings_cells(env, slice(None), slice(None))
         cached = self._readings_cache.get(id(env))
-        if (
-            not isinstance(cached, tuple)  # (kept maps of the other ODMTL path: not ours)
-            or cached[0] is not env
-            or cached[3].shape != np.shape(env.readings)
-        ):
+        if cached is None or cached[0] is not env or cached[3].shape != np.shape(env.readings):
             maps = self._readings_cells(env, slice(None), slice(None))
         else:
             _, old_episode, old_t, maps = cached
@@ -698,8 +696,8 @@ class Observer:
         and keeps each row consistent with itself, so the rows recomputed after it lose
         nothing by it."""
         episode, t = getattr(env, "episode_id", None), getattr(env, "t", None)
-        kept = self._readings_cache.get(id(env)) if episode is not None and t is not None else None
-        if not isinstance(kept, _Kept) or kept.env is not env or len(kept.readings) != b:
+        kept = self._kept.get(id(env)) if episode is not None and t is not None else None
+        if kept is None or kept.env is not env or len(kept.readings) != b:
             kept = _Kept(env, b, self.rows, self.cols, self.window)
             redo = np.arange(b)
         else:
@@ -709,9 +707,9 @@ class Observer:
             self._sync_rows(env, kept, redo)
         if episode is not None and t is not None:
             kept.episode, kept.t = np.array(episode), np.array(t)
-            if id(env) not in self._readings_cache and len(self._readings_cache) >= 2:
-                self._readings_cache.pop(next(iter(self._readings_cache)))
-            self._readings_cache[id(env)] = kept
+            if id(env) not in self._kept and len(self._kept) >= 2:
+                self._kept.pop(next(iter(self._kept)))
+            self._kept[id(env)] = kept
         return kept
 
     def _sync_rows(self, env: Any, kept: _Kept, rows: np.ndarray) -> None:
