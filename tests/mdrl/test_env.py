@@ -18,7 +18,6 @@ def random_actions(env, rng):
 def place(env, b, target, agents):
     """Put env b into a hand-made layout (no walls) and recompute what reset would."""
     env.walls[b] = False
-    env._valid[b] = env._valid_moves(env.walls[b : b + 1])[0]
     env._next_stale[b] = True
     env.target[b] = target
     env.dist[b] = env._free_dist[target]
@@ -28,7 +27,7 @@ def place(env, b, target, agents):
     env.pos[b] = agents
     env.history[b] = np.asarray(agents)[None, :]
     env.t[b] = env.idle_streak[b] = env.cost[b] = 0
-    env._mask[b] = env._masks(np.array([b]))[0]
+    env._update_masks(np.array([b]))
 
 
 def test_expected_reading_follows_inverse_square_and_intensity():

@@ -68,6 +68,7 @@ from typing import Any
 import numpy as np
 from scipy import ndimage
 
+from workers.mdrl import kernels
 from workers.mdrl.belief import BeliefFilter
 
 KINDS = ("odmtl", "dmtl", "cmtl")
@@ -298,29 +299,20 @@ EXACT_COUNTS = 4096
 class _Kept:
     """An ODMTL observer's maps of one env, brought up to date cell by cell (``Observer._sync``).
 
-    Per env row: the transformed readings map, flat and zero padded by w // 2 (a window is then
-    w slices of w cells), and its maximum; a copy of the visits, their maximum and their
-    downsized map in fixed point (exact, so the same whatever the order of the updates); the
-    walls, each cell's w x w walls window as the bits of one integer (w <= 7) or zero padded,
-    and their downsized map.
+    Per env row: the transformed readings map and its maximum; a copy of the visits, their
+    maximum and their downsized map in fixed point (exact, so the same whatever the order of
+    the updates); the walls and their downsized map (both change only at resets).
     """
 
     def __init__(self, env: Any, b: int, rows: int, cols: int, window: int) -> None:
-        p = window // 2
-        padded = (b, rows + 2 * p, cols + 2 * p)
         self.env, self.episode, self.t = env, None, None
         self.readings = np.zeros((b, rows * cols), dtype=np.float32)
-        self.padded = np.zeros(padded, dtype=np.float32)
         self.readings_top = np.zeros(b, dtype=np.float32)
         self.visits = np.zeros((b, rows * cols), dtype=np.float32)
         self.visits_top = np.zeros(b, dtype=np.float32)
         self.ds_visits = np.zeros((b, window * window))  # fixed point (FIXED_POINT)
         self.exact = True  # visits are integers <= EXACT_COUNTS, so ds_visits is exact
         self.walls = np.zeros((b, rows * cols), dtype=bool)
-        if window * window <= 64:
-            self.walls_windows = np.zeros((b, rows * cols), dtype="<u8")
-        else:
-            self.walls_padded = np.zeros(padded, dtype=np.uint8)
         self.ds_walls = np.zeros((b, window * window), dtype=np.float32)
 
 
@@ -411,11 +403,8 @@ class Observer:
             self._win_inside = (win < self.cells).astype(np.float32)
             self._pad = w // 2  # window centre lags by (w-1)/2 steps (3.6.1)
             # integer (fixed-point) R^T for integer maps: exact products and sums in float64
-            self._rq_t = np.round(downsize_matrix(rows, cols, w).T * FIXED_POINT)  # (C, w*w)
-            # window elements as offsets from the window's first cell in the padded maps
-            width = cols + 2 * self._pad
-            self._win_offsets = (np.arange(w)[:, None] * width + np.arange(w)).reshape(-1)
-            self._window_bits = (8 * np.arange(w)[:, None] + np.arange(w)).reshape(-1)
+            rq_t = np.round(downsize_matrix(rows, cols, w).T * FIXED_POINT)  # (C, w*w)
+            self._rq_t = np.ascontiguousarray(rq_t)  # rows of cells: the kernels read them
         self._not_self = (~np.eye(agents, dtype=bool)).astype(np.int64)
         self._pair_i, self._pair_j = np.divmod(np.arange(agents * agents), agents)
         self._one_hot = np.eye(w * w + 1, w * w, dtype=np.float32)  # row w * w: all zero
@@ -715,13 +704,11 @@ class Observer:
     def _sync_rows(self, env: Any, kept: _Kept, rows: np.ndarray) -> None:
         """Recompute the kept maps of ``rows`` whole (the visits and walls products only for
         rows whose visits or walls differ from the kept copy)."""
-        m, n, p = self.rows, self.cols, self._pad
         if self.obs_spec.readings != "mean" and self.obs_spec.scale != "fixed":
             readings = np.asarray(env.readings)[rows].astype(np.float32)
         else:
             readings = self._readings_cells(env, rows, slice(None))
         kept.readings[rows] = readings
-        kept.padded[rows, p : p + m, p : p + n] = readings.reshape(-1, m, n)
         if self.obs_spec.scale != "fixed":
             kept.readings_top[rows] = readings.max(1)
         visits = np.asarray(env.visits)[rows].astype(np.float32)
@@ -732,87 +719,41 @@ class Observer:
             kept.visits_top[rows] = visits.max(1)
             kept.exact &= _small_counts(visits)
             if kept.exact:
-                kept.ds_visits[rows] = visits.astype(np.float64) @ self._rq_t
+                kept.ds_visits[rows] = kernels.fixed_point_sum(visits, self._rq_t)
         if self.walls:
-            self._sync_walls(env, kept, rows)
-
-    def _sync_walls(self, env: Any, kept: _Kept, rows: np.ndarray) -> None:
-        """Windows and downsized map of the walls of ``rows`` whose walls changed."""
-        m, n, p, w = self.rows, self.cols, self._pad, self.window
-        walls = np.asarray(env.walls)[rows].astype(bool)
-        new = (walls != kept.walls[rows]).any(1)
-        if not new.any():
-            return
-        rows, walls = rows[new], walls[new]
-        kept.walls[rows] = walls
-        padded = np.zeros((len(rows), m + 2 * p, n + 2 * p), dtype=np.uint8)
-        padded[:, p : p + m, p : p + n] = walls.reshape(-1, m, n)
-        if hasattr(kept, "walls_windows"):  # byte i, bit j: window row i, column j
-            lines = padded[:, :, :n].copy()  # bit j: the cell j columns right of the first
-            for j in range(1, w):
-                lines |= padded[:, :, j : j + n] << np.uint8(j)
-            windows = np.zeros((len(rows), m, n, 8), dtype=np.uint8)
-            for i in range(w):
-                windows[..., i] = lines[:, i : i + m]
-            kept.walls_windows[rows] = windows.view("<u8").reshape(len(rows), m * n)
-        else:
-            kept.walls_padded[rows] = padded
-        kept.ds_walls[rows] = _fixed_point(walls, self._rq_t)
+            walls = np.asarray(env.walls)[rows].astype(bool)
+            new = (walls != kept.walls[rows]).any(1)
+            if new.any():
+                rows, walls = rows[new], walls[new]
+                kept.walls[rows] = walls
+                kept.ds_walls[rows] = _fixed_point(walls, self._rq_t)
 
     def _sync_cells(self, env: Any, kept: _Kept) -> None:
         """Update the kept maps at the agents' current cells (right for rows that stepped once
         since; for the others, they stay consistent: maxima and the downsized visits follow
         the kept maps)."""
-        n, p = self.cols, self._pad
-        cells = np.asarray(env.pos)  # (B, N)
+        cells = np.ascontiguousarray(env.pos, dtype=np.int64)  # (B, N)
         flat = (np.arange(len(cells)) * self.cells)[:, None] + cells  # into (B, C) maps
         if self.obs_spec.readings != "mean" and self.obs_spec.scale != "fixed":
-            new = np.asarray(env.readings).reshape(-1)[flat].astype(np.float32)
+            new_r = np.asarray(env.readings).reshape(-1)[flat].astype(np.float32)
         else:
-            new = self._readings_cells(env, flat, None)
-        maps = kept.readings.reshape(-1)
-        top = self.obs_spec.scale != "fixed"  # the maximum only matters on the 'max' scale
-        old = maps[flat] if top else None
-        maps[flat] = new
-        r, col = np.divmod(cells, n)
-        padded = kept.padded
-        at = (np.arange(len(cells)) * padded[0].size)[:, None] + (r + p) * padded.shape[2]
-        at += col + p
-        padded.reshape(-1)[at] = new
-        if top:
-            _raise_max(kept.readings_top, kept.readings, old, new)
-        new = np.asarray(env.visits).reshape(-1)[flat].astype(np.float32)
-        maps = kept.visits.reshape(-1)
-        old = maps[flat]
-        maps[flat] = new
-        _raise_max(kept.visits_top, kept.visits, old, new)
-        kept.exact = kept.exact and _small_counts(new)
-        if kept.exact:
-            change = new - old
-            # an agent on the cell of an earlier agent: that cell's change is counted once
-            for i in range(1, cells.shape[1]):
-                change[:, i] *= ~(cells[:, :i] == cells[:, i : i + 1]).any(1)
-            for i in range(cells.shape[1]):
-                add = np.take(self._rq_t, cells[:, i], axis=0)
-                odd = np.flatnonzero(change[:, i] != 1)  # shared cells, resets
-                add[odd] *= change[odd, i, None]
-                kept.ds_visits += add
+            new_r = self._readings_cells(env, flat, None)
+        new_v = np.asarray(env.visits).reshape(-1)[flat].astype(np.float32)
+        kept.exact = kernels.kept_cells(
+            cells, new_r, new_v, kept.readings, kept.readings_top,
+            self.obs_spec.scale != "fixed",  # the maximum only matters on the 'max' scale
+            kept.visits, kept.visits_top, kept.ds_visits, self._rq_t, kept.exact,
+        )
 
     #: From this many cells in a batch (B * C) the maps are kept between calls (``_sync``):
     #: 30 x 30 from B = 583 on. Below, the bookkeeping costs about what it saves.
     KEEP_FROM = 1 << 19
 
     def _odmtl_maps(self, env: Any, b: int, centre: np.ndarray) -> SimpleNamespace:
-        """What the ODMTL stacks are made of, per env (B, ...) or agent (B, N, ...), before
+        """What the numpy ODMTL builder needs, per env (B, ...) or agent (B, N, ...), before
         normalising: the readings map and its windows, 1 / max of readings and visits, the
-        downsized readings, visits and walls, the walls windows.
-
-        Small batches: computed here (float32 products). Big ones: kept between calls
-        (``_kept_maps``), where the visits and walls are downsized in exact fixed point, which
-        differs from the float32 products by round-off (<= 3e-7)."""
+        downsized readings, visits and walls, the walls windows (float32 products)."""
         fixed = self.obs_spec.scale == "fixed"
-        if b * self.cells >= self.KEEP_FROM and getattr(env, "episode_id", None) is not None:
-            return self._kept_maps(env, b, centre, fixed)
         readings = self._readings_map(env)
         visits = np.asarray(env.visits, dtype=np.float32)
         index = self._window_index(centre)
@@ -831,41 +772,56 @@ class Observer:
                 maps.ds_w = np.ascontiguousarray(ds[2]).reshape(b, -1)
         return maps
 
-    def _kept_maps(self, env: Any, b: int, centre: np.ndarray, fixed: bool) -> SimpleNamespace:
-        """``_odmtl_maps`` from the kept maps: windows are slices of the padded readings (and
-        bits of the walls windows), the visits and walls products are kept up to date."""
-        n, w, p, cols = self.agents, self.window, self._pad, self.cols
+    def _observe_kept(self, env, pos, centre, b, out):
+        """The ODMTL stacks of a big batch, from the kept maps (``_sync``) by one compiled
+        pass (``kernels.odmtl_fill``). The downsized readings are the float32 product of
+        ``_observe_odmtl``, the downsized visits and walls exact fixed point (within 3e-7 of
+        the float32 products), so the stacks are a function of the env's state alone."""
+        w, ww = self.window, self.window**2
         kept = self._sync(env, b)
-        maps = SimpleNamespace(readings=kept.readings, visits=kept.visits)
-        maps.inv_r = np.ones(b, np.float32) if fixed else _inverse(kept.readings_top)
-        maps.inv_v = _inverse(kept.visits_top)
-        # windows: w x w slices of the zero-padded maps, from each window's first cell
-        first = (centre // cols) * (cols + 2 * p) + centre % cols
-        first += (np.arange(b) * kept.padded[0].size)[:, None]
-        index = first[:, :, None] + self._win_offsets  # (B, N, w*w) into the padded maps
-        maps.win_r = kept.padded.reshape(-1)[index]
+        critic_cells = self.cells if self.full_critic else ww
+        actor, critic = self._outputs(
+            out, (b, self.agents, self.actor_shape[0], ww), (b, self.critic_shape[0], critic_cells)
+        )
+        fixed = self.obs_spec.scale == "fixed"
+        inv_r = np.ones(b, np.float32) if fixed else _inverse(kept.readings_top)
+        inv_v = _inverse(kept.visits_top)
         if kept.exact:
-            maps.ds_r = self._downsize([kept.readings])[0]
-            maps.ds_v = (kept.ds_visits / FIXED_POINT).astype(np.float32).reshape(b, w, w)
+            ds_r = self._downsize([kept.readings])[0]
+            ds_v = (kept.ds_visits / FIXED_POINT).astype(np.float32)
         else:  # visits that are not small integers: a float32 product as for the readings
-            maps.ds_r, maps.ds_v = self._downsize([kept.readings, kept.visits])
-        if self.walls:
-            if hasattr(kept, "walls_windows"):
-                bits = kept.walls_windows[np.arange(b)[:, None], centre]  # (B, N)
-                bits = np.unpackbits(
-                    bits.view(np.uint8).reshape(b, n, 8), axis=-1, bitorder="little"
-                )  # (B, N, 64): bit 8 i + j
-                maps.win_w = bits[..., self._window_bits]
-            else:
-                maps.win_w = kept.walls_padded.reshape(-1)[index]
-            maps.ds_w = kept.ds_walls
-        return maps
+            ds_r, ds_v = self._downsize([kept.readings, kept.visits])
+        ds_r = np.ascontiguousarray(ds_r).reshape(b, ww)
+        ds_v = np.ascontiguousarray(ds_v).reshape(b, ww)
+        walls_at = (4 if self.has_others else 3) + 2 if self.walls else 0
+        ds_w = kept.ds_walls if self.walls and not self.embedding else np.zeros((0, ww), np.float32)
+        kernels.odmtl_fill(
+            actor, critic, pos, centre, self.rows, self.cols, w, kept.readings, inv_r, ds_r,
+            ds_v, inv_v, self._rt, kept.walls, ds_w, self.has_others, walls_at,
+            not self.full_critic,
+        )
+        if self.full_critic:  # the m x n joint maps (DMTL's critic input)
+            counts = critic[:, 0]
+            counts[...] = 0.0
+            for i in range(self.agents):  # one agent at a time: indices unique, += counts all
+                counts[np.arange(b), pos[:, i]] += 1.0
+            counts /= np.max(counts, axis=1, keepdims=True)
+            critic[:, 1] = kept.readings * inv_r[:, None]
+            critic[:, 2] = kept.visits * inv_v[:, None]
+            if self.walls:
+                critic[:, 3] = np.asarray(env.walls, dtype=np.float32)
+        return actor, critic
 
     def _observe_odmtl(self, env, pos, b, out):
         n, w, p, ww, cols = self.agents, self.window, self._pad, self.window**2, self.cols
         centre = np.asarray(env.past_pos(p))
         if centre.shape != pos.shape:
             raise ValueError(f"env.past_pos({p}) must have shape {pos.shape}, got {centre.shape}")
+        if b * self.cells >= self.KEEP_FROM and getattr(env, "episode_id", None) is not None:
+            return self._observe_kept(
+                env, np.ascontiguousarray(pos, dtype=np.int64),
+                np.ascontiguousarray(centre, dtype=np.int64), b, out,
+            )
         maps = self._odmtl_maps(env, b, centre)
         critic_cells = self.cells if self.full_critic else ww
         actor, critic = self._outputs(
@@ -930,7 +886,7 @@ class Observer:
 def _fixed_point(counts: np.ndarray, rq_t: np.ndarray) -> np.ndarray:
     """(B, C) small integer counts -> float32 (B, w*w) downsized: exact in fixed point, then
     rounded once."""
-    return (counts.astype(np.float64) @ rq_t / FIXED_POINT).astype(np.float32)
+    return (kernels.fixed_point_sum(counts, rq_t) / FIXED_POINT).astype(np.float32)
 
 
 def _small_counts(counts: np.ndarray) -> bool:

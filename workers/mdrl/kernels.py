@@ -1,0 +1,433 @@
+"""Compiled loops (numba) for the env's reset geometry and the big-batch ODMTL observer.
+
+Why compiled: a reset with walls needs a BFS and a wall-crossing count per layout, and an
+observation writes every agent's windows; as numpy array programs these were ~10 passes over
+(B, C) arrays each, which kept the Ch. 4 preset at ~350k agent-steps/s (issue 10 asks for 1M).
+As loops they touch each cell once. Every kernel computes the same numbers as the numpy
+formulas it replaced (integers exactly; floats in the same order of operations, float32
+where the numpy code was float32), so the env is bit-identical to them; the cell-by-cell
+references in tests/mdrl/test_env.py and test_observations.py check that.
+
+Single-threaded on purpose: training runs PPO on the other core, and envs are batched already.
+``cache=True`` compiles once per machine (a few seconds) into ``__pycache__``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+# ---------------------------------------------------------------------------- env reset
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def walls_bfs(target, walls, rows, cols, moves, unreachable):  # pragma: no cover - compiled
+    """(k, C) int32 BFS steps to ``target`` over the walls (k, C) bool; a cell that cannot be
+    reached (a wall, a walled-off pocket) gets ``unreachable``. A move enters a free cell; a
+    diagonal (dr, dc) also needs both orthogonal cells beside it free (no corner cutting), so
+    moves are symmetric and the search runs from the target. The search runs on the grid with
+    a border of walls, where every move is an index offset."""
+    k, cells = walls.shape
+    width = cols + 2
+    dist = np.full((k, cells), unreachable, dtype=np.int32)
+    free = np.zeros((rows + 2) * width, dtype=np.bool_)
+    seen = np.empty((rows + 2) * width, dtype=np.int32)
+    queue = np.empty(cells, dtype=np.int64)
+    step = np.empty(moves.shape[0], dtype=np.int64)  # offsets of the moves and their sides
+    side_r = np.empty(moves.shape[0], dtype=np.int64)
+    side_c = np.empty(moves.shape[0], dtype=np.int64)
+    for a in range(moves.shape[0]):
+        step[a] = moves[a, 0] * width + moves[a, 1]
+        diagonal = moves[a, 0] != 0 and moves[a, 1] != 0
+        side_r[a] = moves[a, 0] * width if diagonal else 0
+        side_c[a] = moves[a, 1] if diagonal else 0
+    for e in range(k):
+        for r in range(rows):
+            for c in range(cols):
+                free[(r + 1) * width + c + 1] = not walls[e, r * cols + c]
+        seen[:] = -1
+        t = target[e]
+        start = (t // cols + 1) * width + t % cols + 1
+        seen[start] = 0
+        queue[0] = start
+        head, tail = 0, 1
+        while head < tail:
+            x = queue[head]
+            head += 1
+            for a in range(1, moves.shape[0]):
+                y = x + step[a]
+                if free[y] and seen[y] < 0 and free[x + side_r[a]] and free[x + side_c[a]]:
+                    seen[y] = seen[x] + 1
+                    queue[tail] = y
+                    tail += 1
+        for r in range(rows):
+            for c in range(cols):
+                d = seen[(r + 1) * width + c + 1]
+                if d >= 0:
+                    dist[e, r * cols + c] = d
+    return dist
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _runs(grid, rows, cols):  # pragma: no cover - compiled
+    """Run lengths of wall cells from each side: top/bottom per column, left/right per row."""
+    top = np.zeros(cols, dtype=np.int64)
+    bottom = np.zeros(cols, dtype=np.int64)
+    left = np.zeros(rows, dtype=np.int64)
+    right = np.zeros(rows, dtype=np.int64)
+    for c in range(cols):
+        r = 0
+        while r < rows and grid[r * cols + c]:
+            r += 1
+        top[c] = r
+        r = 0
+        while r < rows and grid[(rows - 1 - r) * cols + c]:
+            r += 1
+        bottom[c] = r
+    for r in range(rows):
+        c = 0
+        while c < cols and grid[r * cols + c]:
+            c += 1
+        left[r] = c
+        c = 0
+        while c < cols and grid[r * cols + cols - 1 - c]:
+            c += 1
+        right[r] = c
+    return top, bottom, left, right
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _slab_counts(count, q_a, q_s, centre, a_axis, near, far, size_a, size_s, span, rows, cols):
+    """Add to ``count`` (C,) the slabs of one orientation that each detector-source line
+    crosses. Slab ``line`` lies at a = (line + 0.5) * size_a, a cell centre line; the lines to
+    a source on the other side of it cross it, where the crossing point s (along the slab)
+    lies on the wall run from the near side (s <= near * size_s) or from the far side
+    (s >= (span - far) * size_s). ``a_axis`` 1: slabs on column lines (a = x), 0: row lines.
+    """  # pragma: no cover - compiled
+    lines = cols if a_axis == 1 else rows
+    others = rows if a_axis == 1 else cols
+    for line in range(lines):
+        if near[line] == 0 and far[line] == 0:
+            continue
+        aw = (line + 0.5) * size_a
+        dq = q_a - aw
+        if dq == 0:  # the source on the line: no detector line crosses it
+            continue
+        lo, hi = (0, line) if dq > 0 else (line + 1, lines)  # detectors with dp * dq < 0
+        for k in range(lo, hi):
+            for o in range(others):
+                p = o * cols + k if a_axis == 1 else k * cols + o
+                a_p, s_p = centre[p, a_axis], centre[p, 1 - a_axis]
+                dp = a_p - aw
+                s = s_p + dp / (dp - dq) * (q_s - s_p)
+                if (near[line] > 0 and s <= near[line] * size_s) or (
+                    far[line] > 0 and s >= (span - far[line]) * size_s
+                ):
+                    count[p] += 1
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def wall_slant(target, walls, centre, slant_x, slant_y, slant_row, rows, cols, size_y, size_x):
+    """(R, C) float64 sum of 1 / cos(theta) over the wall slabs that each detector-source line
+    crosses (``TargetLocalizationEnv._transmission``): per orientation, the slant of that
+    orientation added once per slab crossed, from 0.0, one term at a time; then the two sums
+    added. ``slant_x``/``slant_y`` (S, C): the detector-source length over |dx| and |dy|, for
+    the source of layout e in row ``slant_row[e]``.
+    """  # pragma: no cover - compiled
+    count, cells = walls.shape
+    out = np.zeros((count, cells))
+    along = np.empty(cells, dtype=np.int64)
+    across = np.empty(cells, dtype=np.int64)
+    for e in range(count):
+        top, bottom, left, right = _runs(walls[e], rows, cols)
+        qy, qx = centre[target[e], 0], centre[target[e], 1]
+        along[:] = 0
+        across[:] = 0
+        # slabs on column centre lines (walls from the top or bottom), then on row lines
+        _slab_counts(along, qx, qy, centre, 1, top, bottom, size_x, size_y, rows, rows, cols)
+        _slab_counts(across, qy, qx, centre, 0, left, right, size_y, size_x, cols, rows, cols)
+        sx, sy = slant_x[slant_row[e]], slant_y[slant_row[e]]
+        for p in range(cells):
+            x = 0.0
+            for _ in range(along[p]):
+                x += sx[p]
+            y = 0.0
+            for _ in range(across[p]):
+                y += sy[p]
+            out[e, p] = x + y
+    return out
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def mark_walls(walls, side, place, length):  # pragma: no cover - compiled
+    """Set the cells of one wall per env in ``walls`` (R, m, n): from ``side`` (0 top, 1
+    bottom, 2 left, 3 right) at ``place`` along it, ``length`` cells deep (0: no wall)."""
+    m, n = walls.shape[1], walls.shape[2]
+    for e in range(walls.shape[0]):
+        s, q = side[e], place[e]
+        for j in range(length[e]):
+            if s == 0:
+                walls[e, j, q] = True
+            elif s == 1:
+                walls[e, m - 1 - j, q] = True
+            elif s == 2:
+                walls[e, q, j] = True
+            else:
+                walls[e, q, n - 1 - j] = True
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def valid_moves(walls, rows, cols, moves):  # pragma: no cover - compiled
+    """bool (R, C, A): the move stays on the grid, its destination is free and (a diagonal)
+    both orthogonal cells beside it are free (no corner cutting)."""
+    count, cells = walls.shape
+    actions = moves.shape[0]
+    out = np.empty((count, cells, actions), dtype=np.bool_)
+    free = np.zeros((rows + 2, cols + 2), dtype=np.bool_)  # a border of walls around the grid
+    for e in range(count):
+        for r in range(rows):
+            for c in range(cols):
+                free[r + 1, c + 1] = not walls[e, r * cols + c]
+        for r in range(1, rows + 1):
+            for c in range(1, cols + 1):
+                x = (r - 1) * cols + c - 1
+                for a in range(actions):
+                    dr, dc = moves[a, 0], moves[a, 1]
+                    ok = free[r + dr, c + dc]
+                    if dr != 0 and dc != 0:
+                        ok = ok and free[r + dr, c] and free[r, c + dc]
+                    out[e, x, a] = ok
+    return out
+
+
+# ---------------------------------------------------------------------------- ODMTL observer
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def kept_cells(pos, new_r, new_v, readings, readings_top, track_top, visits, visits_top,
+               ds_visits, rq_t, exact):  # pragma: no cover - compiled
+    """Bring an observer's kept maps (``observations._Kept``) up to date at the agents' cells
+    ``pos`` (B, N) after one step: the readings ``new_r`` and visits ``new_v`` (B, N) there.
+    A cell shared with an earlier agent is done once. Row maxima follow (raised, or recomputed
+    where the maximum fell); the fixed-point downsized visits get the change of each cell
+    (integers, so exact in any order) while ``exact`` holds. -> whether it still holds."""
+    b_count, n = pos.shape
+    cells = readings.shape[1]
+    if exact:
+        for b in range(b_count):
+            for i in range(n):
+                v = new_v[b, i]
+                if not (v == np.round(v) and 0 <= v <= 4096):
+                    exact = False
+    for b in range(b_count):
+        fell_r, fell_v = False, False
+        for i in range(n):
+            c = pos[b, i]
+            seen = False
+            for j in range(i):
+                if pos[b, j] == c:
+                    seen = True
+            if seen:
+                continue
+            old, new = readings[b, c], new_r[b, i]
+            readings[b, c] = new
+            if track_top:
+                if new > readings_top[b]:
+                    readings_top[b] = new
+                elif new < old and old >= readings_top[b]:
+                    fell_r = True
+            old, new = visits[b, c], new_v[b, i]
+            visits[b, c] = new
+            if new > visits_top[b]:
+                visits_top[b] = new
+            elif new < old and old >= visits_top[b]:
+                fell_v = True
+            if exact and new != old:
+                change = np.float64(new) - np.float64(old)
+                for k in range(ds_visits.shape[1]):
+                    ds_visits[b, k] += rq_t[c, k] * change
+        if fell_r:
+            top = readings[b, 0]
+            for c in range(1, cells):
+                top = max(top, readings[b, c])
+            readings_top[b] = top
+        if fell_v:
+            top = visits[b, 0]
+            for c in range(1, cells):
+                top = max(top, visits[b, c])
+            visits_top[b] = top
+    return exact
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def odmtl_fill(actor, critic, pos, centre, rows, cols, w, readings, inv_r, ds_r, ds_v, inv_v,
+               rt, walls, ds_w, others, walls_at, reduced_critic):  # pragma: no cover
+    """Write the ODMTL stacks (``Observer._observe_kept``) from the kept maps, env by env.
+
+    actor (B, N, C_a, w*w): windowed own location, windowed readings, downsized own location,
+    [downsized others], downsized readings, downsized visits, and with walls (``walls_at`` >
+    0, the channel of the windowed walls) the windowed walls, then the downsized walls when
+    ``ds_w`` has rows. The reduced critic (B, C_c, w*w): downsized all locations, readings,
+    visits, [walls]. Windows centre on ``centre`` (B, N) and read 0 off the grid. Every value
+    is the float32 arithmetic of the numpy builder: maps x (1 / max), others clipped at 0 and
+    divided by the largest count on another agent's cell, the agents' downsized locations
+    summed in agent order.
+    """
+    b_count, n = pos.shape
+    ww = w * w
+    p = w // 2
+    zero = np.float32(0.0)
+    ds_all = np.empty(ww, dtype=np.float32)
+    at_cell = np.empty(n, dtype=np.int64)
+    for b in range(b_count):
+        for k in range(ww):
+            ds_all[k] = rt[pos[b, 0], k]
+        for i in range(1, n):
+            for k in range(ww):
+                ds_all[k] += rt[pos[b, i], k]
+        top_count = 0
+        for i in range(n):
+            count = 0
+            for j in range(n):
+                if pos[b, j] == pos[b, i]:
+                    count += 1
+            at_cell[i] = count
+            top_count = max(top_count, count)
+        ir, iv = inv_r[b], inv_v[b]
+        for i in range(n):
+            a = actor[b, i]
+            cr, cc = centre[b, i] // cols, centre[b, i] % cols
+            a[0, :] = zero
+            dr, dc = pos[b, i] // cols - cr + p, pos[b, i] % cols - cc + p
+            if 0 <= dr < w and 0 <= dc < w:
+                a[0, dr * w + dc] = np.float32(1.0)
+            # windows: the grid cells they cover, 0 off the grid
+            full = cc - p >= 0 and cc - p + w <= cols and cr - p >= 0 and cr - p + w <= rows
+            if not full:
+                a[1, :] = zero
+                if walls_at > 0:
+                    a[walls_at, :] = zero
+            c0, c1 = max(cc - p, 0), min(cc - p + w, cols)
+            for r in range(max(cr - p, 0), min(cr - p + w, rows)):
+                at = (r - cr + p) * w - (cc - p)  # window element of cell (r, c): at + c
+                if walls_at > 0:  # one loop for both windows: the loops are short
+                    for c in range(c0, c1):
+                        a[1, at + c] = readings[b, r * cols + c] * ir
+                        a[walls_at, at + c] = np.float32(walls[b, r * cols + c])
+                else:
+                    for c in range(c0, c1):
+                        a[1, at + c] = readings[b, r * cols + c] * ir
+            for k in range(ww):
+                a[2, k] = rt[pos[b, i], k]
+            ch = 3
+            if others:
+                top = 1
+                for j in range(n):
+                    if j != i:
+                        top = max(top, at_cell[j] - (1 if pos[b, j] == pos[b, i] else 0))
+                denominator = np.float32(top)
+                for k in range(ww):
+                    a[3, k] = max(ds_all[k] - a[2, k], zero) / denominator
+                ch = 4
+            # one channel at a time: a loop over k writing several channels runs ~2x slower
+            for k in range(ww):
+                a[ch, k] = ds_r[b, k] * ir
+            for k in range(ww):
+                a[ch + 1, k] = ds_v[b, k] * iv
+            if walls_at > 0 and len(ds_w):
+                for k in range(ww):
+                    a[walls_at + 1, k] = ds_w[b, k]
+        if reduced_critic:
+            cnt = np.float32(top_count)
+            for k in range(ww):
+                critic[b, 0, k] = ds_all[k] / cnt
+            for k in range(ww):
+                critic[b, 1, k] = ds_r[b, k] * ir
+            for k in range(ww):
+                critic[b, 2, k] = ds_v[b, k] * iv
+            if walls_at > 0 and len(ds_w):
+                for k in range(ww):
+                    critic[b, 3, k] = ds_w[b, k]
+
+
+@njit(cache=True, nogil=True)
+def fixed_point_sum(counts, rq_t):  # pragma: no cover - compiled
+    """(R, w*w) float64 ``counts (R, C) @ rq_t (C, w*w)`` over the nonzero counts only: the
+    products and sums of small integer counts with the fixed-point matrix are integers below
+    2**53, exact in any order, so this equals the full product bit for bit."""
+    out = np.zeros((counts.shape[0], rq_t.shape[1]))
+    for e in range(counts.shape[0]):
+        for c in range(counts.shape[1]):
+            x = np.float64(counts[e, c])
+            if x != 0.0:
+                for k in range(rq_t.shape[1]):
+                    out[e, k] += x * rq_t[c, k]
+    return out
+
+
+# ---------------------------------------------------------------------------- env step
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def advance(rows, actions, pos, free_next, dist, shaped, bonus, reward, found, cost, t,
+            idle_streak, history):  # pragma: no cover - compiled
+    """Move the team of each env in ``rows`` (``TargetLocalizationEnv.step``, actions checked
+    already): team reward Eq. 5/8 (shaped: +1 if the team's best BFS distance fell, else -1,
+    minus the agents that moved) or Eq. 9 (minus the movers, + ``bonus`` on the target), the
+    target found, cost, time, idle streak and the position history."""
+    n = pos.shape[1]
+    slots = history.shape[1]
+    for j in range(len(rows)):
+        b = rows[j]
+        moved = 0
+        before, after = dist[b, pos[b, 0]], dist[b, free_next[pos[b, 0], actions[b, 0]]]
+        for i in range(n):
+            old, a = pos[b, i], actions[b, i]
+            new = free_next[old, a]
+            moved += a != 0
+            before, after = min(before, dist[b, old]), min(after, dist[b, new])
+            pos[b, i] = new
+        found[b] = after == 0
+        if shaped:
+            reward[b] = (1.0 if after < before else -1.0) - moved
+        else:
+            reward[b] = -moved + bonus * (after == 0)
+        cost[b] += moved
+        t[b] += 1
+        idle_streak[b] = idle_streak[b] + 1 if moved == 0 else 0
+        for i in range(n):
+            history[b, t[b] % slots, i] = pos[b, i]
+
+
+@njit(cache=True, nogil=True)
+def record_readings(rows, cells, taken, readings, visits, reading_sum):  # pragma: no cover
+    """Readings ``taken`` (R, N) at ``cells`` (R, N) of envs ``rows``: the last one per cell
+    (the last agent's, when agents share a cell), one more visit and the sum, agent by agent."""
+    for j in range(len(rows)):
+        b = rows[j]
+        for i in range(cells.shape[1]):
+            c = cells[j, i]
+            readings[b, c] = taken[j, i]
+            visits[b, c] += 1.0
+            reading_sum[b, c] += taken[j, i]
+
+
+@njit(cache=True, nogil=True)
+def action_masks(env_rows, pos, walls, rows, cols, moves, idle_streak, idle_limit, mask):
+    """``mask[b]`` for the envs ``env_rows``: at each agent's cell, the moves that stay on the
+    grid, enter a free cell and (a diagonal) do not cut a wall corner; idle (move 0) only
+    while the team's idle streak is under the limit."""  # pragma: no cover - compiled
+    for j in range(len(env_rows)):
+        b = env_rows[j]
+        w = walls[b]
+        for i in range(pos.shape[1]):
+            r, c = pos[b, i] // cols, pos[b, i] % cols
+            for a in range(moves.shape[0]):
+                nr, nc = r + moves[a, 0], c + moves[a, 1]
+                mask[b, i, a] = (
+                    0 <= nr < rows
+                    and 0 <= nc < cols
+                    and not w[nr * cols + nc]
+                    and (nr == r or nc == c or not (w[r * cols + nc] or w[nr * cols + c]))
+                )
+            mask[b, i, 0] = mask[b, i, 0] and idle_streak[b] < idle_limit
