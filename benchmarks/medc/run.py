@@ -24,7 +24,8 @@ env steps to reach SR's final level), the issue's target ratios, and ``--png`` w
 (episode length against env steps and against wall-clock, mean over seeds, min-max band).
 
 Each finished run is cached as JSON under ``--out`` (``TASK-METHOD-sSEED-STEPS.json``), so an
-interrupted benchmark re-runs only what is missing; a killed run restarts from scratch.
+interrupted benchmark re-runs only what is missing; a killed IL or FRL run resumes from its
+last checkpoint (every ``CHECKPOINT_EVERY`` updates / rounds), the others restart from scratch.
 
 Usage: python benchmarks/medc/run.py --steps 1000000 --seeds 0,1,2
        [--tasks A3W2,A3W3] [--methods sparse,sr,dc,medc,medc-faulty,il,frl]
@@ -69,6 +70,8 @@ CAE: str | None = None
 """--cae: the walls CAE directory of the ``-cae`` methods (trained for the benchmark's grid)."""
 REACH = 1.05
 """A run "reaches" a level when its mean held-out episode length is within 5% of it."""
+CHECKPOINT_EVERY = 10
+"""Updates (IL) or rounds (FRL) between the checkpoints a killed run resumes from."""
 
 
 def user_preset(user: str, reward: str, grid: int = 30) -> Any:
@@ -132,20 +135,31 @@ def train_run(task: str, method: str, seed: int, steps: int, experts: list[str],
                     eval_episodes=CURVE_EPISODES, eval_seed=CURVE_SEED, checkpoint_every=0,
                     tensorboard=False, progress=False)
     run_dir = out / f"{task}-{grid}x{grid}-{method}-s{seed}-{steps}"
-    if run_dir.exists():  # a killed run: start it again from scratch
+    resume = method in ("il", "frl") and (run_dir / "checkpoint").is_dir()
+    if run_dir.exists() and not resume:  # a killed run: start it again from scratch
         for f in sorted(run_dir.rglob("*"), reverse=True):
             f.unlink() if f.is_file() else f.rmdir()
     start = time.perf_counter()
     if method == "frl":
         from workers.mdrl.frl import THESIS_USERS, FederatedTrainer
 
-        users = [(u, user_preset(u, "sparse", grid).env) for u in THESIS_USERS]
-        trainer: Any = FederatedTrainer(users, obs, ppo, run, target=task, out=run_dir)
+        run = dataclasses.replace(run, checkpoint_every=CHECKPOINT_EVERY)
+        if resume:
+            trainer: Any = FederatedTrainer.resume(run_dir, run_overrides=run.to_dict())
+        else:
+            users = [(u, user_preset(u, "sparse", grid).env) for u in THESIS_USERS]
+            trainer = FederatedTrainer(users, obs, ppo, run, target=task, out=run_dir)
     elif method == "il":
         from workers.mdrl.il import ImitationTrainer
 
-        trainer = ImitationTrainer(env, obs, ppo, run, out=run_dir,
-                                   experts=load_experts(experts, env, seed), qos=qos or None)
+        run = dataclasses.replace(run, checkpoint_every=CHECKPOINT_EVERY)
+        loaded = load_experts(experts, env, seed)
+        if resume:  # refuses other experts than the checkpoint's (another --out for those)
+            trainer = ImitationTrainer.resume(run_dir, run_overrides=run.to_dict(),
+                                              experts=loaded, qos=qos or None)
+        else:
+            trainer = ImitationTrainer(env, obs, ppo, run, out=run_dir, experts=loaded,
+                                       qos=qos or None)
     else:
         selector = None
         if method == "dc":
@@ -161,8 +175,9 @@ def train_run(task: str, method: str, seed: int, steps: int, experts: list[str],
                                              credit=method.endswith("-credit"),
                                              threshold=THRESHOLD)
         trainer = Trainer(env, obs, ppo, run, out=run_dir, selector=selector)
+    before = trainer.elapsed  # training time of the killed run we resumed (0 if fresh)
     trainer.train()
-    wall = time.perf_counter() - start
+    wall = time.perf_counter() - start + before
     policy = trainer.trainer.policy() if method == "frl" else trainer.policy()
     return {"task": task, "grid": grid, "method": method, "seed": seed,
             "steps": trainer.global_step,

@@ -10,21 +10,21 @@ import numpy as np
 import pytest
 import torch
 
-from workers.mdrl.experts import OracleExpert
+from workers.mdrl.experts import OracleExpert, RandomExpert, load_expert
 from workers.mdrl.frl import FederatedTrainer
-from workers.mdrl.il import ImitationTrainer
+from workers.mdrl.il import ImitationTrainer, _expert_diff, expert_identity
 from workers.mdrl.observations import ObservationSpec
 from workers.mdrl.ppo import PPOConfig
 from workers.mdrl.spec import EnvSpec
-from workers.mdrl.train import RunConfig
+from workers.mdrl.train import TIMING_COLUMNS, RunConfig, Trainer
 
 SMALL_PPO = PPOConfig(num_envs=32, horizon=512, update_epochs=4, num_minibatches=2,
                       learning_rate=3e-3, anneal_lr=False)
 
 
 def _run(steps: int, **kw) -> RunConfig:
-    return RunConfig(seed=kw.pop("seed", 0), total_steps=steps, eval_every=kw.pop("eval_every", 0),
-                     eval_episodes=20, checkpoint_every=0, tensorboard=False, progress=False, **kw)
+    kw = {"seed": 0, "eval_every": 0, "checkpoint_every": 0, **kw}
+    return RunConfig(total_steps=steps, eval_episodes=20, tensorboard=False, progress=False, **kw)
 
 
 def _oracle_agreement(trainer, env_spec: EnvSpec, batch: int = 64) -> float:
@@ -147,3 +147,150 @@ def test_frl_budget_is_required():
     with pytest.raises(ValueError, match="budget"):
         frl.train()
     assert np.isfinite(frl.elapsed)
+
+
+# ---------------------------------------------------------------------------- resuming
+TINY_PPO = PPOConfig(num_envs=8, horizon=64, update_epochs=2, num_minibatches=2,
+                     learning_rate=3e-3)  # T = 8 steps per update
+
+
+class Crash(Exception):
+    """Stands for the process being killed."""
+
+
+def _crash_at(trainer, update: int) -> None:
+    """Make ``trainer`` die when it starts collecting update ``update`` (0-based)."""
+    real = trainer.collect
+
+    def collect():
+        if trainer.update_idx == update:
+            raise Crash
+        return real()
+
+    trainer.collect = collect
+
+
+def _metrics(path):
+    with (path / "metrics.csv").open() as f:
+        return [{k: v for k, v in r.items() if k not in TIMING_COLUMNS}
+                for r in csv.DictReader(f)]
+
+
+def _il_experts():
+    return [OracleExpert(), RandomExpert(seed=5)]
+
+
+def _il_run(out, crash_at=None):
+    env, obs = EnvSpec(rows=6, cols=6, agents=2), ObservationSpec(kind="odmtl", window=3)
+    run = _run(6 * TINY_PPO.batch_steps, checkpoint_every=2)
+    trainer = ImitationTrainer(env, obs, TINY_PPO, run, out=out, experts=_il_experts(),
+                               qos=[2.0, 1.0], il_share=0.5)
+    if crash_at is not None:
+        _crash_at(trainer, crash_at)
+        with pytest.raises(Crash):
+            trainer.train()
+    else:
+        trainer.train()
+    return trainer
+
+
+def test_il_run_resumed_after_a_crash_ends_as_the_uninterrupted_run(tmp_path):
+    """Killed in update 4 of 6 (checkpoint after update 2, imitation every 2nd update, two
+    experts on a roulette wheel): resumed, it ends with the same weights, imitator state and
+    metrics as a run that was never interrupted."""
+    straight = _il_run(tmp_path / "straight")
+    _il_run(tmp_path / "split", crash_at=3)
+    resumed = ImitationTrainer.resume(tmp_path / "split", experts=_il_experts(), qos=[2.0, 1.0])
+    assert resumed.update_idx == 2 and resumed.imitation_updates == 1 and resumed.period == 2
+    resumed.train()
+    assert resumed.imitation_updates == straight.imitation_updates == 3
+    for k, v in straight.agent.state_dict().items():
+        assert torch.equal(v, resumed.agent.state_dict()[k]), k
+    assert resumed.imitator.state_dict() == straight.imitator.state_dict()
+    assert _metrics(tmp_path / "split") == _metrics(tmp_path / "straight")
+
+
+def test_il_resume_refuses_other_experts(tmp_path):
+    _il_run(tmp_path, crash_at=3)
+    with pytest.raises(ValueError, match=r"2 expert\(s\) \['oracle', 'random'\], given 1"):
+        ImitationTrainer.resume(tmp_path, experts=[OracleExpert()])
+    with pytest.raises(ValueError, match="expert 1 ref: 'random' in the checkpoint, 'other'"):
+        ImitationTrainer.resume(tmp_path, experts=[OracleExpert(), OracleExpert("other")],
+                                qos=[2.0, 1.0])
+    with pytest.raises(ValueError, match="expert 0 qos: 2.0 in the checkpoint, 1.0 given"):
+        ImitationTrainer.resume(tmp_path, experts=_il_experts())  # equal QoS by default
+
+
+def test_a_model_expert_is_identified_by_its_weights(tmp_path):
+    """Another model saved at the same path is another expert."""
+    env, obs = EnvSpec(rows=6, cols=6, agents=2), ObservationSpec(kind="odmtl", window=3)
+    ids = []
+    for seed in (0, 1):
+        Trainer(env, obs, TINY_PPO, _run(64, seed=seed)).save_model(tmp_path / "m")
+        ids.append(expert_identity(load_expert(str(tmp_path / "m"), env), 1.0))
+    assert ids[0]["ref"] == ids[1]["ref"] and ids[0]["digest"] != ids[1]["digest"]
+    assert [d.split(":")[0] for d in _expert_diff(ids[:1], ids[1:])] == ["expert 0 digest"]
+
+
+def _frl_run(out, crash_at=None, rounds=4):
+    obs = ObservationSpec(kind="odmtl", window=3)
+    frl = FederatedTrainer(USERS, obs, TINY_PPO,
+                           _run(rounds * TINY_PPO.batch_steps, checkpoint_every=2),
+                           target="A2W1", out=out)
+    if crash_at is not None:
+        _crash_at(frl.trainer, crash_at)  # the target is the 2nd user: A1W0 has collected
+        with pytest.raises(Crash):
+            frl.train()
+    else:
+        frl.train()
+    return frl
+
+
+def test_frl_run_resumed_after_a_crash_ends_as_the_uninterrupted_run(tmp_path):
+    """Killed in round 4 of 4 (checkpoint after round 2): resumed, every user ends with the
+    same weights, and the target with the same metrics, as a run never interrupted."""
+    straight = _frl_run(tmp_path / "straight")
+    _frl_run(tmp_path / "split", crash_at=3)
+    assert sorted(p.name for p in (tmp_path / "split").iterdir() if "checkpoint" in p.name) == [
+        "checkpoint"]
+    resumed = FederatedTrainer.resume(tmp_path / "split")
+    assert resumed.rounds == 2 and resumed.global_step == 2 * TINY_PPO.batch_steps
+    resumed.train()
+    assert resumed.rounds == straight.rounds == 4 and list(resumed.trainers) == list(
+        straight.trainers)
+    for name, t in straight.trainers.items():
+        mine = resumed.trainers[name]
+        assert mine.global_step == t.global_step
+        for k, v in t.agent.state_dict().items():
+            assert torch.equal(v, mine.agent.state_dict()[k]), (name, k)
+    for k, v in straight.global_model.items():
+        assert torch.equal(v, resumed.global_model[k]), k
+    assert _metrics(tmp_path / "split") == _metrics(tmp_path / "straight")
+
+
+def test_frl_resume_names_a_missing_or_corrupt_user_checkpoint(tmp_path):
+    import shutil
+
+    _frl_run(tmp_path / "run", rounds=1)
+    ckpt = tmp_path / "run" / "checkpoint"
+    FederatedTrainer.resume(ckpt)  # intact: loads
+    shutil.copytree(ckpt, tmp_path / "missing")
+    shutil.rmtree(tmp_path / "missing" / "users" / "A1W0")
+    with pytest.raises(ValueError, match="user A1W0's checkpoint .* cannot be loaded"):
+        FederatedTrainer.resume(tmp_path / "missing")
+    shutil.copytree(ckpt, tmp_path / "corrupt")
+    (tmp_path / "corrupt" / "users" / "A3W1" / "state.safetensors").write_bytes(b"\0" * 64)
+    with pytest.raises(ValueError, match="user A3W1's checkpoint .* cannot be loaded"):
+        FederatedTrainer.resume(tmp_path / "corrupt")
+    (tmp_path / "corrupt" / "frl.json").unlink()
+    with pytest.raises(ValueError, match="not a readable FRL checkpoint"):
+        FederatedTrainer.resume(tmp_path / "corrupt")
+
+
+
+
+def test_an_il_checkpoint_does_not_resume_as_plain_ppo(tmp_path):
+    """Plain PPO would drop the IL stage's state: ``Trainer.resume`` refuses the checkpoint."""
+    _il_run(tmp_path, crash_at=3)
+    with pytest.raises(ValueError, match="ImitationTrainer run; resume it with ImitationTrainer"):
+        Trainer.resume(tmp_path)

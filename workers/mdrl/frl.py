@@ -11,23 +11,35 @@ Averaging needs one architecture for all users, so every user sees the same inpu
 maps even where there are no walls and the others map even for a lone agent
 (``ObservationSpec(walls=True, others=True)``); all users must share the move set. This is
 the constraint the thesis holds against FRL (Sec. 5.1): MEDC's experts need not share anything.
+
+Checkpoints (every ``run.checkpoint_every`` rounds and at the end, under ``out/checkpoint``)
+hold every user's ``Trainer`` checkpoint in ``users/NAME``, the global model in
+``global.safetensors`` and the federation's counters in ``frl.json``, written to a temp dir
+and renamed, so ``FederatedTrainer.resume`` continues exactly as the run would have.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import json
+import os
+import shutil
 import time
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import torch
+from safetensors import SafetensorError
+from safetensors.torch import load_file, save_file
 
+from workers.mdrl import checkpoint as ckpt
 from workers.mdrl.observations import ObservationSpec
 from workers.mdrl.ppo import PPOConfig
 from workers.mdrl.spec import EnvSpec
 from workers.mdrl.train import RunConfig, Trainer
 
+FORMAT = "drlaas-frl-checkpoint/1"
 THESIS_USERS = ("A1W0", "A3W0", "A2W1", "A2W2", "A2W3", "A3W1", "A3W2", "A3W3")
 """The eight FRL users of Sec. 5.4.2: A = agents, W = walls."""
 
@@ -39,7 +51,8 @@ def federated_input(obs_spec: ObservationSpec) -> ObservationSpec:
 
 class FederatedTrainer:
     """FedAvg over per-user PPO trainers; ``train()`` runs until the target user's step or
-    time budget (``run``) is used. ``out`` receives the target user's metrics.csv and model."""
+    time budget (``run``) is used. ``out`` receives the target user's metrics.csv and model, and
+    the checkpoint (module docstring)."""
 
     def __init__(self, users: Sequence[tuple[str, EnvSpec]], obs_spec: ObservationSpec,
                  ppo: PPOConfig, run: RunConfig, target: str, local_updates: int = 1,
@@ -47,6 +60,9 @@ class FederatedTrainer:
         names = [name for name, _ in users]
         if len(set(names)) != len(names):
             raise ValueError(f"FRL users must have distinct names, got {names}")
+        bad = [n for n in names if not n or Path(n).name != n or n.startswith(".")]
+        if bad:  # each user's checkpoint is a directory named after it
+            raise ValueError(f"FRL user names must be plain file names, got {bad}")
         if target not in names:
             raise ValueError(f"FRL target user {target!r} is not one of {names}")
         if local_updates < 1:
@@ -131,6 +147,9 @@ class FederatedTrainer:
             row = {"update": target.update_idx, "global_step": self.global_step,
                    "wall_time": self.elapsed, "sps": sps, **loss_stats, **episode_stats, **evals}
             target._log(row)
+            ce = self.run.checkpoint_every
+            if self.out is not None and (last or (ce and self.rounds % ce == 0)):
+                self.save_checkpoint(self.out / "checkpoint")
         target.elapsed = self.elapsed
         if self.out is not None:
             target.save_model(self.out / "model")
@@ -142,3 +161,66 @@ class FederatedTrainer:
                 "target": self.target, "local_updates": self.local_updates,
                 "rounds": self.rounds, "env_steps_all_users": steps})
         return target.last_metrics
+
+    # ------------------------------------------------------------------ checkpoints
+    def save_checkpoint(self, path: str | Path) -> Path:
+        """Write every user's checkpoint, the global model and the counters to a temp dir,
+        then swap it in for ``path`` (a crash leaves the previous checkpoint whole)."""
+        path = Path(path)
+        tmp, old = path.with_name(path.name + ".tmp"), path.with_name(path.name + ".old")
+        if tmp.exists():
+            shutil.rmtree(tmp)
+        tmp.mkdir(parents=True)
+        for name, t in self.trainers.items():
+            t.save_checkpoint(tmp / "users" / name)
+        save_file({k: v.contiguous() for k, v in self.global_model.items()},
+                  str(tmp / "global.safetensors"))
+        target = self.trainer
+        meta = {"format": FORMAT, "rounds": self.rounds, "elapsed": self.elapsed,
+                "target": self.target, "local_updates": self.local_updates,
+                "users": [[name, t.env_spec.to_dict()] for name, t in self.trainers.items()],
+                "observation": target.obs_spec.to_dict(), "ppo": target.ppo.to_dict(),
+                "run": self.run.to_dict()}
+        (tmp / "frl.json").write_text(json.dumps(meta, indent=1))
+        if path.exists():
+            if old.exists():
+                shutil.rmtree(old)
+            os.replace(path, old)
+        os.replace(tmp, path)
+        if old.exists():
+            shutil.rmtree(old)
+        return path
+
+    @classmethod
+    def resume(cls, path: str | Path, out: str | Path | None = None,
+               run_overrides: dict[str, Any] | None = None) -> FederatedTrainer:
+        """Rebuild an FRL run from a checkpoint dir (or a run dir holding ``checkpoint/``)."""
+        path = Path(path)
+        if (path / "checkpoint").is_dir():
+            path = path / "checkpoint"
+        try:
+            meta = json.loads((path / "frl.json").read_text())
+            global_model = load_file(str(path / "global.safetensors"))
+        except (OSError, ValueError, SafetensorError) as exc:
+            raise ValueError(f"not a readable FRL checkpoint {path}: {exc}") from exc
+        if meta.get("format") != FORMAT:
+            raise ValueError(f"{path}: unknown FRL checkpoint format {meta.get('format')!r}")
+        users = [(name, EnvSpec.from_dict(d)) for name, d in meta["users"]]  # seeds by order
+        run = RunConfig.from_dict({**meta["run"], **(run_overrides or {})})
+        frl = cls(users, ObservationSpec.from_dict(meta["observation"]),
+                  PPOConfig.from_dict(meta["ppo"]), run, meta["target"], meta["local_updates"],
+                  out=out if out is not None else path.parent)
+        updates = meta["rounds"] * meta["local_updates"]
+        for name, t in frl.trainers.items():
+            user = path / "users" / name
+            try:
+                t.load_state(*ckpt.load_checkpoint(user))
+            except (OSError, ValueError, KeyError, RuntimeError, SafetensorError) as exc:
+                raise ValueError(f"FRL checkpoint {path}: user {name}'s checkpoint {user} "
+                                 f"cannot be loaded: {exc}") from exc
+            if t.update_idx != updates:
+                raise ValueError(f"FRL checkpoint {path}: user {name} is at update "
+                                 f"{t.update_idx}, the federation at {updates}")
+        frl.global_model = global_model
+        frl.rounds, frl.elapsed = meta["rounds"], meta["elapsed"]
+        return frl

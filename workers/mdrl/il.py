@@ -13,14 +13,18 @@ difference is that MEDC keeps PPO's own advantage-weighted update on guided expe
 follows an expert only where its own policy finds the action probable (threshold l), so bad
 advice is unlearned through the reward, while BC writes it into the actor.
 
-The imitation selector's roulette state is not checkpointed: a resumed IL run picks experts
-from a fresh stream (the benchmark caches whole runs instead of resuming them).
+A checkpoint adds the imitation selector's state (roulette RNG, per-env expert) and the stage
+counter to the trainer's, so ``ImitationTrainer.resume`` continues as the run would have. The
+experts are models loaded by reference, not stored: the checkpoint records their identities
+(reference, QoS weight, weight digest of a model) and resuming with other experts is refused.
 """
 
 from __future__ import annotations
 
+import json
 import math
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
 import torch
@@ -46,7 +50,6 @@ class ImitationTrainer(Trainer):
         if not (0 < il_share <= 1 and math.isfinite(il_share)):
             raise ValueError(f"il_share must lie in (0, 1], got {il_share!r}")
         self.il_share = il_share
-        self.period = max(1, round(1 / il_share))
         # rate 1: every episode follows an expert; threshold below 0: every valid action the
         # expert ranks best is taken, however improbable under the learner (blind imitation)
         self.imitator = DemonstrationSelector(experts, qos, rate=1.0, seed=self.run.seed)
@@ -54,6 +57,13 @@ class ImitationTrainer(Trainer):
         self.imitator.bind(self.generator)
         self.imitator.episode_start(torch.arange(self.ppo.num_envs).numpy())
         self.imitation_updates = 0
+        self.expert_ids = [expert_identity(e, q)
+                           for e, q in zip(experts, self.imitator.config.weights, strict=True)]
+
+    @property
+    def period(self) -> int:
+        """Updates per RL + imitation cycle."""
+        return max(1, round(1 / self.il_share))
 
     def imitating(self) -> bool:
         """Whether the coming update is an imitation stage (the last of every period)."""
@@ -121,6 +131,30 @@ class ImitationTrainer(Trainer):
                 "clipfrac": nan, "explained_variance": nan,
                 "imitation_accuracy": acc_sum / count}
 
+    # ------------------------------------------------------------------ checkpoints
+    def config_dict(self) -> dict[str, Any]:
+        return {**super().config_dict(),
+                "imitation": {"il_share": self.il_share, "experts": self.expert_ids}}
+
+    def checkpoint_extras(self) -> dict[str, Any]:
+        """The stage's state: imitation updates so far and the imitator's roulette."""
+        return {"imitation_state": {"updates": self.imitation_updates,
+                                    "imitator": self.imitator.state_dict()}}
+
+    def load_state(self, tensors: dict[str, torch.Tensor], env_arrays: dict[str, Any],
+                   meta: dict[str, Any]) -> None:
+        saved, state = meta.get("imitation"), meta.get("imitation_state")
+        if not saved or not state:
+            raise ValueError("checkpoint holds no imitation state (not written by an "
+                             "ImitationTrainer); resume it with Trainer.resume")
+        diff = _expert_diff(saved["experts"], self.expert_ids)
+        if diff:
+            raise ValueError("cannot resume the IL run with other experts: " + "; ".join(diff))
+        super().load_state(tensors, env_arrays, meta)
+        self.imitator.load_state_dict(state["imitator"])
+        self.imitation_updates = int(state["updates"])
+        self.il_share = saved["il_share"]  # the run's schedule, whatever we were built with
+
     def save_model(self, path: Any) -> Any:
         out = super().save_model(path)
         _add_training_note(out, {"method": "IL-assisted RL (behaviour cloning stages)",
@@ -130,11 +164,31 @@ class ImitationTrainer(Trainer):
         return out
 
 
+def expert_identity(expert: Any, qos: float) -> dict[str, Any]:
+    """What an IL checkpoint records of an expert it does not store: its reference (path, CID
+    or built-in), QoS weight and, for a model, a digest of its weights (a path may be
+    overwritten by another model)."""
+    out: dict[str, Any] = {"ref": expert.name, "qos": float(qos)}
+    agent = getattr(getattr(expert, "good", expert), "agent", None)  # malicious: its good one
+    if agent is not None:
+        from workers.mdrl.cae import tensor_digest
+
+        out["digest"] = tensor_digest(agent.state_dict())
+    return out
+
+
+def _expert_diff(saved: list[dict[str, Any]], given: list[dict[str, Any]]) -> list[str]:
+    """Human-readable differences between two lists of ``expert_identity``."""
+    if len(saved) != len(given):
+        return [f"the checkpoint has {len(saved)} expert(s) {[e['ref'] for e in saved]}, "
+                f"given {len(given)} {[e['ref'] for e in given]}"]
+    return [f"expert {i} {key}: {a.get(key)!r} in the checkpoint, {b.get(key)!r} given"
+            for i, (a, b) in enumerate(zip(saved, given, strict=True))
+            for key in sorted(a.keys() | b.keys()) if a.get(key) != b.get(key)]
+
+
 def _add_training_note(model_dir: Any, note: dict[str, Any]) -> None:
     """Record how a benchmark model was trained in its card's ``training.method`` section."""
-    import json
-    from pathlib import Path
-
     from workers.mdrl.modelio import CARD
 
     card_path = Path(model_dir) / CARD

@@ -443,13 +443,25 @@ class Trainer:
                 "counters": {"update": self.update_idx, "global_step": self.global_step,
                              "episodes": self.episodes, "elapsed": self.elapsed},
                 "last_eval": self.last_eval, "optimizer": opt_meta, "env_state": env_meta}
+        extras = self.checkpoint_extras()
+        if extras:  # only that kind of trainer can continue it
+            meta |= {**extras, "extras_by": type(self).__name__}
         if hasattr(self.selector, "state_dict"):  # e.g. an expert selector's per-episode flags
             meta["selector"] = self.selector.state_dict()  # must be JSON-able
         return ckpt.save_checkpoint(path, tensors, env_arrays, meta)
 
+    def checkpoint_extras(self) -> dict[str, Any]:
+        """JSON-able state a subclass adds to its checkpoints' meta (``load_state`` gets it
+        back in ``meta``); none here."""
+        return {}
+
     def load_state(self, tensors: dict[str, torch.Tensor], env_arrays: dict[str, np.ndarray],
                    meta: dict[str, Any]) -> None:
         """Restore a checkpoint into this trainer (built with the checkpoint's configs)."""
+        by = meta.get("extras_by")
+        if by and type(self).checkpoint_extras is Trainer.checkpoint_extras:
+            raise ValueError(f"checkpoint holds the state of a {by} run; resume it with "
+                             f"{by}.resume, not as plain PPO")
         sd = {k[len("agent/"):]: v for k, v in tensors.items() if k.startswith("agent/")}
         self.agent.load_state_dict(sd)
         ckpt.optimizer_from_parts(self.optimizer, tensors, meta["optimizer"])
@@ -470,8 +482,9 @@ class Trainer:
     def resume(cls, path: str | Path, out: str | Path | None = None,
                run_overrides: dict[str, Any] | None = None,
                selector: ActionSelector | None = None,
-               walls_encoder: Any = None) -> Trainer:
-        """Rebuild a trainer from a checkpoint dir (or a run dir holding `checkpoint/`)."""
+               walls_encoder: Any = None, **build: Any) -> Trainer:
+        """Rebuild a trainer from a checkpoint dir (or a run dir holding `checkpoint/`).
+        ``build``: what a subclass's constructor needs besides the configs (e.g. experts)."""
         path = Path(path)
         if (path / "checkpoint").is_dir():
             path = path / "checkpoint"
@@ -481,7 +494,7 @@ class Trainer:
         obs_spec = ObservationSpec.from_dict(meta["observation"])
         trainer = cls(env_spec, obs_spec, ppo, run,
                       out=out if out is not None else path.parent, selector=selector,
-                      walls_encoder=walls_encoder)
+                      walls_encoder=walls_encoder, **build)
         saved = meta.get("walls_encoder", {}).get("digest")
         embedder = trainer.observer.embedder
         if saved is not None and (embedder is None or embedder.card["digest"] != saved):
