@@ -262,7 +262,7 @@ def kept_cells(pos, new_r, new_v, readings, readings_top, track_top, visits, vis
 @njit(cache=True, nogil=True, error_model="numpy")
 def odmtl_fill(actor, critic, pos, centre, rows, cols, w, readings, inv_r, ds_r, ds_v, inv_v,
                rt, walls, ds_w, others, walls_at, reduced_critic):  # pragma: no cover
-    """Write the ODMTL stacks (``Observer._observe_kept``) from the kept maps, env by env.
+    """Write the ODMTL stacks (``Observer._observe_odmtl``) from the kept maps, env by env.
 
     actor (B, N, C_a, w*w): windowed own location, windowed readings, downsized own location,
     [downsized others], downsized readings, downsized visits, and with walls (``walls_at`` >

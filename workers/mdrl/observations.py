@@ -57,12 +57,17 @@ Choices the thesis leaves open (ours):
   corners sample the input corner cells, as ``scipy.ndimage.zoom(order=1,
   grid_mode=False)``). The chain is linear and separable, so it is one precomputed matrix
   ``R`` (w*w, C) = kron(Zr Gr, Zc Gc) and a batch of maps is downsized by ``maps @ R.T``.
+
+How it is computed: a step changes the maps only at the agents' cells, so an observer keeps
+each env's maps (``_Kept``: transformed readings, visits, their maxima; for ODMTL the visits
+and walls downsized in exact fixed point) and updates them there (``Observer._sync``, for envs
+with ``episode_id`` and ``t``; others get fresh maps every call). ODMTL stacks are then written
+by one compiled pass (``kernels.odmtl_fill``). The result depends only on the env's state.
 """
 
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, fields
-from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -297,23 +302,25 @@ EXACT_COUNTS = 4096
 
 
 class _Kept:
-    """An ODMTL observer's maps of one env, brought up to date cell by cell (``Observer._sync``).
+    """An observer's maps of one env, brought up to date cell by cell (``Observer._sync``).
 
-    Per env row: the transformed readings map and its maximum; a copy of the visits, their
-    maximum and their downsized map in fixed point (exact, so the same whatever the order of
-    the updates); the walls and their downsized map (both change only at resets).
+    Per env row: the transformed readings map and its maximum, a copy of the visits and their
+    maximum; for ODMTL (``downsized`` = w * w) also the visits downsized in fixed point (exact,
+    so the same whatever the order of the updates), the walls and their downsized map (both
+    change only at resets).
     """
 
-    def __init__(self, env: Any, b: int, rows: int, cols: int, window: int) -> None:
+    def __init__(self, env: Any, b: int, cells: int, downsized: int) -> None:
         self.env, self.episode, self.t = env, None, None
-        self.readings = np.zeros((b, rows * cols), dtype=np.float32)
+        self.readings = np.zeros((b, cells), dtype=np.float32)
         self.readings_top = np.zeros(b, dtype=np.float32)
-        self.visits = np.zeros((b, rows * cols), dtype=np.float32)
+        self.visits = np.zeros((b, cells), dtype=np.float32)
         self.visits_top = np.zeros(b, dtype=np.float32)
-        self.ds_visits = np.zeros((b, window * window))  # fixed point (FIXED_POINT)
-        self.exact = True  # visits are integers <= EXACT_COUNTS, so ds_visits is exact
-        self.walls = np.zeros((b, rows * cols), dtype=bool)
-        self.ds_walls = np.zeros((b, window * window), dtype=np.float32)
+        self.ds_visits = np.zeros((b, downsized))  # fixed point (FIXED_POINT)
+        # visits are integers <= EXACT_COUNTS, so ds_visits is exact (and kept at all)
+        self.exact = downsized > 0
+        self.walls = np.zeros((b, cells), dtype=bool)
+        self.ds_walls = np.zeros((b, downsized), dtype=np.float32)
 
 
 def _normalise(maps: np.ndarray) -> np.ndarray:
@@ -405,13 +412,12 @@ class Observer:
             # integer (fixed-point) R^T for integer maps: exact products and sums in float64
             rq_t = np.round(downsize_matrix(rows, cols, w).T * FIXED_POINT)  # (C, w*w)
             self._rq_t = np.ascontiguousarray(rq_t)  # rows of cells: the kernels read them
+        else:
+            self._rq_t = np.zeros((self.cells, 0))  # DMTL / CMTL keep no downsized maps
         self._not_self = (~np.eye(agents, dtype=bool)).astype(np.int64)
         self._pair_i, self._pair_j = np.divmod(np.arange(agents * agents), agents)
-        self._one_hot = np.eye(w * w + 1, w * w, dtype=np.float32)  # row w * w: all zero
         self._buffers: dict[tuple, np.ndarray] = {}  # scratch space per batch size
-        # readings maps of the last envs observed (mean / fixed scale), updated cell by cell
-        self._readings_cache: dict[int, tuple[Any, np.ndarray, np.ndarray, np.ndarray]] = {}
-        # the big-batch ODMTL path's kept maps of the last envs observed (``_sync``)
+        # the maps of the last two envs observed, kept up to date cell by cell (``_sync``)
         self._kept: dict[int, _Kept] = {}
         self._belief = BeliefFilter(env_spec) if obs_spec.belief else None
         if obs_spec.scale == "fixed":
@@ -516,11 +522,11 @@ class Observer:
         pos, b = self._check(env)
         if out is not None:
             self._check_out(out, b)
+        kept = self._sync(env, b)
         if self.kind == "odmtl":
-            actor, critic = self._observe_odmtl(env, pos, b, out)
+            actor, critic = self._observe_odmtl(env, kept, pos, b, out)
         else:
-            readings = self._readings_map(env)
-            visits = np.asarray(env.visits, dtype=np.float32)
+            readings, visits = kept.readings, kept.visits
             # the walls map is binary, so it is already normalised
             walls = np.asarray(env.walls, dtype=np.float32) if self.walls else None
             shown = readings if self.obs_spec.scale == "fixed" else _normalise(readings)
@@ -530,40 +536,6 @@ class Observer:
         if self.embedder is not None:
             self._write_embedding(env, actor, critic)
         return (actor.reshape((b, -1) + self.actor_shape), critic.reshape((b,) + self.critic_shape))
-
-    def _readings_map(self, env: Any) -> np.ndarray:
-        """(B, C) float32 readings as the options say: last or mean per cell, raw or fixed-scale
-        (``log(1 + r) / log(1 + r_ref)``; the 'max' scale is applied by the builders).
-
-        The transformed maps are kept per env (the last two observed) and, for a row that
-        stepped once since (same ``episode_id``, ``t`` one more), only the agents' current
-        cells, the only cells a step reads at, are recomputed; every other row (reset, several
-        steps or none, restored) is recomputed whole. Same formula per cell, so the result is
-        bit-identical; callers never write into it."""
-        if self.obs_spec.readings != "mean" and self.obs_spec.scale != "fixed":
-            # last readings, max scale: the env's map as it is (the builders never write it)
-            return np.ascontiguousarray(env.readings, dtype=np.float32)
-        episode, t = getattr(env, "episode_id", None), getattr(env, "t", None)
-        if episode is None or t is None:  # a duck-typed env (expert adapters): no history
-            return self._readings_cells(env, slice(None), slice(None))
-        cached = self._readings_cache.get(id(env))
-        if cached is None or cached[0] is not env or cached[3].shape != np.shape(env.readings):
-            maps = self._readings_cells(env, slice(None), slice(None))
-        else:
-            _, old_episode, old_t, maps = cached
-            same = old_episode == episode
-            stepped = np.flatnonzero(same & (t == old_t + 1))
-            redo = np.flatnonzero(~same | (t != old_t + 1))  # not one step: trust nothing
-            if len(stepped):
-                rows = stepped[:, None]
-                cells = np.asarray(env.pos)[stepped]
-                maps[rows, cells] = self._readings_cells(env, rows, cells)
-            if len(redo):
-                maps[redo] = self._readings_cells(env, redo, slice(None))
-        if id(env) not in self._readings_cache and len(self._readings_cache) >= 2:
-            self._readings_cache.pop(next(iter(self._readings_cache)))
-        self._readings_cache[id(env)] = (env, np.array(episode), np.array(t), maps)
-        return maps
 
     def _readings_cells(self, env: Any, rows: Any, cells: Any) -> np.ndarray:
         """The transformed readings of ``[rows, cells]`` (index arrays or slices), float32;
@@ -687,7 +659,7 @@ class Observer:
         episode, t = getattr(env, "episode_id", None), getattr(env, "t", None)
         kept = self._kept.get(id(env)) if episode is not None and t is not None else None
         if kept is None or kept.env is not env or len(kept.readings) != b:
-            kept = _Kept(env, b, self.rows, self.cols, self.window)
+            kept = _Kept(env, b, self.cells, self._rq_t.shape[1])
             redo = np.arange(b)
         else:
             self._sync_cells(env, kept)
@@ -720,7 +692,7 @@ class Observer:
             kept.exact &= _small_counts(visits)
             if kept.exact:
                 kept.ds_visits[rows] = kernels.fixed_point_sum(visits, self._rq_t)
-        if self.walls:
+        if self.walls and self.kind == "odmtl":
             walls = np.asarray(env.walls)[rows].astype(bool)
             new = (walls != kept.walls[rows]).any(1)
             if new.any():
@@ -745,40 +717,17 @@ class Observer:
             kept.visits, kept.visits_top, kept.ds_visits, self._rq_t, kept.exact,
         )
 
-    #: From this many cells in a batch (B * C) the maps are kept between calls (``_sync``):
-    #: 30 x 30 from B = 583 on. Below, the bookkeeping costs about what it saves.
-    KEEP_FROM = 1 << 19
-
-    def _odmtl_maps(self, env: Any, b: int, centre: np.ndarray) -> SimpleNamespace:
-        """What the numpy ODMTL builder needs, per env (B, ...) or agent (B, N, ...), before
-        normalising: the readings map and its windows, 1 / max of readings and visits, the
-        downsized readings, visits and walls, the walls windows (float32 products)."""
-        fixed = self.obs_spec.scale == "fixed"
-        readings = self._readings_map(env)
-        visits = np.asarray(env.visits, dtype=np.float32)
-        index = self._window_index(centre)
-        maps = SimpleNamespace(readings=readings, visits=visits)
-        maps.inv_r = np.ones(b, np.float32) if fixed else _inverse_max(readings)
-        maps.inv_v = _inverse_max(visits)
-        maps.win_r = self._gather_windows(readings, index)
-        walls = np.asarray(env.walls, dtype=np.float32) if self.walls else None
-        ds = self._downsize(
-            [readings, visits] + ([walls] if self.walls and not self.embedding else [])
-        )
-        maps.ds_r, maps.ds_v = ds[0], ds[1]
-        if self.walls:
-            maps.win_w = self._gather_windows(walls, index)
-            if not self.embedding:
-                maps.ds_w = np.ascontiguousarray(ds[2]).reshape(b, -1)
-        return maps
-
-    def _observe_kept(self, env, pos, centre, b, out):
-        """The ODMTL stacks of a big batch, from the kept maps (``_sync``) by one compiled
-        pass (``kernels.odmtl_fill``). The downsized readings are the float32 product of
-        ``_observe_odmtl``, the downsized visits and walls exact fixed point (within 3e-7 of
-        the float32 products), so the stacks are a function of the env's state alone."""
-        w, ww = self.window, self.window**2
-        kept = self._sync(env, b)
+    def _observe_odmtl(self, env, kept, pos, b, out):
+        """The ODMTL stacks from the kept maps (``_sync``) by one compiled pass
+        (``kernels.odmtl_fill``). The downsized readings are a float32 product, the downsized
+        visits and walls exact fixed point (within 3e-7 of float32 products); the stacks are a
+        function of the env's state alone, whatever steps led to it."""
+        w, ww, p = self.window, self.window**2, self._pad
+        centre = np.asarray(env.past_pos(p))
+        if centre.shape != pos.shape:
+            raise ValueError(f"env.past_pos({p}) must have shape {pos.shape}, got {centre.shape}")
+        pos = np.ascontiguousarray(pos, dtype=np.int64)
+        centre = np.ascontiguousarray(centre, dtype=np.int64)
         critic_cells = self.cells if self.full_critic else ww
         actor, critic = self._outputs(
             out, (b, self.agents, self.actor_shape[0], ww), (b, self.critic_shape[0], critic_cells)
@@ -810,76 +759,6 @@ class Observer:
             critic[:, 2] = kept.visits * inv_v[:, None]
             if self.walls:
                 critic[:, 3] = np.asarray(env.walls, dtype=np.float32)
-        return actor, critic
-
-    def _observe_odmtl(self, env, pos, b, out):
-        n, w, p, ww, cols = self.agents, self.window, self._pad, self.window**2, self.cols
-        centre = np.asarray(env.past_pos(p))
-        if centre.shape != pos.shape:
-            raise ValueError(f"env.past_pos({p}) must have shape {pos.shape}, got {centre.shape}")
-        if b * self.cells >= self.KEEP_FROM and getattr(env, "episode_id", None) is not None:
-            return self._observe_kept(
-                env, np.ascontiguousarray(pos, dtype=np.int64),
-                np.ascontiguousarray(centre, dtype=np.int64), b, out,
-            )
-        maps = self._odmtl_maps(env, b, centre)
-        critic_cells = self.cells if self.full_critic else ww
-        actor, critic = self._outputs(
-            out, (b, n, self.actor_shape[0], ww), (b, self.critic_shape[0], critic_cells)
-        )
-        # (w, w) views of the same buffers, so downsized maps can be written as they come
-        actor_sq = actor.reshape(b, n, self.actor_shape[0], w, w)
-        # Normalising then windowing/downsizing equals windowing/downsizing then scaling by
-        # 1 / max (both are linear), which avoids writing normalised copies of the full maps.
-        inv_r, inv_v = maps.inv_r, maps.inv_v
-        # windowed own location: the current cell relative to the window centre
-        dr = pos // cols - centre // cols + p
-        dc = pos % cols - centre % cols + p
-        inside = (dr >= 0) & (dr < w) & (dc >= 0) & (dc < w)
-        actor[:, :, 0] = self._one_hot[np.where(inside, dr * w + dc, ww)]
-        if self.obs_spec.scale == "fixed":  # the fixed scale's 1 / max is 1
-            actor[:, :, 1] = maps.win_r
-        else:
-            np.multiply(maps.win_r, inv_r[:, None, None], out=actor[:, :, 1])
-        ds_loc = self._rt[pos]  # one-hot location maps downsize to columns of R: a gather
-        actor[:, :, 2] = ds_loc
-        ds_all = ds_loc[:, 0].copy()  # (B, w*w) downsized agent counts, not yet normalised
-        for i in range(1, n):  # agent by agent: the order of sum(axis=1), without its overhead
-            ds_all += ds_loc[:, i]
-        at_cell, top_others = self._occupancy(pos, b)
-        k = 3
-        if self.has_others:
-            others = np.subtract(ds_all[:, None, :], ds_loc, out=actor[:, :, k])
-            np.maximum(others, 0.0, out=others)  # clip float round-off
-            others /= top_others[:, :, None]
-            k += 1
-        ds_r = np.multiply(maps.ds_r, inv_r[:, None, None], order="C")  # (B, w, w), C order
-        ds_v = np.multiply(maps.ds_v, inv_v[:, None, None], order="C")
-        actor_sq[:, :, k] = ds_r[:, None]
-        actor_sq[:, :, k + 1] = ds_v[:, None]
-        top_count = at_cell.max(1, keepdims=True).astype(np.float32)
-        if self.full_critic:  # the m x n joint maps (DMTL's critic input)
-            counts = critic[:, 0]
-            counts[...] = 0.0
-            rows = np.arange(b)
-            for i in range(n):  # one agent at a time: indices unique, so += counts them all
-                counts[rows, pos[:, i]] += 1.0
-            counts /= top_count
-            critic[:, 1] = maps.readings * inv_r[:, None]
-            critic[:, 2] = maps.visits * inv_v[:, None]
-        else:
-            critic_sq = critic.reshape(b, self.critic_shape[0], w, w)
-            critic[:, 0] = ds_all / top_count
-            critic_sq[:, 1] = ds_r
-            critic_sq[:, 2] = ds_v
-        if self.walls:
-            actor[:, :, k + 2] = maps.win_w
-            if self.full_critic:
-                critic[:, 3] = np.asarray(env.walls, dtype=np.float32)
-            if not self.embedding:  # with a CAE its embedding replaces the downsized walls
-                actor[:, :, k + 3] = maps.ds_w[:, None]
-                if not self.full_critic:
-                    critic[:, 3] = maps.ds_w
         return actor, critic
 
 
