@@ -24,8 +24,8 @@ env steps to reach SR's final level), the issue's target ratios, and ``--png`` w
 (episode length against env steps and against wall-clock, mean over seeds, min-max band).
 
 Each finished run is cached as JSON under ``--out`` (``TASK-METHOD-sSEED-STEPS.json``), so an
-interrupted benchmark re-runs only what is missing; a killed IL or FRL run resumes from its
-last checkpoint (every ``CHECKPOINT_EVERY`` updates / rounds), the others restart from scratch.
+interrupted benchmark re-runs only what is missing, and a killed run resumes from its last
+checkpoint (every ``CHECKPOINT_EVERY`` updates, FRL rounds).
 
 Usage: python benchmarks/medc/run.py --steps 1000000 --seeds 0,1,2
        [--tasks A3W2,A3W3] [--methods sparse,sr,dc,medc,medc-faulty,il,frl]
@@ -132,18 +132,17 @@ def train_run(task: str, method: str, seed: int, steps: int, experts: list[str],
         obs = dataclasses.replace(obs, walls_embedding=CAE,
                                   walls_embedding_size=int(load_cae_card(CAE)["embedding"]))
     run = RunConfig(seed=seed, total_steps=steps, eval_every=eval_every,
-                    eval_episodes=CURVE_EPISODES, eval_seed=CURVE_SEED, checkpoint_every=0,
-                    tensorboard=False, progress=False)
+                    eval_episodes=CURVE_EPISODES, eval_seed=CURVE_SEED,
+                    checkpoint_every=CHECKPOINT_EVERY, tensorboard=False, progress=False)
     run_dir = out / f"{task}-{grid}x{grid}-{method}-s{seed}-{steps}"
-    resume = method in ("il", "frl") and (run_dir / "checkpoint").is_dir()
-    if run_dir.exists() and not resume:  # a killed run: start it again from scratch
+    resume = (run_dir / "checkpoint").is_dir()  # a killed run: go on from its checkpoint
+    if run_dir.exists() and not resume:  # killed before its first checkpoint: start again
         for f in sorted(run_dir.rglob("*"), reverse=True):
             f.unlink() if f.is_file() else f.rmdir()
     start = time.perf_counter()
     if method == "frl":
         from workers.mdrl.frl import THESIS_USERS, FederatedTrainer
 
-        run = dataclasses.replace(run, checkpoint_every=CHECKPOINT_EVERY)
         if resume:
             trainer: Any = FederatedTrainer.resume(run_dir, run_overrides=run.to_dict())
         else:
@@ -152,7 +151,6 @@ def train_run(task: str, method: str, seed: int, steps: int, experts: list[str],
     elif method == "il":
         from workers.mdrl.il import ImitationTrainer
 
-        run = dataclasses.replace(run, checkpoint_every=CHECKPOINT_EVERY)
         loaded = load_experts(experts, env, seed)
         if resume:  # refuses other experts than the checkpoint's (another --out for those)
             trainer = ImitationTrainer.resume(run_dir, run_overrides=run.to_dict(),
@@ -174,7 +172,10 @@ def train_run(task: str, method: str, seed: int, steps: int, experts: list[str],
             selector = DemonstrationSelector(load_experts(refs, env, seed), seed=seed,
                                              credit=method.endswith("-credit"),
                                              threshold=THRESHOLD)
-        trainer = Trainer(env, obs, ppo, run, out=run_dir, selector=selector)
+        if resume:  # the selector's per-episode state comes back from the checkpoint
+            trainer = Trainer.resume(run_dir, run_overrides=run.to_dict(), selector=selector)
+        else:
+            trainer = Trainer(env, obs, ppo, run, out=run_dir, selector=selector)
     before = trainer.elapsed  # training time of the killed run we resumed (0 if fresh)
     trainer.train()
     wall = time.perf_counter() - start + before
