@@ -13,6 +13,8 @@ COPY contracts contracts
 RUN pip install --no-cache-dir torch==2.13.0 --index-url https://download.pytorch.org/whl/cpu \
     && pip install --no-cache-dir -e .
 ENV DRLAAS_DATA_DIR=/data
+# the env's compiled loops (workers/mdrl/kernels.py) are compiled once and kept on the volume
+ENV NUMBA_CACHE_DIR=/data/numba-cache
 VOLUME /data
 EXPOSE 8000
 CMD ["uvicorn", "--factory", "backend.api.main:create_app", "--host", "0.0.0.0", "--port", "8000"]

@@ -57,6 +57,8 @@ ZOO: dict[str, ZooEntry] = {
     **{f"ch4-{u}-10x10": ZooEntry(f"ch4-{u}-sr-10x10", minutes=5)
        for u in ("a1w0", "a1w3", "a2w2")},
     "ch4-a3w3-10x10": ZooEntry("ch4-a3w3-sr-10x10", minutes=60),
+    # the same experts at the thesis size (30 x 30, no belief map), 20 minutes each
+    **{f"ch4-{u}-30x30": ZooEntry(f"ch4-{u}-sr", minutes=20) for u in ("a1w0", "a1w3", "a2w2")},
 }
 
 
