@@ -1,15 +1,17 @@
-"""Compiled loops (numba) for the env's reset geometry and the big-batch ODMTL observer.
+"""Compiled loops (numba) for the env's resets and steps and the observers' kept maps.
 
-Why compiled: a reset with walls needs a BFS and a wall-crossing count per layout, and an
-observation writes every agent's windows; as numpy array programs these were ~10 passes over
-(B, C) arrays each, which kept the Ch. 4 preset at ~350k agent-steps/s (issue 10 asks for 1M).
-As loops they touch each cell once. Every kernel computes the same numbers as the numpy
-formulas it replaced (integers exactly; floats in the same order of operations, float32
-where the numpy code was float32), so the env is bit-identical to them; the cell-by-cell
+Why compiled: a reset with walls needs a BFS and a wall-crossing count per layout, a step
+touches a few cells per env, and an ODMTL observation writes every agent's windows; as numpy
+array programs these were ~10 passes over (B, C) arrays each, which kept the Ch. 4 preset at
+~350k agent-steps/s (issue 10 asks for 1M; it is 1.1M now). As loops they touch each cell
+once. Every kernel computes the same numbers as the numpy formulas it replaced (integers
+exactly; floats in the same order of operations, float32 where the numpy code was float32;
+``exp`` and ``log1p`` stay numpy's), so the env is bit-identical to them; the cell-by-cell
 references in tests/mdrl/test_env.py and test_observations.py check that.
 
-Single-threaded on purpose: training runs PPO on the other core, and envs are batched already.
-``cache=True`` compiles once per machine (a few seconds) into ``__pycache__``.
+Single-threaded: a worker process is one core's job, and the batch already amortises the
+Python overhead. ``cache=True`` compiles once per machine (~5 s) into ``__pycache__`` (or
+``NUMBA_CACHE_DIR``).
 """
 
 from __future__ import annotations
@@ -217,7 +219,7 @@ def kept_cells(pos, new_r, new_v, readings, readings_top, track_top, visits, vis
         for b in range(b_count):
             for i in range(n):
                 v = new_v[b, i]
-                if not (v == np.round(v) and 0 <= v <= 4096):
+                if not (v == np.round(v) and 0 <= v <= 4096):  # observations.EXACT_COUNTS
                     exact = False
     for b in range(b_count):
         fell_r, fell_v = False, False
