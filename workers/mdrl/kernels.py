@@ -178,27 +178,30 @@ def mark_walls(walls, side, place, length):  # pragma: no cover - compiled
                 walls[e, q, n - 1 - j] = True
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _allowed(w, rows, cols, r, c, dr, dc):  # pragma: no cover - compiled
+    """The move rule (env module docstring): from (r, c) by (dr, dc) the move stays on the
+    grid, enters a free cell and, a diagonal, has both orthogonal cells beside it free."""
+    nr, nc = r + dr, c + dc
+    return (
+        0 <= nr < rows
+        and 0 <= nc < cols
+        and not w[nr * cols + nc]
+        and (dr == 0 or dc == 0 or not (w[r * cols + nc] or w[nr * cols + c]))
+    )
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
 def valid_moves(walls, rows, cols, moves):  # pragma: no cover - compiled
-    """bool (R, C, A): the move stays on the grid, its destination is free and (a diagonal)
-    both orthogonal cells beside it are free (no corner cutting)."""
+    """bool (R, C, A): which moves ``_allowed`` allows from every cell of every layout."""
     count, cells = walls.shape
-    actions = moves.shape[0]
-    out = np.empty((count, cells, actions), dtype=np.bool_)
-    free = np.zeros((rows + 2, cols + 2), dtype=np.bool_)  # a border of walls around the grid
+    out = np.empty((count, cells, moves.shape[0]), dtype=np.bool_)
     for e in range(count):
-        for r in range(rows):
-            for c in range(cols):
-                free[r + 1, c + 1] = not walls[e, r * cols + c]
-        for r in range(1, rows + 1):
-            for c in range(1, cols + 1):
-                x = (r - 1) * cols + c - 1
-                for a in range(actions):
-                    dr, dc = moves[a, 0], moves[a, 1]
-                    ok = free[r + dr, c + dc]
-                    if dr != 0 and dc != 0:
-                        ok = ok and free[r + dr, c] and free[r, c + dc]
-                    out[e, x, a] = ok
+        for x in range(cells):
+            for a in range(moves.shape[0]):
+                out[e, x, a] = _allowed(
+                    walls[e], rows, cols, x // cols, x % cols, moves[a, 0], moves[a, 1]
+                )
     return out
 
 
@@ -416,20 +419,12 @@ def record_readings(rows, cells, taken, readings, visits, reading_sum):  # pragm
 
 @njit(cache=True, nogil=True)
 def action_masks(env_rows, pos, walls, rows, cols, moves, idle_streak, idle_limit, mask):
-    """``mask[b]`` for the envs ``env_rows``: at each agent's cell, the moves that stay on the
-    grid, enter a free cell and (a diagonal) do not cut a wall corner; idle (move 0) only
-    while the team's idle streak is under the limit."""  # pragma: no cover - compiled
+    """``mask[b]`` for the envs ``env_rows``: at each agent's cell, the moves ``_allowed``
+    allows; idle (move 0) only while the team's idle streak is under the limit."""
     for j in range(len(env_rows)):
         b = env_rows[j]
-        w = walls[b]
         for i in range(pos.shape[1]):
             r, c = pos[b, i] // cols, pos[b, i] % cols
             for a in range(moves.shape[0]):
-                nr, nc = r + moves[a, 0], c + moves[a, 1]
-                mask[b, i, a] = (
-                    0 <= nr < rows
-                    and 0 <= nc < cols
-                    and not w[nr * cols + nc]
-                    and (nr == r or nc == c or not (w[r * cols + nc] or w[nr * cols + c]))
-                )
+                mask[b, i, a] = _allowed(walls[b], rows, cols, r, c, moves[a, 0], moves[a, 1])
             mask[b, i, 0] = mask[b, i, 0] and idle_streak[b] < idle_limit
