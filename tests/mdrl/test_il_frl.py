@@ -158,16 +158,22 @@ class Crash(Exception):
     """Stands for the process being killed."""
 
 
-def _crash_at(trainer, update: int) -> None:
-    """Make ``trainer`` die when it starts collecting update ``update`` (0-based)."""
+def _train(run, trainer, crash_at: int | None) -> None:
+    """``run.train()``; with ``crash_at``, ``trainer`` dies when it starts collecting that
+    update (0-based) and the run stops with ``Crash``."""
+    if crash_at is None:
+        run.train()
+        return
     real = trainer.collect
 
     def collect():
-        if trainer.update_idx == update:
+        if trainer.update_idx == crash_at:
             raise Crash
         return real()
 
     trainer.collect = collect
+    with pytest.raises(Crash):
+        run.train()
 
 
 def _metrics(path):
@@ -185,12 +191,7 @@ def _il_run(out, crash_at=None):
     run = _run(6 * TINY_PPO.batch_steps, checkpoint_every=2)
     trainer = ImitationTrainer(env, obs, TINY_PPO, run, out=out, experts=_il_experts(),
                                qos=[2.0, 1.0], il_share=0.5)
-    if crash_at is not None:
-        _crash_at(trainer, crash_at)
-        with pytest.raises(Crash):
-            trainer.train()
-    else:
-        trainer.train()
+    _train(trainer, trainer, crash_at)
     return trainer
 
 
@@ -237,12 +238,7 @@ def _frl_run(out, crash_at=None, rounds=4):
     frl = FederatedTrainer(USERS, obs, TINY_PPO,
                            _run(rounds * TINY_PPO.batch_steps, checkpoint_every=2),
                            target="A2W1", out=out)
-    if crash_at is not None:
-        _crash_at(frl.trainer, crash_at)  # the target is the 2nd user: A1W0 has collected
-        with pytest.raises(Crash):
-            frl.train()
-    else:
-        frl.train()
+    _train(frl, frl.trainer, crash_at)  # the target is the 2nd user: A1W0 has collected
     return frl
 
 

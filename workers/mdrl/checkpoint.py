@@ -11,6 +11,8 @@ from __future__ import annotations
 import json
 import os
 import shutil
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -115,21 +117,16 @@ def restore_env_state(env: Any, arrays: dict[str, np.ndarray], meta: dict[str, A
 
 
 # ---------------------------------------------------------------- files
-def save_checkpoint(path: str | Path, tensors: dict[str, torch.Tensor],
-                    env_arrays: dict[str, np.ndarray], meta: dict[str, Any]) -> Path:
-    """Write a checkpoint directory atomically (write to a temp dir, then rename)."""
+@contextmanager
+def atomic_dir(path: str | Path) -> Iterator[Path]:
+    """Yield a fresh temp dir beside ``path``; on success swap it in for ``path`` (the old one
+    moves aside first), so a crash leaves the previous directory whole."""
     path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
+    tmp, old = path.with_name(path.name + ".tmp"), path.with_name(path.name + ".old")
     if tmp.exists():
         shutil.rmtree(tmp)
     tmp.mkdir(parents=True)
-    save_torch({k: v.detach().contiguous() for k, v in tensors.items()},
-               str(tmp / "state.safetensors"))
-    save_numpy({k: np.ascontiguousarray(v) for k, v in env_arrays.items()},
-               str(tmp / "env.safetensors"))
-    doc = {"format": FORMAT, **meta}
-    (tmp / "state.json").write_text(json.dumps(doc, indent=1, sort_keys=True))
-    old = path.with_name(path.name + ".old")
+    yield tmp
     if path.exists():
         if old.exists():
             shutil.rmtree(old)
@@ -137,7 +134,19 @@ def save_checkpoint(path: str | Path, tensors: dict[str, torch.Tensor],
     os.replace(tmp, path)
     if old.exists():
         shutil.rmtree(old)
-    return path
+
+
+def save_checkpoint(path: str | Path, tensors: dict[str, torch.Tensor],
+                    env_arrays: dict[str, np.ndarray], meta: dict[str, Any]) -> Path:
+    """Write a checkpoint directory atomically (``atomic_dir``)."""
+    with atomic_dir(path) as tmp:
+        save_torch({k: v.detach().contiguous() for k, v in tensors.items()},
+                   str(tmp / "state.safetensors"))
+        save_numpy({k: np.ascontiguousarray(v) for k, v in env_arrays.items()},
+                   str(tmp / "env.safetensors"))
+        doc = {"format": FORMAT, **meta}
+        (tmp / "state.json").write_text(json.dumps(doc, indent=1, sort_keys=True))
+    return Path(path)
 
 
 def load_checkpoint(path: str | Path) -> tuple[dict[str, torch.Tensor], dict[str, np.ndarray],

@@ -22,8 +22,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import os
-import shutil
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -166,30 +164,19 @@ class FederatedTrainer:
     def save_checkpoint(self, path: str | Path) -> Path:
         """Write every user's checkpoint, the global model and the counters to a temp dir,
         then swap it in for ``path`` (a crash leaves the previous checkpoint whole)."""
-        path = Path(path)
-        tmp, old = path.with_name(path.name + ".tmp"), path.with_name(path.name + ".old")
-        if tmp.exists():
-            shutil.rmtree(tmp)
-        tmp.mkdir(parents=True)
-        for name, t in self.trainers.items():
-            t.save_checkpoint(tmp / "users" / name)
-        save_file({k: v.contiguous() for k, v in self.global_model.items()},
-                  str(tmp / "global.safetensors"))
-        target = self.trainer
-        meta = {"format": FORMAT, "rounds": self.rounds, "elapsed": self.elapsed,
-                "target": self.target, "local_updates": self.local_updates,
-                "users": [[name, t.env_spec.to_dict()] for name, t in self.trainers.items()],
-                "observation": target.obs_spec.to_dict(), "ppo": target.ppo.to_dict(),
-                "run": self.run.to_dict()}
-        (tmp / "frl.json").write_text(json.dumps(meta, indent=1))
-        if path.exists():
-            if old.exists():
-                shutil.rmtree(old)
-            os.replace(path, old)
-        os.replace(tmp, path)
-        if old.exists():
-            shutil.rmtree(old)
-        return path
+        with ckpt.atomic_dir(path) as tmp:
+            for name, t in self.trainers.items():
+                t.save_checkpoint(tmp / "users" / name)
+            save_file({k: v.contiguous() for k, v in self.global_model.items()},
+                      str(tmp / "global.safetensors"))
+            target = self.trainer
+            meta = {"format": FORMAT, "rounds": self.rounds, "elapsed": self.elapsed,
+                    "target": self.target, "local_updates": self.local_updates,
+                    "users": [[name, t.env_spec.to_dict()] for name, t in self.trainers.items()],
+                    "observation": target.obs_spec.to_dict(), "ppo": target.ppo.to_dict(),
+                    "run": self.run.to_dict()}
+            (tmp / "frl.json").write_text(json.dumps(meta, indent=1))
+        return Path(path)
 
     @classmethod
     def resume(cls, path: str | Path, out: str | Path | None = None,

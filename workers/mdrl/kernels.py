@@ -70,6 +70,15 @@ def walls_bfs(target, walls, rows, cols, moves, unreachable):  # pragma: no cove
     return dist
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _run(grid, start, step, count):  # pragma: no cover - compiled
+    """Wall cells in a row from ``start`` on, ``step`` apart, at most ``count``."""
+    k = 0
+    while k < count and grid[start + k * step]:
+        k += 1
+    return k
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
 def _runs(grid, rows, cols):  # pragma: no cover - compiled
     """Run lengths of wall cells from each side: top/bottom per column, left/right per row."""
@@ -78,23 +87,11 @@ def _runs(grid, rows, cols):  # pragma: no cover - compiled
     left = np.zeros(rows, dtype=np.int64)
     right = np.zeros(rows, dtype=np.int64)
     for c in range(cols):
-        r = 0
-        while r < rows and grid[r * cols + c]:
-            r += 1
-        top[c] = r
-        r = 0
-        while r < rows and grid[(rows - 1 - r) * cols + c]:
-            r += 1
-        bottom[c] = r
+        top[c] = _run(grid, c, cols, rows)
+        bottom[c] = _run(grid, (rows - 1) * cols + c, -cols, rows)
     for r in range(rows):
-        c = 0
-        while c < cols and grid[r * cols + c]:
-            c += 1
-        left[r] = c
-        c = 0
-        while c < cols and grid[r * cols + cols - 1 - c]:
-            c += 1
-        right[r] = c
+        left[r] = _run(grid, r * cols, 1, cols)
+        right[r] = _run(grid, r * cols + cols - 1, -1, cols)
     return top, bottom, left, right
 
 

@@ -319,7 +319,7 @@ class _Kept:
         self.ds_visits = np.zeros((b, downsized))  # fixed point (FIXED_POINT)
         # visits are integers <= EXACT_COUNTS, so ds_visits is exact (and kept at all)
         self.exact = downsized > 0
-        self.walls = np.zeros((b, cells), dtype=bool)
+        self.walls = np.zeros((b if downsized else 0, cells), dtype=bool)  # ODMTL's windows
         self.ds_walls = np.zeros((b, downsized), dtype=np.float32)
 
 
