@@ -103,7 +103,19 @@ def test_oversize_pickled_and_bad_card_bundles_are_refused(store, tmp_path: Path
     not_json = bundle(store, **{"model.json": b"{not json"})
     assert "not JSON" in refused(store, not_json, tmp_path)
     bad_env = bundle(store, **{"model.json": json.dumps({**card, "env": {"rows": -1}}).encode()})
-    assert "cannot be rebuilt" in refused(store, bad_env, tmp_path)
+    assert "env.rows: must be in" in refused(store, bad_env, tmp_path)
+
+    # an expert's card is bounded as a task spec is: a huge grid or window would exhaust the
+    # worker's memory when the expert's observer is built, so it is refused naming the field
+    huge = {**card, "env": {**card["env"], "rows": 100_000, "cols": 100_000}}
+    assert "env.rows" in refused(store, bundle(store, **{"model.json": json.dumps(huge).encode()}),
+                                 tmp_path)
+    wide = {**card, "observation": {**card["observation"], "window": 10_001}}
+    assert "observation.window" in refused(
+        store, bundle(store, **{"model.json": json.dumps(wide).encode()}), tmp_path)
+    crowd = {**card, "env": {**card["env"], "agents": 5_000}}
+    assert "env.agents" in refused(
+        store, bundle(store, **{"model.json": json.dumps(crowd).encode()}), tmp_path)
 
     extra = bundle(store, **{"run.py": b"print('hi')"})
     assert "exactly" in refused(store, extra, tmp_path)
