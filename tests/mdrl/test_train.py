@@ -282,3 +282,36 @@ def test_train_command_needs_a_budget(tmp_path):
     res = CliRunner().invoke(make_app(), ["train", "--out", str(tmp_path / "x")])
     assert res.exit_code != 0
     assert "budget" in res.output
+
+
+@pytest.mark.parametrize(("args", "named"), [
+    (["--preset", "odmtl-3a-10x1O"], ["--preset", "unknown preset 'odmtl-3a-10x1O'"]),
+    (["--config", "{dir}/missing.toml"], ["--config", "not found"]),
+    (["--config", "{dir}/typo.toml"], ["--config", "rows must be an integer"]),
+    (["--config", "{dir}/nonsense.toml"], ["--config", "must be a table"]),
+])
+def test_train_command_names_a_bad_preset_or_config_without_a_traceback(tmp_path, args, named):
+    (tmp_path / "typo.toml").write_text('[env]\nrows = "ten"\n')
+    (tmp_path / "nonsense.toml").write_text("env = 3\n")
+    args = [a.format(dir=tmp_path) for a in args]
+    res = CliRunner().invoke(make_app(), ["train", *args, "--steps", "64",
+                                          "--out", str(tmp_path / "run"), "--no-progress"])
+    assert res.exit_code == 2, res.output  # a usage error, not a crash
+    assert res.exception is None or isinstance(res.exception, SystemExit)
+    flat = " ".join(res.output.replace("│", " ").split())
+    assert all(n in flat for n in named), flat
+    assert not (tmp_path / "run").exists()
+
+
+def test_train_command_prints_json_with_null_for_figures_without_episodes(tmp_path):
+    """A run shorter than any episode has no training success: null, not NaN (not JSON)."""
+    cfg = tmp_path / "tiny.toml"
+    cfg.write_text('preset = "odmtl-2a-10x10"\n'
+                   '[ppo]\nhorizon = 2\nnum_envs = 2\nupdate_epochs = 1\n'
+                   '[run]\neval_episodes = 2\neval_every = 1\n')
+    res = CliRunner().invoke(make_app(), ["train", "--config", str(cfg), "--steps", "2",
+                                          "--out", str(tmp_path / "run"), "--no-progress"])
+    assert res.exit_code == 0, res.output
+    line = res.output.strip().splitlines()[-1]
+    summary = json.loads(line, parse_constant=lambda c: pytest.fail(f"{c} in {line}"))
+    assert summary["train_success"] is None

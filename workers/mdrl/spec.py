@@ -123,6 +123,7 @@ class EnvSpec:
     readings: str = "poisson"
 
     def __post_init__(self) -> None:
+        _check_types(self)
         problems = []
         if self.rows < 2 or self.cols < 2:
             problems.append(f"grid must be at least 2x2, got {self.rows}x{self.cols}")
@@ -218,6 +219,44 @@ class EnvSpec:
             if d.get(key) is not None:
                 d[key] = tuple(d[key])
         return cls(**d)
+
+
+_INT_FIELDS = ("rows", "cols", "agents", "moves", "max_steps", "idle_limit")
+_REAL_FIELDS = ("sparse_bonus", "detector_area_cm2", "dwell_min", "wall_mu_per_cm",
+                "wall_thickness_cm")
+_PAIR_FIELDS = {"area_m": (int, float, np.integer, np.floating), "walls": (int, np.integer),
+                "wall_length": (int, np.integer)}
+
+
+def _check_types(spec: EnvSpec) -> None:
+    """ValueError naming the field when a config or card gives a value of the wrong type
+    (``rows = "x"``), before a comparison fails with a TypeError that names nothing."""
+
+    def bad(name: str, want: str) -> ValueError:
+        return ValueError(f"environment field {name} must be {want}, got "
+                         f"{getattr(spec, name)!r}")
+
+    for name in _INT_FIELDS:
+        v = getattr(spec, name)
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)):
+            raise bad(name, "an integer")
+    for name in _REAL_FIELDS:
+        v = getattr(spec, name)
+        number = isinstance(v, (int, float, np.number)) and not isinstance(v, bool)
+        if not number or not math.isfinite(v):
+            raise bad(name, "a finite number")
+    for name, kinds in _PAIR_FIELDS.items():
+        v = getattr(spec, name)
+        if v is None and name == "wall_length":
+            continue
+        if not (isinstance(v, tuple) and len(v) == 2 and all(
+                isinstance(x, kinds) and not isinstance(x, bool) for x in v)):
+            raise bad(name, "a pair of " + ("numbers" if name == "area_m" else "integers"))
+    for name in ("reward", "readings"):
+        if not isinstance(getattr(spec, name), str):
+            raise bad(name, "a string")
+    if not isinstance(spec.intensity, IntensitySpec):
+        raise bad("intensity", "an IntensitySpec")
 
 
 def parse_grid(text: str) -> tuple[int, int]:

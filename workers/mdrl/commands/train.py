@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 from typing import Annotated
 
@@ -81,7 +82,11 @@ def train(
         trainer = Trainer.resume(resume, out=out, run_overrides=run_changes,
                                  selector=_resume_selector(resume))
     else:
-        chosen = load_config(config) if config is not None else get_preset(preset)
+        try:
+            chosen = get_preset(preset) if config is None else load_config(config)
+        except (OSError, ValueError, TypeError, KeyError) as exc:  # the message names the field
+            raise typer.BadParameter(str(exc), param_hint="--preset" if config is None
+                                     else "--config") from None
         ppo = chosen.ppo
         if num_envs is not None:
             ppo = dataclasses.replace(ppo, num_envs=num_envs)
@@ -99,7 +104,9 @@ def train(
               "env_steps": trainer.global_step, "updates": trainer.update_idx,
               "wall_time_s": round(trainer.elapsed, 1), **trainer.last_eval,
               "train_success": summary.get("success")}
-    typer.echo(json.dumps(result))
+    # JSON has no NaN (a figure with no episode behind it, e.g. a run shorter than an episode)
+    typer.echo(json.dumps({k: None if isinstance(v, float) and math.isnan(v) else v
+                           for k, v in result.items()}))
 
 
 # ------------------------------------------------------------------ experts (DC / MEDC)
