@@ -266,7 +266,7 @@ contract UsersManager {
         if (workerId[msg.sender] != 0) revert UsersAlreadyRegistered(msg.sender);
         if (domains == 0 || domains >> (MAX_DOMAIN + 1) != 0) revert UsersBadDomains(domains);
         uint256 count = 0;
-        for (uint256 rest = domains; rest != 0; rest &= rest - 1) ++count;
+        for (uint256 bits = domains; bits != 0; bits &= bits - 1) ++count;
         if (count > MAX_WORKER_DOMAINS) revert UsersTooManyDomains(domains, MAX_WORKER_DOMAINS);
         bool pending = approvalRequired;
         Status status = pending ? Status.Pending : Status.Active;
