@@ -111,3 +111,53 @@ def test_intensity_hypotheses_discretise_a_uniform_prior():
     vals, prior = intensity_hypotheses(EnvSpec(intensity=IntensitySpec.uniform(1e8, 9e8)), 4)
     np.testing.assert_allclose(vals, [2e8, 4e8, 6e8, 8e8])
     np.testing.assert_allclose(prior, 0.25)
+
+
+CH4 = EnvSpec(rows=30, cols=30, area_m=(1500.0, 1500.0), agents=3, moves=8, walls=(3, 3),
+              reward="sparse")
+"""The Ch. 4 size, where the filter keeps running sums instead of C x C matrices."""
+
+
+@pytest.mark.parametrize("spec", [
+    CH4,  # with the env's pair tables
+    EnvSpec(rows=36, cols=36, area_m=(1800.0, 1800.0), agents=2, moves=8, walls=(1, 3)),  # none
+    EnvSpec(rows=10, cols=10, agents=2),  # no walls
+])
+def test_unit_count_columns_are_the_env_reading_model_bit_for_bit(spec):
+    """Column x of the unit counts (the filter's one new visited cell) is exactly what
+    ``expected_counts`` gives with the source at each c, per layout."""
+    env = TargetLocalizationEnv(spec, num_envs=4, seed=3)
+    cells = np.arange(spec.num_cells)
+    for e in range(4):
+        walls = np.broadcast_to(env.walls[e], (len(cells), len(cells)))
+        by_source = env.expected_counts(cells, walls, np.ones(len(cells)))  # (c, x)
+        assert np.array_equal(env.unit_counts_at(cells, walls), by_source.T)
+
+
+def test_running_sums_equal_a_filter_started_from_scratch_at_the_ch4_size():
+    """The long-lived filter adds one column per new reading; a filter created at any step
+    rebuilds the sums from the env's readings: both give the same posterior, across resets."""
+    env = TargetLocalizationEnv(CH4, num_envs=6, seed=4, autoreset=True)
+    belief, policy = BeliefFilter(CH4), RandomPolicy(seed=4)
+    episodes = env.episode_id.copy()
+    for _ in range(40):
+        np.testing.assert_allclose(belief.posterior(env), BeliefFilter(CH4).posterior(env),
+                                   rtol=1e-9, atol=1e-12)
+        env.step(policy.act(env))
+    assert (env.episode_id > episodes).any()  # some env started a new episode on the way
+
+
+def test_a_state_restored_to_an_earlier_step_gets_its_posterior_back():
+    """A state restored to an earlier step of the same episode (fewer visits) gets that
+    step's posterior back."""
+    env = TargetLocalizationEnv(CH4, num_envs=3, seed=5, autoreset=False)
+    belief, policy = BeliefFilter(CH4), RandomPolicy(seed=5)
+    env.step(policy.act(env))
+    saved = {k: getattr(env, k).copy() for k in ("pos", "reading_sum", "visits", "readings")}
+    earlier = belief.posterior(env)
+    for _ in range(4):
+        env.step(policy.act(env))
+    belief.posterior(env)
+    for k, v in saved.items():
+        getattr(env, k)[...] = v
+    np.testing.assert_allclose(belief.posterior(env), earlier, rtol=1e-9, atol=1e-12)

@@ -289,6 +289,58 @@ class TargetLocalizationEnv:
             return mean
         return mean * self._transmission(target, walls)
 
+    def unit_counts_at(self, cells: np.ndarray, walls: np.ndarray) -> np.ndarray:
+        """(R, C): ``out[r, c]`` is the mean reading at cell ``cells[r]`` per unit intensity with
+        the source at c, under layout ``walls[r]`` (R, C): column ``cells[r]`` of the matrix
+        whose row c is ``expected_counts([c], ...)``, the same values bit for bit."""
+        cells = np.ascontiguousarray(cells, dtype=np.int64)
+        gain = self._free_gain[cells]  # (R, C): free_gain[c, x] (the table is symmetric)
+        walls = np.ascontiguousarray(walls, dtype=bool)
+        if not walls.any():
+            return gain
+        spec = self.spec
+        cy, cx = spec.cell_size_m
+        slant = kernels.slant_at(cells, walls, self.centre_m, *self._slant_rows(cells),
+                                 spec.rows, spec.cols, cy, cx)
+        return gain * np.exp(-spec.wall_mu_per_cm * spec.wall_thickness_cm * slant)
+
+    def add_unit_counts(self, sum_log: np.ndarray, sum_gain: np.ndarray, envs: np.ndarray,
+                        cells: np.ndarray, d_reading: np.ndarray, d_visits: np.ndarray,
+                        floor: float) -> None:
+        """For the belief filter (belief.py): for each new reading r, at cell ``cells[r]`` of env
+        ``envs[r]``, add ``d_reading[r] * log max(g(c, x), floor)`` to ``sum_log[e]`` and
+        ``d_visits[r] *
+        g(c, x)`` to ``sum_gain[e]`` for every source c, g the unit counts of
+        ``unit_counts_at`` under the env's walls; one compiled pass (``kernels.belief_add``)."""
+        spec = self.spec
+        cy, cx = spec.cell_size_m
+        cells = np.ascontiguousarray(cells, dtype=np.int64)
+        if not hasattr(self, "_log_free_gain"):
+            self._log_free_gain = np.log(np.maximum(self._free_gain, floor))
+        kernels.belief_add(
+            sum_log, sum_gain, np.ascontiguousarray(envs, dtype=np.int64), cells,
+            np.ascontiguousarray(d_reading, dtype=np.float64),
+            np.ascontiguousarray(d_visits, dtype=np.float64), self.walls, self._free_gain,
+            self._log_free_gain, spec.wall_mu_per_cm * spec.wall_thickness_cm, self.centre_m,
+            *self._slant_rows(cells), spec.rows, spec.cols, cy, cx, float(np.log(floor)),
+        )
+
+    def _slant_rows(self, cells: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(slant_x, slant_y, row): the length over |dx| and |dy| of the pairs (detector
+        ``cells[r]``, every source) in row ``row[r]`` (the env's symmetric tables when it has
+        them, else computed here; unused without walls)."""
+        if hasattr(self, "_slant_x"):
+            return self._slant_x, self._slant_y, cells
+        if not self.spec.walls[1]:
+            zero = np.zeros((1, self.spec.num_cells))
+            return zero, zero, np.zeros(len(cells), dtype=np.int64)
+        py, px = self.centre_m[cells, 0][:, None], self.centre_m[cells, 1][:, None]
+        qy, qx = self.centre_m[None, :, 0], self.centre_m[None, :, 1]  # sources (1, C)
+        length = np.hypot(py - qy, px - qx)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return (length / np.abs(px - qx), length / np.abs(py - qy),
+                    np.arange(len(cells), dtype=np.int64))
+
     def _transmission(self, target: np.ndarray, walls: np.ndarray) -> np.ndarray:
         """Beer-Lambert exp(-mu t / cos(theta)) per wall crossed by the detector-source line.
 

@@ -116,13 +116,19 @@ def _slab_counts(count, q_a, q_s, centre, a_axis, near, far, size_a, size_s, spa
         for k in range(lo, hi):
             for o in range(others):
                 p = o * cols + k if a_axis == 1 else k * cols + o
-                a_p, s_p = centre[p, a_axis], centre[p, 1 - a_axis]
-                dp = a_p - aw
-                s = s_p + dp / (dp - dq) * (q_s - s_p)
-                if (near[line] > 0 and s <= near[line] * size_s) or (
-                    far[line] > 0 and s >= (span - far[line]) * size_s
-                ):
+                if _crosses(centre[p, a_axis], centre[p, 1 - a_axis], q_a, q_s, aw, dq,
+                            near[line], far[line], size_s, span):
                     count[p] += 1
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _crosses(a_p, s_p, q_a, q_s, aw, dq, near, far, size_s, span):  # pragma: no cover - compiled
+    """Whether the line from the detector (a_p, s_p) to the source (q_a, q_s), on the other
+    side of the slab line a = aw (dq = q_a - aw), crosses it on the wall run from the near or
+    the far side (``_slab_counts``)."""
+    dp = a_p - aw
+    s = s_p + dp / (dp - dq) * (q_s - s_p)
+    return (near > 0 and s <= near * size_s) or (far > 0 and s >= (span - far) * size_s)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -155,6 +161,90 @@ def wall_slant(target, walls, centre, slant_x, slant_y, slant_row, rows, cols, s
                 y += sy[p]
             out[e, p] = x + y
     return out
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _pair_slant(p, q, centre, sx, sy, col_lines, row_lines, top, bottom, left, right, rows,
+                cols, size_y, size_x):  # pragma: no cover - compiled
+    """``wall_slant``'s value for the detector at cell p and the source at cell q, bit for bit
+    (same crossing test, same sums), looking only at the lines that hold a wall. ``sx``/``sy``:
+    the pair's length over |dx| and |dy|."""
+    py, px = centre[p, 0], centre[p, 1]
+    qy, qx = centre[q, 0], centre[q, 1]
+    pr, pc = p // cols, p % cols
+    along = 0  # slabs on column lines (a = x), as _slab_counts(axis 1)
+    for line in col_lines:
+        aw = (line + 0.5) * size_x
+        dq = qx - aw
+        if ((dq > 0 and pc < line) or (dq < 0 and pc > line)) and _crosses(
+                px, py, qx, qy, aw, dq, top[line], bottom[line], size_y, rows):
+            along += 1
+    across = 0  # slabs on row lines (a = y)
+    for line in row_lines:
+        aw = (line + 0.5) * size_y
+        dq = qy - aw
+        if ((dq > 0 and pr < line) or (dq < 0 and pr > line)) and _crosses(
+                py, px, qy, qx, aw, dq, left[line], right[line], size_x, cols):
+            across += 1
+    x = 0.0
+    for _ in range(along):
+        x += sx
+    y = 0.0
+    for _ in range(across):
+        y += sy
+    return x + y
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def slant_at(cells, walls, centre, slant_x, slant_y, slant_row, rows, cols, size_y, size_x):
+    """(R, C) float64: for the detector at ``cells[r]`` under layout ``walls[r]`` and every
+    source c, ``wall_slant``'s value of that pair: a column of the env's unit counts.
+    ``slant_x``/``slant_y`` (S, C): row ``slant_row[r]`` holds the pairs' length over |dx| and
+    |dy| for detector r and each source (the env's tables are symmetric).
+    """  # pragma: no cover - compiled
+    count, n_cells = walls.shape
+    out = np.zeros((count, n_cells))
+    for r in range(count):
+        top, bottom, left, right = _runs(walls[r], rows, cols)
+        col_lines = np.flatnonzero((top > 0) | (bottom > 0))  # the few lines with a wall
+        row_lines = np.flatnonzero((left > 0) | (right > 0))
+        sx, sy = slant_x[slant_row[r]], slant_y[slant_row[r]]
+        for c in range(n_cells):
+            out[r, c] = _pair_slant(cells[r], c, centre, sx[c], sy[c], col_lines, row_lines, top,
+                                    bottom, left, right, rows, cols, size_y, size_x)
+    return out
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def belief_add(sum_log, sum_gain, envs, cells, d_reading, d_visits, walls, free_gain,
+               log_free_gain, mu_t, centre, slant_x, slant_y, slant_row, rows, cols, size_y,
+               size_x, log_floor):
+    """The belief filter's update (belief.py) for new readings: for each (env, cell x) r,
+    ``sum_log[e, c] += d_reading[r] * max(log g(c, x), log_floor)`` and ``sum_gain[e, c] +=
+    d_visits[r] * g(c, x)`` for every source c, with g the env's unit count: the free gain
+    times exp(-mu t slant) (the slant of ``_pair_slant``), so log g = log free gain - mu t
+    slant, no log per pair. One pass, no (R, C) temporaries.
+    """  # pragma: no cover - compiled
+    n_cells = walls.shape[1]
+    for r in range(len(cells)):
+        e, x = envs[r], cells[r]
+        top, bottom, left, right = _runs(walls[e], rows, cols)
+        col_lines = np.flatnonzero((top > 0) | (bottom > 0))
+        row_lines = np.flatnonzero((left > 0) | (right > 0))
+        walled = len(col_lines) + len(row_lines) > 0
+        sx, sy = slant_x[slant_row[r]], slant_y[slant_row[r]]
+        gain, log_gain = free_gain[x], log_free_gain[x]
+        dr, dv = d_reading[r], d_visits[r]
+        for c in range(n_cells):
+            g, lg = gain[c], log_gain[c]
+            if walled:
+                slant = _pair_slant(x, c, centre, sx[c], sy[c], col_lines, row_lines, top,
+                                    bottom, left, right, rows, cols, size_y, size_x)
+                if slant > 0.0:
+                    g = g * np.exp(-mu_t * slant)
+                    lg = max(lg - mu_t * slant, log_floor)
+            sum_log[e, c] += dr * lg
+            sum_gain[e, c] += dv * g
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
