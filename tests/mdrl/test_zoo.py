@@ -3,6 +3,7 @@ on fresh episodes."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from pathlib import Path
@@ -53,3 +54,37 @@ def test_card_figures_hold_on_200_fresh_episodes(name):
                 f"{name} {readings} {key}: card {claimed[key]:.2f}, fresh "
                 f"{fresh[f'{key}_mean']:.2f} ± {half:.2f}"
             )
+
+
+def test_a_zoo_entry_with_experts_trains_under_them_and_resumes_with_them(tmp_path, monkeypatch):
+    """An entry's experts (zoo names) guide its run (MEDC), are listed on the card, and a
+    resumed run keeps them and their counts."""
+    import shutil
+
+    from workers.mdrl import zoo
+
+    models = tmp_path / "models"
+    for name in ("ch4-a1w0-10x10", "ch4-a2w2-10x10"):
+        shutil.copytree(MODELS / name, models / name)
+    steps = 8192  # one update of the preset
+    monkeypatch.setitem(zoo.ZOO, "guided", zoo.ZooEntry(
+        "ch4-a3w3-sparse-10x10", minutes=5, steps=steps,
+        experts=("ch4-a1w0-10x10", "ch4-a2w2-10x10")))
+    monkeypatch.setattr(zoo, "heldout", lambda policy, spec: {"episodes": 0})
+
+    def experts_of(target: Path) -> dict:
+        return json.loads((target / "model.json").read_text())["training"]["experts"]
+
+    first = experts_of(zoo.train_entry("guided", models, tmp_path / "runs"))
+    assert first["method"] == "MEDC (Alg. 5.1)"
+    assert [e["ref"] for e in first["experts"]] == [str(models / n) for n in
+                                                    ("ch4-a1w0-10x10", "ch4-a2w2-10x10")]
+    guided = sum(e["episodes"] for e in first["experts"])
+    assert guided > 0 and first["own_episodes"] > 0
+
+    monkeypatch.setitem(zoo.ZOO, "guided", dataclasses.replace(zoo.ZOO["guided"], steps=2 * steps))
+    target = zoo.train_entry("guided", models, tmp_path / "runs")
+    again = experts_of(target)
+    assert json.loads((target / "model.json").read_text())["zoo"]["env_steps"] == 2 * steps
+    assert [e["ref"] for e in again["experts"]] == [e["ref"] for e in first["experts"]]
+    assert sum(e["episodes"] for e in again["experts"]) > guided  # counts carried over, grown

@@ -41,9 +41,12 @@ class ZooEntry:
     minutes: float
     seed: int = 0
     steps: int | None = None
+    experts: tuple[str, ...] = ()
+    """Zoo models (names in the same models directory) guiding the run as MEDC experts."""
 
 
 _ODMTL_MINUTES = {2: 30, 3: 30, 4: 30, 10: 25}
+_CH4_EXPERTS_30 = tuple(f"ch4-{u}-30x30" for u in ("a1w0", "a1w3", "a2w2"))
 
 ZOO: dict[str, ZooEntry] = {
     # 25-30 minutes (the issue's bound per model) where a 6-minute run missed Table 3.5
@@ -59,6 +62,9 @@ ZOO: dict[str, ZooEntry] = {
     "ch4-a3w3-10x10": ZooEntry("ch4-a3w3-sr-10x10", minutes=60),
     # the same experts at the thesis size (30 x 30, no belief map), 20 minutes each
     **{f"ch4-{u}-30x30": ZooEntry(f"ch4-{u}-sr", minutes=20) for u in ("a1w0", "a1w3", "a2w2")},
+    # the final A3W3 policy at the thesis size: the shaped reward with the three experts above
+    # guiding it (MEDC, Alg. 5.1 defaults)
+    "ch4-a3w3-30x30": ZooEntry("ch4-a3w3-sr", minutes=61, experts=_CH4_EXPERTS_30),
 }
 
 
@@ -138,7 +144,9 @@ def train_entry(name: str, models: Path, runs: Path, minutes: float | None = Non
     if entry.preset == "generalist":
         trainer, spec = _generalist(entry, run_dir, budget), None
     else:
-        trainer, spec = _trainer(entry, run_dir, budget, progress), get_preset(entry.preset).env
+        experts = tuple(str(models / e) for e in entry.experts)
+        trainer = _trainer(entry, run_dir, budget, progress, experts)
+        spec = get_preset(entry.preset).env
     trainer.train()
     target = models / name
     if target.exists():
@@ -166,14 +174,23 @@ def _generalist(entry: ZooEntry, run_dir: Path, budget: dict[str, Any]) -> Any:
     return GeneralistTrainer(ppo, run, run_dir)
 
 
-def _trainer(entry: ZooEntry, run_dir: Path, budget: dict[str, Any], progress: bool) -> Any:
+def _trainer(entry: ZooEntry, run_dir: Path, budget: dict[str, Any], progress: bool,
+             experts: tuple[str, ...] = ()) -> Any:
+    from workers.mdrl.medc import DemonstrationConfig, DemonstrationSelector, resume_selector
     from workers.mdrl.train import RunConfig, Trainer
 
     preset = get_preset(entry.preset)
     if (run_dir / "checkpoint").is_dir():
-        trainer = Trainer.resume(run_dir, run_overrides={**budget, "progress": progress})
+        meta = json.loads((run_dir / "checkpoint" / "state.json").read_text())
+        trainer = Trainer.resume(run_dir, run_overrides={**budget, "progress": progress},
+                                 selector=resume_selector(meta))
     else:
         run = RunConfig.from_dict({**preset.run, **budget, "seed": entry.seed,
                                    "progress": progress, "tensorboard": False})
-        trainer = Trainer(preset.env, preset.observation, preset.ppo, run, out=run_dir)
+        selector = None
+        if experts:
+            selector = DemonstrationSelector.from_config(
+                DemonstrationConfig(experts, ()), preset.env, seed=entry.seed)
+        trainer = Trainer(preset.env, preset.observation, preset.ppo, run, out=run_dir,
+                          selector=selector)
     return trainer
