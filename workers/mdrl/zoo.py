@@ -63,8 +63,11 @@ ZOO: dict[str, ZooEntry] = {
     # the same experts at the thesis size (30 x 30, no belief map), 20 minutes each
     **{f"ch4-{u}-30x30": ZooEntry(f"ch4-{u}-sr", minutes=20) for u in ("a1w0", "a1w3", "a2w2")},
     # the final A3W3 policy at the thesis size: the shaped reward with the three experts above
-    # guiding it (MEDC, Alg. 5.1 defaults)
+    # guiding it (MEDC, Alg. 5.1 defaults), on the thesis observation and on the product one
+    # (with the team's belief map)
     "ch4-a3w3-30x30": ZooEntry("ch4-a3w3-sr", minutes=61, experts=_CH4_EXPERTS_30),
+    "ch4-a3w3-belief-30x30": ZooEntry("ch4-a3w3-sr-belief", minutes=75,
+                                      experts=_CH4_EXPERTS_30),
 }
 
 
