@@ -164,6 +164,20 @@ def wall_slant(target, walls, centre, slant_x, slant_y, slant_row, rows, cols, s
 
 
 @njit(cache=True, nogil=True, inline="always")
+def _line_crossings(k, a_p, s_p, q_a, q_s, lines, near, far, size_a, size_s, span):
+    """Slabs of one orientation (on ``lines``) that the line from the detector (index k along
+    the a axis, at (a_p, s_p)) to the source (q_a, q_s) crosses."""  # pragma: no cover
+    n = 0
+    for line in lines:
+        aw = (line + 0.5) * size_a
+        dq = q_a - aw
+        if ((dq > 0 and k < line) or (dq < 0 and k > line)) and _crosses(
+                a_p, s_p, q_a, q_s, aw, dq, near[line], far[line], size_s, span):
+            n += 1
+    return n
+
+
+@njit(cache=True, nogil=True, inline="always")
 def _pair_slant(p, q, centre, sx, sy, col_lines, row_lines, top, bottom, left, right, rows,
                 cols, size_y, size_x):  # pragma: no cover - compiled
     """``wall_slant``'s value for the detector at cell p and the source at cell q, bit for bit
@@ -172,20 +186,9 @@ def _pair_slant(p, q, centre, sx, sy, col_lines, row_lines, top, bottom, left, r
     py, px = centre[p, 0], centre[p, 1]
     qy, qx = centre[q, 0], centre[q, 1]
     pr, pc = p // cols, p % cols
-    along = 0  # slabs on column lines (a = x), as _slab_counts(axis 1)
-    for line in col_lines:
-        aw = (line + 0.5) * size_x
-        dq = qx - aw
-        if ((dq > 0 and pc < line) or (dq < 0 and pc > line)) and _crosses(
-                px, py, qx, qy, aw, dq, top[line], bottom[line], size_y, rows):
-            along += 1
-    across = 0  # slabs on row lines (a = y)
-    for line in row_lines:
-        aw = (line + 0.5) * size_y
-        dq = qy - aw
-        if ((dq > 0 and pr < line) or (dq < 0 and pr > line)) and _crosses(
-                py, px, qy, qx, aw, dq, left[line], right[line], size_x, cols):
-            across += 1
+    # slabs on column lines (a = x), as _slab_counts(axis 1), then on row lines (a = y)
+    along = _line_crossings(pc, px, py, qx, qy, col_lines, top, bottom, size_x, size_y, rows)
+    across = _line_crossings(pr, py, px, qy, qx, row_lines, left, right, size_y, size_x, cols)
     x = 0.0
     for _ in range(along):
         x += sx
