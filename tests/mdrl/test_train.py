@@ -1,6 +1,7 @@
 """Training runs: reproducibility, checkpoint/resume, model files, and that learning happens."""
 
 import csv
+import dataclasses
 import json
 import pickle
 
@@ -315,3 +316,73 @@ def test_train_command_prints_json_with_null_for_figures_without_episodes(tmp_pa
     line = res.output.strip().splitlines()[-1]
     summary = json.loads(line, parse_constant=lambda c: pytest.fail(f"{c} in {line}"))
     assert summary["train_success"] is None
+
+
+def test_init_from_starts_from_a_models_weights_and_the_card_names_it(tmp_path):
+    obs = ObservationSpec(kind="odmtl")
+    first = Trainer(SMALL_ENV, obs, SMALL_PPO, small_run(updates=2), out=tmp_path / "first")
+    first.train()
+    start = tmp_path / "first" / "model"
+    # another task (sparse reward, another seed), same observation and team: fine-tuning fits
+    task = SMALL_ENV.replace(reward="sparse")
+    tuned = Trainer(task, obs, SMALL_PPO, small_run(seed=9, updates=2, checkpoint_every=1,
+                                                    init_from=str(start)), out=tmp_path / "tuned")
+    fresh = Trainer(task, obs, SMALL_PPO, small_run(seed=9, updates=2), out=tmp_path / "fresh")
+    for k, v in first.agent.state_dict().items():
+        assert torch.equal(v, tuned.agent.state_dict()[k]), k
+    assert any(not torch.equal(v, fresh.agent.state_dict()[k])
+               for k, v in first.agent.state_dict().items())
+    tuned.run = dataclasses.replace(tuned.run, total_steps=SMALL_PPO.batch_steps)
+    tuned.train()  # one update, checkpointed
+    # a resumed run continues from its checkpoint: the start model may be gone by then
+    for f in start.iterdir():
+        f.unlink()
+    start.rmdir()
+    resumed = Trainer.resume(tmp_path / "tuned",
+                             run_overrides={"total_steps": 2 * SMALL_PPO.batch_steps})
+    resumed.train()
+    card = json.loads((tmp_path / "tuned" / "model" / "model.json").read_text())
+    init = card["training"]["init_from"]
+    assert init["ref"] == str(start) and len(init["weights_sha256"]) == 64
+    assert init["env_steps"] == 2 * SMALL_PPO.batch_steps
+    assert card["training"]["run"]["init_from"] == str(start)
+    assert fresh.init_info is None
+
+
+@pytest.mark.parametrize(("run_env", "run_obs", "named"), [
+    (SMALL_ENV, ObservationSpec(kind="odmtl", window=5), "['window']"),
+    (SMALL_ENV, ObservationSpec(kind="dmtl"), "'kind'"),
+    (SMALL_ENV.replace(agents=3), ObservationSpec(kind="odmtl"), "this run has 3"),
+    (SMALL_ENV.replace(walls=(1, 1)), ObservationSpec(kind="odmtl"), "inputs of shape"),
+])
+def test_init_from_refuses_a_model_that_does_not_fit(tmp_path, run_env, run_obs, named):
+    first = Trainer(SMALL_ENV, ObservationSpec(kind="odmtl"), SMALL_PPO, small_run(updates=1),
+                    out=tmp_path / "first")
+    first.train()
+    with pytest.raises(ValueError, match="init_from") as err:
+        Trainer(run_env, run_obs, SMALL_PPO, small_run(init_from=str(tmp_path / "first" /
+                                                                     "model")))
+    assert named in str(err.value)
+
+
+def test_train_command_init_from_a_model_that_does_not_fit_is_a_usage_error(tmp_path):
+    cfg = tmp_path / "tiny.toml"
+    cfg.write_text('preset = "odmtl-2a-10x10"\n[env]\nrows = 6\ncols = 6\n'
+                   '[ppo]\nhorizon = 64\nnum_envs = 8\nupdate_epochs = 1\n'
+                   '[run]\neval_episodes = 4\n')
+    runner = CliRunner()
+    res = runner.invoke(make_app(), ["train", "--config", str(cfg), "--steps", "64",
+                                     "--out", str(tmp_path / "a"), "--no-progress"])
+    assert res.exit_code == 0, res.output
+    res = runner.invoke(make_app(), ["train", "--preset", "odmtl-3a-10x10", "--steps", "64",
+                                     "--init-from", str(tmp_path / "a" / "model"),
+                                     "--out", str(tmp_path / "b"), "--no-progress"])
+    assert res.exit_code == 2, res.output
+    flat = " ".join(res.output.replace("│", " ").split())
+    assert "--init-from" in flat and "2 agent(s)" in flat, flat
+    res = runner.invoke(make_app(), ["train", "--config", str(cfg), "--steps", "128",
+                                     "--init-from", str(tmp_path / "a" / "model"),
+                                     "--out", str(tmp_path / "c"), "--no-progress"])
+    assert res.exit_code == 0, res.output
+    card = json.loads((tmp_path / "c" / "model" / "model.json").read_text())
+    assert card["training"]["init_from"]["env_steps"] == 64

@@ -88,3 +88,33 @@ def test_a_zoo_entry_with_experts_trains_under_them_and_resumes_with_them(tmp_pa
     assert json.loads((target / "model.json").read_text())["zoo"]["env_steps"] == 2 * steps
     assert [e["ref"] for e in again["experts"]] == [e["ref"] for e in first["experts"]]
     assert sum(e["episodes"] for e in again["experts"]) > guided  # counts carried over, grown
+
+
+def test_a_zoo_entry_can_fine_tune_an_earlier_entry(tmp_path, monkeypatch):
+    """``init_from`` starts the run from an earlier zoo model's weights, with the entry's own
+    PPO changes and a built-in expert; the card names the model it started from."""
+    import shutil
+
+    import torch
+    from safetensors.torch import load_file
+
+    from workers.mdrl import zoo
+
+    models = tmp_path / "models"
+    shutil.copytree(MODELS / "ch4-a3w3-10x10", models / "ch4-a3w3-10x10")
+    monkeypatch.setitem(zoo.ZOO, "tuned", zoo.ZooEntry(
+        "ch4-a3w3-sr-10x10", minutes=5, steps=8192, init_from="ch4-a3w3-10x10",
+        experts=("oracle",), expert_rate=0.3, ppo=(("learning_rate", 1e-6),)))
+    monkeypatch.setattr(zoo, "heldout", lambda policy, spec: {"episodes": 0})
+    target = zoo.train_entry("tuned", models, tmp_path / "runs")
+    card = json.loads((target / "model.json").read_text())
+    assert card["training"]["init_from"]["ref"] == str(models / "ch4-a3w3-10x10")
+    assert card["training"]["ppo"]["learning_rate"] == 1e-6
+    experts = card["training"]["experts"]
+    assert [e["ref"] for e in experts["experts"]] == ["oracle"] and experts["rate"] == 0.3
+    # one update at a tiny learning rate: still (nearly) the weights it started from
+    start = load_file(str(models / "ch4-a3w3-10x10" / "model.safetensors"))
+    tuned = load_file(str(target / "model.safetensors"))
+    assert set(start) == set(tuned)
+    assert all(torch.allclose(start[k], tuned[k], atol=1e-3) for k in start)
+    assert any(not torch.equal(start[k], tuned[k]) for k in start)

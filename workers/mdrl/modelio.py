@@ -199,6 +199,51 @@ def load_model(path: str | Path) -> GreedyPolicy:
     return policy
 
 
+def load_initial_weights(agent: torch.nn.Module, path: str | Path, obs_spec: Any,
+                         observer: Any, agents: int, num_actions: int) -> dict[str, Any]:
+    """Copy a model's actor and critic weights into ``agent`` (fine-tuning a shared model).
+
+    The model must read the same observation (every ``ObservationSpec`` field: same planes,
+    window, readings, belief ...) for the same team size and action set; the env may differ
+    otherwise (walls, reward, grid under ODMTL), which is what fine-tuning is for. A walls
+    encoder in the file is not copied: the run's observer has its own. Returns what the
+    card records of the start (path and weight digest)."""
+    import hashlib
+
+    path = Path(path)
+    card = load_card(path)
+    theirs = {k: v for k, v in card["observation"].items()
+              if k not in ("actor_shape", "critic_shape")}
+    ours = obs_spec.to_dict()
+    differ = sorted(k for k in set(theirs) | set(ours) if theirs.get(k) != ours.get(k))
+    if differ:
+        raise ValueError(f"init_from {str(path)!r}: its observation differs in {differ} "
+                         f"(model: {[theirs.get(k) for k in differ]}, this run: "
+                         f"{[ours.get(k) for k in differ]})")
+    for part in ("actor_shape", "critic_shape"):  # e.g. wall maps come with walls in the env
+        theirs_shape = card["observation"].get(part)
+        if theirs_shape != list(getattr(observer, part)):
+            raise ValueError(f"init_from {str(path)!r}: its {part.split('_')[0]} reads inputs of "
+                             f"shape {theirs_shape}, this run's are "
+                             f"{list(getattr(observer, part))}")
+    space = card.get("action_space", {})
+    if (space.get("agents"), space.get("per_agent_actions")) != (agents, num_actions):
+        raise ValueError(f"init_from {str(path)!r}: a model for {space.get('agents')} agent(s) "
+                         f"and {space.get('per_agent_actions')} actions, this run has {agents} "
+                         f"and {num_actions}")
+    tensors = {k: v for k, v in load_file(str(path / WEIGHTS)).items()
+               if not k.startswith(ENCODER_PREFIX)}
+    own = agent.state_dict()
+    wrong = sorted(k for k in set(own) | set(tensors)
+                   if k not in own or k not in tensors or own[k].shape != tensors[k].shape)
+    if wrong:
+        raise ValueError(f"init_from {str(path)!r}: weights do not fit this network ({wrong})")
+    agent.load_state_dict(tensors)
+    digest = hashlib.sha256((path / WEIGHTS).read_bytes()).hexdigest()
+    return {"ref": str(path), "weights_sha256": digest,
+            "env_steps": card.get("training", {}).get("env_steps")}
+
+
 def _jsonable(d: dict[str, Any]) -> dict[str, Any]:
     out = {}
     for k, v in d.items():

@@ -64,6 +64,10 @@ class RunConfig:
     """Write TensorBoard event files under out/tb."""
     progress: bool = True
     """Show a tqdm progress bar."""
+    init_from: str | None = None
+    """A model directory whose weights a new run starts from (fine-tuning; same observation,
+    team size and actions, ``modelio.load_initial_weights``); None = random init from the seed.
+    A resumed run continues from its checkpoint, not from this model."""
 
     def budget_left(self, global_step: int, elapsed_s: float) -> bool:
         """Whether a run that took ``global_step`` env steps in ``elapsed_s`` may go on."""
@@ -110,10 +114,13 @@ class Trainer:
 
     def __init__(self, env_spec: EnvSpec, obs_spec: ObservationSpec, ppo: PPOConfig,
                  run: RunConfig, out: str | Path | None = None,
-                 selector: ActionSelector | None = None, walls_encoder: Any = None):
+                 selector: ActionSelector | None = None, walls_encoder: Any = None,
+                 _resuming: bool = False):
         """``walls_encoder``: a ``cae.WallsEmbedder`` to use instead of loading
         ``obs_spec.walls_embedding`` from disk (a platform job fetches the CAE by CID and keeps
-        the CID in the spec, so the model's card names it, not the worker's path)."""
+        the CID in the spec, so the model's card names it, not the worker's path).
+        ``_resuming``: ``resume`` builds the trainer; its checkpoint, not ``run.init_from``,
+        holds the weights."""
         self.env_spec, self.obs_spec, self.ppo, self.run = env_spec, obs_spec, ppo, run
         self.out = Path(out) if out is not None else None
         torch.set_num_threads(run.threads)
@@ -127,6 +134,13 @@ class Trainer:
         with torch.random.fork_rng():
             torch.manual_seed(run.seed)
             self.agent = ActorCritic(self.observer, self.head.policy_actions)
+        self.init_info: dict[str, Any] | None = None
+        if run.init_from and not _resuming:
+            from workers.mdrl.modelio import load_initial_weights
+
+            self.init_info = load_initial_weights(
+                self.agent, run.init_from, obs_spec, self.observer, env_spec.agents,
+                env_spec.num_actions)
         self.optimizer = torch.optim.Adam(self.agent.parameters(), lr=ppo.learning_rate,
                                           eps=ppo.adam_eps)
         self.generator = torch.Generator().manual_seed(run.seed + 1)
@@ -425,6 +439,8 @@ class Trainer:
         metrics.update(self.last_eval)
         training = {"run": self.run.to_dict(), "env_steps": self.global_step,
                     "updates": self.update_idx, "wall_time_s": self.elapsed}
+        if self.init_info is not None:  # fine-tuned: which model's weights it started from
+            training["init_from"] = self.init_info
         if hasattr(self.selector, "card"):  # expert-guided training (medc.py) lists its experts
             training["experts"] = self.selector.card()
         return save_model(path, self.agent, self.env_spec, self.obs_spec, self.ppo,
@@ -442,7 +458,8 @@ class Trainer:
         meta = {**self.config_dict(),
                 "counters": {"update": self.update_idx, "global_step": self.global_step,
                              "episodes": self.episodes, "elapsed": self.elapsed},
-                "last_eval": self.last_eval, "optimizer": opt_meta, "env_state": env_meta}
+                "last_eval": self.last_eval, "optimizer": opt_meta, "env_state": env_meta,
+                "init_from": self.init_info}
         extras = self.checkpoint_extras()
         if extras:  # only that kind of trainer can continue it
             meta |= {**extras, "extras_by": type(self).__name__}
@@ -472,6 +489,7 @@ class Trainer:
         self.update_idx, self.global_step = c["update"], c["global_step"]
         self.episodes, self.elapsed = c["episodes"], c["elapsed"]
         self.last_eval = meta.get("last_eval", {})
+        self.init_info = meta.get("init_from")
         if "selector" in meta:
             if not hasattr(self.selector, "load_state_dict"):
                 raise ValueError("checkpoint holds an action-selector state; pass the same kind "
@@ -494,7 +512,7 @@ class Trainer:
         obs_spec = ObservationSpec.from_dict(meta["observation"])
         trainer = cls(env_spec, obs_spec, ppo, run,
                       out=out if out is not None else path.parent, selector=selector,
-                      walls_encoder=walls_encoder, **build)
+                      walls_encoder=walls_encoder, _resuming=True, **build)
         saved = meta.get("walls_encoder", {}).get("digest")
         embedder = trainer.observer.embedder
         if saved is not None and (embedder is None or embedder.card["digest"] != saved):

@@ -12,6 +12,7 @@ models/NAME`` evaluates one; ``benchmarks/policy_table.py`` compares them with t
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import shutil
 from dataclasses import dataclass
@@ -21,6 +22,7 @@ from typing import Any
 from workers.mdrl.baselines import OraclePolicy, make_baseline
 from workers.mdrl.curve import CURVE_KEY, training_curve
 from workers.mdrl.evaluate import EvalReport, evaluate
+from workers.mdrl.experts import BUILTINS
 from workers.mdrl.modelio import CARD, load_model
 from workers.mdrl.ppo import PPOConfig
 from workers.mdrl.presets import get_preset
@@ -42,7 +44,15 @@ class ZooEntry:
     seed: int = 0
     steps: int | None = None
     experts: tuple[str, ...] = ()
-    """Zoo models (names in the same models directory) guiding the run as MEDC experts."""
+    """Zoo models (names in the same models directory) or built-in experts (``oracle``,
+    ``bayes``, ...) guiding the run as MEDC experts."""
+    expert_rate: float | None = None
+    """R_E of those experts; None = the DemonstrationConfig default (Table 4.1 / 5.3)."""
+    init_from: str | None = None
+    """A zoo model (name in the same models directory) whose weights the run starts from: a
+    fine-tuning stage on top of an earlier entry."""
+    ppo: tuple[tuple[str, Any], ...] = ()
+    """PPOConfig fields that differ from the preset's, e.g. a lower learning rate to fine-tune."""
 
 
 _ODMTL_MINUTES = {2: 30, 3: 30, 4: 30, 10: 25}
@@ -147,8 +157,9 @@ def train_entry(name: str, models: Path, runs: Path, minutes: float | None = Non
     if entry.preset == "generalist":
         trainer, spec = _generalist(entry, run_dir, budget), None
     else:
-        experts = tuple(str(models / e) for e in entry.experts)
-        trainer = _trainer(entry, run_dir, budget, progress, experts)
+        experts = tuple(e if e in BUILTINS else str(models / e) for e in entry.experts)
+        init = str(models / entry.init_from) if entry.init_from else None
+        trainer = _trainer(entry, run_dir, budget, progress, experts, init)
         spec = get_preset(entry.preset).env
     trainer.train()
     target = models / name
@@ -178,7 +189,7 @@ def _generalist(entry: ZooEntry, run_dir: Path, budget: dict[str, Any]) -> Any:
 
 
 def _trainer(entry: ZooEntry, run_dir: Path, budget: dict[str, Any], progress: bool,
-             experts: tuple[str, ...] = ()) -> Any:
+             experts: tuple[str, ...] = (), init_from: str | None = None) -> Any:
     from workers.mdrl.medc import DemonstrationConfig, DemonstrationSelector, resume_selector
     from workers.mdrl.train import RunConfig, Trainer
 
@@ -189,11 +200,13 @@ def _trainer(entry: ZooEntry, run_dir: Path, budget: dict[str, Any], progress: b
                                  selector=resume_selector(meta))
     else:
         run = RunConfig.from_dict({**preset.run, **budget, "seed": entry.seed,
-                                   "progress": progress, "tensorboard": False})
+                                   "progress": progress, "tensorboard": False,
+                                   "init_from": init_from})
         selector = None
         if experts:
             selector = DemonstrationSelector.from_config(
-                DemonstrationConfig(experts, ()), preset.env, seed=entry.seed)
-        trainer = Trainer(preset.env, preset.observation, preset.ppo, run, out=run_dir,
+                DemonstrationConfig(experts, (), entry.expert_rate), preset.env, seed=entry.seed)
+        ppo = dataclasses.replace(preset.ppo, **dict(entry.ppo))
+        trainer = Trainer(preset.env, preset.observation, ppo, run, out=run_dir,
                           selector=selector)
     return trainer

@@ -33,6 +33,9 @@ def train(
     eval_episodes: Annotated[int | None, typer.Option(help="Evaluation episodes.")] = None,
     checkpoint_every: Annotated[int | None, typer.Option(help="Checkpoint every K updates.")
                                 ] = None,
+    init_from: Annotated[Path | None, typer.Option(help="Start from this model's weights "
+                                                        "(fine-tuning; same observation, team "
+                                                        "size and actions).")] = None,
     threads: Annotated[int, typer.Option(help="torch threads (1-2; fixed for reproducibility).")
                        ] = 1,
     progress: Annotated[bool, typer.Option(help="Show a progress bar.")] = True,
@@ -75,10 +78,11 @@ def train(
             run_changes[key] = val
     expert_options = (experts, expert_qos, expert_rate, expert_threshold, expert_credit)
     if resume is not None:
-        if num_envs is not None or config is not None or readings is not None or any(
+        if num_envs is not None or config is not None or readings is not None or init_from or any(
                 o is not None for o in expert_options):
             raise typer.BadParameter("--resume continues a run as configured; drop --config, "
-                                     "--num-envs, --readings and the --expert* options")
+                                     "--num-envs, --readings, --init-from and the --expert* "
+                                     "options")
         trainer = Trainer.resume(resume, out=out, run_overrides=run_changes,
                                  selector=_resume_selector(resume))
     else:
@@ -95,10 +99,17 @@ def train(
                 raise typer.BadParameter(f"must be poisson or expected, got {readings!r}",
                                          param_hint="--readings")
             chosen = dataclasses.replace(chosen, env=chosen.env.replace(readings=readings))
+        if init_from is not None:
+            run_changes["init_from"] = str(init_from)
         run = RunConfig.from_dict({**chosen.run, **run_changes, "seed": seed})
         out = out if out is not None else Path("runs") / f"{chosen.name}-s{seed}"
         selector = _selector(chosen, seed, *expert_options)
-        trainer = Trainer(chosen.env, chosen.observation, ppo, run, out=out, selector=selector)
+        try:
+            trainer = Trainer(chosen.env, chosen.observation, ppo, run, out=out,
+                              selector=selector)
+        except (OSError, ValueError) as exc:  # e.g. --init-from a model that does not fit
+            raise typer.BadParameter(str(exc), param_hint="--init-from" if run.init_from
+                                     else None) from None
     summary = trainer.train()
     result = {"out": str(trainer.out), "model": str(trainer.out / "model"),
               "env_steps": trainer.global_step, "updates": trainer.update_idx,
