@@ -147,3 +147,84 @@ def test_readings_maps_kept_between_steps_equal_a_fresh_computation(readings, sc
     env.load_state_dict(*saved)  # the same object jumps back in time
     check(env)
     assert len(kept._kept) == 2  # the two envs' maps were kept, not recomputed
+
+
+def test_walking_steps_are_the_bfs_distances_of_the_layout():
+    """env.walking_steps (one compiled BFS per source) against scipy's shortest paths over the
+    env's own moves (baselines.all_pairs_distances), walls and pockets included."""
+    from workers.mdrl.baselines import FAR, all_pairs_distances
+    from workers.mdrl.env import UNREACHABLE
+
+    for moves in (4, 8):
+        spec = EnvSpec(rows=9, cols=11, area_m=(900.0, 1100.0), agents=2, moves=moves,
+                       walls=(1, 3))
+        env = TargetLocalizationEnv(spec, num_envs=6, seed=moves)
+        rng = np.random.default_rng(moves)
+        cells = rng.integers(0, spec.rows * spec.cols, size=(6, 5))
+        got = env.walking_steps(cells)
+        ref = all_pairs_distances(env)  # (B, C, C) with FAR where no path goes
+        want = np.take_along_axis(ref, cells[:, :, None], axis=1).astype(np.int64)
+        want = np.where(want >= FAR, UNREACHABLE, want)
+        # scipy gives a wall cell its own distance 0; the BFS says no path (nobody stands there)
+        on_wall = np.take_along_axis(np.asarray(env.walls), cells, axis=1)
+        got, want = got.astype(np.int64), want
+        np.testing.assert_array_equal(got[~on_wall], want[~on_wall])
+        assert (got[on_wall] == UNREACHABLE).all()
+        some = np.array([1, 4])  # the rows view of an expert adapter: those envs' walls
+        np.testing.assert_array_equal(env.walking_steps(cells[some], some), got[some])
+
+
+def test_route_maps_are_the_expected_walking_distance_to_the_most_probable_cells():
+    from workers.mdrl.baselines import all_pairs_distances
+    from workers.mdrl.observations import ROUTE_CELLS
+
+    spec = EnvSpec(rows=12, cols=12, area_m=(600.0, 600.0), agents=2, moves=8, walls=(2, 2))
+    obs_spec = ObservationSpec(kind="odmtl", window=5, readings="mean", scale="fixed",
+                               belief=True, route=True, walls=True)
+    observer = make_observer(spec, obs_spec)
+    assert observer.actor_channels[-1] == "win_route"
+    assert observer.critic_channels[-1] == "ds_route"
+    env = TargetLocalizationEnv(spec, num_envs=8, seed=3)
+    rng = np.random.default_rng(0)
+    for _ in range(6):  # readings sharpen the posterior
+        mask = env.action_mask()
+        env.step(np.argmax(rng.random(mask.shape) * mask, axis=-1))
+    actor, critic = observer.observe(env)
+    post = BeliefFilter(spec).posterior(env)
+    dist = all_pairs_distances(env).astype(np.float64)  # moves are symmetric
+    dist[np.broadcast_to(np.asarray(env.walls)[:, None, :], dist.shape)] = 144  # no path: cap
+    dist = np.minimum(dist, 144)
+    centre = env.past_pos(2)
+    for b in range(8):
+        top = np.argsort(-post[b], kind="stable")[:ROUTE_CELLS]
+        w = post[b, top] / post[b, top].sum()
+        g = (w[:, None] * dist[b, top]).sum(axis=0)  # (C,) expected steps to the source
+        np.testing.assert_allclose(
+            critic[b, -1].reshape(-1),
+            np.minimum(g / 24.0, 1.0) @ downsize_matrix(12, 12, 5).T, rtol=1e-4, atol=1e-5)
+        for i in range(2):
+            r0, c0 = divmod(int(centre[b, i]), 12)
+            here = g[env.pos[b, i]]
+            for dr in range(-2, 3):
+                for dc in range(-2, 3):
+                    r, c = r0 + dr, c0 + dc
+                    inside = 0 <= r < 12 and 0 <= c < 12
+                    want = np.clip((here - g[r * 12 + c]) / 2, -1, 1) if inside else -1.0
+                    if inside and env.walls[b, r * 12 + c]:
+                        want = -1.0  # a wall cell is as far as the cap: always "away"
+                    assert actor[b, i, -1, dr + 2, dc + 2] == pytest.approx(want, abs=1e-4)
+    # a step toward the most probable cells is a step to a window cell with a positive value
+    assert (actor[:, :, -1] > 0).any()
+
+
+def test_route_needs_the_odmtl_belief_and_stays_out_of_old_cards():
+    with pytest.raises(ValueError, match="route needs kind='odmtl' and belief=true"):
+        ObservationSpec(kind="odmtl", route=True)
+    with pytest.raises(ValueError, match="route needs"):
+        ObservationSpec(kind="dmtl", belief=True, route=True)
+    with pytest.raises(ValueError, match="route must be true or false"):
+        ObservationSpec(kind="odmtl", belief=True, route=1)
+    plain = ObservationSpec(kind="odmtl", belief=True)
+    assert "route" not in plain.to_dict()  # cards and specs without it read as before
+    on = ObservationSpec(kind="odmtl", belief=True, route=True)
+    assert on.to_dict()["route"] is True and ObservationSpec.from_dict(on.to_dict()) == on

@@ -277,6 +277,17 @@ class TargetLocalizationEnv:
             )
         return dist
 
+    def walking_steps(self, cells: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
+        """(B, k, C) int32 BFS steps from each of ``cells`` (B, k) to every cell over env b's
+        walls (moves are symmetric: from x to the cell = from the cell to x); ``UNREACHABLE``
+        where no path goes. ``rows``: the envs ``cells`` belong to (default all B, in order).
+        For observers and searchers: it uses only what the agents know (the walls)."""
+        cells = np.ascontiguousarray(cells, dtype=np.int64)
+        walls = np.asarray(self.walls, dtype=bool)
+        walls = np.ascontiguousarray(walls if rows is None else walls[rows])
+        return kernels.walking_steps(cells, walls, self.spec.rows, self.spec.cols, self.moves,
+                                     UNREACHABLE)
+
     def expected_counts(
         self, target: np.ndarray, walls: np.ndarray, intensity: np.ndarray
     ) -> np.ndarray:

@@ -103,6 +103,9 @@ class EnvRows:
     def action_mask(self) -> np.ndarray:
         return self._env.action_mask()[self._rows]
 
+    def walking_steps(self, cells: np.ndarray) -> np.ndarray:
+        return self._env.walking_steps(cells, self._rows)
+
 
 def rows_view(env: Any, rows: np.ndarray | None) -> Any:
     """``env`` itself when ``rows`` is None or all envs in order, else an ``EnvRows`` view."""

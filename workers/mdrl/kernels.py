@@ -25,13 +25,24 @@ from numba import njit
 @njit(cache=True, nogil=True, error_model="numpy")
 def walls_bfs(target, walls, rows, cols, moves, unreachable):  # pragma: no cover - compiled
     """(k, C) int32 BFS steps to ``target`` over the walls (k, C) bool; a cell that cannot be
-    reached (a wall, a walled-off pocket) gets ``unreachable``. A move enters a free cell; a
-    diagonal (dr, dc) also needs both orthogonal cells beside it free (no corner cutting), so
-    moves are symmetric and the search runs from the target. The search runs on the grid with
-    a border of walls, where every move is an index offset."""
-    k, cells = walls.shape
+    reached (a wall, a walled-off pocket) gets ``unreachable``: ``walking_steps`` with one
+    source cell per layout."""
+    return walking_steps(target.reshape(-1, 1), walls, rows, cols, moves, unreachable)[:, 0]
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def walking_steps(sources, walls, rows, cols, moves, unreachable):  # pragma: no cover
+    """(R, k, C) int32 BFS steps from each of ``sources`` (R, k) over layout r's walls (R, C)
+    bool; ``unreachable`` where no path goes (a wall, a walled-off pocket). A move enters a
+    free cell; a diagonal (dr, dc) also needs both orthogonal cells beside it free (no corner
+    cutting), so moves are symmetric and steps from a source are steps to it; a source in a
+    wall reaches nothing. The search runs
+    on the grid with a border of walls, where every move is an index offset; a layout's grid
+    is built once for its k searches."""
+    count, k = sources.shape
+    cells = walls.shape[1]
     width = cols + 2
-    dist = np.full((k, cells), unreachable, dtype=np.int32)
+    dist = np.full((count, k, cells), unreachable, dtype=np.int32)
     free = np.zeros((rows + 2) * width, dtype=np.bool_)
     seen = np.empty((rows + 2) * width, dtype=np.int32)
     queue = np.empty(cells, dtype=np.int64)
@@ -43,30 +54,33 @@ def walls_bfs(target, walls, rows, cols, moves, unreachable):  # pragma: no cove
         diagonal = moves[a, 0] != 0 and moves[a, 1] != 0
         side_r[a] = moves[a, 0] * width if diagonal else 0
         side_c[a] = moves[a, 1] if diagonal else 0
-    for e in range(k):
+    for e in range(count):
         for r in range(rows):
             for c in range(cols):
                 free[(r + 1) * width + c + 1] = not walls[e, r * cols + c]
-        seen[:] = -1
-        t = target[e]
-        start = (t // cols + 1) * width + t % cols + 1
-        seen[start] = 0
-        queue[0] = start
-        head, tail = 0, 1
-        while head < tail:
-            x = queue[head]
-            head += 1
-            for a in range(1, moves.shape[0]):
-                y = x + step[a]
-                if free[y] and seen[y] < 0 and free[x + side_r[a]] and free[x + side_c[a]]:
-                    seen[y] = seen[x] + 1
-                    queue[tail] = y
-                    tail += 1
-        for r in range(rows):
-            for c in range(cols):
-                d = seen[(r + 1) * width + c + 1]
-                if d >= 0:
-                    dist[e, r * cols + c] = d
+        for j in range(k):
+            t = sources[e, j]
+            start = (t // cols + 1) * width + t % cols + 1
+            if not free[start]:
+                continue  # nobody stands in a wall: no path from one
+            seen[:] = -1
+            seen[start] = 0
+            queue[0] = start
+            head, tail = 0, 1
+            while head < tail:
+                x = queue[head]
+                head += 1
+                for a in range(1, moves.shape[0]):
+                    y = x + step[a]
+                    if free[y] and seen[y] < 0 and free[x + side_r[a]] and free[x + side_c[a]]:
+                        seen[y] = seen[x] + 1
+                        queue[tail] = y
+                        tail += 1
+            for r in range(rows):
+                for c in range(cols):
+                    d = seen[(r + 1) * width + c + 1]
+                    if d >= 0:
+                        dist[e, j, r * cols + c] = d
     return dist
 
 

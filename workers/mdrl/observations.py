@@ -31,6 +31,13 @@ Options beyond the thesis (issue 9: what the thesis-faithful input throws away):
   the episode's (noisy) maximum, which throws away the absolute level that carries distance.
 * ``belief=True``: the team posterior over the target cell (``belief.BeliefFilter``, the
   Bayesian searcher's filter), divided by its maximum.
+* ``route=True`` (ODMTL with the belief): where to walk. With walls from the sides the
+  straight line to the posterior's mass is often blocked, and the way around a wall's free end
+  lies outside a 7 x 7 window and is blurred away in the downsized walls map; agents that
+  knew the source's cell oscillated against the wall (the failures of the 30 x 30 belief
+  policy). The map gives each window cell's expected walking distance (BFS over the walls)
+  to the posterior's most probable cells, relative to the agent's own cell. It uses only
+  what the agents observe (walls, readings, positions), as the belief does.
 
 Chapter 4 embeds walls with a CAE (``ObservationSpec.walls_embedding``, ``cae.py``): the frozen
 encoder turns the full walls map into a d-vector that replaces the downsized walls maps (ODMTL
@@ -78,6 +85,9 @@ from workers.mdrl.belief import BeliefFilter
 
 KINDS = ("odmtl", "dmtl", "cmtl")
 GAUSSIAN_SIGMA = 1.0
+ROUTE_CELLS = 4
+"""How many of the posterior's most probable cells the walking-distance map (``route``)
+averages over: one BFS each per env and step (~10 us at 30 x 30)."""
 
 
 @dataclass(frozen=True)
@@ -110,6 +120,10 @@ class ObservationSpec:
     map goes to the actor and critic instead of the downsized walls maps. None: no embedding."""
     walls_embedding_size: int = 128
     """d of that CAE (Table 4.1); sizes the networks before the CAE is loaded."""
+    route: bool = False
+    """ODMTL with ``belief``: add the walking-distance map (``win_route`` to the actor,
+    ``ds_route`` to the critic): the posterior's expected number of moves, around the walls,
+    from each cell to the source (module doc). Not in the thesis."""
 
     def __post_init__(self) -> None:
         if self.readings not in ("last", "mean"):
@@ -147,6 +161,11 @@ class ObservationSpec:
                 "ObservationSpec.walls_embedding must be a CAE directory or None, "
                 f"got {self.walls_embedding!r}"
             )
+        if not isinstance(self.route, bool):
+            raise ValueError(f"ObservationSpec.route must be true or false, got {self.route!r}")
+        if self.route and not (self.belief and self.kind == "odmtl"):
+            raise ValueError("ObservationSpec.route needs kind='odmtl' and belief=true (it is "
+                             "the belief's walking distance, in the ODMTL windows)")
         size = self.walls_embedding_size
         if isinstance(size, bool) or not isinstance(size, (int, np.integer)) or size < 1:
             raise ValueError(
@@ -159,6 +178,8 @@ class ObservationSpec:
         d = asdict(self)
         if self.walls_embedding is None:
             del d["walls_embedding"], d["walls_embedding_size"]
+        if not self.route:
+            del d["route"]
         return d
 
     @classmethod
@@ -216,6 +237,9 @@ def channel_layout(env_spec: Any, obs_spec: ObservationSpec) -> ChannelLayout:
     if obs_spec.belief:
         actor += ["win_belief", "ds_belief"] if kind == "odmtl" else ["belief"]
         critic += ["ds_belief"] if kind == "odmtl" and not full_critic else ["belief"]
+    if obs_spec.route:
+        actor += ["win_route"]
+        critic += ["route" if full_critic else "ds_route"]
     h, wd = (w, w) if kind == "odmtl" else (rows, cols)
     reduced_critic = kind == "odmtl" and not full_critic
     ch, cw = (h, wd) if reduced_critic else (rows, cols)
@@ -557,26 +581,53 @@ class Observer:
         return maps.astype(np.float32)
 
     def _write_belief(self, env: Any, actor: np.ndarray, critic: np.ndarray) -> None:
-        """Posterior map / its maximum into the last actor and critic channels (cells flat)."""
-        post = self._belief.posterior(env).astype(np.float32)
+        """Posterior map / its maximum into its actor and critic channels (cells flat), and
+        the walking-distance maps (``route``) computed from the same posterior."""
+        exact = self._belief.posterior(env)
+        post = exact.astype(np.float32)
         post *= _inverse_max(post)[:, None]
-        a = -1 - (
-            self.actor_shape[0] - self.actor_channels.index("walls_code_0") if self.embedding else 0
-        )  # the belief precedes the embedding planes
-        c = -1 - (
-            self.critic_shape[0] - self.critic_channels.index("walls_code_0")
-            if self.embedding
-            else 0
-        )
+        a_names, c_names = self.actor_channels, self.critic_channels
         if self.kind == "odmtl":
             centre = np.asarray(env.past_pos(self._pad))
-            actor[:, :, a - 1] = self._gather_windows(post, self._window_index(centre))
+            index = self._window_index(centre)
+            actor[:, :, a_names.index("win_belief")] = self._gather_windows(post, index)
             ds = post @ self._rt
-            actor[:, :, a] = ds[:, None]
-            critic[:, c] = post if self.full_critic else ds
+            actor[:, :, a_names.index("ds_belief")] = ds[:, None]
+            critic[:, c_names.index("belief" if self.full_critic else "ds_belief")] = (
+                post if self.full_critic else ds)
+            if self.obs_spec.route:
+                self._write_route(env, exact, index, actor, critic)
         else:
-            actor[:, :, a] = post[:, None]
-            critic[:, c] = post
+            actor[:, :, a_names.index("belief")] = post[:, None]
+            critic[:, c_names.index("belief")] = post
+
+    def _write_route(self, env: Any, post: np.ndarray, index: tuple[np.ndarray, np.ndarray],
+                     actor: np.ndarray, critic: np.ndarray) -> None:
+        """The walking-distance maps (module doc, ``route``). ``g[b, x]`` = the expected BFS
+        steps from cell x to the source over the ``ROUTE_CELLS`` most probable cells of the
+        posterior (their probabilities renormalised). The actor's window shows, per cell,
+        how many steps nearer (+) or farther (-) it is than the agent's own cell, over w // 2
+        and clipped to [-1, 1] (walls, other pockets and off-grid cells read -1); the critic
+        gets g over the grid's walking scale (rows + cols), clipped to 1, downsized."""
+        k = min(ROUTE_CELLS, self.cells)
+        top = np.argpartition(-post, k - 1, axis=1)[:, :k]  # (B, k)
+        weight = np.take_along_axis(post, top, axis=1)
+        total = weight.sum(axis=1, keepdims=True)
+        weight = np.where(total > 0, weight / np.where(total > 0, total, 1.0), 1.0 / k)
+        steps = np.minimum(env.walking_steps(top), self.rows * self.cols)  # (B, k, C)
+        g = np.einsum("bk,bkc->bc", weight.astype(np.float32), steps.astype(np.float32))
+        here = np.take_along_axis(g, np.asarray(env.pos), axis=1)  # (B, N)
+        flat, inside = index
+        win = np.take(g.reshape(-1), flat)  # (B, N, w*w)
+        rel = (here[:, :, None] - win) / max(self.window // 2, 1)
+        np.clip(rel, -1.0, 1.0, out=rel)
+        rel = rel * inside - (1.0 - inside)
+        actor[:, :, self.actor_channels.index("win_route")] = rel
+        scaled = np.minimum(g / float(self.rows + self.cols), 1.0).astype(np.float32)
+        if self.full_critic:
+            critic[:, self.critic_channels.index("route")] = scaled
+        else:
+            critic[:, self.critic_channels.index("ds_route")] = scaled @ self._rt
 
     def _check_out(self, out: tuple[np.ndarray, np.ndarray], b: int) -> None:
         n = 1 if self.joint_actions else self.agents

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 from functools import cache
 
 from workers.mdrl.env import HISTORY
-from workers.mdrl.observations import channel_layout
+from workers.mdrl.observations import ROUTE_CELLS, channel_layout
 from workers.mdrl.trainingspec import TrainingSpec
 
 PROCESS_BASE_BYTES = 400 * 2**20
@@ -125,6 +125,8 @@ def estimate(spec: TrainingSpec) -> ResourceEstimate:
     if obs.belief:
         gains = 2 * c * c * (b * F32 if env.walls[1] > 0 else 8)
         obs_bytes += gains + 3 * b * 8 * c * 8
+    if obs.route:  # BFS steps from the posterior's top cells, int32 (observations.py)
+        obs_bytes += b * ROUTE_CELLS * c * 4
     parts = {
         "env": env_bytes,
         "observations": obs_bytes,

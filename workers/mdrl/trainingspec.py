@@ -97,6 +97,7 @@ OBSERVATION_RULES: dict[str, Any] = {
     "readings": Choice(("last", "mean"), doc="last reading per cell (thesis) or the mean"),
     "scale": Choice(("max", "fixed"), doc="readings / episode max (thesis) or log physical"),
     "belief": Bool(doc="add the team's posterior map of the target cell"),
+    "route": Bool(doc="odmtl with belief: add the walking-distance maps to the posterior"),
     "others": Nullable(Bool(doc="others map; null = iff more than one agent")),
     "walls_embedding": None,  # set below: a walls CAE (Ch. 4) by model CID, or null
     "walls_embedding_size": Int(1, 1024, doc="d of the walls CAE (Ch. 4: 128)"),
