@@ -149,11 +149,33 @@ def test_readings_maps_kept_between_steps_equal_a_fresh_computation(readings, sc
     assert len(kept._kept) == 2  # the two envs' maps were kept, not recomputed
 
 
-def test_walking_steps_are_the_bfs_distances_of_the_layout():
-    """env.walking_steps (one compiled BFS per source) against scipy's shortest paths over the
-    env's own moves (baselines.all_pairs_distances), walls and pockets included."""
-    from workers.mdrl.baselines import FAR, all_pairs_distances
+def _bfs_reference(env, b, source):
+    """Steps from ``source`` to every cell of env b by a plain queue over ``env.next_cell``
+    (the env's move table), UNREACHABLE where no path goes or the source is a wall."""
+    from collections import deque
+
     from workers.mdrl.env import UNREACHABLE
+
+    nxt, cells = np.asarray(env.next_cell)[b], env.spec.rows * env.spec.cols
+    dist = np.full(cells, UNREACHABLE, dtype=np.int64)
+    if env.walls[b, source]:
+        return dist
+    dist[source] = 0
+    queue = deque([source])
+    while queue:
+        x = queue.popleft()
+        for y in nxt[x, 1:]:
+            if y >= 0 and dist[y] == UNREACHABLE:
+                dist[y] = dist[x] + 1
+                queue.append(y)
+    return dist
+
+
+def test_walking_steps_are_the_bfs_distances_of_the_layout():
+    """env.walking_steps (one compiled BFS per source) against a plain BFS over the env's move
+    table, walls and walled-off pockets included; baselines.all_pairs_distances is the same
+    with FAR for no path."""
+    from workers.mdrl.baselines import FAR, all_pairs_distances
 
     for moves in (4, 8):
         spec = EnvSpec(rows=9, cols=11, area_m=(900.0, 1100.0), agents=2, moves=moves,
@@ -161,21 +183,20 @@ def test_walking_steps_are_the_bfs_distances_of_the_layout():
         env = TargetLocalizationEnv(spec, num_envs=6, seed=moves)
         rng = np.random.default_rng(moves)
         cells = rng.integers(0, spec.rows * spec.cols, size=(6, 5))
+        cells[0, 0] = np.flatnonzero(env.walls[0])[0]  # a source in a wall reaches nothing
         got = env.walking_steps(cells)
-        ref = all_pairs_distances(env)  # (B, C, C) with FAR where no path goes
-        want = np.take_along_axis(ref, cells[:, :, None], axis=1).astype(np.int64)
-        want = np.where(want >= FAR, UNREACHABLE, want)
-        # scipy gives a wall cell its own distance 0; the BFS says no path (nobody stands there)
-        on_wall = np.take_along_axis(np.asarray(env.walls), cells, axis=1)
-        got, want = got.astype(np.int64), want
-        np.testing.assert_array_equal(got[~on_wall], want[~on_wall])
-        assert (got[on_wall] == UNREACHABLE).all()
+        for b in range(6):
+            for j in range(5):
+                np.testing.assert_array_equal(got[b, j], _bfs_reference(env, b, cells[b, j]))
         some = np.array([1, 4])  # the rows view of an expert adapter: those envs' walls
         np.testing.assert_array_equal(env.walking_steps(cells[some], some), got[some])
+        pairs = all_pairs_distances(env, some)
+        np.testing.assert_array_equal(
+            np.take_along_axis(pairs, cells[some][:, :, None], axis=1),
+            np.minimum(got[some], FAR))
 
 
 def test_route_maps_are_the_expected_walking_distance_to_the_most_probable_cells():
-    from workers.mdrl.baselines import all_pairs_distances
     from workers.mdrl.observations import ROUTE_CELLS
 
     spec = EnvSpec(rows=12, cols=12, area_m=(600.0, 600.0), agents=2, moves=8, walls=(2, 2))
@@ -191,9 +212,8 @@ def test_route_maps_are_the_expected_walking_distance_to_the_most_probable_cells
         env.step(np.argmax(rng.random(mask.shape) * mask, axis=-1))
     actor, critic = observer.observe(env)
     post = BeliefFilter(spec).posterior(env)
-    dist = all_pairs_distances(env).astype(np.float64)  # moves are symmetric
-    dist[np.broadcast_to(np.asarray(env.walls)[:, None, :], dist.shape)] = 144  # no path: cap
-    dist = np.minimum(dist, 144)
+    dist = np.array([[_bfs_reference(env, b, c) for c in range(144)] for b in range(8)])
+    dist = np.minimum(dist, 144).astype(np.float64)  # (B, C, C); no path: the cap
     centre = env.past_pos(2)
     for b in range(8):
         top = np.argsort(-post[b], kind="stable")[:ROUTE_CELLS]

@@ -21,8 +21,6 @@ from typing import Protocol
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
-from scipy.sparse import csr_matrix
-from scipy.sparse.csgraph import shortest_path
 
 from workers.mdrl.belief import BeliefFilter
 
@@ -39,24 +37,20 @@ class Policy(Protocol):
 # ---------------------------------------------------------------------------- helpers
 
 
-def all_pairs_distances(env) -> np.ndarray:
-    """BFS step counts ``D[b, u, v]`` from cell u to cell v on each episode's grid, int16.
+def all_pairs_distances(env, envs: np.ndarray | None = None) -> np.ndarray:
+    """BFS step counts ``D[k, u, v]`` from cell u to cell v on the grid of env ``envs[k]``
+    (default: every env), int16. Computed once per episode.
 
-    Edges are the env's own moves (``env.next_cell``, so walls and the no-corner-cutting rule
-    of diagonals are respected); unreachable pairs get ``FAR``. Computed once per episode.
+    The env's own move rule (walls, no corner cutting of diagonals; ``env.walking_steps``, one
+    compiled BFS per cell, ~3x faster than a sparse-graph shortest-path call); pairs with no
+    path, and every pair that starts or ends in a wall, get ``FAR``.
     """
-    nxt = np.asarray(env.next_cell)
-    B, C, A = nxt.shape
-    out = np.empty((B, C, C), dtype=np.int16)
-    walls = np.asarray(env.walls)
-    src = np.repeat(np.arange(C), A - 1)
-    for b in range(B):
-        dst = nxt[b, :, 1:].reshape(-1)
-        ok = (dst >= 0) & ~walls[b][src]  # nobody stands in a wall: no moves out of one
-        graph = csr_matrix((np.ones(int(ok.sum())), (src[ok], dst[ok])), shape=(C, C))
-        d = shortest_path(graph, method="D", directed=True, unweighted=True)
-        d[~np.isfinite(d)] = FAR
-        out[b] = d.astype(np.int16)
+    b, cells = np.shape(env.walls)
+    rows = np.arange(b) if envs is None else np.asarray(envs, dtype=np.int64)
+    out = np.empty((len(rows), cells, cells), dtype=np.int16)
+    sources = np.arange(cells, dtype=np.int64)[None]
+    for k, e in enumerate(rows):  # one env at a time: (C, C) int32 is 3 MB at 30 x 30
+        out[k] = np.minimum(env.walking_steps(sources, np.array([e]))[0], FAR)
     return out
 
 
@@ -196,7 +190,7 @@ class UniformPolicy:
             self._ptr = np.zeros((B, N), dtype=np.int64)
         rows, cols = env.spec.rows, env.spec.cols
         order = snake_order(rows, cols)
-        D = all_pairs_distances(env) if len(envs) == B else _subset_distances(env, envs)
+        D = all_pairs_distances(env, envs)
         for k, e in enumerate(envs):
             self._D[e] = D[k]
             free = order[~np.asarray(env.walls[e])[order]]
@@ -255,16 +249,6 @@ class UniformPolicy:
         return step_toward(env, D, goal, mask)
 
 
-def _subset_distances(env, envs: np.ndarray) -> np.ndarray:
-    """All-pairs distances of a few environments only (after an autoreset)."""
-
-    class _View:
-        next_cell = np.asarray(env.next_cell)[envs]
-        walls = np.asarray(env.walls)[envs]
-
-    return all_pairs_distances(_View)
-
-
 # ---------------------------------------------------------------------------- bayes
 
 
@@ -308,7 +292,7 @@ class BayesPolicy:
         if not hasattr(self, "_D") or self._D.shape != (B, C, C) or self._goal.shape != (B, N):
             self._D = np.zeros((B, C, C), dtype=np.int16)
             self._goal = np.full((B, N), -1, dtype=np.int64)  # committed walks (see act)
-        self._D[envs] = all_pairs_distances(env) if len(envs) == B else _subset_distances(env, envs)
+        self._D[envs] = all_pairs_distances(env, envs)
         self._goal[envs] = -1
 
     def act(self, env) -> np.ndarray:

@@ -103,8 +103,8 @@ class EnvRows:
     def action_mask(self) -> np.ndarray:
         return self._env.action_mask()[self._rows]
 
-    def walking_steps(self, cells: np.ndarray) -> np.ndarray:
-        return self._env.walking_steps(cells, self._rows)
+    def walking_steps(self, cells: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
+        return self._env.walking_steps(cells, self._rows if rows is None else self._rows[rows])
 
 
 def rows_view(env: Any, rows: np.ndarray | None) -> Any:
