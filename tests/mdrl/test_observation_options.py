@@ -248,3 +248,93 @@ def test_route_needs_the_odmtl_belief_and_stays_out_of_old_cards():
     assert "route" not in plain.to_dict()  # cards and specs without it read as before
     on = ObservationSpec(kind="odmtl", belief=True, route=True)
     assert on.to_dict()["route"] is True and ObservationSpec.from_dict(on.to_dict()) == on
+
+
+@pytest.mark.parametrize(("moves", "agents", "walls", "critic", "cae"), [
+    (4, 1, (0, 0), "reduced", False),
+    (8, 3, (1, 3), "full", False),
+    (8, 2, (2, 2), "reduced", True),
+])
+def test_route_maps_on_other_set_ups(moves, agents, walls, critic, cae):
+    """Any team, move set, walls or critic, and beside a walls CAE: the route planes sit
+    before the embedding planes, in range, and the networks take the stacks."""
+    import torch
+
+    from workers.mdrl.networks import ActorCritic
+
+    spec = EnvSpec(rows=10, cols=10, area_m=(500.0, 500.0), agents=agents, moves=moves,
+                   walls=walls)
+    obs_spec = ObservationSpec(
+        kind="odmtl", window=5, readings="mean", scale="fixed", belief=True, route=True,
+        walls=True, critic=critic,
+        walls_embedding="models/cae-10x10" if cae else None,
+        walls_embedding_size=32 if cae else 128)
+    observer = make_observer(spec, obs_spec)
+    layout = channel_layout(spec, obs_spec)
+    assert observer.actor_channels == layout.actor
+    route = observer.actor_channels.index("win_route")
+    assert observer.actor_channels[route - 1] == "ds_belief"
+    env = TargetLocalizationEnv(spec, num_envs=5, seed=2)
+    rng = np.random.default_rng(1)
+    for _ in range(4):
+        actor, critic_obs = observer.observe(env)
+        assert actor.shape[2:] == layout.actor_shape and critic_obs.shape[1:] == layout.critic_shape
+        plane = actor[:, :, route]
+        assert np.isfinite(plane).all() and plane.min() >= -1 and plane.max() <= 1
+        assert (plane == 0).any()  # the agent's own cell (inside its window) reads 0
+        mask = env.action_mask()
+        env.step(np.argmax(rng.random(mask.shape) * mask, axis=-1))
+    agent = ActorCritic(observer, spec.num_actions)
+    logits = agent.logits(torch.from_numpy(actor.reshape(-1, *layout.actor_shape)),
+                          torch.ones(5 * agents, spec.num_actions, dtype=torch.bool))
+    assert torch.isfinite(logits).all()
+
+
+def test_a_route_model_guides_a_task_of_another_grid_as_an_expert(tmp_path):
+    """The expert adapter rebuilds a route model's inputs on a task of another size, for the
+    few envs that follow it (an EnvRows view: their walls, not the first envs')."""
+    from workers.mdrl.experts import load_expert
+    from workers.mdrl.ppo import PPOConfig
+    from workers.mdrl.train import RunConfig, Trainer
+
+    small = EnvSpec(rows=6, cols=6, area_m=(300.0, 300.0), agents=2, moves=8, walls=(1, 1))
+    obs_spec = ObservationSpec(kind="odmtl", window=3, readings="mean", scale="fixed",
+                               belief=True, route=True, walls=True)
+    ppo = PPOConfig(horizon=64, num_envs=8, update_epochs=1, num_minibatches=1)
+    run = RunConfig(total_steps=64, eval_every=0, eval_episodes=4, checkpoint_every=0,
+                    progress=False, tensorboard=False)
+    Trainer(small, obs_spec, ppo, run, out=tmp_path / "run").train()
+    task = EnvSpec(rows=9, cols=9, area_m=(450.0, 450.0), agents=3, moves=8, walls=(2, 2))
+    expert = load_expert(str(tmp_path / "run" / "model"), task)
+    env = TargetLocalizationEnv(task, num_envs=6, seed=0)
+    rows = np.array([4, 1])
+    scores = expert.scores(env, rows)
+    assert scores.shape == (2, 3, task.num_actions)
+    mask = env.action_mask()[rows]
+    assert np.isfinite(scores[mask]).all()
+    # the view's route planes are those envs' own (their walls and posteriors)
+    from workers.mdrl.experts import EnvRows
+
+    observer = make_observer(task, obs_spec)
+    whole = observer.observe(env)[0][rows]
+    view = make_observer(task, obs_spec).observe(EnvRows(env, rows))[0]
+    route = observer.actor_channels.index("win_route")
+    np.testing.assert_allclose(view[:, :, route], whole[:, :, route], atol=1e-5)
+
+
+def test_the_belief_of_a_view_of_some_envs_is_theirs():
+    """An expert guiding a few envs sees them through ``EnvRows``: the belief filter must fold
+    their readings in under their own walls (it used the first envs' walls, so a belief
+    expert in MEDC saw a wrong posterior)."""
+    from workers.mdrl.experts import EnvRows
+
+    spec = EnvSpec(rows=9, cols=9, area_m=(450.0, 450.0), agents=3, moves=8, walls=(2, 3))
+    env = TargetLocalizationEnv(spec, num_envs=7, seed=5)
+    rng = np.random.default_rng(2)
+    for _ in range(3):
+        mask = env.action_mask()
+        env.step(np.argmax(rng.random(mask.shape) * mask, axis=-1))
+    rows = np.array([5, 2, 6])
+    whole = BeliefFilter(spec).posterior(env)[rows]
+    view = BeliefFilter(spec).posterior(EnvRows(env, rows))
+    np.testing.assert_allclose(view, whole, rtol=1e-9, atol=1e-12)

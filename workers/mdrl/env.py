@@ -317,12 +317,14 @@ class TargetLocalizationEnv:
 
     def add_unit_counts(self, sum_log: np.ndarray, sum_gain: np.ndarray, envs: np.ndarray,
                         cells: np.ndarray, d_reading: np.ndarray, d_visits: np.ndarray,
-                        floor: float) -> None:
+                        floor: float, walls: np.ndarray | None = None) -> None:
         """For the belief filter (belief.py): for each new reading r, at cell ``cells[r]`` of env
         ``envs[r]``, add ``d_reading[r] * log max(g(c, x), floor)`` to ``sum_log[e]`` and
         ``d_visits[r] *
         g(c, x)`` to ``sum_gain[e]`` for every source c, g the unit counts of
-        ``unit_counts_at`` under the env's walls; one compiled pass (``kernels.belief_add``)."""
+        ``unit_counts_at`` under the env's walls; one compiled pass (``kernels.belief_add``).
+        ``walls``: the layouts ``envs`` index, when they are not this env's own B (a view of
+        some of its envs, ``experts.EnvRows``)."""
         spec = self.spec
         cy, cx = spec.cell_size_m
         cells = np.ascontiguousarray(cells, dtype=np.int64)
@@ -331,7 +333,8 @@ class TargetLocalizationEnv:
         kernels.belief_add(
             sum_log, sum_gain, np.ascontiguousarray(envs, dtype=np.int64), cells,
             np.ascontiguousarray(d_reading, dtype=np.float64),
-            np.ascontiguousarray(d_visits, dtype=np.float64), self.walls, self._free_gain,
+            np.ascontiguousarray(d_visits, dtype=np.float64),
+            np.ascontiguousarray(self.walls if walls is None else walls), self._free_gain,
             self._log_free_gain, spec.wall_mu_per_cm * spec.wall_thickness_cm, self.centre_m,
             *self._slant_rows(cells), spec.rows, spec.cols, cy, cx, float(np.log(floor)),
         )

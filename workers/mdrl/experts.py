@@ -103,6 +103,10 @@ class EnvRows:
     def action_mask(self) -> np.ndarray:
         return self._env.action_mask()[self._rows]
 
+    def add_unit_counts(self, *args: Any) -> None:
+        """The belief filter's update for the view's envs: their walls, not the first envs'."""
+        self._env.add_unit_counts(*args, walls=self.walls)
+
     def walking_steps(self, cells: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
         return self._env.walking_steps(cells, self._rows if rows is None else self._rows[rows])
 

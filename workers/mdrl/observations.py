@@ -610,7 +610,9 @@ class Observer:
         and clipped to [-1, 1] (walls, other pockets and off-grid cells read -1); the critic
         gets g over the grid's walking scale (rows + cols), clipped to 1, downsized."""
         k = min(ROUTE_CELLS, self.cells)
-        top = np.argpartition(-post, k - 1, axis=1)[:, :k]  # (B, k)
+        # ties (cells the readings cannot tell apart) go to the lower cell index, and float
+        # noise below 1e-12 does not reorder them: the same state gives the same map in any batch
+        top = np.argsort(-np.round(post, 12), axis=1, kind="stable")[:, :k]  # (B, k)
         weight = np.take_along_axis(post, top, axis=1)
         total = weight.sum(axis=1, keepdims=True)
         weight = np.where(total > 0, weight / np.where(total > 0, total, 1.0), 1.0 / k)
