@@ -36,9 +36,8 @@ def walking_steps(sources, walls, rows, cols, moves, unreachable):  # pragma: no
     bool; ``unreachable`` where no path goes (a wall, a walled-off pocket). A move enters a
     free cell; a diagonal (dr, dc) also needs both orthogonal cells beside it free (no corner
     cutting), so moves are symmetric and steps from a source are steps to it; a source in a
-    wall reaches nothing. The search runs
-    on the grid with a border of walls, where every move is an index offset; a layout's grid
-    is built once for its k searches."""
+    wall reaches nothing. The search runs on the grid with a border of walls, where every move
+    is an index offset; a layout's grid is built once for its k searches."""
     count, k = sources.shape
     cells = walls.shape[1]
     width = cols + 2
