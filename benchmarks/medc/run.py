@@ -66,6 +66,9 @@ CURVE_SEED = 1_000_003
 BELIEF = False
 """--belief: the product presets of the 10 x 10 scale-down (``ch4-a{N}w{K}-{r}-10x10``: the
 team's belief map and 5 x 5 windows) instead of the thesis observation scaled down."""
+ROUTE = False
+"""--route: the ``-route`` presets (belief map and walking-distance maps, observations.py) of
+the Ch. 4 setting, scaled to --grid like the thesis presets."""
 CAE: str | None = None
 """--cae: the walls CAE directory of the ``-cae`` methods (trained for the benchmark's grid)."""
 REACH = 1.05
@@ -85,7 +88,7 @@ def user_preset(user: str, reward: str, grid: int = 30) -> Any:
         if grid != 10:
             raise ValueError(f"--belief: the product presets are 10x10, not {grid}x{grid}")
         return get_preset(f"ch4-a{m[1]}w{m[2]}-{reward}-10x10")
-    preset = get_preset(f"ch4-a{m[1]}w{m[2]}-{reward}")
+    preset = get_preset(f"ch4-a{m[1]}w{m[2]}-{reward}" + ("-route" if ROUTE else ""))
     if grid == preset.env.rows:
         return preset
     if grid <= preset.observation.window:
@@ -357,7 +360,7 @@ def plot(results: list[dict], path: Path) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    global HELDOUT_EPISODES, THRESHOLD, BELIEF, CAE
+    global HELDOUT_EPISODES, THRESHOLD, BELIEF, ROUTE, CAE
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--steps", type=int, default=1_000_000)
     p.add_argument("--seeds", default="0,1,2")
@@ -379,10 +382,16 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--belief", action="store_true",
                    help="with --grid 10: the product presets ch4-a{N}w{K}-{r}-10x10 (belief "
                    "map, 5 x 5 windows) for every user; give another --out (runs are cached)")
+    p.add_argument("--route", action="store_true",
+                   help="the -route presets (belief and walking-distance maps) at --grid; give "
+                   "another --out (runs are cached)")
     p.add_argument("--cae", default=None,
                    help="walls CAE directory for the -cae methods (drlaas cae train, same grid)")
     args = p.parse_args(argv)
     BELIEF = args.belief
+    ROUTE = args.route
+    if BELIEF and ROUTE:
+        p.error("--belief (the 10 x 10 product presets) and --route exclude each other")
     CAE = args.cae
     HELDOUT_EPISODES = args.episodes
     THRESHOLD = args.threshold
@@ -417,7 +426,8 @@ def main(argv: list[str] | None = None) -> int:
                       f"success {h['success']:.3f} ({r['wall_s'] / 60:.1f} min)",
                       file=sys.stderr, flush=True)
     print(f"MEDC benchmark: Ch. 4 setting on {args.grid}x{args.grid} cells of 50 m"
-          f"{' (product presets: belief map, w = 5)' if BELIEF else ''}, "
+          f"{' (product presets: belief map, w = 5)' if BELIEF else ''}"
+          f"{' (-route presets: belief and walking-distance maps)' if ROUTE else ''}, "
           f"{args.steps} env steps of the task user per run, seeds {args.seeds}, experts "
           f"{experts}; trained and evaluated on Poisson readings")
     print(report(results))
