@@ -72,6 +72,8 @@ def test_round_trip_and_defaults() -> None:
         ({"format": "other/2"}, "format"),
         ({"observation": {"walls_embedding": "/etc/cae"}}, "observation.walls_embedding"),
         ({"observation": {"walls_embedding_size": 0}}, "observation.walls_embedding_size"),
+        ({"observation": {"route": True}}, "observation.route"),
+        ({"observation": {"route": True, "belief": True, "kind": "dmtl"}}, "observation.route"),
         ({"outcome_key": "0x1234"}, "outcome_key"),
         ({"outcome_key": "0x" + "01" * 64}, "outcome_key"),  # hex of the length, off the curve
     ],
@@ -178,3 +180,10 @@ def test_outcome_key_round_trips_and_is_optional() -> None:
     assert spec.outcome_key == g
     assert TrainingSpec.from_dict(spec.to_dict()) == spec
     assert "outcome_key" not in TrainingSpec.from_dict(GOOD).to_dict()  # old spec CIDs stay
+
+
+def test_a_route_observation_round_trips_and_is_off_by_default() -> None:
+    doc = {**GOOD, "observation": {"belief": True, "route": True}}
+    spec = TrainingSpec.from_dict(doc)
+    assert spec.observation.route and TrainingSpec.from_dict(spec.to_dict()) == spec
+    assert "route" not in TrainingSpec.from_dict(GOOD).to_dict()["observation"]

@@ -301,9 +301,16 @@ class TrainingSpec:
         demonstration = algo.get("demonstration") or {}
         if demonstration and not experts:
             raise SpecError("algorithm.demonstration", "applies only when experts are named")
+        if obs.get("route") and not (obs.get("belief") and obs.get("kind", "odmtl") == "odmtl"):
+            raise SpecError("observation.route", "needs observation.kind = odmtl and "
+                            "observation.belief = true (the walking distance to the belief)")
+        try:
+            observation = ObservationSpec(**obs)
+        except ValueError as exc:  # a rule between fields that the checks above do not name
+            raise SpecError("observation", str(exc)) from None
         spec = cls(
             env=parse_env(doc["env"]),
-            observation=ObservationSpec(**obs),
+            observation=observation,
             algorithm=AlgorithmSpec(algo.get("preset"), algo.get("ppo") or {}, demonstration),
             budget=BudgetSpec(budget.get("steps"), budget.get("minutes")),
             seed=seed,
