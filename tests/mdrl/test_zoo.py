@@ -118,3 +118,52 @@ def test_a_zoo_entry_can_fine_tune_an_earlier_entry(tmp_path, monkeypatch):
     assert set(start) == set(tuned)
     assert all(torch.allclose(start[k], tuned[k], atol=1e-3) for k in start)
     assert any(not torch.equal(start[k], tuned[k]) for k in start)
+
+
+def test_a_finished_run_of_an_entry_is_published_and_another_is_refused(tmp_path, monkeypatch):
+    """``drlaas zoo publish NAME --run DIR``: a `drlaas train` run of the entry's preset, seed
+    and experts becomes models/NAME with the zoo section and the run's curve; a run of another
+    set-up is refused naming what differs."""
+    import shutil
+
+    from typer.testing import CliRunner
+
+    from workers.mdrl import zoo
+    from workers.mdrl.commands.zoo import app
+
+    models = tmp_path / "models"
+    shutil.copytree(MODELS / "ch4-a1w0-10x10", models / "ch4-a1w0-10x10")
+    monkeypatch.setitem(zoo.ZOO, "pub", zoo.ZooEntry(
+        "ch4-a3w3-sr-10x10", minutes=5, seed=3, experts=("ch4-a1w0-10x10",)))
+    figures = {"success": 1.0, "time": 4.0, "cost": 5.0, "oracle_time": 3.0}
+    monkeypatch.setattr(zoo, "heldout", lambda policy, spec: {
+        "episodes": spec.rows, "poisson": figures, "expected": figures})
+    import typer
+
+    from workers.mdrl.commands.train import train as train_cmd
+
+    cli = typer.Typer()
+    cli.command()(train_cmd)
+    cli.command("noop")(lambda: None)
+    runner = CliRunner()
+    expert = str(models / "ch4-a1w0-10x10")
+    for out, seed in (("good", "3"), ("other-seed", "4")):
+        res = runner.invoke(cli, ["train", "--preset", "ch4-a3w3-sr-10x10", "--steps", "8192",
+                                  "--seed", seed, "--experts", expert, "--no-progress",
+                                  "--out", str(tmp_path / out)])
+        assert res.exit_code == 0, res.output
+    res = runner.invoke(app, ["publish", "pub", "--run", str(tmp_path / "good"),
+                              "--models", str(models)])
+    assert res.exit_code == 0, res.output
+    card = json.loads((models / "pub" / "model.json").read_text())
+    assert card["zoo"]["env_steps"] == 8192 and card["zoo"]["seed"] == 3
+    assert card["zoo"]["heldout"]["episodes"] == 10  # evaluated on the entry's env
+    assert json.loads(res.output.strip().splitlines()[-1])["poisson"]["time"] == 4.0
+    assert [p["step"] for p in card["curve"]["points"]] == [8192]
+    res = runner.invoke(app, ["publish", "pub", "--run", str(tmp_path / "other-seed"),
+                              "--models", str(models)])
+    assert res.exit_code == 2
+    assert "seed" in " ".join(res.output.replace("│", " ").split())
+    res = runner.invoke(app, ["publish", "pub", "--run", str(tmp_path / "missing"),
+                              "--models", str(models)])
+    assert res.exit_code == 2 and "no finished run" in res.output

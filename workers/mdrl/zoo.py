@@ -155,25 +155,61 @@ def train_entry(name: str, models: Path, runs: Path, minutes: float | None = Non
               "total_steps": entry.steps}
     run_dir = runs / name
     if entry.preset == "generalist":
-        trainer, spec = _generalist(entry, run_dir, budget), None
+        trainer = _generalist(entry, run_dir, budget)
     else:
         experts = tuple(e if e in BUILTINS else str(models / e) for e in entry.experts)
         init = str(models / entry.init_from) if entry.init_from else None
         trainer = _trainer(entry, run_dir, budget, progress, experts, init)
-        spec = get_preset(entry.preset).env
     trainer.train()
+    return publish_run(name, run_dir, models)
+
+
+def publish_run(name: str, run_dir: Path, models: Path) -> Path:
+    """Write ``models/NAME`` from a finished run of zoo entry ``name``: its model with the zoo
+    card section (held-out figures, ``heldout``) and the run's curve. A run made outside
+    ``train_entry`` (``drlaas train`` with the entry's preset, seed and experts) is checked
+    against the entry first: ValueError naming what differs. Returns the model directory."""
+    entry = ZOO[name]
+    run_dir = Path(run_dir)
+    card = json.loads((run_dir / "model" / CARD).read_text())
+    spec = None
+    if entry.preset != "generalist":
+        _check_run_is_entry(name, entry, card, models)
+        spec = get_preset(entry.preset).env
     target = models / name
     if target.exists():
         shutil.rmtree(target)
     shutil.copytree(run_dir / "model", target)
     policy = load_model(target)
-    card = json.loads((target / CARD).read_text())
+    training = card.get("training", {})
     card["zoo"] = {"name": name, "preset": entry.preset, "seed": entry.seed,
-                   "env_steps": trainer.global_step, "wall_clock_s": round(trainer.elapsed, 1),
+                   "env_steps": training.get("env_steps"),
+                   "wall_clock_s": round(float(training.get("wall_time_s", 0.0)), 1),
                    "heldout": heldout(policy, spec if spec is not None else policy.env_spec)}
     card[CURVE_KEY] = training_curve(run_dir / "metrics.csv")
     (target / CARD).write_text(json.dumps(card, indent=1))
     return target
+
+
+def _check_run_is_entry(name: str, entry: ZooEntry, card: dict[str, Any], models: Path) -> None:
+    """The run's card says it trained the entry's set-up: env, observation, seed, experts."""
+    preset = get_preset(entry.preset)
+    run = card.get("training", {}).get("run", {})
+    want_experts = [e if e in BUILTINS else str(models / e) for e in entry.experts]
+    have_experts = [e["ref"] for e in card.get("training", {}).get("experts", {}).get(
+        "experts", [])]
+    obs = {k: v for k, v in card["observation"].items() if k not in ("actor_shape",
+                                                                     "critic_shape")}
+    checks = {"env": (card["env"], preset.env.to_dict()),
+              "observation": (obs, preset.observation.to_dict()),
+              "seed": (run.get("seed"), entry.seed),
+              "experts": ([str(Path(e)) for e in have_experts],
+                          [str(Path(e)) for e in want_experts])}
+    wrong = [k for k, (have, want) in checks.items() if have != want]
+    if wrong:
+        have, want = [checks[k][0] for k in wrong], [checks[k][1] for k in wrong]
+        raise ValueError(f"the run is not zoo entry {name!r}: its {wrong} differ ({have} "
+                         f"against {want})")
 
 
 def _generalist(entry: ZooEntry, run_dir: Path, budget: dict[str, Any]) -> Any:

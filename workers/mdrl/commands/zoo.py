@@ -53,6 +53,29 @@ def train_command(
                    ("success", "time", "cost", "oracle_time")} for r in ("poisson", "expected")}}))
 
 
+@app.command("publish")
+def publish_command(
+    name: Annotated[str, typer.Argument(help="The zoo model the run trained.")],
+    run: Annotated[Path, typer.Option(help="A finished run directory (drlaas train --out).")],
+    models: Annotated[Path, typer.Option(help="Zoo directory.")] = Path("models"),
+) -> None:
+    """Write models/NAME from a finished `drlaas train` run of that zoo entry (same preset,
+    seed and experts, checked), with its held-out figures and training curve."""
+    from workers.mdrl.zoo import ZOO, publish_run
+
+    if name not in ZOO:
+        raise typer.BadParameter(f"unknown zoo model {name!r}; known: {', '.join(ZOO)}")
+    if not (run / "model" / "model.json").is_file() or not (run / "metrics.csv").is_file():
+        raise typer.BadParameter(f"{run} holds no finished run (model/model.json, metrics.csv)")
+    try:
+        target = publish_run(name, run, models)
+    except ValueError as exc:
+        raise typer.BadParameter(str(exc), param_hint="--run") from None
+    held = json.loads((target / "model.json").read_text())["zoo"]["heldout"]
+    typer.echo(json.dumps({"model": str(target), **{r: {k: held[r][k] for k in
+               ("success", "time", "cost", "oracle_time")} for r in ("poisson", "expected")}}))
+
+
 @app.command("complete")
 def complete_command(
     names: Annotated[list[str] | None, typer.Argument(help="Zoo models (default: all).")] = None,
