@@ -87,7 +87,7 @@ KINDS = ("odmtl", "dmtl", "cmtl")
 GAUSSIAN_SIGMA = 1.0
 ROUTE_CELLS = 4
 """How many of the posterior's most probable cells the walking-distance map (``route``)
-averages over: one BFS each per env and step (~10 us at 30 x 30)."""
+averages over: one BFS each per env and step (~20-30 us each at 30 x 30 here)."""
 
 
 @dataclass(frozen=True)
