@@ -187,3 +187,9 @@ def test_a_route_observation_round_trips_and_is_off_by_default() -> None:
     spec = TrainingSpec.from_dict(doc)
     assert spec.observation.route and TrainingSpec.from_dict(spec.to_dict()) == spec
     assert "route" not in TrainingSpec.from_dict(GOOD).to_dict()["observation"]
+    # the same rule in the published JSON Schema (clients see it before they send a spec)
+    v = jsonschema_rs.Draft202012Validator(trainingspec_json_schema())
+    assert v.is_valid(doc) and v.is_valid(spec.to_dict())
+    assert not v.is_valid({**GOOD, "observation": {"route": True}})
+    assert not v.is_valid({**GOOD, "observation": {"route": True, "belief": True,
+                                                   "kind": "cmtl"}})

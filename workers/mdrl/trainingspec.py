@@ -449,6 +449,13 @@ class _ExpertRef:
 
 _EXPERT_REF = _ExpertRef()
 OBSERVATION_RULES["walls_embedding"] = Nullable(_EXPERT_REF)
+ROUTE_NEEDS_ODMTL_BELIEF = {
+    "if": {"properties": {"route": {"const": True}}, "required": ["route"]},
+    "then": {"properties": {"belief": {"const": True}, "kind": {"const": "odmtl"}},
+             "required": ["belief"]},
+}
+"""observation.route = true needs belief = true and kind odmtl (the default): the rule of
+``from_dict`` as JSON Schema, so a client sees it before it sends the spec."""
 
 OUTCOME_KEY_PATTERN = "^0x[0-9a-fA-F]{128}$"
 
@@ -502,7 +509,8 @@ def trainingspec_json_schema() -> dict[str, Any]:
         "properties": {
             "format": {"const": TRAINING_SPEC_FORMAT},
             "env": object_schema(ENV_RULES, "EnvSpec fields (workers.mdrl.spec)"),
-            "observation": object_schema(OBSERVATION_RULES, "ObservationSpec fields"),
+            "observation": object_schema(OBSERVATION_RULES, "ObservationSpec fields",
+                                         **ROUTE_NEEDS_ODMTL_BELIEF),
             "algorithm": algorithm,
             "budget": budget,
             "seed": _SEED.schema(),
