@@ -164,6 +164,15 @@ def load_card(path: str | Path) -> dict[str, Any]:
     return card
 
 
+SHAPE_KEYS = ("actor_shape", "critic_shape")
+"""What a card's ``observation`` adds to the ObservationSpec fields (the built input shapes)."""
+
+
+def card_observation(card: dict[str, Any]) -> dict[str, Any]:
+    """The ObservationSpec fields of a card's ``observation`` section (without the shapes)."""
+    return {k: v for k, v in card["observation"].items() if k not in SHAPE_KEYS}
+
+
 def load_model(path: str | Path) -> GreedyPolicy:
     """Rebuild the greedy policy of a model directory (safetensors + JSON, no pickle)."""
     from workers.mdrl.networks import ActorCritic
@@ -173,9 +182,7 @@ def load_model(path: str | Path) -> GreedyPolicy:
     path = Path(path)
     card = load_card(path)
     env_spec = EnvSpec.from_dict(card["env"])
-    obs = {k: v for k, v in card["observation"].items()
-           if k not in ("actor_shape", "critic_shape")}
-    obs_spec = ObservationSpec.from_dict(obs)
+    obs_spec = ObservationSpec.from_dict(card_observation(card))
     tensors = load_file(str(path / WEIGHTS))
     encoder = {k[len(ENCODER_PREFIX):]: tensors.pop(k) for k in list(tensors)
                if k.startswith(ENCODER_PREFIX)}
@@ -212,15 +219,14 @@ def load_initial_weights(agent: torch.nn.Module, path: str | Path, obs_spec: Any
 
     path = Path(path)
     card = load_card(path)
-    theirs = {k: v for k, v in card["observation"].items()
-              if k not in ("actor_shape", "critic_shape")}
+    theirs = card_observation(card)
     ours = obs_spec.to_dict()
     differ = sorted(k for k in set(theirs) | set(ours) if theirs.get(k) != ours.get(k))
     if differ:
         raise ValueError(f"init_from {str(path)!r}: its observation differs in {differ} "
                          f"(model: {[theirs.get(k) for k in differ]}, this run: "
                          f"{[ours.get(k) for k in differ]})")
-    for part in ("actor_shape", "critic_shape"):  # e.g. wall maps come with walls in the env
+    for part in SHAPE_KEYS:  # e.g. wall maps come with walls in the env
         theirs_shape = card["observation"].get(part)
         if theirs_shape != list(getattr(observer, part)):
             raise ValueError(f"init_from {str(path)!r}: its {part.split('_')[0]} reads inputs of "

@@ -23,7 +23,7 @@ from workers.mdrl.baselines import OraclePolicy, make_baseline
 from workers.mdrl.curve import CURVE_KEY, training_curve
 from workers.mdrl.evaluate import EvalReport, evaluate
 from workers.mdrl.experts import BUILTINS
-from workers.mdrl.modelio import CARD, load_model
+from workers.mdrl.modelio import CARD, card_observation, load_model
 from workers.mdrl.ppo import PPOConfig
 from workers.mdrl.presets import get_preset
 from workers.mdrl.spec import EnvSpec
@@ -201,10 +201,8 @@ def _check_run_is_entry(name: str, entry: ZooEntry, card: dict[str, Any], models
     want_experts = [e if e in BUILTINS else str(models / e) for e in entry.experts]
     have_experts = [e["ref"] for e in card.get("training", {}).get("experts", {}).get(
         "experts", [])]
-    obs = {k: v for k, v in card["observation"].items() if k not in ("actor_shape",
-                                                                     "critic_shape")}
     checks = {"env": (card["env"], preset.env.to_dict()),
-              "observation": (obs, preset.observation.to_dict()),
+              "observation": (card_observation(card), preset.observation.to_dict()),
               "seed": (run.get("seed"), entry.seed),
               "experts": ([str(Path(e)) for e in have_experts],
                           [str(Path(e)) for e in want_experts])}
