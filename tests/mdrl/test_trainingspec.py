@@ -193,3 +193,44 @@ def test_a_route_observation_round_trips_and_is_off_by_default() -> None:
     assert not v.is_valid({**GOOD, "observation": {"route": True}})
     assert not v.is_valid({**GOOD, "observation": {"route": True, "belief": True,
                                                    "kind": "cmtl"}})
+
+
+_ODD_VALUES = [{}, {"x": {}}, [], [[]], [{}], "x", "", None, True, 1e300, -1, float("nan")]
+
+
+def _paths(doc: object, prefix: tuple = ()) -> list[tuple]:
+    """Every key path (dict keys and list indices) of a JSON document, leaves and inner nodes."""
+    out = [prefix] if prefix else []
+    if isinstance(doc, dict):
+        for k, v in doc.items():
+            out += _paths(v, (*prefix, k))
+    elif isinstance(doc, list):
+        for i, v in enumerate(doc):
+            out += _paths(v, (*prefix, i))
+    return out
+
+
+def _replaced(doc: object, path: tuple, value: object) -> object:
+    doc = json.loads(json.dumps(doc))
+    node = doc
+    for key in path[:-1]:
+        node = node[key]
+    node[path[-1]] = value
+    return doc
+
+
+def test_any_wrong_type_anywhere_is_a_spec_error_never_a_crash() -> None:
+    """Each field of a full spec replaced by objects, arrays, strings, null, ... is either
+    accepted or a SpecError naming a field: never a TypeError from a lookup (a dict preset
+    name once crashed the gateway with 'unhashable type')."""
+    full = TrainingSpec.from_dict(
+        {**GOOD, "algorithm": {"preset": "odmtl-3a-10x10", "ppo": {"update_epochs": 3}}}
+    ).to_dict()
+    paths = _paths(full)
+    assert ("algorithm", "preset") in paths and len(paths) > 30
+    for path in paths:
+        for value in _ODD_VALUES:
+            try:
+                TrainingSpec.from_dict(_replaced(full, path, value))
+            except SpecError as exc:
+                assert exc.field, (path, value)

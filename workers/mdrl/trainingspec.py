@@ -380,6 +380,8 @@ def _env(fields: dict[str, Any], field: str = "env") -> EnvSpec:
 
 class _PresetName:
     def check(self, v: Any, field: str) -> str | None:
+        if v is not None and not isinstance(v, str):  # a dict or list is not hashable
+            raise SpecError(field, f"expected a preset name or null, got {type(v).__name__}")
         if v is not None and v not in PRESETS:
             raise SpecError(field, f"unknown preset {v!r}; known: {', '.join(sorted(PRESETS))}")
         return v
