@@ -195,6 +195,12 @@ def test_eval_model_directory_defaults_to_its_card_and_rejects_what_it_cannot_ta
     )
     assert res.exit_code == 0, res.output
     assert json.loads(res.stdout)["env"]["rows"] == 12
+    # ... nor on a grid no larger than the window (w = 3 on 3 x 4: off-grid cells are padded)
+    res = runner.invoke(
+        app, ["eval", "--policy", str(odmtl), "--episodes", "6", "--grid", "3x4", "--json"]
+    )
+    assert res.exit_code == 0, res.output
+    assert json.loads(res.stdout)["env"]["rows"] == 3
     # the joint CMTL actor is tied to its team size; moves change every actor's output size
     res = runner.invoke(app, ["eval", "--policy", str(cmtl), "--episodes", "4", "--agents", "3"])
     assert res.exit_code == 2 and "--agents" in res.output

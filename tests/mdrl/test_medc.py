@@ -24,7 +24,7 @@ from workers.mdrl.experts import (
 )
 from workers.mdrl.medc import DemonstrationConfig, DemonstrationSelector, resume_selector
 from workers.mdrl.modelio import load_model
-from workers.mdrl.observations import ObservationSpec
+from workers.mdrl.observations import ObservationSpec, make_observer
 from workers.mdrl.ppo import PPOConfig, masked_log_probs
 from workers.mdrl.rollout import SampleSelector, policy_step
 from workers.mdrl.spec import EnvSpec
@@ -436,8 +436,18 @@ def test_adapters_refuse_what_they_cannot_serve(models):
     t = Trainer(EnvSpec(rows=10, cols=10, agents=1), ObservationSpec(kind="odmtl", window=5),
                 TINY_PPO, tiny_run(updates=1))
     w5 = t.save_model(models["cmtl-2a-6x6"].parent / "w5")
-    with pytest.raises(ExpertError, match="window w = 5"):
-        load_expert(str(w5), EnvSpec(rows=4, cols=4, agents=1))
+    # a window as large as the task's grid or larger still serves (windows pad off-grid
+    # cells, the downsized maps are interpolated up), while a learner keeps w < min(rows, cols)
+    small = EnvSpec(rows=4, cols=5, agents=2)
+    expert = load_expert(str(w5), small)
+    env = stepped_env(small, envs=6)
+    s = expert.scores(env, np.arange(6))
+    assert s.shape == (6, 2, 5) and (np.isfinite(s) == env.action_mask()).all()
+    np.testing.assert_allclose(np.exp(s).sum(-1), 1.0, rtol=1e-5)
+    actor, _ = expert.observer.observe(env)
+    assert actor.shape[-2:] == (5, 5) and np.isfinite(actor).all()
+    with pytest.raises(ValueError, match="window must satisfy"):
+        make_observer(small, ObservationSpec(kind="odmtl", window=5))
     # a CMTL expert with the task's team ranks by its joint policy's marginals
     s = load_expert(str(models["cmtl-2a-6x6"]), EnvSpec(rows=6, cols=6, agents=2)).scores(
         stepped_env(EnvSpec(rows=6, cols=6, agents=2), envs=4), np.arange(4))

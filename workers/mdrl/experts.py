@@ -35,8 +35,9 @@ The model adapter (``ModelExpert``), what it does and where it refuses:
   or merged into its "others" map (a multi-agent expert on a larger team); an expert trained
   with more agents than the task gets an all-zero others map (there is nobody else).
 * Grid size: ODMTL inputs are ``w x w`` windows and downsized maps, so an ODMTL expert works
-  on any grid with ``w < min(rows, cols)``; DMTL and CMTL inputs are full ``m x n`` maps, so
-  those experts refuse another grid (``ExpertError``).
+  on any grid, smaller than its window too (the window pads off-grid cells, the downsizing
+  interpolates up: ``make_observer(any_window=True)``); DMTL and CMTL inputs are full
+  ``m x n`` maps, so those experts refuse another grid (``ExpertError``).
 * Team size: CMTL's joint actor is over ``A**M`` joint actions of exactly M agents, so a CMTL
   expert refuses another team size; its ranking of agent i is the marginal probability of
   agent i's action under the joint policy.
@@ -282,9 +283,6 @@ class ModelExpert:
         if kind == "cmtl" and exp.moves != task.moves:
             raise ExpertError(f"{what}: a CMTL expert needs the task's move set "
                               f"({exp.moves} moves vs {task.moves})")
-        if kind == "odmtl" and not obs.window < min(task_grid):
-            raise ExpertError(f"{what}: its window w = {obs.window} must be < min(rows, cols) "
-                              f"= {min(task_grid)} of the task")
         if obs.walls_embedding and grid != task_grid:
             raise ExpertError(f"{what}: its walls encoder reads {grid[0]}x{grid[1]} maps, so "
                               f"it cannot serve a {task_grid[0]}x{task_grid[1]} task")
@@ -292,7 +290,8 @@ class ModelExpert:
         on_task = dataclasses.replace(exp, rows=task.rows, cols=task.cols, agents=task.agents,
                                       walls=task.walls, wall_length=task.wall_length,
                                       moves=task.moves)
-        self.observer = make_observer(on_task, obs, getattr(policy.observer, "embedder", None))
+        self.observer = make_observer(on_task, obs, getattr(policy.observer, "embedder", None),
+                                      any_window=True)
         want = channel_layout(dataclasses.replace(on_task, agents=exp.agents), obs).actor
         have = list(self.observer.actor_channels)
         zero_ok = {"others", "ds_others"}  # no other agent in the task: an empty map is exact

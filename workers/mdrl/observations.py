@@ -394,14 +394,20 @@ def joint_mask(mask: np.ndarray) -> np.ndarray:
 class Observer:
     """Builds (actor, critic) observations for a batch of envs; see the module docstring."""
 
-    def __init__(self, env_spec: Any, obs_spec: ObservationSpec, walls_encoder: Any = None) -> None:
+    def __init__(
+        self,
+        env_spec: Any,
+        obs_spec: ObservationSpec,
+        walls_encoder: Any = None,
+        any_window: bool = False,
+    ) -> None:
         rows, cols, agents = int(env_spec.rows), int(env_spec.cols), int(env_spec.agents)
         if rows < 1 or cols < 1 or agents < 1:
             raise ValueError(
                 f"env spec needs rows, cols, agents >= 1, got {rows}, {cols}, {agents}"
             )
         w = int(obs_spec.window)
-        if obs_spec.kind == "odmtl" and not (1 < w < min(rows, cols)):
+        if obs_spec.kind == "odmtl" and not (1 < w and (any_window or w < min(rows, cols))):
             raise ValueError(
                 f"ODMTL window must satisfy 1 < w < min(rows, cols) = "
                 f"{min(rows, cols)} (thesis 3.6.1), got w = {w}"
@@ -854,10 +860,16 @@ def reference_count(env_spec: Any) -> float:
     return strongest * env_spec.dwell_min * env_spec.detector_area_cm2 / (4 * np.pi * cell_cm**2)
 
 
-def make_observer(env_spec: Any, obs_spec: ObservationSpec, walls_encoder: Any = None) -> Observer:
+def make_observer(
+    env_spec: Any, obs_spec: ObservationSpec, walls_encoder: Any = None, any_window: bool = False
+) -> Observer:
     """Observer for an env spec (needs ``rows``, ``cols``, ``agents``, ``walls`` (min, max)).
     ``walls_encoder``: a ``cae.WallsEmbedder`` to use instead of loading
-    ``obs_spec.walls_embedding`` (a model file carries its own encoder)."""
+    ``obs_spec.walls_embedding`` (a model file carries its own encoder). ``any_window``: an
+    ODMTL window may be as large as the grid or larger (windows pad off-grid cells, the
+    downsizing interpolates up): how a model trained on a larger map reads a smaller one (an
+    expert guiding a small task, a model evaluated on another grid); a learner keeps the
+    thesis rule w < min(rows, cols) (3.6.1)."""
     if not isinstance(obs_spec, ObservationSpec):
         raise ValueError(f"obs_spec must be an ObservationSpec, got {type(obs_spec).__name__}")
-    return Observer(env_spec, obs_spec, walls_encoder)
+    return Observer(env_spec, obs_spec, walls_encoder, any_window)

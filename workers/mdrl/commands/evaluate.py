@@ -108,7 +108,7 @@ def model_policy_for(path: Path, spec: EnvSpec | None, card_spec: EnvSpec, polic
     differs = [flag for key, flag in _FLAGS.items() if _field(spec, key) != _field(card_spec, key)]
     flags = " / ".join(differs) or None
     try:
-        observer = make_observer(spec, obs_spec)
+        observer = make_observer(spec, obs_spec, any_window=True)  # a larger map's model too
     except ValueError as exc:
         raise typer.BadParameter(
             f"model {path} cannot take this environment: {exc}", param_hint=flags
