@@ -4,12 +4,39 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, WithJsonSchema, model_validator
 
-from workers.mdrl.trainingspec import trainingspec_json_schema
+from workers.mdrl.trainingspec import EXPERT_PATTERN, trainingspec_json_schema
 
-from .common import MAX_ID, Address, Domain, EventPublic, Fraction, ListPublic, Review, Wei
+from .common import (
+    CID_LENGTH,
+    CID_PATTERN,
+    MAX_ID,
+    Address,
+    Domain,
+    EventPublic,
+    Fraction,
+    ListPublic,
+    Review,
+    Wei,
+)
 
 MAX_EXTRA_METRICS = 16
-_SPEC = trainingspec_json_schema()["properties"]
+
+
+def _models_by_cid(schema: Any) -> Any:
+    """The core's spec schema with every model reference (experts, the walls CAE) narrowed
+    from "CID or path" to a CID in the store's form: a platform task names its models by the
+    CID of their bundle (no paths, no built-ins), which the route checks (``api/experts.py``)
+    and the OpenAPI document now states."""
+    if isinstance(schema, list):
+        return [_models_by_cid(s) for s in schema]
+    if not isinstance(schema, dict):
+        return schema
+    if schema.get("pattern") == EXPERT_PATTERN:
+        return {**schema, "pattern": CID_PATTERN, "minLength": CID_LENGTH, "maxLength": CID_LENGTH}
+    return {k: _models_by_cid(v) for k, v in schema.items()}
+
+
+_SPEC = _models_by_cid(trainingspec_json_schema())["properties"]
 SPEC_FIELDS = ("env", "observation", "algorithm", "budget", "seed", "experts", "outcome_key")
 """Fields of the body that make the TrainingSpec document (the rest are task parameters)."""
 

@@ -5,6 +5,7 @@ allocation, expert CIDs checked, the task page listing its experts with their re
 from __future__ import annotations
 
 import json
+import re
 from typing import Any
 
 from fastapi.testclient import TestClient
@@ -112,6 +113,14 @@ def test_named_experts_must_be_model_cids_in_the_store(client: TestClient, login
         headers=login("user1"),
     )
     assert r.status_code == 201, r.text
+    # the OpenAPI document states the rule: every model reference of a task is a CID
+    body = client.get(f"{P}/openapi.json").json()["components"]["schemas"]["TaskCreate"]
+    item = body["properties"]["experts"]["items"]["anyOf"]
+    cae = body["properties"]["observation"]["properties"]["walls_embedding"]["anyOf"][0]
+    for ref_schema in (item[0], item[1]["properties"]["model"], cae):
+        pattern = re.compile(ref_schema["pattern"])
+        assert pattern.search(model) and not pattern.search("runs/m")
+        assert not pattern.search("oracle")
 
 
 def test_a_named_walls_cae_must_be_a_cae_bundle_in_the_store(

@@ -77,8 +77,10 @@ UNSCHEMATIC_REJECTIONS: dict[str, tuple[str, ...]] = {
         r"^spec_exceeds_\w+$",  # resource limits: estimated memory, worker-hours
         r"^reward_below_minimum ",  # payment vs duration, minimum read from the chain
         r"^tasks_bad_duration$",  # deadline_s within the TMC's settings, read from the chain
-        # experts (MEDC): model CIDs in the store, or the caller's allocation in the index
-        r"^expert_(not_cid|not_canonical|not_found|invalid) ",
+        # experts (MEDC) and the walls CAE: model CIDs (the schema states the pattern) whose
+        # bundles are in the store, or the caller's allocation in the index
+        r"^(expert|walls_cae)_(not_found|invalid) ",
+        r"^walls_cae_(grid|size)_mismatch ",
         r"^allocation_(not_found|empty) ",
         r"give experts or expert_allocation, not both",
         # algorithm.demonstration (nested) needs experts or expert_allocation (top level)
