@@ -218,7 +218,7 @@ def check_safetensors(path: Path, ref: str) -> None:
 
 def check_card(path: Path, ref: str) -> dict[str, Any]:
     """The expert's card, if it is one this worker can rebuild a model from."""
-    from workers.mdrl.modelio import CARD_FORMAT
+    from workers.mdrl.modelio import CARD_FORMAT, card_observation
     from workers.mdrl.observations import ObservationSpec
     from workers.mdrl.specfields import SpecError, check_object
     from workers.mdrl.trainingspec import OBSERVATION_RULES, parse_env
@@ -235,9 +235,7 @@ def check_card(path: Path, ref: str) -> dict[str, Any]:
         # an unbounded one (a 10^5 x 10^5 grid, a window of 10^4) would exhaust the worker's
         # memory when the expert's observer is built.
         parse_env(card["env"], "env")
-        obs = {
-            k: v for k, v in card["observation"].items() if k not in ("actor_shape", "critic_shape")
-        }
+        obs = card_observation(card)
         embedding = obs.pop("walls_embedding", None)  # informative: the file holds the encoder
         if embedding is not None and not (isinstance(embedding, str) and len(embedding) <= 600):
             raise ValueError("observation.walls_embedding: expected a CAE reference or null")
