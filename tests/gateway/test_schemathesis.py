@@ -30,7 +30,9 @@ from schemathesis.config import SchemathesisConfig  # noqa: E402
 from schemathesis.generation import GenerationMode  # noqa: E402
 
 EXAMPLES_PER_OPERATION = 50
-_SCHEMA_VALID_422 = '["2xx", "401", "403", "404", "409", "422"]'
+#: What a schema-valid request may get besides 2xx: 402 insufficient_funds (a payment larger than
+#: the caller's balance: state, not schema), 401/403/404/409 and the documented 422.
+_SCHEMA_VALID_422 = '["2xx", "401", "402", "403", "404", "409", "422"]'
 #: Per-operation changes to the checks' defaults (``include-name`` = one operation exactly).
 #: * POST /rpc speaks JSON-RPC 2.0, which answers every request with HTTP 200, an invalid one
 #:   with an ``error`` object (-32600 ...): its negative requests get 200 by the protocol. Its
@@ -83,6 +85,7 @@ UNSCHEMATIC_REJECTIONS: dict[str, tuple[str, ...]] = {
         r"^walls_cae_(grid|size)_mismatch ",
         r"^allocation_(not_found|empty) ",
         r"give experts or expert_allocation, not both",
+        r"the QoS weights are all 0",  # a relation over the items (some qos > 0)
         # algorithm.demonstration (nested) needs experts or expert_allocation (top level)
         r"applies only when experts are named",
         # outcome_key: a point of secp256k1 whose address is the caller's (sealed outcomes)
