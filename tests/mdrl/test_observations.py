@@ -325,6 +325,16 @@ def test_bad_odmtl_window_is_rejected(window):
         make_observer(make_spec(5, 6, 2), ObservationSpec("odmtl", window=window))
 
 
+def test_a_window_larger_than_the_grid_is_refused_with_the_rule_that_applies():
+    spec = make_spec(5, 6, 2)
+    with pytest.raises(ValueError, match=r"1 < w < min\(rows, cols\) = 5 .*got w = 7"):
+        make_observer(spec, ObservationSpec("odmtl", window=7))
+    assert make_observer(spec, ObservationSpec("odmtl", window=7), any_window=True).window == 7
+    # an expert's observer (any_window) still needs a window: w = 1 breaks only "w > 1"
+    with pytest.raises(ValueError, match=r"satisfy w > 1 \(thesis 3.6.1\), got w = 1"):
+        make_observer(spec, ObservationSpec("odmtl", window=1), any_window=True)
+
+
 @pytest.mark.parametrize(
     "kwargs", [{"kind": "qmix"}, {"window": 4}, {"window": 0}, {"window": 3.0}, {"walls": 1}]
 )

@@ -7,6 +7,7 @@ import dataclasses
 import json
 import math
 from pathlib import Path
+from statistics import NormalDist
 
 import pytest
 
@@ -18,7 +19,13 @@ MODELS = Path(__file__).resolve().parents[2] / "models"
 SHIPPED = sorted(p.parent.name for p in MODELS.glob("*/model.json")
                  if "kind" not in json.loads(p.read_text()))  # policies, not the walls CAE
 FRESH_SEED = HELDOUT_SEED + 1  # other episodes than the card's
-Z95, Z99 = 1.959964, 2.575829
+Z95 = NormalDist().inv_cdf(0.975)
+CHECKS = len(SHIPPED) * len(READING_MODELS) * 3  # success, time and cost of each
+Z_FAMILY = NormalDist().inv_cdf(1 - 0.01 / (2 * CHECKS))
+"""Two-sided 1% for the whole family of checks (Bonferroni, ~4 standard errors): at 1% per
+check, ~200 checks fail an honest card now and then by chance alone (seen: a 1000-episode card
+1.4 SE high against a fresh 200-episode sample 1.9 SE low, the same model's mean on 3000 other
+episodes between the two)."""
 
 
 def test_every_zoo_entry_is_shipped():
@@ -36,8 +43,8 @@ def test_card_figures_hold_on_200_fresh_episodes(name):
         spec = policy.env_spec.replace(readings=readings)
         fresh = evaluate(policy, spec, 200, seed=FRESH_SEED).summary
         p = claimed["success"]
-        # 99% interval of the difference of two independent proportions (1000 vs 200 episodes)
-        assert abs(p - fresh["success_rate"]) <= Z99 * math.sqrt(
+        # interval of the difference of two independent proportions (1000 vs 200 episodes)
+        assert abs(p - fresh["success_rate"]) <= Z_FAMILY * math.sqrt(
             max(p * (1 - p), 1e-3) * (1 / 1000 + 1 / 200)
         )
         if p < 0.995:
@@ -45,11 +52,11 @@ def test_card_figures_hold_on_200_fresh_episodes(name):
             # that a t interval does not cover; success is the claim that matters there
             continue
         for key in ("time", "cost"):
-            # 99% interval of the difference of two independent means (card: 1000 episodes,
+            # interval of the difference of two independent means (card: 1000 episodes,
             # fresh: 200): the card's claim must be consistent with what the model does now
             lo, hi = fresh[f"{key}_ci"]
             c_lo, c_hi = claimed[f"{key}_ci"]
-            half = Z99 / Z95 * math.hypot((hi - lo) / 2, (c_hi - c_lo) / 2)
+            half = Z_FAMILY / Z95 * math.hypot((hi - lo) / 2, (c_hi - c_lo) / 2)
             assert abs(claimed[key] - fresh[f"{key}_mean"]) <= half, (
                 f"{name} {readings} {key}: card {claimed[key]:.2f}, fresh "
                 f"{fresh[f'{key}_mean']:.2f} ± {half:.2f}"

@@ -408,10 +408,8 @@ class Observer:
             )
         w = int(obs_spec.window)
         if obs_spec.kind == "odmtl" and not (1 < w and (any_window or w < min(rows, cols))):
-            raise ValueError(
-                f"ODMTL window must satisfy 1 < w < min(rows, cols) = "
-                f"{min(rows, cols)} (thesis 3.6.1), got w = {w}"
-            )
+            rule = "w > 1" if any_window else f"1 < w < min(rows, cols) = {min(rows, cols)}"
+            raise ValueError(f"ODMTL window must satisfy {rule} (thesis 3.6.1), got w = {w}")
         self.env_spec, self.obs_spec = env_spec, obs_spec
         self.kind, self.window = obs_spec.kind, w
         self.rows, self.cols, self.agents = rows, cols, agents

@@ -81,6 +81,9 @@ ZOO: dict[str, ZooEntry] = {
     # the same recipe with the walking-distance maps to the belief (``-route``): the one that
     # reaches issue 10's final target at this size (docs/learning.md)
     "ch4-a3w3-route-30x30": ZooEntry("ch4-a3w3-sr-route", minutes=110, experts=_CH4_EXPERTS_30),
+    # the benchmark's experts on the route presets (benchmarks/medc, --route): 1M steps each
+    **{f"ch4-{u}-route-30x30": ZooEntry(f"ch4-{u}-sr-route", minutes=20, steps=1_000_000)
+       for u in ("a1w0", "a1w3", "a2w2")},
 }
 
 
