@@ -30,6 +30,7 @@ checkpoint (every ``CHECKPOINT_EVERY`` updates, FRL rounds).
 Usage: python benchmarks/medc/run.py --steps 1000000 --seeds 0,1,2
        [--tasks A3W2,A3W3] [--methods sparse,sr,dc,medc,medc-faulty,il,frl]
        [--grid 30] [--belief] [--experts train | DIR,DIR,...] [--expert-steps 1000000]
+       [--frl-steps N]
        [--cae DIR]
        [--qos 1,1,1]
        [--episodes 1000] [--eval-every 5] [--out runs/medc] [--png benchmarks/medc/curves.png]
@@ -371,6 +372,10 @@ def main(argv: list[str] | None = None) -> int:
                    help="expert model dirs, comma-separated, or 'train' = train A1W0, A1W3 and "
                         "A2W2 on the shaped reward first (cached under --out/experts)")
     p.add_argument("--expert-steps", type=int, default=1_000_000)
+    p.add_argument("--frl-steps", type=int, default=None,
+                   help="budget of the frl runs (default --steps): FRL collects the eight users' "
+                   "experience per step of the task user, ~8x the others' wall-clock; the MEDC vs "
+                   "FRL comparison is then over the evaluation points both reach")
     p.add_argument("--qos", default="", help="QoS weight per expert (default equal)")
     p.add_argument("--episodes", type=int, default=HELDOUT_EPISODES)
     p.add_argument("--eval-every", type=int, default=5)
@@ -413,11 +418,12 @@ def main(argv: list[str] | None = None) -> int:
         for method in methods:
             for seed in seeds:
                 g = args.grid
-                cached = args.out / f"{task}-{g}x{g}-{method}-s{seed}-{args.steps}.json"
+                steps = args.frl_steps if method == "frl" and args.frl_steps else args.steps
+                cached = args.out / f"{task}-{g}x{g}-{method}-s{seed}-{steps}.json"
                 if cached.is_file():
                     r = json.loads(cached.read_text())
                 else:
-                    r = train_run(task, method, seed, args.steps, experts, qos,
+                    r = train_run(task, method, seed, steps, experts, qos,
                                   args.eval_every, args.out, args.grid)
                     cached.write_text(json.dumps(r))
                 results.append(r)
@@ -428,7 +434,8 @@ def main(argv: list[str] | None = None) -> int:
     print(f"MEDC benchmark: Ch. 4 setting on {args.grid}x{args.grid} cells of 50 m"
           f"{' (product presets: belief map, w = 5)' if BELIEF else ''}"
           f"{' (-route presets: belief and walking-distance maps)' if ROUTE else ''}, "
-          f"{args.steps} env steps of the task user per run, seeds {args.seeds}, experts "
+          f"{args.steps} env steps of the task user per run"
+          f"{f' (frl: {args.frl_steps})' if args.frl_steps else ''}, seeds {args.seeds}, experts "
           f"{experts}; trained and evaluated on Poisson readings")
     print(report(results))
     if args.png:
