@@ -7,6 +7,8 @@ method trains for the same env-step budget of the task user:
   sr           PPO on the shaped BFS reward (MDRL-SR, Eq. 8)
   dc           sparse + Demonstration Cloning with the first expert (Alg. 4.1, E = 0.2)
   medc         sparse + MEDC with all experts, roulette over their QoS (Alg. 5.1, R_E = 0.1)
+  medc-anneal  medc with R_E moving linearly from 0.2 (Table 4.1's E) to 0 over the budget
+               (medc.py ``rate_end``; ours): more guidance early, none at the end
   medc-faulty  sparse + MEDC with only faulty experts: 5 random, 5 biased, 5 malicious
   medc-credit, medc-faulty-credit
                the same with the expert credit rule (medc.py, ``credit``: experts whose
@@ -59,9 +61,14 @@ from workers.mdrl.presets import get_preset
 from workers.mdrl.train import RunConfig, Trainer
 from workers.mdrl.zoo import HELDOUT_SEED
 
-METHODS = ("sparse", "sr", "dc", "medc", "medc-faulty", "medc-credit", "medc-faulty-credit",
+METHODS = ("sparse", "sr", "dc", "medc", "medc-anneal", "medc-faulty", "medc-credit",
+           "medc-faulty-credit",
            "il", "frl", "sparse-cae", "sr-cae")
 EXPERT_USERS = ("A1W0", "A1W3", "A2W2")
+GUIDED = ("medc", "medc-anneal", "medc-credit")
+"""The methods with proper experts whose speed and rivals the targets report."""
+ANNEAL = (0.2, 0.0)
+"""medc-anneal's R_E at the start and at the end of the budget."""
 CURVE_EPISODES = 100
 CURVE_SEED = 1_000_003
 BELIEF = False
@@ -171,6 +178,10 @@ def train_run(task: str, method: str, seed: int, steps: int, experts: list[str],
             selector = DemonstrationSelector(load_experts(experts, env, seed), qos or None,
                                              seed=seed, credit=method.endswith("-credit"),
                                              threshold=THRESHOLD)
+        elif method == "medc-anneal":
+            selector = DemonstrationSelector(load_experts(experts, env, seed), qos or None,
+                                             ANNEAL[0], seed=seed, threshold=THRESHOLD,
+                                             rate_end=ANNEAL[1])
         elif method in ("medc-faulty", "medc-faulty-credit"):
             refs = faulty_refs(experts[0], env.num_actions)
             selector = DemonstrationSelector(load_experts(refs, env, seed), seed=seed,
@@ -282,19 +293,9 @@ def report(results: list[dict]) -> str:
 def targets(by: dict[str, list[dict]], sr_level: float) -> list[str]:
     """The issue's targets as measured ratios."""
     out = ["", "Targets:"]
-    if {"medc", "sr"} <= set(by):
-        a, b = steps_to(by["medc"], sr_level), steps_to(by["sr"], sr_level)
-        out.append(f"- MEDC reaches SR's final level ({sr_level:.2f}) in {_steps(a)} env steps, "
-                   f"SR in {_steps(b)}: ratio {_ratio(a, b)} (target <= 1)")
-    if {"medc", "sparse"} <= set(by):
-        own = last_level(by["sparse"])
-        s = steps_to(by["sparse"], own)
-        a = steps_to(by["medc"], sr_level) if not math.isnan(sr_level) else math.nan
-        out.append(f"- sparse alone reaches its own final level ({own:.2f}) in {_steps(s)}; "
-                   f"MEDC reaches SR's in {_steps(a)}: ratio {_ratio(a, s)} (target <= 1/3)")
-        b = steps_to(by["medc"], own)
-        out.append(f"- MEDC reaches sparse's final level in {_steps(b)}: {_ratio(b, s)} of "
-                   "the steps sparse needs")
+    for medc in GUIDED:
+        if medc in by:
+            out += speed_targets(by, medc, sr_level)
     for faulty in ("medc-faulty", "medc-faulty-credit"):
         if {faulty, "sparse"} <= set(by):
             f, f_ci = final(by[faulty], "time")
@@ -308,15 +309,36 @@ def targets(by: dict[str, list[dict]], sr_level: float) -> list[str]:
             b, b_ci = final(by[plain], "time")
             out.append(f"- {plain} with the walls CAE {a:.2f} [{a_ci[0]:.2f}, {a_ci[1]:.2f}] vs "
                        f"with the wall maps {b:.2f} [{b_ci[0]:.2f}, {b_ci[1]:.2f}]")
-    for other in ("frl", "il"):
-        if {"medc", other} <= set(by):
-            steps, m = mean_curve(by["medc"])
-            steps_o, o = mean_curve(by[other])
-            shared = np.intersect1d(steps, steps_o)
-            wins = int(sum(m[steps == s][0] < o[steps_o == s][0] for s in shared))
-            out.append(f"- MEDC vs {other.upper()}: shorter mean episodes at {wins} of "
-                       f"{len(shared)} shared evaluation points; final "
-                       f"{final(by['medc'], 'time')[0]:.2f} vs {final(by[other], 'time')[0]:.2f}")
+    for medc in GUIDED:
+        for other in ("frl", "il"):
+            if {medc, other} <= set(by):
+                steps, m = mean_curve(by[medc])
+                steps_o, o = mean_curve(by[other])
+                shared = np.intersect1d(steps, steps_o)
+                wins = int(sum(m[steps == s][0] < o[steps_o == s][0] for s in shared))
+                out.append(f"- {medc} vs {other.upper()}: shorter mean episodes at {wins} of "
+                           f"{len(shared)} shared evaluation points; final "
+                           f"{final(by[medc], 'time')[0]:.2f} vs "
+                           f"{final(by[other], 'time')[0]:.2f}")
+    return out
+
+
+def speed_targets(by: dict[str, list[dict]], medc: str, sr_level: float) -> list[str]:
+    """How fast the guided method ``medc`` reaches SR's and sparse's final levels."""
+    out = []
+    if "sr" in by:
+        a, b = steps_to(by[medc], sr_level), steps_to(by["sr"], sr_level)
+        out.append(f"- {medc} reaches SR's final level ({sr_level:.2f}) in {_steps(a)} env "
+                   f"steps, SR in {_steps(b)}: ratio {_ratio(a, b)} (target <= 1)")
+    if "sparse" in by:
+        own = last_level(by["sparse"])
+        s = steps_to(by["sparse"], own)
+        a = steps_to(by[medc], sr_level) if not math.isnan(sr_level) else math.nan
+        out.append(f"- sparse alone reaches its own final level ({own:.2f}) in {_steps(s)}; "
+                   f"{medc} reaches SR's in {_steps(a)}: ratio {_ratio(a, s)} (target <= 1/3)")
+        b = steps_to(by[medc], own)
+        out.append(f"- {medc} reaches sparse's final level in {_steps(b)}: {_ratio(b, s)} of "
+                   "the steps sparse needs")
     return out
 
 

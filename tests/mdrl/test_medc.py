@@ -151,6 +151,60 @@ def test_roulette_wheel_follows_qos_and_rate():
     assert sel.card()["experts"][2]["selection_probability"] == pytest.approx(5 / 8)
 
 
+def test_rate_schedule_moves_r_e_linearly_over_the_budget():
+    """rate_end: R_E goes from rate to rate_end with the share of the budget done; the guided
+    share of episodes follows it, and without rate_end progress changes nothing (Alg. 5.1)."""
+    experts = [FixedExpert(np.zeros((1, 1, 5)), f"e{i}") for i in range(2)]
+    n = 20_000
+    for progress, rate in ((0.0, 0.4), (0.5, 0.2), (0.75, 0.1), (1.0, 0.0), (2.0, 0.0)):
+        sel = DemonstrationSelector(experts, rate=0.4, rate_end=0.0, seed=1)
+        sel.set_progress(progress)
+        assert sel.rate == pytest.approx(rate)
+        sel.episode_start(np.arange(n))
+        guided = int(sel.episodes.sum())
+        if rate == 0.0:
+            assert guided == 0
+        else:
+            assert stats.binomtest(guided, n, rate).pvalue > 1e-3
+    fixed = DemonstrationSelector(experts, rate=0.4, seed=1)
+    fixed.set_progress(0.9)
+    assert fixed.rate == 0.4 and "rate_end" not in fixed.card()
+    rising = DemonstrationSelector(experts, rate=0.0, rate_end=0.3, seed=1)
+    rising.set_progress(0.5)
+    assert rising.rate == pytest.approx(0.15)
+    card = rising.card()
+    assert (card["rate_start"], card["rate_end"], card["rate"]) == (0.0, 0.3, pytest.approx(0.15))
+    restored = DemonstrationSelector(experts, rate=0.0, rate_end=0.3, seed=1)
+    restored.load_state_dict(rising.state_dict())  # a resumed run keeps the rate in force
+    assert restored.rate == pytest.approx(0.15)
+
+
+def test_rate_schedule_through_the_trainer_config_and_spec():
+    obs = ObservationSpec(kind="odmtl")
+    updates = 4
+    sel = DemonstrationSelector(load_experts(["oracle"], TASK), rate=0.8, rate_end=0.0, seed=0)
+    Trainer(TASK, obs, TINY_PPO, tiny_run(updates=updates), selector=sel).train()
+    # the last rollout starts with (updates - 1) of the updates' steps done
+    assert sel.rate == pytest.approx(0.8 * (1 - (updates - 1) / updates))
+    timed = DemonstrationSelector(load_experts(["oracle"], TASK), rate_end=0.0)
+    with pytest.raises(ValueError, match="rate_end"):
+        Trainer(TASK, obs, TINY_PPO, tiny_run(total_steps=None, minutes=0.1),
+                selector=timed).train()
+    config = DemonstrationConfig.from_dict({"models": ["oracle"], "rate": 0.3, "rate_end": 0.0})
+    again = DemonstrationConfig.from_dict(config.to_dict())
+    assert (again.rate, again.rate_end) == (0.3, 0.0)
+    assert "rate_end" not in DemonstrationConfig(("oracle",)).to_dict()
+    with pytest.raises(ValueError, match="rate_end"):
+        DemonstrationConfig(("oracle",), rate_end=-0.1)
+    doc = {"env": {"rows": 6, "cols": 6, "agents": 3}, "budget": {"steps": 2000},
+           "experts": ["a"], "algorithm": {"demonstration": {"rate": 0.2, "rate_end": 0.0}}}
+    spec = TrainingSpec.from_dict(doc)
+    assert spec.demonstration().rate_end == 0.0 and TrainingSpec.from_dict(spec.to_dict()) == spec
+    with pytest.raises(SpecError) as info:
+        TrainingSpec.from_dict({**doc, "budget": {"minutes": 5}})
+    assert info.value.field == "algorithm.demonstration.rate_end"
+
+
 def test_credit_rule_fades_experts_that_lengthen_episodes():
     """credit=True: an expert whose guided episodes are no shorter than the agents' own loses
     its weight and the guidance share drops with it; one that shortens them by 1/3 keeps all
@@ -524,6 +578,14 @@ def test_train_command_with_experts_lists_them_on_the_card(tmp_path):
     assert again["own_episodes"] > card["own_episodes"] and "credit" in again  # resumed as run
     bad = runner.invoke(make_app(), args[:-4] + ["--expert-qos", "1", "--out", str(tmp_path / "x")])
     assert bad.exit_code != 0 and "qos" in bad.output
+    scheduled = runner.invoke(make_app(), args + ["--expert-rate-end", "0", "--out",
+                                                  str(tmp_path / "y")])
+    assert scheduled.exit_code == 0, scheduled.output
+    card = json.loads((tmp_path / "y" / "model" / "model.json").read_text())["training"]["experts"]
+    assert (card["rate_start"], card["rate_end"]) == (0.5, 0.0) and card["rate"] < 0.5
+    alone = runner.invoke(make_app(), ["train", "--preset", "odmtl-2a-10x10", "--steps", "10",
+                                       "--expert-rate-end", "0", "--out", str(tmp_path / "z")])
+    assert alone.exit_code != 0 and "--expert-rate-end" in alone.output
 
 
 def test_task_spec_carries_experts_with_qos_and_settings():

@@ -291,13 +291,17 @@ def test_a_walls_cae_that_is_not_one_fails_the_job_naming_its_cid(env, store, tm
     assert out["status"] == "failed" and "8x8" in out["reason"], out
 
 
-def test_the_expert_credit_rule_of_a_spec_reaches_the_selector(store, tmp_path: Path) -> None:
+def test_the_expert_credit_rule_and_rate_schedule_of_a_spec_reach_the_selector(store, tmp_path: Path) -> None:
     cid = upload_model(store, EXPERT)
     doc = {**TINY_SPEC, "experts": [cid], "algorithm": {"demonstration": {"credit": True}}}
     dirs = fetch_experts(store, [cid], tmp_path / "job")
     assert jobs.make_selector(TrainingSpec.from_dict(doc), dirs).credit
     plain = {**TINY_SPEC, "experts": [cid]}
     assert not jobs.make_selector(TrainingSpec.from_dict(plain), dirs).credit
+    assert jobs.make_selector(TrainingSpec.from_dict(plain), dirs).config.rate_end is None
+    scheduled = {**plain, "algorithm": {"demonstration": {"rate": 0.3, "rate_end": 0.0}}}
+    selector = jobs.make_selector(TrainingSpec.from_dict(scheduled), dirs)
+    assert (selector.rate, selector.config.rate_end) == (0.3, 0.0)
 
 
 # -- the requester's CLI ----------------------------------------------------------------------
@@ -319,6 +323,8 @@ def test_task_submit_expert_options_are_checked_before_anything_is_sent(tmp_path
         ("--expert-rate", "0.5"): "need experts",
         ("--expert-credit",): "need experts",
         ("--experts", cid, "--expert-rate", "1.5"): "algorithm.demonstration.rate",
+        ("--expert-rate-end", "0"): "need experts",
+        ("--experts", cid, "--expert-rate-end", "2"): "algorithm.demonstration.rate_end",
         ("--expert-allocation", "3", "--expert-price-wei", "5"): "prices --experts-from-mmc",
     }
     for args, msg in cases.items():

@@ -17,7 +17,10 @@ selected ... to guide the episode"), so an episode follows one consistent expert
 4.1) is the one-expert case with E in place of R_E.
 
 Defaults: l = 0.05 (Tables 4.1 and 5.3); the rate is E = 0.2 with one expert (Table 4.1) and
-R_E = 0.1 with several (Table 5.3) unless given.
+R_E = 0.1 with several (Table 5.3) unless given. Alg. 5.1 keeps R_E fixed; ``rate_end`` (ours)
+moves it linearly from ``rate`` to ``rate_end`` over a step budget (the trainer reports its
+progress through ``set_progress``), so that experts which helped the team start stop steering
+it once it has outgrown them.
 
 Sampling (unguided agents and the fallback) is the trainer's own ``SampleSelector`` draw with
 the trainer's generator (``bind``), taken for every agent at every step, so that the random
@@ -74,6 +77,9 @@ class DemonstrationConfig:
     the agents' own loses selection weight and guidance share, and PPO learns from an expert's
     episodes only once it has shown that it shortens them (``DemonstrationSelector``:
     ``credit_factors``, ``learning_weights``)."""
+    rate_end: float | None = None
+    """R_E at the end of the step budget, reached linearly from ``rate`` (ours; None = R_E
+    fixed, Alg. 5.1). Needs a step budget (``RunConfig.total_steps``)."""
 
     def __post_init__(self) -> None:
         e = self.experts
@@ -89,6 +95,8 @@ class DemonstrationConfig:
                                  f"got {list(self.qos)}")
         if self.rate is not None and not (_finite(self.rate) and 0 <= self.rate <= 1):
             raise ValueError(f"expert rate must lie in [0, 1], got {self.rate!r}")
+        if self.rate_end is not None and not (_finite(self.rate_end) and 0 <= self.rate_end <= 1):
+            raise ValueError(f"expert rate_end must lie in [0, 1], got {self.rate_end!r}")
         if not (_finite(self.threshold) and 0 <= self.threshold < 1):
             raise ValueError(f"expert threshold l must lie in [0, 1), got {self.threshold!r}")
 
@@ -107,15 +115,16 @@ class DemonstrationConfig:
     def to_dict(self) -> dict[str, Any]:
         return {"models": list(self.experts), "qos": list(self.weights),
                 "rate": self.resolved_rate, "threshold": self.threshold} | (
-                    {"credit": True} if self.credit else {})
+                    {"credit": True} if self.credit else {}) | (
+                    {"rate_end": self.rate_end} if self.rate_end is not None else {})
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> DemonstrationConfig:
         """From a config file's ``experts`` section: ``models`` (list), optional ``qos``,
-        ``rate``, ``threshold``."""
+        ``rate``, ``rate_end``, ``threshold``, ``credit``."""
         if not isinstance(d, dict):
             raise ValueError(f"config section [experts] must be a table/object, got {d!r}")
-        known = {"models", "qos", "rate", "threshold", "credit"}
+        known = {"models", "qos", "rate", "rate_end", "threshold", "credit"}
         unknown = sorted(set(d) - known)
         if unknown:
             raise ValueError(f"[experts]: unknown key(s) {unknown}; known: {sorted(known)}")
@@ -129,7 +138,7 @@ class DemonstrationConfig:
         if not isinstance(credit, bool):
             raise ValueError(f"[experts] credit: expected true or false, got {credit!r}")
         return cls(tuple(models), tuple(qos), d.get("rate"), d.get("threshold", THRESHOLD),
-                   credit)
+                   credit, d.get("rate_end"))
 
 
 def _finite(x: Any) -> bool:
@@ -155,13 +164,15 @@ class DemonstrationSelector:
 
     def __init__(self, experts: Sequence[Any], qos: Sequence[float] | None = None,
                  rate: float | None = None, threshold: float = THRESHOLD, seed: int = 0,
-                 generator: torch.Generator | None = None, credit: bool = False):
+                 generator: torch.Generator | None = None, credit: bool = False,
+                 rate_end: float | None = None):
         if not experts:
             raise ValueError("DemonstrationSelector needs at least one expert")
         config = DemonstrationConfig(tuple(e.name for e in experts), tuple(qos or ()), rate,
-                                     threshold, credit)
+                                     threshold, credit, rate_end)
         self.config, self.experts = config, list(experts)
         self.rate, self.threshold = config.resolved_rate, float(config.threshold)
+        self.progress = 0.0  # share of the step budget done (set_progress; rate_end)
         w = np.asarray(config.weights, dtype=np.float64)
         self.qos_share = w / w.sum()  # R_S = QoS_i / sum QoS
         self.wheel = np.cumsum(self.qos_share)  # roulette wheel over R_S
@@ -192,11 +203,20 @@ class DemonstrationSelector:
 
             experts = load_experts(config.experts, task, seed=seed)
         return cls(experts, config.qos, config.rate, config.threshold, seed, generator,
-                   config.credit)
+                   config.credit, config.rate_end)
 
     def bind(self, generator: torch.Generator) -> None:
         """Sample with the trainer's generator (``Trainer`` calls this), so rate 0 is plain PPO."""
         self._sampler = SampleSelector(generator)
+
+    def set_progress(self, fraction: float) -> None:
+        """The share of the step budget done (the trainer calls this before each rollout): with
+        ``rate_end`` R_E = rate + (rate_end - rate) * fraction; without it, nothing changes."""
+        self.progress = min(max(float(fraction), 0.0), 1.0)
+        end = self.config.rate_end
+        if end is not None:
+            start = self.config.resolved_rate
+            self.rate = start + (end - start) * self.progress
 
     # ------------------------------------------------------------------ per episode
     def episode_start(self, env_ids: np.ndarray) -> None:
@@ -343,7 +363,7 @@ class DemonstrationSelector:
                 "followed": self.followed.tolist(), "experts": experts,
                 "steps_in_episode": self.steps_in_episode.tolist(),
                 "mean_length": self.mean_length.tolist(), "judged": self.judged.tolist(),
-                "weight": self.weight.tolist()}
+                "weight": self.weight.tolist(), "progress": self.progress}
 
     def load_state_dict(self, d: dict[str, Any]) -> None:
         if d["config"]["models"] != list(self.config.experts):
@@ -364,6 +384,7 @@ class DemonstrationSelector:
         else:
             self.steps_in_episode = np.zeros(len(self.current), dtype=np.int64)
             self.weight = np.ones(len(self.current))
+        self.set_progress(float(d.get("progress", 0.0)))
         for i, s in d.get("experts", {}).items():
             self.experts[int(i)].load_state_dict(s)
 
@@ -376,6 +397,8 @@ class DemonstrationSelector:
         out = {
             "method": "DC (Alg. 4.1)" if len(self.experts) == 1 else "MEDC (Alg. 5.1)",
             "rate": self.rate, "threshold": self.threshold,
+            **({"rate_start": self.config.resolved_rate, "rate_end": self.config.rate_end}
+               if self.config.rate_end is not None else {}),
             "own_episodes": self.own_episodes,
             "experts": [
                 {"ref": e.name, "qos": float(w[i]), "selection_probability": float(w[i] / w.sum()),
@@ -423,6 +446,6 @@ def resume_selector(meta: dict[str, Any]) -> DemonstrationSelector | None:
 
     c = state["config"]
     config = DemonstrationConfig(tuple(c["models"]), tuple(c["qos"]), c["rate"], c["threshold"],
-                                 bool(c.get("credit", False)))
+                                 bool(c.get("credit", False)), c.get("rate_end"))
     return DemonstrationSelector.from_config(config, EnvSpec.from_dict(meta["env"]),
                                              seed=int(meta["run"]["seed"]))

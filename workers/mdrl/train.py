@@ -185,6 +185,8 @@ class Trainer:
         steps, last_envs = self.rollout_plan()
         self._rollout = (steps, last_envs)
         found, length, cost, returns = [], [], [], []
+        if hasattr(self.selector, "set_progress") and self.run.total_steps:
+            self.selector.set_progress(self.global_step / self.run.total_steps)  # MEDC rate_end
         self._weighted = False  # any step weight from the selector in this rollout
         for t in range(steps):
             actor_obs, critic_obs = self.observer.observe(env)
@@ -337,6 +339,10 @@ class Trainer:
         if self.ppo.anneal_lr and run.total_steps is None:
             warnings.warn("anneal_lr needs a step budget; learning rate stays constant",
                           stacklevel=2)
+        demo = getattr(self.selector, "config", None)
+        if getattr(demo, "rate_end", None) is not None and run.total_steps is None:
+            raise ValueError("experts rate_end (an expert rate schedule) needs a step budget: "
+                             "give total_steps")
         torch.set_num_threads(run.threads)
         self._open_outputs()
         bar = self._progress_bar()

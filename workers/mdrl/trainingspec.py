@@ -128,6 +128,8 @@ BUDGET_RULES: dict[str, Any] = {
 DEMONSTRATION_RULES: dict[str, Any] = {
     "rate": Nullable(Real(0.0, 1.0, doc="R_E: share of expert-guided episodes; null = 0.2 for "
                           "one expert (Table 4.1), 0.1 for several (Table 5.3)")),
+    "rate_end": Nullable(Real(0.0, 1.0, doc="R_E at the end of budget.steps, reached linearly "
+                              "from rate (ours); null = R_E fixed, as Alg. 5.1")),
     "threshold": Real(0.0, 0.99, doc="l: follow an expert's action only if its probability "
                       "under the learner's policy exceeds l (Tables 4.1, 5.3: 0.05)"),
     "credit": Bool(doc="expert credit (ours): experts whose guided episodes are no shorter "
@@ -258,7 +260,7 @@ class TrainingSpec:
         d = self.algorithm.demonstration
         return DemonstrationConfig(self.experts, self.expert_qos, d.get("rate"),
                                    d.get("threshold", DemonstrationConfig.threshold),
-                                   d.get("credit", False))
+                                   d.get("credit", False), d.get("rate_end"))
 
     @property
     def minutes(self) -> float | None:
@@ -301,6 +303,9 @@ class TrainingSpec:
         demonstration = algo.get("demonstration") or {}
         if demonstration and not experts:
             raise SpecError("algorithm.demonstration", "applies only when experts are named")
+        if demonstration.get("rate_end") is not None and budget.get("steps") is None:
+            raise SpecError("algorithm.demonstration.rate_end",
+                            "an expert rate schedule needs budget.steps")
         if obs.get("route") and not (obs.get("belief") and obs.get("kind", "odmtl") == "odmtl"):
             raise SpecError("observation.route", "needs observation.kind = odmtl and "
                             "observation.belief = true (the walking distance to the belief)")

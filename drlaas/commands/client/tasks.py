@@ -71,6 +71,7 @@ def task_body(
     expert_rate: float | None = None,
     expert_threshold: float | None = None,
     expert_credit: bool = False,
+    expert_rate_end: float | None = None,
 ) -> dict[str, Any]:
     """POST /tasks body from options, or from a JSON file (``--spec``) that options fill in.
     The spec part is checked locally with the core's TrainingSpec (the gateway's own parser).
@@ -88,7 +89,12 @@ def task_body(
         doc["experts"] = expert_list(experts, expert_qos)
     elif expert_qos is not None:
         raise typer.BadParameter("--expert-qos weighs --experts", param_hint="--expert-qos")
-    demo = {"rate": expert_rate, "threshold": expert_threshold, "credit": expert_credit or None}
+    demo = {
+        "rate": expert_rate,
+        "threshold": expert_threshold,
+        "credit": expert_credit or None,
+        "rate_end": expert_rate_end,
+    }
     demo = {k: v for k, v in demo.items() if v is not None}
     try:
         TrainingSpec.from_dict(doc)
@@ -180,6 +186,13 @@ def task_submit(
     expert_rate: Annotated[
         float | None, typer.Option(help="R_E: share of expert-guided episodes (0-1)")
     ] = None,
+    expert_rate_end: Annotated[
+        float | None,
+        typer.Option(
+            help="R_E at the end of --steps, reached linearly from --expert-rate "
+            "(default: R_E fixed, as Alg. 5.1)"
+        ),
+    ] = None,
     expert_threshold: Annotated[
         float | None, typer.Option(help="l: follow an expert action only above this probability")
     ] = None,
@@ -204,8 +217,15 @@ def task_submit(
     sources = [o for o in (experts, experts_from_mmc, expert_allocation) if o is not None]
     if len(sources) > 1:
         raise typer.BadParameter("give one of --experts, --experts-from-mmc, --expert-allocation")
-    if not sources and (expert_rate is not None or expert_threshold is not None or expert_credit):
-        raise typer.BadParameter("--expert-rate/--expert-threshold/--expert-credit need experts")
+    if not sources and (
+        expert_rate is not None
+        or expert_threshold is not None
+        or expert_credit
+        or expert_rate_end is not None
+    ):
+        raise typer.BadParameter(
+            "--expert-rate/--expert-rate-end/--expert-threshold/--expert-credit need experts"
+        )
     if expert_price_wei is not None and experts_from_mmc is None:
         raise typer.BadParameter("--expert-price-wei prices --experts-from-mmc")
     body = task_body(
@@ -227,6 +247,7 @@ def task_submit(
         expert_rate=expert_rate,
         expert_threshold=expert_threshold,
         expert_credit=expert_credit,
+        expert_rate_end=expert_rate_end,
     )
     with connect_funded(gateway, key) as gw:
         if not public_outcome and gw.account is not None:

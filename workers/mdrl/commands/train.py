@@ -50,6 +50,11 @@ def train(
                                                            "episodes; default 0.2 for one expert "
                                                            "(Table 4.1), 0.1 for several (5.3).")
                            ] = None,
+    expert_rate_end: Annotated[float | None, typer.Option(help="R_E at the end of the --steps "
+                                                               "budget, reached linearly from "
+                                                               "--expert-rate (default: R_E "
+                                                               "fixed, as Alg. 5.1).")
+                               ] = None,
     expert_threshold: Annotated[float | None, typer.Option(help="l: follow the expert only on "
                                                                 "actions with own probability "
                                                                 "> l (default 0.05).")] = None,
@@ -76,7 +81,8 @@ def train(
                      ("checkpoint_every", checkpoint_every)):
         if val is not None:
             run_changes[key] = val
-    expert_options = (experts, expert_qos, expert_rate, expert_threshold, expert_credit)
+    expert_options = (experts, expert_qos, expert_rate, expert_threshold, expert_credit,
+                      expert_rate_end)
     if resume is not None:
         if num_envs is not None or config is not None or readings is not None or init_from or any(
                 o is not None for o in expert_options):
@@ -121,7 +127,7 @@ def train(
 
 
 # ------------------------------------------------------------------ experts (DC / MEDC)
-def _selector(chosen, seed, experts, qos, rate, threshold, credit):
+def _selector(chosen, seed, experts, qos, rate, threshold, credit, rate_end):
     """The DC / MEDC selector from the config's [experts] section and the --expert* options
     (--experts replaces the section's models and their QoS), or None without experts."""
     import dataclasses
@@ -135,12 +141,13 @@ def _selector(chosen, seed, experts, qos, rate, threshold, credit):
             demo = DemonstrationConfig(tuple(parse_list(experts, "--experts")), (),
                                        demo.rate if demo else None,
                                        demo.threshold if demo else 0.05,
-                                       demo.credit if demo else False)
+                                       demo.credit if demo else False,
+                                       demo.rate_end if demo else None)
         if demo is None:
-            if any(o is not None for o in (qos, rate, threshold, credit)):
-                raise typer.BadParameter("--expert-qos/--expert-rate/--expert-threshold/"
-                                         "--expert-credit need --experts (or an [experts] "
-                                         "section in --config)")
+            if any(o is not None for o in (qos, rate, threshold, credit, rate_end)):
+                raise typer.BadParameter("--expert-qos/--expert-rate/--expert-rate-end/"
+                                         "--expert-threshold/--expert-credit need --experts "
+                                         "(or an [experts] section in --config)")
             return None
         changes = {}
         if qos is not None:
@@ -154,6 +161,8 @@ def _selector(chosen, seed, experts, qos, rate, threshold, credit):
             changes["threshold"] = threshold
         if credit is not None:
             changes["credit"] = credit
+        if rate_end is not None:
+            changes["rate_end"] = rate_end
         demo = dataclasses.replace(demo, **changes)
         return DemonstrationSelector.from_config(demo, chosen.env, seed=seed)
     except (ValueError, ExpertError) as exc:
