@@ -291,7 +291,9 @@ def test_a_walls_cae_that_is_not_one_fails_the_job_naming_its_cid(env, store, tm
     assert out["status"] == "failed" and "8x8" in out["reason"], out
 
 
-def test_the_expert_credit_rule_and_rate_schedule_of_a_spec_reach_the_selector(store, tmp_path: Path) -> None:
+def test_the_expert_credit_rule_and_rate_schedule_of_a_spec_reach_the_selector(
+    store, tmp_path: Path
+) -> None:
     cid = upload_model(store, EXPERT)
     doc = {**TINY_SPEC, "experts": [cid], "algorithm": {"demonstration": {"credit": True}}}
     dirs = fetch_experts(store, [cid], tmp_path / "job")
