@@ -166,3 +166,30 @@ def test_the_form_sets_the_walls_cae_and_the_expert_credit(page: Any, mmc: Any) 
     expect(page.locator("#submit-result")).to_contain_text("created")
     assert "algorithm" not in state.posted_tasks[-1]
     assert state.posted_tasks[-1]["observation"] == {"kind": "odmtl", "window": 3}
+
+
+def test_the_form_sets_an_expert_rate_schedule(page: Any, mmc: Any) -> None:
+    """algorithm.demonstration.rate_end: refused without experts and without a step budget,
+    sent with the start rate where it applies."""
+    server, state, _ = mmc
+    page.goto(f"{server.url}/submit")
+    sign_in_as_alice(page)
+    small_task(page)
+    page.fill("#f-algorithm-demonstration-rate_end", "0")
+    before = len(state.posted_tasks)
+    page.click("#submit-task")
+    expect(page.locator("#err-algorithm-demonstration-rate_end")).to_contain_text(
+        "only with experts"
+    )
+    page.fill("#f-experts", CID_A)
+    page.fill("#f-budget-steps", "")
+    page.click("#submit-task")
+    expect(page.locator("#err-algorithm-demonstration-rate_end")).to_contain_text(
+        "needs a step budget"
+    )
+    assert len(state.posted_tasks) == before
+    page.fill("#f-budget-steps", "20000")
+    page.fill("#f-algorithm-demonstration-rate", "0.3")
+    page.click("#submit-task")
+    expect(page.locator("#submit-result")).to_contain_text("created")
+    assert state.posted_tasks[-1]["algorithm"] == {"demonstration": {"rate": 0.3, "rate_end": 0}}

@@ -47,6 +47,7 @@ const FIELDS = {
   "experts": ["Expert models (CIDs)", "", "text", () => ["model CIDs, comma-separated (Models page)", "empty = none"]],
   "experts_from_mmc": ["Or buy K experts from the MMC", "0", "int", () => [`0 to ${MAX_EXPERTS}`, "the K shared models closest to this environment, each paid its price to its owner"]],
   "algorithm.demonstration.rate": ["Expert rate R_E", "", "real", (b) => [range(b), "share of expert-guided episodes; empty = 0.2 with one expert, 0.1 with several"]],
+  "algorithm.demonstration.rate_end": ["Expert rate at the end", "", "real", (b) => [range(b), "R_E moves linearly to this over the step budget; empty = R_E fixed (Alg. 5.1)"]],
   "algorithm.demonstration.credit": ["Expert credit", "false", "select", () => ["on: learn from an expert's episodes only once it has been judged against the agents' own, weighted by its credit (guards against faulty experts)"]],
 };
 /** Experts (MEDC, thesis Alg. 5.1): at most this many; a CID as the content store writes it. */
@@ -59,7 +60,7 @@ const GROUPS = [
   ["observation", "Observation", ["observation.kind", "observation.window", "observation.walls_embedding", "observation.walls_embedding_size"]],
   ["budget", "Training budget", ["budget.steps", "budget.minutes", "seed"]],
   ["recruit", "Recruitment and payment", ["domain", "num_workers", "min_reputation", "min_rating", "min_cpu_cores", "min_ram_gb", "deadline_s", "payment_eth"]],
-  ["medc", "Experts (optional: MEDC, demonstrations from shared models)", ["experts", "experts_from_mmc", "algorithm.demonstration.rate", "algorithm.demonstration.credit"]],
+  ["medc", "Experts (optional: MEDC, demonstrations from shared models)", ["experts", "experts_from_mmc", "algorithm.demonstration.rate", "algorithm.demonstration.rate_end", "algorithm.demonstration.credit"]],
 ];
 /** Server loc (after "body") -> the field showing its error. */
 const LOC_ALIASES = {
@@ -192,6 +193,9 @@ export function buildTask(v, schema) {
   else if (buy > 0 && experts.length) errors.experts_from_mmc = "name experts or buy them, not both";
   const rate = number("algorithm.demonstration.rate", { required: false });
   if (rate !== undefined && !experts.length && !(buy > 0)) errors["algorithm.demonstration.rate"] = "applies only with experts";
+  const rateEnd = number("algorithm.demonstration.rate_end", { required: false });
+  if (rateEnd !== undefined && !experts.length && !(buy > 0)) errors["algorithm.demonstration.rate_end"] = "applies only with experts";
+  else if (rateEnd !== undefined && steps === undefined) errors["algorithm.demonstration.rate_end"] = "a rate schedule needs a step budget";
   const credit = (v["algorithm.demonstration.credit"] ?? "false") === "true";
   if (credit && !experts.length && !(buy > 0)) errors["algorithm.demonstration.credit"] = "applies only with experts";
 
@@ -220,6 +224,7 @@ export function buildTask(v, schema) {
   if (experts.length) body.experts = experts;
   const demonstration = {};
   if (rate !== undefined) demonstration.rate = rate;
+  if (rateEnd !== undefined) demonstration.rate_end = rateEnd;
   if (credit) demonstration.credit = true;
   if (Object.keys(demonstration).length) body.algorithm = { demonstration };
   return { body, errors, buyExperts: buy > 0 ? buy : 0 };
