@@ -174,14 +174,11 @@ def train_run(task: str, method: str, seed: int, steps: int, experts: list[str],
         if method == "dc":
             selector = DemonstrationSelector(load_experts(experts[:1], env, seed), seed=seed,
                                              threshold=THRESHOLD)
-        elif method in ("medc", "medc-credit"):
+        elif method in ("medc", "medc-credit", "medc-anneal"):
+            start, end = ANNEAL if method == "medc-anneal" else (None, None)
             selector = DemonstrationSelector(load_experts(experts, env, seed), qos or None,
-                                             seed=seed, credit=method.endswith("-credit"),
-                                             threshold=THRESHOLD)
-        elif method == "medc-anneal":
-            selector = DemonstrationSelector(load_experts(experts, env, seed), qos or None,
-                                             ANNEAL[0], seed=seed, threshold=THRESHOLD,
-                                             rate_end=ANNEAL[1])
+                                             start, seed=seed, credit=method.endswith("-credit"),
+                                             threshold=THRESHOLD, rate_end=end)
         elif method in ("medc-faulty", "medc-faulty-credit"):
             refs = faulty_refs(experts[0], env.num_actions)
             selector = DemonstrationSelector(load_experts(refs, env, seed), seed=seed,

@@ -209,6 +209,11 @@ class DemonstrationSelector:
         """Sample with the trainer's generator (``Trainer`` calls this), so rate 0 is plain PPO."""
         self._sampler = SampleSelector(generator)
 
+    @property
+    def needs_step_budget(self) -> bool:
+        """A rate schedule runs over the step budget (``Trainer.train`` refuses a run without)."""
+        return self.config.rate_end is not None
+
     def set_progress(self, fraction: float) -> None:
         """The share of the step budget done (the trainer calls this before each rollout): with
         ``rate_end`` R_E = rate + (rate_end - rate) * fraction; without it, nothing changes."""

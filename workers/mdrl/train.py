@@ -339,8 +339,7 @@ class Trainer:
         if self.ppo.anneal_lr and run.total_steps is None:
             warnings.warn("anneal_lr needs a step budget; learning rate stays constant",
                           stacklevel=2)
-        demo = getattr(self.selector, "config", None)
-        if getattr(demo, "rate_end", None) is not None and run.total_steps is None:
+        if getattr(self.selector, "needs_step_budget", False) and run.total_steps is None:
             raise ValueError("experts rate_end (an expert rate schedule) needs a step budget: "
                              "give total_steps")
         torch.set_num_threads(run.threads)

@@ -137,12 +137,10 @@ def _selector(chosen, seed, experts, qos, rate, threshold, credit, rate_end):
 
     demo = chosen.experts
     try:
-        if experts is not None:
-            demo = DemonstrationConfig(tuple(parse_list(experts, "--experts")), (),
-                                       demo.rate if demo else None,
-                                       demo.threshold if demo else 0.05,
-                                       demo.credit if demo else False,
-                                       demo.rate_end if demo else None)
+        if experts is not None:  # new models, the section's other settings kept
+            models = tuple(parse_list(experts, "--experts"))
+            demo = (DemonstrationConfig(models) if demo is None
+                    else dataclasses.replace(demo, experts=models, qos=()))
         if demo is None:
             if any(o is not None for o in (qos, rate, threshold, credit, rate_end)):
                 raise typer.BadParameter("--expert-qos/--expert-rate/--expert-rate-end/"
