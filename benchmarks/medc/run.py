@@ -144,7 +144,8 @@ def train_run(task: str, method: str, seed: int, steps: int, experts: list[str],
                                   walls_embedding_size=int(load_cae_card(CAE)["embedding"]))
     run = RunConfig(seed=seed, total_steps=steps, eval_every=eval_every,
                     eval_episodes=CURVE_EPISODES, eval_seed=CURVE_SEED,
-                    checkpoint_every=CHECKPOINT_EVERY, tensorboard=False, progress=False)
+                    checkpoint_every=CHECKPOINT_EVERY, tensorboard=False, progress=False,
+                    keep_best="time")
     run_dir = out / f"{task}-{grid}x{grid}-{method}-s{seed}-{steps}"
     resume = (run_dir / "checkpoint").is_dir()  # a killed run: go on from its checkpoint
     if run_dir.exists() and not resume:  # killed before its first checkpoint: start again
@@ -175,10 +176,10 @@ def train_run(task: str, method: str, seed: int, steps: int, experts: list[str],
             selector = DemonstrationSelector(load_experts(experts[:1], env, seed), seed=seed,
                                              threshold=THRESHOLD)
         elif method in ("medc", "medc-credit", "medc-anneal"):
-            start, end = ANNEAL if method == "medc-anneal" else (None, None)
+            rate, rate_end = ANNEAL if method == "medc-anneal" else (None, None)
             selector = DemonstrationSelector(load_experts(experts, env, seed), qos or None,
-                                             start, seed=seed, credit=method.endswith("-credit"),
-                                             threshold=THRESHOLD, rate_end=end)
+                                             rate, seed=seed, credit=method.endswith("-credit"),
+                                             threshold=THRESHOLD, rate_end=rate_end)
         elif method in ("medc-faulty", "medc-faulty-credit"):
             refs = faulty_refs(experts[0], env.num_actions)
             selector = DemonstrationSelector(load_experts(refs, env, seed), seed=seed,
@@ -189,13 +190,20 @@ def train_run(task: str, method: str, seed: int, steps: int, experts: list[str],
         else:
             trainer = Trainer(env, obs, ppo, run, out=run_dir, selector=selector)
     before = trainer.elapsed  # training time of the killed run we resumed (0 if fresh)
+    learner = trainer.trainer if method == "frl" else trainer
+    # a run resumed from a checkpoint written without the selection saw only part of its curve
+    selected = not resume or learner.best is not None
     trainer.train()
     wall = time.perf_counter() - start + before
-    policy = trainer.trainer.policy() if method == "frl" else trainer.policy()
-    return {"task": task, "grid": grid, "method": method, "seed": seed,
-            "steps": trainer.global_step,
-            "wall_s": wall, "curve": read_curve(run_dir / "metrics.csv"),
-            "heldout": heldout(policy, env)}
+    result = {"task": task, "grid": grid, "method": method, "seed": seed,
+              "steps": trainer.global_step,
+              "wall_s": wall, "curve": read_curve(run_dir / "metrics.csv"),
+              "heldout": heldout(learner.policy(), env)}
+    if selected and learner.best is not None:  # the policy of the curve's shortest time
+        result["best"] = {"step": learner.best["global_step"],
+                          "curve_time": learner.best["eval_time"],
+                          "heldout": heldout(learner.policy(best=True), env)}
+    return result
 
 
 def read_curve(metrics: Path) -> list[dict[str, float]]:
@@ -296,8 +304,42 @@ def report(results: list[dict]) -> str:
                 f"{100 * np.mean([r['heldout']['success'] for r in rs]):.1f}% | "
                 f"{t:.2f} [{t_ci[0]:.2f}, {t_ci[1]:.2f}] | {c:.2f} [{c_ci[0]:.2f}, {c_ci[1]:.2f}] "
                 f"| {g:.2f}{_ci(g_ci)} | {t / oracle:.2f} | {_steps(reach)} |")
+        lines += selected_table(by, bonus, oracle)
         lines += targets(by, sr_level)
     return "\n".join(lines)
+
+
+def kept(runs: list[dict]) -> list[dict] | None:
+    """The runs as their kept policies (RunConfig.keep_best: the shortest time on the curve's
+    episodes), judged on the held-out ones; None if a run has none (cached before selection)."""
+    if not all("best" in r for r in runs):
+        return None
+    return [{**r, "heldout": r["best"]["heldout"]} for r in runs]
+
+
+def selected_table(by: dict[str, list[dict]], bonus: float, oracle: float) -> list[str]:
+    """Each method's kept policy (model selection on the curve's 100 episodes, then judged on
+    the held-out ones: a stopping rule that values time as the targets do)."""
+    rows = []
+    for m, rs in by.items():
+        ks = kept(rs)
+        if ks is None:
+            continue
+        t, t_ci = final(ks, "time")
+        c, c_ci = final(ks, "cost")
+        g, g_ci = sparse_return(ks, bonus)
+        at = np.mean([r["best"]["step"] for r in rs])
+        rows.append(f"| {m} | {len(rs)} | {at / 1e6:.2f}M | "
+                    f"{100 * np.mean([r['heldout']['success'] for r in ks]):.1f}% | "
+                    f"{t:.2f} [{t_ci[0]:.2f}, {t_ci[1]:.2f}] | "
+                    f"{c:.2f} [{c_ci[0]:.2f}, {c_ci[1]:.2f}] | {g:.2f}{_ci(g_ci)} | "
+                    f"{t / oracle:.2f} |")
+    if not rows:
+        return []
+    return ["", "Kept policy (shortest mean time on the curve's episodes, judged on the held-out "
+            "ones):", "| method | seeds | chosen at (mean) | success | time (95% CI) | "
+            f"cost (95% CI) | Eq. 9 return (S = {bonus:g}) | time / oracle |",
+            "|---|---|---|---|---|---|---|---|", *rows]
 
 
 def targets(by: dict[str, list[dict]], sr_level: float) -> list[str]:
@@ -330,6 +372,10 @@ def targets(by: dict[str, list[dict]], sr_level: float) -> list[str]:
                            f"{len(shared)} shared evaluation points; final "
                            f"{final(by[medc], 'time')[0]:.2f} vs "
                            f"{final(by[other], 'time')[0]:.2f}")
+                km, ko = kept(by[medc]), kept(by[other])
+                if km and ko:
+                    (a, a_ci), (b, b_ci) = final(km, "time"), final(ko, "time")
+                    out.append(f"  kept policies: {a:.2f}{_ci(a_ci)} vs {b:.2f}{_ci(b_ci)}")
     return out
 
 

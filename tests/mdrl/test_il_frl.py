@@ -111,7 +111,7 @@ def test_fedavg_gives_every_user_the_mean_of_their_weights():
 
 def test_frl_trains_and_reports_from_the_target(tmp_path):
     obs = ObservationSpec(kind="odmtl", window=3)
-    frl = FederatedTrainer(USERS, obs, SMALL_PPO, _run(3 * 512, eval_every=1),
+    frl = FederatedTrainer(USERS, obs, SMALL_PPO, _run(3 * 512, eval_every=1, keep_best="time"),
                            target="A2W1", out=tmp_path)
     frl.train()
     assert frl.global_step == 3 * 512
@@ -122,6 +122,10 @@ def test_frl_trains_and_reports_from_the_target(tmp_path):
     with (tmp_path / "metrics.csv").open() as f:
         rows = list(csv.DictReader(f))
     assert len(rows) == 3 and all(not math.isnan(float(r["eval_time"])) for r in rows)
+    # RunConfig.keep_best: the global model of the round with the shortest evaluation time
+    times = [(float(r["eval_time"]), float(r["eval_cost"])) for r in rows]
+    assert frl.trainer.best["update"] == int(rows[times.index(min(times))]["update"])
+    assert (tmp_path / "best" / "model.json").is_file()
     card = json.loads((tmp_path / "model" / "model.json").read_text())
     assert card["env"]["agents"] == 2 and card["training"]["method"]["rounds"] == 3
     assert card["training"]["method"]["env_steps_all_users"] == 3 * 3 * 512

@@ -140,6 +140,7 @@ class FederatedTrainer:
             if last or (every and self.rounds % every == 0):
                 evals = target.evaluate()
                 target.last_eval = evals
+                target.keep_if_best(evals)
             self.elapsed = elapsed0 + (time.perf_counter() - t0)
             sps = (self.global_step - step0) / max(time.perf_counter() - u0, 1e-9)
             row = {"update": target.update_idx, "global_step": self.global_step,

@@ -67,6 +67,9 @@ class GeneralistTrainer:
 
     def __init__(self, ppo: PPOConfig, run: RunConfig, out: str | Path,
                  setups: list[EnvSpec] | None = None) -> None:
+        if run.keep_best is not None:
+            raise ValueError("the generalist keeps its final policy only (it evaluates per "
+                             "set-up, not on one episode set): drop RunConfig.keep_best")
         self.ppo, self.run, self.out = ppo, run, Path(out)
         self.setups = setups if setups is not None else training_setups(run.seed)
         sub_run = dataclasses.replace(run, tensorboard=False, progress=False, total_steps=None,

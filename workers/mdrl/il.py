@@ -155,8 +155,8 @@ class ImitationTrainer(Trainer):
         self.imitation_updates = int(state["updates"])
         self.il_share = saved["il_share"]  # the run's schedule, whatever we were built with
 
-    def save_model(self, path: Any) -> Any:
-        out = super().save_model(path)
+    def save_model(self, path: Any, best: bool = False) -> Any:
+        out = super().save_model(path, best=best)
         _add_training_note(out, {"method": "IL-assisted RL (behaviour cloning stages)",
                                  "il_share": self.il_share,
                                  "imitation_updates": self.imitation_updates,

@@ -9,6 +9,7 @@ agent samples). CMTL: one sample per env step over the A**N joint actions.
 
 from __future__ import annotations
 
+import copy
 import csv
 import dataclasses
 import json
@@ -68,6 +69,17 @@ class RunConfig:
     """A model directory whose weights a new run starts from (fine-tuning; same observation,
     team size and actions, ``modelio.load_initial_weights``); None = random init from the seed.
     A resumed run continues from its checkpoint, not from this model."""
+    keep_best: str | None = None
+    """Also keep the best greedy evaluation's policy (``out/best``, ``Trainer.policy(best=True)``):
+    ``"time"`` = shortest mean episode, ``"cost"`` = lowest mean moving cost (failed episodes
+    count at the cap; ties go to the other figure, then to the earlier update). None = the
+    final policy only. Model selection on the evaluation episodes (``eval_seed``): judge the
+    chosen model on other episodes."""
+
+    def __post_init__(self) -> None:
+        if self.keep_best is not None and self.keep_best not in tuple(KEEP_BEST):
+            raise ValueError(f"RunConfig.keep_best must be 'time', 'cost' or None, "
+                             f"got {self.keep_best!r}")
 
     def budget_left(self, global_step: int, elapsed_s: float) -> bool:
         """Whether a run that took ``global_step`` env steps in ``elapsed_s`` may go on."""
@@ -86,6 +98,9 @@ class RunConfig:
             raise ValueError(f"RunConfig: unknown field(s) {unknown}; known: {sorted(names)}")
         return cls(**d)
 
+
+KEEP_BEST = {None: (), "time": ("eval_time", "eval_cost"), "cost": ("eval_cost", "eval_time")}
+"""RunConfig.keep_best: the evaluation figures a better policy is lower in, in order."""
 
 METRIC_COLUMNS = [
     "update", "global_step", "wall_time", "sps", "learning_rate",
@@ -160,6 +175,10 @@ class Trainer:
         self.ep_return = np.zeros(ppo.num_envs, dtype=np.float64)
         self.last_metrics: dict[str, Any] = {}
         self.last_eval: dict[str, float] = {}
+        self.best: dict[str, Any] | None = None
+        """RunConfig.keep_best: the chosen evaluation (``by``, ``update``, ``global_step`` and
+        the eval_* figures); its weights are ``self._best_weights``."""
+        self._best_weights: dict[str, torch.Tensor] | None = None
         self._rollout = (ppo.rollout_steps, ppo.num_envs)  # (T', k) of the last collect()
         self._weighted = False  # the last collect() stored selector step weights
         self._writer: Any = None
@@ -316,11 +335,41 @@ class Trainer:
                 "explained_variance": explained}
 
     # ------------------------------------------------------------------ evaluation
-    def policy(self) -> Any:
-        """The current actor as a greedy Policy (reset/act), as load_model would return it."""
+    def policy(self, best: bool = False) -> Any:
+        """The current actor as a greedy Policy (reset/act), as load_model would return it;
+        ``best``: the policy that ``RunConfig.keep_best`` chose instead."""
         from workers.mdrl.modelio import GreedyPolicy
 
-        return GreedyPolicy(self.agent, self.observer, self.head)
+        return GreedyPolicy(self._best_agent() if best else self.agent, self.observer, self.head)
+
+    def keep_if_best(self, evals: dict[str, float]) -> bool:
+        """Model selection (``RunConfig.keep_best``): whether the evaluation ``evals`` of the
+        current policy beats the best so far; if so its weights and figures become the best,
+        and ``out/best`` the model file. Called after each evaluation."""
+        keys = KEEP_BEST[self.run.keep_best]
+        if not keys:
+            return False
+
+        def rank(figures: dict[str, Any]) -> tuple[float, ...]:
+            return tuple(math.inf if figures.get(k) is None or math.isnan(figures[k])
+                         else float(figures[k]) for k in keys)
+
+        if self.best is not None and rank(evals) >= rank(self.best):
+            return False
+        self.best = {"by": self.run.keep_best, "update": self.update_idx,
+                     "global_step": self.global_step, **evals}
+        self._best_weights = {k: v.detach().clone() for k, v in self.agent.state_dict().items()}
+        if self.out is not None:
+            self.save_model(self.out / "best", best=True)
+        return True
+
+    def _best_agent(self) -> ActorCritic:
+        if self._best_weights is None:
+            raise ValueError("no best policy: train with RunConfig.keep_best set and at least "
+                             "one evaluation")
+        agent = copy.deepcopy(self.agent)
+        agent.load_state_dict(self._best_weights)
+        return agent
 
     def evaluate(self) -> dict[str, float]:
         """Greedy evaluation on the fixed seeded episodes (does not touch training RNGs)."""
@@ -359,6 +408,7 @@ class Trainer:
                 if last or (every and self.update_idx % every == 0):
                     evals = self.evaluate()
                     self.last_eval = evals
+                    self.keep_if_best(evals)
                 self.elapsed = elapsed0 + (time.perf_counter() - t0)
                 sps = (self.global_step - step0) / max(time.perf_counter() - u0, 1e-9)
                 row = {"update": self.update_idx, "global_step": self.global_step,
@@ -437,18 +487,26 @@ class Trainer:
             out["walls_encoder"] = self.observer.embedder.card
         return out
 
-    def save_model(self, path: str | Path) -> Path:
+    def save_model(self, path: str | Path, best: bool = False) -> Path:
+        """The final policy as a model file, or with ``best`` the one ``keep_if_best`` chose:
+        its card's metrics are that evaluation's, and ``training.selected`` says when it was."""
         from workers.mdrl.modelio import save_model
 
         metrics = {k: self.last_metrics.get(k) for k in METRIC_COLUMNS if k in self.last_metrics}
         metrics.update(self.last_eval)
         training = {"run": self.run.to_dict(), "env_steps": self.global_step,
                     "updates": self.update_idx, "wall_time_s": self.elapsed}
+        agent = self.agent
+        if best:
+            agent = self._best_agent()
+            metrics = {k: v for k, v in self.best.items() if k.startswith("eval_")}
+            training["selected"] = {**self.best, "eval_episodes": self.run.eval_episodes,
+                                    "eval_seed": self.run.eval_seed}
         if self.init_info is not None:  # fine-tuned: which model's weights it started from
             training["init_from"] = self.init_info
         if hasattr(self.selector, "card"):  # expert-guided training (medc.py) lists its experts
             training["experts"] = self.selector.card()
-        return save_model(path, self.agent, self.env_spec, self.obs_spec, self.ppo,
+        return save_model(path, agent, self.env_spec, self.obs_spec, self.ppo,
                           metrics=metrics, observer=self.observer, training=training)
 
     # ------------------------------------------------------------------ checkpoints
@@ -459,12 +517,14 @@ class Trainer:
         tensors.update(opt_tensors)
         tensors["torch_generator"] = self.generator.get_state()
         tensors["trainer/ep_return"] = torch.from_numpy(self.ep_return.copy())
+        if self._best_weights is not None:
+            tensors.update({f"best/{k}": v for k, v in self._best_weights.items()})
         env_arrays, env_meta = ckpt.env_state(self.env)
         meta = {**self.config_dict(),
                 "counters": {"update": self.update_idx, "global_step": self.global_step,
                              "episodes": self.episodes, "elapsed": self.elapsed},
-                "last_eval": self.last_eval, "optimizer": opt_meta, "env_state": env_meta,
-                "init_from": self.init_info}
+                "last_eval": self.last_eval, "best": self.best, "optimizer": opt_meta,
+                "env_state": env_meta, "init_from": self.init_info}
         extras = self.checkpoint_extras()
         if extras:  # only that kind of trainer can continue it
             meta |= {**extras, "extras_by": type(self).__name__}
@@ -494,6 +554,11 @@ class Trainer:
         self.update_idx, self.global_step = c["update"], c["global_step"]
         self.episodes, self.elapsed = c["episodes"], c["elapsed"]
         self.last_eval = meta.get("last_eval", {})
+        self.best = meta.get("best")
+        best = {k[len("best/"):]: v for k, v in tensors.items() if k.startswith("best/")}
+        self._best_weights = best or None
+        if self.best is not None and self.best.get("by") != self.run.keep_best:
+            self.best, self._best_weights = None, None  # resumed with another rule: choose anew
         self.init_info = meta.get("init_from")
         if "selector" in meta:
             if not hasattr(self.selector, "load_state_dict"):

@@ -33,6 +33,11 @@ def train(
     eval_episodes: Annotated[int | None, typer.Option(help="Evaluation episodes.")] = None,
     checkpoint_every: Annotated[int | None, typer.Option(help="Checkpoint every K updates.")
                                 ] = None,
+    keep_best: Annotated[str | None, typer.Option(help="Also keep the best evaluated policy as "
+                                                       "OUT/best: 'time' (shortest mean "
+                                                       "episode) or 'cost' (lowest moving "
+                                                       "cost) on the evaluation episodes.")
+                         ] = None,
     init_from: Annotated[Path | None, typer.Option(help="Start from this model's weights "
                                                         "(fine-tuning; same observation, team "
                                                         "size and actions).")] = None,
@@ -75,10 +80,13 @@ def train(
         raise typer.BadParameter(f"--steps must be >= 1, got {steps}")
     if minutes is not None and minutes <= 0:
         raise typer.BadParameter(f"--minutes must be > 0, got {minutes}")
+    if keep_best is not None and keep_best not in ("time", "cost"):
+        raise typer.BadParameter(f"must be time or cost, got {keep_best!r}",
+                                 param_hint="--keep-best")
     run_changes = {"total_steps": steps, "minutes": minutes, "threads": threads,
                    "progress": progress, "tensorboard": tensorboard}
     for key, val in (("eval_every", eval_every), ("eval_episodes", eval_episodes),
-                     ("checkpoint_every", checkpoint_every)):
+                     ("checkpoint_every", checkpoint_every), ("keep_best", keep_best)):
         if val is not None:
             run_changes[key] = val
     expert_options = (experts, expert_qos, expert_rate, expert_threshold, expert_credit,
@@ -121,6 +129,10 @@ def train(
               "env_steps": trainer.global_step, "updates": trainer.update_idx,
               "wall_time_s": round(trainer.elapsed, 1), **trainer.last_eval,
               "train_success": summary.get("success")}
+    if trainer.best is not None:  # --keep-best: where the chosen policy is and how it did
+        result["best"] = str(trainer.out / "best")
+        result["best_update"] = trainer.best["update"]
+        result.update({f"best_{k}": v for k, v in trainer.best.items() if k.startswith("eval_")})
     # JSON has no NaN (a figure with no episode behind it, e.g. a run shorter than an episode)
     typer.echo(json.dumps({k: None if isinstance(v, float) and math.isnan(v) else v
                            for k, v in result.items()}))
