@@ -304,7 +304,9 @@ def _share_zoo(
     zoo: Path, url: str, data_dir: Path, workers: list[str], say: Callable[[str], None]
 ) -> dict[str, str]:
     """Upload each zoo model (weights + card) to the platform's store and list it on chain,
-    the models spread over the workers (an owner lists a bounded number of models)."""
+    the models spread over the workers. An owner lists at most ``maxModelsPerOwner`` models
+    (MMC): when every owner is full, the zoo gets a publisher account of its own
+    (:func:`_zoo_publisher`), so the whole zoo is listed however large it grows."""
     from backend.store import make_store
     from backend.store.bundle import upload_model
 
@@ -317,27 +319,56 @@ def _share_zoo(
     owners = [Gateway(url, keys[a]) for a in workers if a in keys]
     if not owners:
         raise RuntimeError(f"no worker key files under {data_dir / 'keys'}")
+    full: set[str] = set()
     listed: dict[str, str] = {}
     policies = sorted(
         p.parent
         for p in zoo.glob("*/model.json")  # not the walls CAE
         if "kind" not in json.loads(p.read_text())
     )
-    for i, model_dir in enumerate(policies):
-        card = json.loads((model_dir / "model.json").read_text())
-        zoo_card = card.get("zoo", {})
-        body = {
-            "cid": upload_model(store, model_dir),
-            "description": f"zoo {model_dir.name}: {zoo_card.get('preset', card['model'])}",
-            "domain": 0,
-            "env": card["env"],
-        }
-        write(owners[i % len(owners)], "POST", "/models", body)  # answer or relayed receipt
-        listed[model_dir.name] = body["cid"]
-    say(f"model zoo published: {len(listed)} models ({', '.join(listed)})")
-    for g in owners:
-        g.close()
+    try:
+        for i, model_dir in enumerate(policies):
+            card = json.loads((model_dir / "model.json").read_text())
+            zoo_card = card.get("zoo", {})
+            body = {
+                "cid": upload_model(store, model_dir),
+                "description": f"zoo {model_dir.name}: {zoo_card.get('preset', card['model'])}",
+                "domain": 0,
+                "env": card["env"],
+            }
+            while True:
+                free = [g for g in owners if g.address not in full]
+                if not free:
+                    owners.append(_zoo_publisher(url, data_dir, len(owners) - len(keys)))
+                    continue
+                owner = free[i % len(free)]
+                try:
+                    write(owner, "POST", "/models", body)  # answer or relayed receipt
+                    break
+                except GatewayError as exc:
+                    rule = exc.detail.get("rule") if isinstance(exc.detail, dict) else None
+                    if exc.status != 409 or rule != "models_owner_limit":
+                        raise
+                    full.add(owner.address)
+            listed[model_dir.name] = body["cid"]
+    finally:
+        for g in owners:
+            g.close()
+    say(f"model zoo published: {len(listed)} models ({', '.join(listed)}) by {len(owners)} owners")
     return listed
+
+
+def _zoo_publisher(url: str, data_dir: Path, n: int) -> Gateway:
+    """A worker account that only lists zoo models (domain 0), its key in
+    ``<data>/zoo-keys`` (not ``keys/``, whose accounts ``drlaas up`` runs as workers). It
+    runs no daemon; the zoo is the scenario's last step, so no task is offered to it."""
+    from workers.daemon.funding import ensure_gas
+    from workers.daemon.keys import load_or_create_key
+
+    gw = Gateway(url, load_or_create_key(data_dir / "zoo-keys" / f"publisher-{n}.key"))
+    ensure_gas(gw)
+    write(gw, "POST", "/users/workers", {"domains": [0], "cpu_cores": 1, "ram_gb": 1})
+    return gw
 
 
 def scenario_command(

@@ -11,7 +11,7 @@ from typer.testing import CliRunner
 
 from backend.store.bundle import pull_model, read_bundle
 from drlaas.commands.client import model_app, task_app, worker_app
-from drlaas.commands.scenario import run_scenario
+from drlaas.commands.scenario import ZOO_DIR, run_scenario
 from drlaas.commands.up import running_platform
 from workers.daemon.links import open_store
 from workers.mdrl.modelio import load_model
@@ -26,8 +26,14 @@ def test_scenario_end_to_end(
     monkeypatch.setenv("DRLAAS_DATA_DIR", str(data_dir))  # the CLI's `model pull` reads the store
     with running_platform(workers=3, data_dir=data_dir) as p:
         p.wait_registered()
+        # an owner lists at most 4 models, fewer than the zoo needs from three workers: the
+        # case that broke `make demo` once the zoo outgrew 3 x 8 models
+        limit = 4
+        p.chain.platform.mmc.set_max_models_per_owner(p.chain.platform.admin, limit)
         try:
-            report = run_scenario(p.url, p.data_dir, steps=2000, timeout=240, say=lines.append)
+            report = run_scenario(
+                p.url, p.data_dir, steps=2000, timeout=240, say=lines.append, zoo=ZOO_DIR
+            )
         except Exception as exc:
             raise AssertionError(f"{exc}\n{worker_logs(p)}") from exc
         tmc = p.chain.platform.tmc
@@ -56,6 +62,20 @@ def test_scenario_end_to_end(
         assert load_model(tmp_path / "cli-model").card["env"]["rows"] == 6
         status = cli.invoke(worker_app, ["status", report["worker"], "--json", *url])
         assert json.loads(status.output)["reputation"] == report["reputation_after"]
+        # the whole shipped zoo is listed, more models than the workers may own together
+        # (MMC maxModelsPerOwner): the scenario adds publisher accounts when they are full
+        policies = {
+            c.parent.name
+            for c in ZOO_DIR.glob("*/model.json")
+            if "kind" not in json.loads(c.read_text())
+        }
+        assert len(policies) > 3 * limit
+        assert set(report["zoo"]) == policies
+        added = p.chain.platform.mmc.contract.events.ModelAdded().get_logs(from_block=0)
+        owned: dict[str, int] = {}
+        for e in added:
+            owned[e["args"]["owner"]] = owned.get(e["args"]["owner"], 0) + 1
+        assert len(added) == 1 + len(policies) and max(owned.values()) <= limit
     assert report["progress_points"] >= 3  # the curve was visible while it trained
     assert report["reputation_after"] > report["reputation_before"]
     assert report["allocated"] == [report["cid"]]
