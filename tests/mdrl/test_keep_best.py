@@ -62,6 +62,7 @@ def test_the_kept_policy_is_the_best_evaluation_and_its_files_reproduce_it(tmp_p
     card = json.loads((tmp_path / "best" / "model.json").read_text())
     assert card["training"]["selected"]["update"] == want["update"]
     assert card["training"]["selected"]["eval_seed"] == trainer.run.eval_seed
+    assert card["training"]["env_steps"] == want["update"] * PPO.batch_steps  # when it was kept
     assert card["metrics"]["eval_time"] == pytest.approx(want["eval_time"])
     for policy in (load_model(tmp_path / "best"), trainer.policy(best=True)):
         report = evaluate(policy, ENV, 16, seed=trainer.run.eval_seed)

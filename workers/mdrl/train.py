@@ -500,6 +500,7 @@ class Trainer:
         if best:
             agent = self._best_agent()
             metrics = {k: v for k, v in self.best.items() if k.startswith("eval_")}
+            training.update(env_steps=self.best["global_step"], updates=self.best["update"])
             training["selected"] = {**self.best, "eval_episodes": self.run.eval_episodes,
                                     "eval_seed": self.run.eval_seed}
         if self.init_info is not None:  # fine-tuned: which model's weights it started from
