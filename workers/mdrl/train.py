@@ -77,7 +77,7 @@ class RunConfig:
     chosen model on other episodes."""
 
     def __post_init__(self) -> None:
-        if self.keep_best is not None and self.keep_best not in tuple(KEEP_BEST):
+        if self.keep_best is not None and self.keep_best not in tuple(KEEP_BEST):  # [] too
             raise ValueError(f"RunConfig.keep_best must be 'time', 'cost' or None, "
                              f"got {self.keep_best!r}")
 
@@ -99,7 +99,7 @@ class RunConfig:
         return cls(**d)
 
 
-KEEP_BEST = {None: (), "time": ("eval_time", "eval_cost"), "cost": ("eval_cost", "eval_time")}
+KEEP_BEST = {"time": ("eval_time", "eval_cost"), "cost": ("eval_cost", "eval_time")}
 """RunConfig.keep_best: the evaluation figures a better policy is lower in, in order."""
 
 METRIC_COLUMNS = [
@@ -346,9 +346,9 @@ class Trainer:
         """Model selection (``RunConfig.keep_best``): whether the evaluation ``evals`` of the
         current policy beats the best so far; if so its weights and figures become the best,
         and ``out/best`` the model file. Called after each evaluation."""
-        keys = KEEP_BEST[self.run.keep_best]
-        if not keys:
+        if self.run.keep_best is None:
             return False
+        keys = KEEP_BEST[self.run.keep_best]
 
         def rank(figures: dict[str, Any]) -> tuple[float, ...]:
             return tuple(math.inf if figures.get(k) is None or math.isnan(figures[k])

@@ -72,7 +72,7 @@ def train(
     import dataclasses
 
     from workers.mdrl.presets import get_preset, load_config
-    from workers.mdrl.train import RunConfig, Trainer
+    from workers.mdrl.train import KEEP_BEST, RunConfig, Trainer
 
     if steps is None and minutes is None:
         raise typer.BadParameter("give a budget: --steps and/or --minutes")
@@ -80,7 +80,7 @@ def train(
         raise typer.BadParameter(f"--steps must be >= 1, got {steps}")
     if minutes is not None and minutes <= 0:
         raise typer.BadParameter(f"--minutes must be > 0, got {minutes}")
-    if keep_best is not None and keep_best not in ("time", "cost"):
+    if keep_best is not None and keep_best not in KEEP_BEST:
         raise typer.BadParameter(f"must be time or cost, got {keep_best!r}",
                                  param_hint="--keep-best")
     run_changes = {"total_steps": steps, "minutes": minutes, "threads": threads,
