@@ -94,6 +94,11 @@ class TrainedPublic(BaseModel):
     env_steps: int | None = Field(default=None, ge=0, le=10**12)
     updates: int | None = Field(default=None, ge=0, le=10**9)
     wall_time_s: float | None = Field(default=None, ge=0.0, le=1e9, allow_inf_nan=False)
+    selected_by: Literal["time", "cost"] | None = Field(
+        default=None,
+        description="the run's best evaluated policy by this figure (RunConfig.keep_best), "
+        "not its last one; env_steps and updates are then when it was chosen",
+    )
 
 
 class CardExpertRef(BaseModel):
@@ -137,13 +142,17 @@ class CardView(BaseModel):
             else None,
             heldout=_heldout(zoo.get("heldout")),
             final_eval=_final_eval(card.get("metrics")),
-            trained=_section(
-                lambda: TrainedPublic.model_validate(
-                    {k: training.get(k) for k in TrainedPublic.model_fields}
-                )
-            ),
+            trained=_section(lambda: _trained(training)),
             expert_refs=_expert_refs(training.get("experts")),
         )
+
+
+def _trained(training: dict[str, Any]) -> TrainedPublic:
+    by = _obj(training.get("selected")).get("by")
+    fields = {k: training.get(k) for k in ("env_steps", "updates", "wall_time_s")}
+    return TrainedPublic.model_validate(
+        {**fields, "selected_by": by if by in ("time", "cost") else None}
+    )
 
 
 def _obj(v: Any) -> dict[str, Any]:

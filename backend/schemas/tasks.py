@@ -37,7 +37,8 @@ def _models_by_cid(schema: Any) -> Any:
 
 
 _SPEC = _models_by_cid(trainingspec_json_schema())["properties"]
-SPEC_FIELDS = ("env", "observation", "algorithm", "budget", "seed", "experts", "outcome_key")
+SPEC_FIELDS = ("env", "observation", "algorithm", "budget", "seed", "experts", "selection",
+               "outcome_key")
 """Fields of the body that make the TrainingSpec document (the rest are task parameters)."""
 
 
@@ -59,6 +60,7 @@ class TaskCreate(BaseModel):
     budget: _spec_field("budget")  # type: ignore[valid-type]
     seed: _spec_field("seed") = None  # type: ignore[valid-type]
     experts: _spec_field("experts") = None  # type: ignore[valid-type]
+    selection: _spec_field("selection") = None  # type: ignore[valid-type]
     outcome_key: _spec_field("outcome_key") = None  # type: ignore[valid-type]
     domain: Domain = 0
     num_workers: int = Field(default=1, ge=1, le=16)

@@ -165,6 +165,8 @@ def initial_models() -> list[dict]:
         if mid == 1:  # a zoo model: held-out figures, an expert, a producing task, a request
             c["zoo"] = {"name": "odmtl-3a", "heldout": HELDOUT}
             c["training"]["experts"] = {"experts": [{"ref": CID_B}, {"ref": "runs/local"}]}
+            # delivered by selection.keep_best: the run's best evaluated policy (Trainer.save_model)
+            c["training"]["selected"] = {"by": "time", "update": n - 2, "eval_time": 9.5}
         models.append(
             {
                 "id": mid,

@@ -193,3 +193,28 @@ def test_the_form_sets_an_expert_rate_schedule(page: Any, mmc: Any) -> None:
     page.click("#submit-task")
     expect(page.locator("#submit-result")).to_contain_text("created")
     assert state.posted_tasks[-1]["algorithm"] == {"demonstration": {"rate": 0.3, "rate_end": 0}}
+
+
+def test_the_form_chooses_the_delivered_policy(page: Any, mmc: Any) -> None:
+    """selection.keep_best: the final policy by default (no selection sent), the best evaluated
+    one on request; the evaluation interval is refused without it."""
+    server, state, _ = mmc
+    page.goto(f"{server.url}/submit")
+    sign_in_as_alice(page)
+    small_task(page)
+    options = page.locator("#f-selection-keep_best option")
+    assert options.evaluate_all("os => os.map(o => o.value)") == ["", "time", "cost"]
+    page.fill("#f-selection-eval_every", "2")
+    before = len(state.posted_tasks)
+    page.click("#submit-task")
+    expect(page.locator("#err-selection-eval_every")).to_contain_text("only when delivering")
+    assert len(state.posted_tasks) == before
+    page.fill("#f-selection-eval_every", "")
+    page.click("#submit-task")
+    expect(page.locator("#submit-result")).to_contain_text("created")
+    assert "selection" not in state.posted_tasks[-1]
+    page.select_option("#f-selection-keep_best", "cost")
+    page.fill("#f-selection-eval_every", "2")
+    page.click("#submit-task")
+    expect(page.locator("#submit-result")).to_contain_text("created")
+    assert state.posted_tasks[-1]["selection"] == {"keep_best": "cost", "eval_every": 2}

@@ -64,6 +64,8 @@ def test_model_page_shows_heldout_curve_provenance_and_human_units(
     expect(experts.nth(0).locator("a")).to_have_attribute("href", "/models/2")
     expect(experts.nth(0).locator(".cid")).to_have_attribute("title", CID_B)
     expect(experts.nth(1)).to_contain_text("<b>runs/local</b>")
+    # the card's training.selected: the delivered policy is the best evaluated, not the last
+    expect(page.locator("#model-selected")).to_contain_text("best evaluated policy by episode time")
 
     # chain values in human units: QoS a fraction, the price in ETH (wei on hover)
     req = page.locator('#model-requests tr[data-alloc-id="5"]')
@@ -89,6 +91,7 @@ def test_model_without_heldout_shows_its_final_evaluation(
     expect(page.locator("#heldout-table")).to_have_count(0)
     expect(page.locator("#produced-by")).to_contain_text("uploaded by its owner")
     expect(page.locator("#model-experts")).to_contain_text("trained from scratch")
+    expect(page.locator("#model-selected")).to_have_count(0)  # its last policy
 
 
 def test_task_list_shows_each_tasks_environment(

@@ -166,6 +166,19 @@ def test_cancel_refunds_and_lists_by_status(
     assert client.get(f"{P}/tasks", params={"requester": "0x1234"}).status_code == 422
 
 
+def test_selection_goes_into_the_stored_spec(
+    client: TestClient, login: Login, service: ChainService
+) -> None:
+    """``selection`` is a spec field: stored with the spec the workers train (keep_best)."""
+    register(client, login, ["user1"], WORKERS)
+    body = task_body(selection={"keep_best": "time", "eval_every": 3})
+    r = client.post(f"{P}/tasks", json=body, headers=login("user1"))
+    assert r.status_code == 201, r.text
+    store = client.app.state.store  # type: ignore[attr-defined]
+    spec = TrainingSpec.from_json(store.get(r.json()["spec_cid"]))
+    assert (spec.selection.keep_best, spec.selection.eval_every) == ("time", 3)
+
+
 @pytest.mark.parametrize(
     ("change", "loc"),
     [
@@ -193,6 +206,8 @@ def test_cancel_refunds_and_lists_by_status(
         ({"algorithm": {"preset": "nope"}}, ["body", "algorithm", "preset"]),
         ({"algorithm": {"ppo": {"num_envs": 0}}}, ["body", "algorithm", "ppo", "num_envs"]),
         ({"experts": ["../../etc/passwd"]}, ["body", "experts", 0]),
+        ({"selection": {"keep_best": "fastest"}}, ["body", "selection", "keep_best"]),
+        ({"selection": {"eval_every": 2}}, ["body", "selection", "eval_every"]),
         ({"ppo": {"num_envs": 4}}, ["body", "ppo"]),
         ({"num_workers": 17}, ["body", "num_workers"]),
         ({"payment_wei": -1}, ["body", "payment_wei"]),

@@ -74,6 +74,10 @@ def test_round_trip_and_defaults() -> None:
         ({"observation": {"walls_embedding_size": 0}}, "observation.walls_embedding_size"),
         ({"observation": {"route": True}}, "observation.route"),
         ({"observation": {"route": True, "belief": True, "kind": "dmtl"}}, "observation.route"),
+        ({"selection": {"keep_best": "fastest"}}, "selection.keep_best"),
+        ({"selection": {"keep_best": "time", "eval_every": 0}}, "selection.eval_every"),
+        ({"selection": {"eval_every": 3}}, "selection.eval_every"),
+        ({"selection": ["time"]}, "selection"),
         ({"outcome_key": "0x1234"}, "outcome_key"),
         ({"outcome_key": "0x" + "01" * 64}, "outcome_key"),  # hex of the length, off the curve
     ],
@@ -195,6 +199,21 @@ def test_a_route_observation_round_trips_and_is_off_by_default() -> None:
                                                    "kind": "cmtl"}})
 
 
+def test_selection_keeps_the_final_policy_unless_asked() -> None:
+    """``selection.keep_best``: the worker delivers the best evaluated policy (RunConfig)."""
+    plain = TrainingSpec.from_dict(GOOD)
+    assert plain.selection.keep_best is None and "selection" not in plain.to_dict()
+    doc = {**GOOD, "selection": {"keep_best": "time"}}
+    spec = TrainingSpec.from_dict(doc)
+    assert (spec.selection.keep_best, spec.selection.eval_every) == ("time", 5)
+    assert TrainingSpec.from_dict(spec.to_dict()) == spec
+    assert TrainingSpec.from_dict({**GOOD, "selection": {"keep_best": None}}) == plain
+    v = jsonschema_rs.Draft202012Validator(trainingspec_json_schema())
+    assert v.is_valid(doc) and v.is_valid(spec.to_dict())
+    assert not v.is_valid({**GOOD, "selection": {"keep_best": "fastest"}})
+    assert not v.is_valid({**GOOD, "selection": {"eval_every": 3}})
+
+
 _ODD_VALUES = [{}, {"x": {}}, [], [[]], [{}], "x", "", None, True, 1e300, -1, float("nan")]
 
 
@@ -224,7 +243,8 @@ def test_any_wrong_type_anywhere_is_a_spec_error_never_a_crash() -> None:
     accepted or a SpecError naming a field: never a TypeError from a lookup (a dict preset
     name once crashed the gateway with 'unhashable type')."""
     full = TrainingSpec.from_dict(
-        {**GOOD, "algorithm": {"preset": "odmtl-3a-10x10", "ppo": {"update_epochs": 3}}}
+        {**GOOD, "algorithm": {"preset": "odmtl-3a-10x10", "ppo": {"update_epochs": 3}},
+         "selection": {"keep_best": "cost", "eval_every": 2}}
     ).to_dict()
     paths = _paths(full)
     assert ("algorithm", "preset") in paths and len(paths) > 30

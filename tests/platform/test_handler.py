@@ -4,6 +4,7 @@ memory), failed jobs releasing the worker, store down."""
 
 from __future__ import annotations
 
+import csv
 import json
 from pathlib import Path
 
@@ -184,6 +185,36 @@ def test_a_sealed_outcome_goes_to_the_requester_only(env, tmp_path: Path) -> Non
     ).read_bytes()
     with pytest.raises(LookupError, match="submitted no outcome"):
         h.publish_outcome(task_id + 100)
+
+
+def test_selection_keep_best_delivers_the_best_evaluated_policy(env, tmp_path: Path) -> None:
+    """``selection.keep_best``: greedy evaluations every ``eval_every`` updates; the outcome
+    (submitted and published) is the policy with the shortest evaluation, not the last one."""
+    p, actors, store = env
+    spec = {**TINY_SPEC, "selection": {"keep_best": "time", "eval_every": 1}}
+    task_id, offered, _ = post_task(p, store, actors.requester, spec=spec)
+    h = handler_for(p, offered[0], store, tmp_path)
+    h._post_progress = lambda tid, point: None  # type: ignore[method-assign]
+    out = h.handle(task_id, offered[0])
+    assert out["status"] == "submitted"
+    run = h.job_dir(task_id) / "run"
+    with (run / "metrics.csv").open() as f:
+        rows = [r for r in csv.DictReader(f) if r["eval_time"] not in ("", "nan")]
+    updates = int(rows[-1]["update"])
+    assert [int(r["update"]) for r in rows] == list(range(1, updates + 1))  # every update
+    best = min(rows, key=lambda r: (float(r["eval_time"]), float(r["eval_cost"]), int(r["update"])))
+    pulled = pull_model(store, out["cid"], tmp_path / "pulled")
+    card = load_model(pulled).card
+    selected = card["training"]["selected"]
+    assert selected["by"] == "time" and selected["update"] == int(best["update"])
+    assert card["metrics"]["eval_time"] == pytest.approx(float(best["eval_time"]), abs=1e-4)
+    assert card["training"]["updates"] == int(best["update"]) and updates > 1
+    assert card["curve"], "the delivered model's card carries the run's training curve"
+    delivered = (pulled / "model.safetensors").read_bytes()
+    assert delivered == (run / "best" / "model.safetensors").read_bytes()
+    if int(best["update"]) != updates:  # the last policy differs: it is not what was sent
+        assert delivered != (run / "model" / "model.safetensors").read_bytes()
+    assert h.publish_outcome(task_id)["cid"] == out["cid"]
 
 
 def test_store_down_is_a_clear_transient_error_then_the_retry_completes(

@@ -191,13 +191,13 @@ class OfferHandler:
     def _run(self, task_id: int, spec: TrainingSpec, task: dict[str, Any]) -> dict[str, Any]:
         """Train (or resume), upload and submit an accepted job."""
         st = self._state(task_id)
-        model_dir = jobs.run_dir(self.job_dir(task_id)) / "model"
+        model_dir = jobs.delivered_model(self.job_dir(task_id), spec)
         if (
             st.get("phase") not in ("trained", "uploaded")
             or not (model_dir / "model.json").is_file()
         ):
             model_dir = self._train(task_id, spec, deadline=int(task["deadline"]))
-            st = self._save(task_id, phase="trained")
+            st = self._save(task_id, phase="trained", model=model_dir.name)  # model | best
         if st.get("phase") != "uploaded" or not st.get("cid"):
             try:
                 cid = (
@@ -277,7 +277,7 @@ class OfferHandler:
                 f"task {task_id}: this worker submitted no outcome on this chain "
                 f"(job state: {st.get('phase', 'none')}, {self.job_dir(task_id)})"
             )
-        model_dir = jobs.run_dir(self.job_dir(task_id)) / "model"
+        model_dir = jobs.run_dir(self.job_dir(task_id)) / st.get("model", "model")
         try:
             publish_model(self.store, st["cid"], model_dir)
         except StoreUnavailable as exc:

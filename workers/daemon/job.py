@@ -1,7 +1,8 @@
 """A resumable training job: the MDRL trainer with a budget, checkpoints and progress hooks.
 
 Layout of a job directory ``<worker data>/jobs/<task_id>/``: ``run/`` is the trainer's output
-(``checkpoint/`` every ``checkpoint_every`` updates, ``metrics.csv``, ``model/`` at the end),
+(``checkpoint/`` every ``checkpoint_every`` updates, ``metrics.csv``, ``model/`` at the end,
+``best/`` the best evaluated policy when the spec's ``selection.keep_best`` asks for it),
 ``progress.jsonl`` the points posted to the gateway, ``experts/<CID>/`` the verified expert
 models of an MEDC task (``workers.daemon.experts``). A job started again in the same directory
 resumes from its last checkpoint (the trainer restores weights, optimiser, RNGs and env state,
@@ -80,6 +81,12 @@ def run_dir(job_dir: str | Path) -> Path:
     return Path(job_dir) / "run"
 
 
+def delivered_model(job_dir: str | Path, spec: TrainingSpec) -> Path:
+    """The model directory a job delivers: the run's final policy, or with the spec's
+    ``selection.keep_best`` the best evaluated one (``Trainer.keep_if_best``)."""
+    return run_dir(job_dir) / ("best" if spec.selection.keep_best else "model")
+
+
 def has_checkpoint(job_dir: str | Path) -> bool:
     return (run_dir(job_dir) / "checkpoint" / "state.json").is_file()
 
@@ -138,10 +145,12 @@ def make_trainer(
                 out, out=out, run_overrides=overrides, selector=selector, walls_encoder=encoder
             ),
         )
+    keep_best = spec.selection.keep_best
     run = RunConfig(
         seed=spec.seed,
         total_steps=spec.steps,
-        eval_every=0,
+        eval_every=spec.selection.eval_every if keep_best else 0,
+        keep_best=keep_best,
         eval_episodes=EVAL_EPISODES,
         tensorboard=False,
         progress=False,
@@ -165,7 +174,8 @@ def run_job(
     experts: dict[str, Path] | None = None,
     walls_cae: Path | None = None,
 ) -> tuple[Path, dict[str, Any]]:
-    """Train (or finish training) ``spec`` in ``job_dir``; returns (model dir, last metrics).
+    """Train (or finish training) ``spec`` in ``job_dir``; returns (the delivered model dir,
+    its metrics: the last update's, with the delivered policy's evaluation).
 
     Each update appends a progress point to ``progress.jsonl`` and calls ``on_progress``."""
     job = Path(job_dir)
@@ -191,11 +201,13 @@ def run_job(
     trainer.on_first_step = on_first_step
     t0 = time.perf_counter()
     metrics = trainer.train()
-    model = run_dir(job) / "model"
+    model = delivered_model(job, spec)
     attach_curve(model, run_dir(job) / "metrics.csv")  # the card's training curve
+    chosen = trainer.best if spec.selection.keep_best else None
     return model, {
         **metrics,
         **trainer.last_eval,
+        **({k: v for k, v in chosen.items() if k.startswith("eval_")} if chosen else {}),
         "job_seconds": time.perf_counter() - t0,
         "resumed_from_update": None,
     }

@@ -431,6 +431,8 @@ class Trainer:
                 self._writer = None
         if self.out is not None:
             self.save_model(self.out / "model")
+            if self.best is not None:  # again: a resumed run may have left a later one there
+                self.save_model(self.out / "best", best=True)
         return self.last_metrics
 
     # ------------------------------------------------------------------ outputs

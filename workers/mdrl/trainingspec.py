@@ -46,6 +46,7 @@ __all__ = [
     "TRAINING_SPEC_FORMAT",
     "AlgorithmSpec",
     "BudgetSpec",
+    "SelectionSpec",
     "SpecError",
     "TrainingSpec",
     "parse_env",
@@ -125,6 +126,13 @@ BUDGET_RULES: dict[str, Any] = {
     "steps": Int(1, MAX_STEPS, doc="env steps to train (training stops at exactly this many)"),
     "minutes": Real(0.1, MAX_MINUTES, doc="wall-clock cap in minutes"),
 }
+SELECTION_RULES: dict[str, Any] = {
+    "keep_best": Nullable(Choice(("time", "cost"), doc="deliver the policy with the shortest "
+                                 "mean episode (time) or the lowest moving cost (cost) over the "
+                                 "job's greedy evaluations; null = the final policy")),
+    "eval_every": Int(1, 10_000, doc="updates between those evaluations (default 5)"),
+}
+"""``selection``: which policy of the run the worker delivers (``RunConfig.keep_best``)."""
 DEMONSTRATION_RULES: dict[str, Any] = {
     "rate": Nullable(Real(0.0, 1.0, doc="R_E: share of expert-guided episodes; null = 0.2 for "
                           "one expert (Table 4.1), 0.1 for several (Table 5.3)")),
@@ -217,6 +225,19 @@ class BudgetSpec:
         return {k: v for k, v in dataclasses.asdict(self).items() if v is not None}
 
 
+@dataclass(frozen=True)
+class SelectionSpec:
+    """Which policy of the run is the outcome: the final one, or (``keep_best``) the best of
+    greedy evaluations every ``eval_every`` updates (``RunConfig.keep_best``); the model card
+    says when it was chosen (``training.selected``)."""
+
+    keep_best: str | None = None
+    eval_every: int = 5
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"keep_best": self.keep_best, "eval_every": self.eval_every}
+
+
 def default_ppo(steps: int | None) -> dict[str, Any]:
     """FAST_PPO, with an update no larger than a quarter of a small step budget so a tiny
     budget still gives several updates (and so checkpoints and progress points)."""
@@ -239,6 +260,7 @@ class TrainingSpec:
     experts: tuple[str, ...] = ()
     expert_qos: tuple[float, ...] = ()
     """QoS weight per expert (R_S = QoS_i / sum QoS, Table 5.3); empty = equal weights."""
+    selection: SelectionSpec = SelectionSpec()
     outcome_key: str | None = None
     """The requester's secp256k1 public key (``0x`` + 128 hex digits): the worker seals the
     outcome's weights to it (backend/store/sealed.py); None = the outcome is public."""
@@ -284,7 +306,7 @@ class TrainingSpec:
         if not isinstance(doc, dict):
             raise SpecError("spec", "expected a JSON object")
         top = {"format", "env", "observation", "algorithm", "budget", "seed", "experts",
-               "outcome_key"}
+               "selection", "outcome_key"}
         for key in doc:
             if key not in top:
                 raise SpecError(key, f"unknown field (known: {sorted(top)})")
@@ -299,6 +321,9 @@ class TrainingSpec:
         if not budget:
             raise SpecError("budget", "give steps and/or minutes")
         seed = _SEED.check(doc.get("seed", 0), "seed")
+        selection = check_object(doc.get("selection", {}), SELECTION_RULES, "selection")
+        if "eval_every" in selection and selection.get("keep_best") is None:
+            raise SpecError("selection.eval_every", "applies only with selection.keep_best")
         experts, qos = _check_experts(doc.get("experts", []))
         demonstration = algo.get("demonstration") or {}
         if demonstration and not experts:
@@ -321,6 +346,7 @@ class TrainingSpec:
             seed=seed,
             experts=experts,
             expert_qos=qos,
+            selection=SelectionSpec(**selection),
             outcome_key=_OUTCOME_KEY.check(doc["outcome_key"], "outcome_key")
             if doc.get("outcome_key") is not None
             else None,
@@ -355,7 +381,9 @@ class TrainingSpec:
                 if self.expert_qos
                 else list(self.experts)
             ),
-        } | ({"outcome_key": self.outcome_key} if self.outcome_key else {})
+        } | ({"selection": self.selection.to_dict()} if self.selection.keep_best else {}) | (
+            {"outcome_key": self.outcome_key} if self.outcome_key else {}
+        )
 
 
 def parse_env(doc: Any, field: str = "env") -> EnvSpec:
@@ -522,6 +550,9 @@ def trainingspec_json_schema() -> dict[str, Any]:
             "budget": budget,
             "seed": _SEED.schema(),
             "experts": experts,
+            "selection": object_schema(SELECTION_RULES, "which policy of the run the worker "
+                                       "delivers: the final one (default) or the best evaluated",
+                                       dependentRequired={"eval_every": ["keep_best"]}),
             "outcome_key": _OUTCOME_KEY.schema(),
         },
         "required": ["env", "budget"],

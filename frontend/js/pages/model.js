@@ -105,6 +105,9 @@ function provenance(m) {
     ["Trained for", trained.env_steps !== null && trained.env_steps !== undefined
       ? `${num(trained.env_steps)} env steps${trained.updates ? `, ${num(trained.updates)} updates` : ""}`
         + `${trained.wall_time_s ? `, ${num(trained.wall_time_s / 60, 1)} min` : ""}` : undefined],
+    ["Kept", trained.selected_by
+      ? h("span", { id: "model-selected" }, `the run's best evaluated policy by ${trained.selected_by === "time" ? "episode time" : "moving cost"}, chosen at the step above (not its last one)`)
+      : undefined],
   ]);
 }
 

@@ -14,7 +14,10 @@ const LABELS = {
   "env.moves": { 4: "4 (up/down/left/right)", 8: "8 (with diagonals)" },
   "observation.kind": { odmtl: "ODMTL (windowed maps)", dmtl: "DMTL (per-agent maps)", cmtl: "CMTL (centralized)" },
   "algorithm.demonstration.credit": { false: "off (Alg. 5.1)", true: "on (experts on probation, weighted by credit)" },
+  "selection.keep_best": { "": "the final policy", time: "the best evaluated: shortest episodes", cost: "the best evaluated: lowest moving cost" },
 };
+/** Selects whose first option is "not set" (the spec field is nullable: null = the default). */
+const UNSET_OPTION = { "selection.keep_best": "" };
 /** "1 to 16" from a field's bounds ("" without both). */
 const range = (b) => (b && b.min !== undefined && b.max !== undefined ? `${fmt(b.min)} to ${fmt(b.max)}` : "");
 
@@ -36,6 +39,8 @@ const FIELDS = {
   "budget.steps": ["Budget: environment steps", "20000", "int", (b) => [range(b), "training stops at exactly this many"]],
   "budget.minutes": ["Budget: minutes", "10", "real", (b) => [range(b), "training stops at whichever comes first"]],
   "seed": ["Seed", "0", "int"],
+  "selection.keep_best": ["Deliver", "", "select", () => ["the policy the worker sends: the last one, or the best of greedy evaluations during training (its card says when)"]],
+  "selection.eval_every": ["Evaluate every (updates)", "", "int", (b) => [range(b), "empty = 5; only when delivering the best policy"]],
   "domain": ["Domain", "0", "int", (b) => [`domain code ${range(b)}`.trim()]],
   "num_workers": ["Workers", "1", "int", (b) => [range(b), "each trains independently"]],
   "min_reputation": ["Min reputation", "0", "real", range],
@@ -58,7 +63,7 @@ const SCHEMA_PATH = { "env.walls_min": "env.walls[0]", "env.walls_max": "env.wal
 const GROUPS = [
   ["env", "Environment", ["env.agents", "env.rows", "env.cols", "env.walls_min", "env.walls_max", "env.moves", "env.intensity"]],
   ["observation", "Observation", ["observation.kind", "observation.window", "observation.walls_embedding", "observation.walls_embedding_size"]],
-  ["budget", "Training budget", ["budget.steps", "budget.minutes", "seed"]],
+  ["budget", "Training budget", ["budget.steps", "budget.minutes", "seed", "selection.keep_best", "selection.eval_every"]],
   ["recruit", "Recruitment and payment", ["domain", "num_workers", "min_reputation", "min_rating", "min_cpu_cores", "min_ram_gb", "deadline_s", "payment_eth"]],
   ["medc", "Experts (optional: MEDC, demonstrations from shared models)", ["experts", "experts_from_mmc", "algorithm.demonstration.rate", "algorithm.demonstration.rate_end", "algorithm.demonstration.credit"]],
 ];
@@ -76,8 +81,9 @@ const boundsFor = (schema, name) => (schema ? schema.bounds(SCHEMA_PATH[name] ||
 /** The values a select offers: the schema's enum, else the labelled ones. */
 function options(schema, name) {
   const b = boundsFor(schema, name);
-  const values = b && b.enum ? b.enum : Object.keys(LABELS[name]);
-  return values.map((v) => [String(v), LABELS[name][v] || String(v)]);
+  const values = b && b.enum ? b.enum : Object.keys(LABELS[name]).filter((v) => v !== UNSET_OPTION[name]);
+  const unset = name in UNSET_OPTION ? [UNSET_OPTION[name]] : [];
+  return [...unset, ...values].map((v) => [String(v), LABELS[name][v] || String(v)]);
 }
 
 /** Intensity text -> {kind, values}: "1e9" fixed, "1e8,5e8,1e9" a set, "1e8:1e9" a range;
@@ -199,6 +205,12 @@ export function buildTask(v, schema) {
   const credit = (v["algorithm.demonstration.credit"] ?? "false") === "true";
   if (credit && !experts.length && !(buy > 0)) errors["algorithm.demonstration.credit"] = "applies only with experts";
 
+  // Which policy is delivered: the final one (no selection) or the best evaluated one.
+  const keepBest = (v["selection.keep_best"] ?? "").trim();
+  if (!options(schema, "selection.keep_best").some(([k]) => k === keepBest)) errors["selection.keep_best"] = "choose one of the listed policies";
+  const evalEvery = number("selection.eval_every", { required: false });
+  if (evalEvery !== undefined && !keepBest) errors["selection.eval_every"] = "applies only when delivering the best policy";
+
   if (Object.keys(errors).length) return { body: null, errors, buyExperts: 0 };
   const budget = {};
   if (steps !== undefined) budget.steps = steps;
@@ -222,6 +234,7 @@ export function buildTask(v, schema) {
   };
   if (seed !== undefined) body.seed = seed;
   if (experts.length) body.experts = experts;
+  if (keepBest) body.selection = { keep_best: keepBest, ...(evalEvery !== undefined ? { eval_every: evalEvery } : {}) };
   const demonstration = {};
   if (rate !== undefined) demonstration.rate = rate;
   if (rateEnd !== undefined) demonstration.rate_end = rateEnd;
