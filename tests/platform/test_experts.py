@@ -328,6 +328,7 @@ def test_task_submit_expert_options_are_checked_before_anything_is_sent(tmp_path
         ("--expert-rate-end", "0"): "need experts",
         ("--experts", cid, "--expert-rate-end", "2"): "algorithm.demonstration.rate_end",
         ("--expert-allocation", "3", "--expert-price-wei", "5"): "prices --experts-from-mmc",
+        ("--keep-best", "fastest"): "selection.keep_best",
     }
     for args, msg in cases.items():
         res = CliRunner().invoke(app, [*base, *args])
@@ -355,10 +356,13 @@ def test_task_submit_expert_options_are_checked_before_anything_is_sent(tmp_path
         expert_qos="0.4",
         expert_threshold=0.1,
         expert_credit=True,
+        keep_best="time",
     )
+    assert body["selection"] == {"keep_best": "time"}
     assert body["experts"] == [{"model": cid, "qos": 0.4}]
     assert body["algorithm"] == {"demonstration": {"threshold": 0.1, "credit": True}}
-    assert TrainingSpec.from_dict({k: body[k] for k in ("env", "budget", "experts", "algorithm")})
+    fields = ("env", "budget", "experts", "algorithm", "selection")
+    assert TrainingSpec.from_dict({k: body[k] for k in fields}).selection.keep_best == "time"
 
 
 def test_model_push_adds_a_cae_or_a_model_to_the_platform_store(

@@ -72,6 +72,7 @@ def task_body(
     expert_threshold: float | None = None,
     expert_credit: bool = False,
     expert_rate_end: float | None = None,
+    keep_best: str | None = None,
 ) -> dict[str, Any]:
     """POST /tasks body from options, or from a JSON file (``--spec``) that options fill in.
     The spec part is checked locally with the core's TrainingSpec (the gateway's own parser).
@@ -85,6 +86,8 @@ def task_body(
         "budget": {"steps": steps, "minutes": minutes},
         "seed": seed,
     }
+    if keep_best is not None:
+        doc["selection"] = {"keep_best": keep_best}
     if experts is not None:
         doc["experts"] = expert_list(experts, expert_qos)
     elif expert_qos is not None:
@@ -204,6 +207,13 @@ def task_submit(
             "faulty shared models; not in Alg. 5.1)"
         ),
     ] = False,
+    keep_best: Annotated[
+        str | None,
+        typer.Option(
+            help="deliver the run's best evaluated policy, by 'time' (shortest episodes) or "
+            "'cost' (fewest moves), instead of its last one (spec selection.keep_best)"
+        ),
+    ] = None,
     public_outcome: Annotated[
         bool,
         typer.Option(
@@ -248,6 +258,7 @@ def task_submit(
         expert_threshold=expert_threshold,
         expert_credit=expert_credit,
         expert_rate_end=expert_rate_end,
+        keep_best=keep_best,
     )
     with connect_funded(gateway, key) as gw:
         if not public_outcome and gw.account is not None:
