@@ -33,7 +33,7 @@ Usage: python benchmarks/medc/run.py --steps 1000000 --seeds 0,1,2
        [--tasks A3W2,A3W3] [--methods sparse,sr,dc,medc,medc-faulty,il,frl]
        [--grid 30] [--belief] [--experts train | DIR,DIR,...] [--expert-steps 1000000]
        [--frl-steps N]
-       [--cae DIR]
+       [--cae DIR] [--bonus S]
        [--qos 1,1,1]
        [--episodes 1000] [--eval-every 5] [--out runs/medc] [--png benchmarks/medc/curves.png]
 """
@@ -78,6 +78,8 @@ ROUTE = False
 """--route: the ``-route`` presets (belief map and walking-distance maps, observations.py) of
 the Ch. 4 setting, scaled to --grid like the thesis presets."""
 CAE: str | None = None
+BONUS: float | None = None
+"""--bonus: S of Eq. 9 for every sparse-reward run (the presets: 50, Table 4.1)."""
 """--cae: the walls CAE directory of the ``-cae`` methods (trained for the benchmark's grid)."""
 REACH = 1.05
 """A run "reaches" a level when its mean held-out episode length is within 5% of it."""
@@ -86,6 +88,14 @@ CHECKPOINT_EVERY = 10
 
 
 def user_preset(user: str, reward: str, grid: int = 30) -> Any:
+    """``thesis_preset`` with ``--bonus`` as S of the sparse reward (Eq. 9) when given."""
+    preset = thesis_preset(user, reward, grid)
+    if BONUS is None or reward != "sparse":
+        return preset
+    return dataclasses.replace(preset, env=dataclasses.replace(preset.env, sparse_bonus=BONUS))
+
+
+def thesis_preset(user: str, reward: str, grid: int = 30) -> Any:
     """The Ch. 4 preset of a thesis user name such as A3W2 (agents 3, walls 2), on a
     ``grid`` x ``grid`` map of 50 m cells (30 = the thesis; smaller grids are the same setting
     scaled down so that it trains on this CPU)."""
@@ -196,6 +206,7 @@ def train_run(task: str, method: str, seed: int, steps: int, experts: list[str],
     trainer.train()
     wall = time.perf_counter() - start + before
     result = {"task": task, "grid": grid, "method": method, "seed": seed,
+              "bonus": float(env.sparse_bonus),
               "steps": trainer.global_step,
               "wall_s": wall, "curve": read_curve(run_dir / "metrics.csv"),
               "heldout": heldout(learner.policy(), env)}
@@ -449,7 +460,7 @@ def plot(results: list[dict], path: Path) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    global HELDOUT_EPISODES, THRESHOLD, BELIEF, ROUTE, CAE
+    global HELDOUT_EPISODES, THRESHOLD, BELIEF, ROUTE, CAE, BONUS
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--steps", type=int, default=1_000_000)
     p.add_argument("--seeds", default="0,1,2")
@@ -478,6 +489,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--route", action="store_true",
                    help="the -route presets (belief and walking-distance maps) at --grid; give "
                    "another --out (runs are cached)")
+    p.add_argument("--bonus", type=float, default=None,
+                   help="S of the sparse reward (Eq. 9) instead of the presets' 50: how much "
+                   "finding the source is worth against moving; give another --out")
     p.add_argument("--cae", default=None,
                    help="walls CAE directory for the -cae methods (drlaas cae train, same grid)")
     args = p.parse_args(argv)
@@ -486,6 +500,9 @@ def main(argv: list[str] | None = None) -> int:
     if BELIEF and ROUTE:
         p.error("--belief (the 10 x 10 product presets) and --route exclude each other")
     CAE = args.cae
+    if args.bonus is not None and not args.bonus > 0:
+        p.error(f"--bonus must be > 0, got {args.bonus}")
+    BONUS = args.bonus
     HELDOUT_EPISODES = args.episodes
     THRESHOLD = args.threshold
     methods = [m for m in args.methods.split(",") if m]
@@ -510,6 +527,10 @@ def main(argv: list[str] | None = None) -> int:
                 cached = args.out / f"{task}-{g}x{g}-{method}-s{seed}-{steps}.json"
                 if cached.is_file():
                     r = json.loads(cached.read_text())
+                    bonus = float(user_preset(task, "sparse", g).env.sparse_bonus)
+                    if method not in ("sr", "sr-cae") and r.get("bonus", 50.0) != bonus:
+                        raise SystemExit(f"{cached} was run with S = {r.get('bonus', 50.0):g}, "
+                                         f"not {bonus:g}: give another --out")
                 else:
                     r = train_run(task, method, seed, steps, experts, qos,
                                   args.eval_every, args.out, args.grid)

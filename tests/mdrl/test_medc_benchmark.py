@@ -1,5 +1,6 @@
 """The MEDC benchmark script end to end on a tiny budget: every guided method runs to its
-held-out figures, the table and the kept-policy table print, and cached runs are reused."""
+held-out figures, the table and the kept-policy table print, and cached runs are reused (not
+when they were run with another S of Eq. 9)."""
 
 import json
 import subprocess
@@ -10,11 +11,11 @@ ROOT = Path(__file__).resolve().parents[2]
 METHODS = ("sparse", "medc", "medc-anneal", "medc-credit", "il")
 
 
-def bench(out: Path) -> subprocess.CompletedProcess:
+def bench(out: Path, *extra: str) -> subprocess.CompletedProcess:
     cmd = [sys.executable, str(ROOT / "benchmarks" / "medc" / "run.py"), "--grid", "10",
            "--steps", "4096", "--seeds", "0", "--tasks", "A3W3", "--methods", ",".join(METHODS),
            "--experts", "oracle,random", "--episodes", "10", "--eval-every", "1",
-           "--out", str(out)]
+           "--out", str(out), *extra]
     return subprocess.run(cmd, capture_output=True, text=True, timeout=600, cwd=ROOT)
 
 
@@ -26,6 +27,7 @@ def test_the_benchmark_runs_every_guided_method_and_reuses_its_cache(tmp_path):
         assert f"| {m} | 1 |" in table, (m, table)
         run = json.loads((tmp_path / f"A3W3-10x10-{m}-s0-4096.json").read_text())
         assert run["steps"] == 4096 and run["heldout"]["episodes"] == 10
+        assert run["bonus"] == 50.0  # S of Eq. 9 (Table 4.1) unless --bonus
         # the kept policy is the curve's shortest time, judged on the held-out episodes
         assert run["best"]["curve_time"] == min(p["time"] for p in run["curve"])
         assert 0.0 <= run["best"]["heldout"]["success"] <= 1.0
@@ -34,3 +36,6 @@ def test_the_benchmark_runs_every_guided_method_and_reuses_its_cache(tmp_path):
     assert again.returncode == 0, again.stderr[-3000:]
     assert again.stdout == first.stdout
     assert again.stderr.count("min)") == len(METHODS)  # one line per cached run
+    # runs cached with another S of Eq. 9 are refused, not mixed into the table
+    other = bench(tmp_path, "--bonus", "200")
+    assert other.returncode != 0 and "S = 50" in other.stderr and "another --out" in other.stderr
