@@ -102,6 +102,24 @@ def test_compute_and_hours() -> None:
     assert estimate(spec(agents=6)).flops_per_step > base
 
 
+def test_keeping_the_best_policy_charges_its_evaluations() -> None:
+    """selection.keep_best evaluates JOB_EVAL_EPISODES greedy episodes every eval_every
+    updates: the estimate grows with that work, and a tiny batch evaluated every update
+    (up to 10,000 evaluation steps per training step) is counted, not waved through."""
+    doc = {"env": {"rows": 10, "cols": 10, "agents": 3}, "budget": {"steps": 100_000}}
+
+    def hours(selection: dict | None = None, ppo: dict | None = None) -> float:
+        extra = {"selection": selection} if selection else {}
+        return worker_hours(TrainingSpec.from_dict(doc | extra | {"algorithm": {"ppo": ppo or {}}}))
+
+    plain = hours()
+    every5, every1 = hours({"keep_best": "time"}), hours({"keep_best": "time", "eval_every": 1})
+    assert plain < every5 < every1
+    assert every1 - plain == pytest.approx(5 * (every5 - plain), rel=0.01)
+    tiny = {"num_envs": 1, "horizon": 1, "num_minibatches": 1}
+    assert hours({"keep_best": "cost", "eval_every": 1}, tiny) > 100 * hours(None, tiny)
+
+
 def test_estimate_is_not_below_a_real_small_run() -> None:
     # the model is an upper-ish bound: torch's own tensors for a tiny run fit inside it
     s = spec("odmtl", agents=2, rows=6, cols=6, ppo={"num_envs": 16, "horizon": 256})

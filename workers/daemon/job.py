@@ -22,12 +22,13 @@ from typing import Any, cast
 from workers.daemon.experts import load_job_experts, load_walls_encoder
 from workers.mdrl.curve import attach_curve
 from workers.mdrl.train import RunConfig, Trainer
-from workers.mdrl.trainingspec import TrainingSpec
+from workers.mdrl.trainingspec import JOB_EVAL_EPISODES, TrainingSpec
 
 #: Updates between checkpoints: a killed worker loses at most this many updates of work.
 CHECKPOINT_EVERY = 2
-#: Greedy evaluation episodes at the end of a job (the model card's metrics).
-EVAL_EPISODES = 100
+#: Greedy evaluation episodes at the end of a job (the model card's metrics) and, with the
+#: spec's ``selection.keep_best``, every ``eval_every`` updates.
+EVAL_EPISODES = JOB_EVAL_EPISODES
 
 ProgressHook = Callable[[dict[str, Any]], None]
 

@@ -10,9 +10,12 @@ critic maps, masks over the policy's actions, actions, log-probs, values, reward
 and critic parameters with their gradients and Adam moments, the activations of one minibatch
 and a fixed process overhead (Python, numpy, torch). Compute counts the LeNet forward passes of
 the rollout, forward + backward (~3x forward) per epoch of the update, and the env/observer
-work per step. Wall time is compute over a reference rate, calibrated so the ODMTL 3-agent
-10x10 preset runs at the ~7,000 env steps/s measured on one thread of a 2-core CPU
-(presets.FAST_PPO). These are estimates to refuse the absurd, not capacity planning.
+work per step, and with ``selection.keep_best`` the job's greedy evaluations (actor forward
+passes and env work of at most JOB_EVAL_EPISODES x max_steps steps every ``eval_every``
+updates), spread over the env steps between them. Wall time is compute over a reference
+rate, calibrated so the ODMTL 3-agent 10x10 preset runs at the ~7,000 env steps/s measured on
+one thread of a 2-core CPU (presets.FAST_PPO). These are estimates to refuse the absurd, not
+capacity planning.
 """
 
 from __future__ import annotations
@@ -23,7 +26,7 @@ from functools import cache
 
 from workers.mdrl.env import HISTORY
 from workers.mdrl.observations import ROUTE_CELLS, channel_layout
-from workers.mdrl.trainingspec import TrainingSpec
+from workers.mdrl.trainingspec import JOB_EVAL_EPISODES, TrainingSpec
 
 PROCESS_BASE_BYTES = 400 * 2**20
 """Python + numpy + torch of a training process before any array (measured RSS ~350 MiB)."""
@@ -42,7 +45,8 @@ class ResourceEstimate:
     memory_parts: dict[str, int]
     """memory_bytes by part (env, observations, rollout, networks, optimizer, update, process)."""
     flops_per_step: int
-    """Estimated floating-point operations per env step (rollout + update + env)."""
+    """Estimated floating-point operations per env step (rollout + update + env, plus the
+    evaluations' share when the spec keeps the best evaluated policy)."""
     env_steps: int
     """Env steps the budget allows (steps, or minutes at the estimated rate)."""
     hours: float
@@ -169,7 +173,15 @@ def flops_per_step(spec: TrainingSpec) -> int:
     env_flops = 20 * c + 50 * n + 2 * np_ * c * window + np_ * ap
     if obs.belief:  # two (C,) x (C, C) products per env step (belief.py), then K-way logsumexp
         env_flops += 4 * c * c + 30 * c
-    return forward * (1 + 3 * spec.ppo.update_epochs) + env_flops
+    training = forward * (1 + 3 * spec.ppo.update_epochs) + env_flops
+    if spec.selection.keep_best is None:
+        return training
+    # selection.keep_best: greedy evaluations (actor only) every eval_every updates, each at
+    # most JOB_EVAL_EPISODES episodes of max_steps steps, per env step of training between them
+    greedy = np_ * lenet_flops(layout.actor_shape, ap) + env_flops
+    evaluation = JOB_EVAL_EPISODES * env.max_steps * greedy
+    between = spec.selection.eval_every * spec.ppo.batch_steps
+    return training + -(-evaluation // between)
 
 
 @cache

@@ -133,6 +133,9 @@ SELECTION_RULES: dict[str, Any] = {
     "eval_every": Int(1, 10_000, doc="updates between those evaluations (default 5)"),
 }
 """``selection``: which policy of the run the worker delivers (``RunConfig.keep_best``)."""
+JOB_EVAL_EPISODES = 100
+"""Greedy evaluation episodes of a platform job (the card's metrics; with ``selection.keep_best``
+every ``eval_every`` updates, which the resource model charges for)."""
 DEMONSTRATION_RULES: dict[str, Any] = {
     "rate": Nullable(Real(0.0, 1.0, doc="R_E: share of expert-guided episodes; null = 0.2 for "
                           "one expert (Table 4.1), 0.1 for several (Table 5.3)")),
