@@ -231,6 +231,12 @@ def run_scenario(
     return report
 
 
+def detail_updates(card: dict[str, Any]) -> Any:
+    """The run's last update from the card's curve (the kept policy's card says when it was
+    chosen; its curve is the whole run's)."""
+    return (card.get("curve") or {}).get("updates", "?")
+
+
 def _medc_task(
     req: Gateway,
     anon: Gateway,
@@ -257,6 +263,7 @@ def _medc_task(
             "domain": 0,
             "expert_allocation": alloc_id,
             "algorithm": {"demonstration": {"rate": 0.5}},
+            "selection": {"keep_best": "time", "eval_every": 2},  # deliver the best evaluated
         },
     )
     task_id = created["task_id"]
@@ -282,6 +289,12 @@ def _medc_task(
             f"{e['ref']} (qos {e['qos']:.3f}, guided {e['episodes']} episodes)" for e in used
         )
     )
+    selected = card["training"]["selected"]
+    say(
+        f"  delivered: the best evaluated policy by time, update {selected['update']} of "
+        f"{detail_updates(card)} (mean time {selected['eval_time']:.1f} steps on "
+        f"{selected['eval_episodes']} evaluation episodes)"
+    )
     before = anon.get(f"/models/{model_id}")["reputation"]
     write(req, "POST", f"/models/requests/{alloc_id}/reviews", {"model_id": model_id, "review": 4})
     after = wait_for(
@@ -296,6 +309,7 @@ def _medc_task(
         "worker": worker,
         "cid": detail["outcomes"][0]["cid"],
         "experts": [{"ref": e["ref"], "episodes": e["episodes"]} for e in used],
+        "selected": {k: selected[k] for k in ("by", "update", "global_step", "eval_time")},
         "expert_reputation": [before, after],
     }
 

@@ -86,4 +86,7 @@ def test_scenario_end_to_end(
     assert medc["experts"][0]["episodes"] > 0
     assert medc["expert_reputation"][1] == pytest.approx(4 / 5)
     assert medc["cid"] != report["cid"]
+    # the MEDC task asks for the best evaluated policy: the outcome's card says when it was kept
+    assert medc["selected"]["by"] == "time" and medc["selected"]["update"] >= 1
+    assert 0 < medc["selected"]["global_step"] <= 2000  # the budget of the test's tasks
     assert any("progress" in ln for ln in lines)
