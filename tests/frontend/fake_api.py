@@ -382,6 +382,7 @@ def initial_tasks() -> list[dict]:
         ALICE,
         1,
         10**16,
+        spec=task_spec(3) | {"selection": {"keep_best": "cost", "eval_every": 4}},
         outcomes=[{"worker": W1, "cid": CID_A, "review": 5, "accepted": True}],
     )
     return [t1, t2, t3]

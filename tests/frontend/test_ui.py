@@ -360,6 +360,13 @@ def test_task_page_shows_timeline_offers_outcomes_and_live_curve(
     expect(page.locator("#task-status")).to_have_text("completed", timeout=5000)
     expect(page.locator("#outcomes-table tbody tr")).to_have_count(1)
     expect(page.locator("#outcomes-table a")).to_have_attribute("href", f"/models?q={CID_A}")
+    expect(page.locator("#task-summary")).to_contain_text("the final policy")
+    expect(page.locator("#task-selection")).to_have_count(0)
+    # a task whose spec keeps the best evaluated policy says so (spec selection.keep_best)
+    page.goto(f"{server.url}/tasks/3")
+    expect(page.locator("#task-selection")).to_have_text(
+        "the best evaluated policy by moving cost (evaluated every 4 updates)"
+    )
 
 
 # ------------------------------------------------------------------------- workers

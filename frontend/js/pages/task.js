@@ -106,6 +106,9 @@ export async function render(main, [id], ctx) {
         ["Environment", envSummary(spec.env || t.env)],
         ["Observation", spec.observation ? `${String(spec.observation.kind || "").toUpperCase()}${spec.observation.window ? `, window ${spec.observation.window}` : ""}` : undefined],
         ["Budget", spec.budget ? [spec.budget.steps ? `${num(spec.budget.steps)} steps` : null, spec.budget.minutes ? `${num(spec.budget.minutes)} min` : null].filter(Boolean).join(", ") || "—" : undefined],
+        ["Delivers", spec.selection && spec.selection.keep_best
+          ? h("span", { id: "task-selection" }, `the best evaluated policy by ${spec.selection.keep_best === "time" ? "episode time" : "moving cost"} (evaluated every ${num(spec.selection.eval_every ?? 5)} updates)`)
+          : (spec.budget ? "the final policy" : undefined)],
         ["Workers", t.num_workers ?? spec.num_workers],
         ["Offered", t.offered],
         ["Reward / worker", formatWei(t.reward_wei ?? t.payment_wei ?? spec.payment_wei)],
