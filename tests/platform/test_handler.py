@@ -217,6 +217,44 @@ def test_selection_keep_best_delivers_the_best_evaluated_policy(env, tmp_path: P
     assert h.publish_outcome(task_id)["cid"] == out["cid"]
 
 
+def test_a_crashed_keep_best_job_delivers_what_an_uninterrupted_one_does(
+    env, tmp_path: Path
+) -> None:
+    """The kept policy survives a crash: the checkpoint carries it, and the resumed job submits
+    the same weights as a job never stopped (same spec, seed and budget)."""
+    p, actors, store = env
+    spec = {**TINY_SPEC, "selection": {"keep_best": "cost", "eval_every": 1}}
+
+    class Crash(BaseException):
+        pass
+
+    def crash_at_update_4(tid: int, point: dict) -> None:
+        if point.get("update") == 4:
+            raise Crash()
+
+    delivered = []
+    for crash in (False, True):
+        task_id, offered, _ = post_task(p, store, actors.requester, spec=spec)
+        h = handler_for(p, offered[0], store, tmp_path / str(crash), checkpoint_every=1)
+        if crash:
+            h._post_progress = crash_at_update_4  # type: ignore[method-assign]
+            with pytest.raises(Crash):
+                h.handle(task_id, offered[0])
+        h._post_progress = lambda tid, point: None  # type: ignore[method-assign]
+        out = h.handle(task_id, offered[0])
+        assert out["status"] == "submitted"
+        model = pull_model(store, out["cid"], tmp_path / f"pulled-{crash}")
+        card = load_model(model).card
+        delivered.append(((model / "model.safetensors").read_bytes(), card["training"]["selected"]))
+    state = json.loads((h.job_dir(task_id) / "state.json").read_text())
+    assert state["resumed_from_step"] > 0
+    (weights, selected), (weights_crashed, selected_crashed) = delivered
+    assert weights_crashed == weights
+    assert {k: selected_crashed[k] for k in ("by", "update", "global_step", "eval_cost")} == {
+        k: selected[k] for k in ("by", "update", "global_step", "eval_cost")
+    }
+
+
 def test_store_down_is_a_clear_transient_error_then_the_retry_completes(
     env, tmp_path: Path
 ) -> None:

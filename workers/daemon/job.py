@@ -132,12 +132,16 @@ def make_trainer(
         encoder = load_walls_encoder(spec.observation.walls_embedding, walls_cae)
     out = run_dir(job_dir)
     budget_minutes = spec.minutes if minutes is None else minutes
+    keep_best = spec.selection.keep_best
     overrides = {
         "tensorboard": False,
         "progress": False,
         "threads": 1,
         "checkpoint_every": checkpoint_every,
         "minutes": budget_minutes,
+        # the spec decides what is delivered, also for a checkpoint written by another version
+        "keep_best": keep_best,
+        "eval_every": spec.selection.eval_every if keep_best else 0,
     }
     if has_checkpoint(job_dir):
         return cast(
@@ -146,7 +150,6 @@ def make_trainer(
                 out, out=out, run_overrides=overrides, selector=selector, walls_encoder=encoder
             ),
         )
-    keep_best = spec.selection.keep_best
     run = RunConfig(
         seed=spec.seed,
         total_steps=spec.steps,
