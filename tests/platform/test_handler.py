@@ -255,6 +255,58 @@ def test_a_crashed_keep_best_job_delivers_what_an_uninterrupted_one_does(
     }
 
 
+def test_drlaas_train_task_trains_what_the_worker_delivers(env, tmp_path: Path) -> None:
+    """One code path: `drlaas train --task SPEC` on a laptop gives the weights a worker
+    submits for that spec (same parser, run config and trainer), kept policy included."""
+    from safetensors.torch import load_file
+    from typer.testing import CliRunner
+
+    from drlaas.cli import app
+
+    p, actors, store = env
+    spec = {**TINY_SPEC, "selection": {"keep_best": "time", "eval_every": 1}}
+    task_id, offered, _ = post_task(p, store, actors.requester, spec=spec)
+    h = handler_for(p, offered[0], store, tmp_path)
+    h._post_progress = lambda tid, point: None  # type: ignore[method-assign]
+    out = h.handle(task_id, offered[0])
+    worker = pull_model(store, out["cid"], tmp_path / "worker")
+
+    doc = tmp_path / "task.json"
+    doc.write_text(json.dumps(TrainingSpec.from_dict(spec).to_dict()))
+    res = CliRunner().invoke(app, ["train", "--task", str(doc), "--out", str(tmp_path / "local"),
+                                   "--no-progress", "--no-tensorboard"])
+    assert res.exit_code == 0, res.output
+    summary = json.loads(res.output.strip().splitlines()[-1])
+    assert summary["env_steps"] == TINY_SPEC["budget"]["steps"]
+    local = Path(summary["best"])
+    mine = load_file(local / "model.safetensors")
+    theirs = load_file(worker / "model.safetensors")
+    assert mine.keys() == theirs.keys()
+    assert all(torch.equal(mine[k], theirs[k]) for k in mine)
+    assert load_model(local).card["training"]["selected"] == load_model(worker).card[
+        "training"]["selected"]
+
+
+def test_drlaas_train_task_refuses_what_it_cannot_train_here(tmp_path: Path) -> None:
+    from typer.testing import CliRunner
+
+    from drlaas.cli import app
+
+    cid = "bafkreigh2akiscaildcqabsyg3dfr6chu3fgpregiymsck7e7aqa4s52zy"
+    cases = {
+        "bad": ({**TINY_SPEC, "env": {"rows": 1}}, [], "env.rows"),
+        "cid": ({**TINY_SPEC, "experts": [cid]}, [], "drlaas model pull"),
+        "mixed": (TINY_SPEC, ["--experts", "oracle"], "drop --experts"),
+    }
+    for name, (spec, extra, msg) in cases.items():
+        doc = tmp_path / f"{name}.json"
+        doc.write_text(json.dumps(spec))
+        res = CliRunner().invoke(app, ["train", "--task", str(doc), *extra])
+        text = " ".join(res.output.replace("│", " ").split())
+        assert res.exit_code == 2 and msg in text, (name, res.output)
+    assert not (Path("runs") / "bad-s0").exists()
+
+
 def test_store_down_is_a_clear_transient_error_then_the_retry_completes(
     env, tmp_path: Path
 ) -> None:

@@ -19,6 +19,7 @@ from backend.store.bundle import upload_model
 from drlaas.cli import app
 from drlaas.commands.up import running_platform
 from workers.daemon.gateway import Gateway
+from workers.mdrl.trainingspec import TrainingSpec
 
 from .conftest import worker_logs
 
@@ -120,4 +121,9 @@ def test_medc_task_with_an_mmc_expert_end_to_end(data_dir: Path, tmp_path: Path)
         assert [(e["cid"], e["alloc_id"], e["review"]) for e in experts] == [(cid, alloc_id, 4)]
         shown = cli.invoke(app, ["task", "show", str(task["task_id"]), "--gateway", p.url])
         assert shown.exit_code == 0 and "experts" in shown.stdout and cid[:20] in shown.stdout
+        # the spec document alone (for `drlaas train --task`): the one the chain's CID names
+        spec = cli.invoke(app, ["task", "show", str(task["task_id"]), "--spec", "--gateway", p.url])
+        assert spec.exit_code == 0, spec.output
+        doc = json.loads(spec.stdout)
+        assert TrainingSpec.from_dict(doc).experts == (cid,)
         anon.close()

@@ -22,13 +22,10 @@ from typing import Any, cast
 from workers.daemon.experts import load_job_experts, load_walls_encoder
 from workers.mdrl.curve import attach_curve
 from workers.mdrl.train import RunConfig, Trainer
-from workers.mdrl.trainingspec import JOB_EVAL_EPISODES, TrainingSpec
+from workers.mdrl.trainingspec import TrainingSpec
 
 #: Updates between checkpoints: a killed worker loses at most this many updates of work.
 CHECKPOINT_EVERY = 2
-#: Greedy evaluation episodes at the end of a job (the model card's metrics) and, with the
-#: spec's ``selection.keep_best``, every ``eval_every`` updates.
-EVAL_EPISODES = JOB_EVAL_EPISODES
 
 ProgressHook = Callable[[dict[str, Any]], None]
 
@@ -150,18 +147,7 @@ def make_trainer(
                 out, out=out, run_overrides=overrides, selector=selector, walls_encoder=encoder
             ),
         )
-    run = RunConfig(
-        seed=spec.seed,
-        total_steps=spec.steps,
-        eval_every=spec.selection.eval_every if keep_best else 0,
-        keep_best=keep_best,
-        eval_episodes=EVAL_EPISODES,
-        tensorboard=False,
-        progress=False,
-        threads=1,
-        checkpoint_every=checkpoint_every,
-        minutes=budget_minutes,
-    )
+    run = spec.run_config(**overrides)
     return JobTrainer(
         spec.env, spec.observation, spec.ppo, run, out=out, selector=selector, walls_encoder=encoder
     )

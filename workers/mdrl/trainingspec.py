@@ -149,9 +149,11 @@ DEMONSTRATION_RULES: dict[str, Any] = {
 """``algorithm.demonstration``: how the ``experts`` guide training (DC / MEDC, medc.py)."""
 EXPERT_QOS = Real(0.0, 1e6, doc="QoS weight; the expert is picked with R_S = QoS / sum QoS "
                   "(Table 5.3); default 1")
-# an expert is a model CID (v0 or base32 v1) or a relative path without '.'-segments
+SPEC_CID_PATTERN = r"Qm[1-9A-HJ-NP-Za-km-z]{44}|b[a-z2-7]{50,120}"
+"""A model CID as a spec writes it: v0 or base32 v1 (the store checks it decodes)."""
+# an expert is a model CID or a relative path without '.'-segments
 EXPERT_PATTERN = (
-    r"^(Qm[1-9A-HJ-NP-Za-km-z]{44}|b[a-z2-7]{50,120}"
+    rf"^({SPEC_CID_PATTERN}"
     r"|[A-Za-z0-9_-][A-Za-z0-9_.-]{0,63}(/[A-Za-z0-9_-][A-Za-z0-9_.-]{0,63}){0,7})$"
 )
 
@@ -290,6 +292,19 @@ class TrainingSpec:
     @property
     def minutes(self) -> float | None:
         return self.budget.minutes
+
+    def run_config(self, **changes: Any) -> Any:
+        """The ``train.RunConfig`` a worker trains this spec with (``workers/daemon/job.py``,
+        ``drlaas train --task``): its seed and budget, JOB_EVAL_EPISODES greedy evaluation
+        episodes, and the evaluations ``selection.keep_best`` asks for; ``changes`` on top."""
+        from workers.mdrl.train import RunConfig
+
+        keep = self.selection.keep_best
+        return RunConfig.from_dict({
+            "seed": self.seed, "total_steps": self.steps, "minutes": self.minutes,
+            "eval_every": self.selection.eval_every if keep else 0, "keep_best": keep,
+            "eval_episodes": JOB_EVAL_EPISODES, **changes,
+        })
 
     # -- parsing ---------------------------------------------------------------------------
     @classmethod

@@ -360,10 +360,26 @@ def env_summary(task: dict[str, Any]) -> str:
 
 @task_app.command("show")
 def task_show(
-    task_id: int, gateway: GatewayOpt = DEFAULT_GATEWAY, as_json: JsonOpt = False
+    task_id: int,
+    gateway: GatewayOpt = DEFAULT_GATEWAY,
+    as_json: JsonOpt = False,
+    spec_only: Annotated[
+        bool,
+        typer.Option(
+            "--spec",
+            help="print only the task's spec document (the CID on chain), e.g. to train it "
+            "locally with `drlaas train --task FILE`",
+        ),
+    ] = False,
 ) -> None:
     """A task with its offers, outcomes and the live training curve."""
     out = read(gateway, f"/tasks/{task_id}")
+    if spec_only:
+        if not isinstance(out.get("spec"), dict):
+            fail(LookupError(f"task {task_id}: its description {out.get('description')!r} is "
+                             "no spec document the gateway could read"))
+        typer.echo(json.dumps(out["spec"], indent=1))
+        return
 
     def render(d: dict[str, Any]) -> None:
         typer.echo(kv(d, ["id", "status", "requester", "num_workers", "deadline", "description"]))

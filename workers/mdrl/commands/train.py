@@ -1,4 +1,5 @@
-"""`drlaas train`: train an MDRL model with PPO from a preset or a config file."""
+"""`drlaas train`: train an MDRL model with PPO from a preset, a config file or a platform task's
+spec (what a worker would train for it, on this machine)."""
 
 from __future__ import annotations
 
@@ -16,11 +17,18 @@ def train(
     config: Annotated[Path | None, typer.Option(help="JSON/TOML config file (sections env, "
                                                      "observation, ppo, run); overrides --preset."
                                                 )] = None,
+    task: Annotated[Path | None, typer.Option(help="A platform task's spec (drlaas-task/1 JSON, "
+                                                   "`drlaas task show ID --spec`): train what a "
+                                                   "worker trains for it (env, observation, PPO, "
+                                                   "budget, seed, experts by directory, "
+                                                   "selection); --steps/--minutes/--seed "
+                                                   "override it.")] = None,
     steps: Annotated[int | None, typer.Option(help="Env-step budget of the run (total, "
                                                    "including steps before a resume).")] = None,
     minutes: Annotated[float | None, typer.Option(help="Wall-clock budget in minutes (total, "
                                                        "including time before a resume).")] = None,
-    seed: Annotated[int, typer.Option(help="Seed of envs, network init and sampling.")] = 0,
+    seed: Annotated[int | None, typer.Option(help="Seed of envs, network init and sampling "
+                                                  "(default 0, or the --task spec's).")] = None,
     out: Annotated[Path | None, typer.Option(help="Output directory (metrics.csv, tb/, "
                                                   "checkpoint/, model/).")] = None,
     resume: Annotated[Path | None, typer.Option(help="Continue the run in this directory (or "
@@ -74,6 +82,21 @@ def train(
     from workers.mdrl.presets import get_preset, load_config
     from workers.mdrl.train import KEEP_BEST, RunConfig, Trainer
 
+    if task is not None and resume is None:
+        _train_task(task, steps=steps, minutes=minutes, seed=seed, out=out, threads=threads,
+                    progress=progress, tensorboard=tensorboard, eval_every=eval_every,
+                    eval_episodes=eval_episodes, checkpoint_every=checkpoint_every,
+                    keep_best=keep_best,
+                    others={"--config": config, "--num-envs": num_envs, "--readings": readings,
+                            "--init-from": init_from, "--experts": experts,
+                            "--expert-qos": expert_qos, "--expert-rate": expert_rate,
+                            "--expert-rate-end": expert_rate_end,
+                            "--expert-threshold": expert_threshold,
+                            "--expert-credit": expert_credit})
+        return
+    if task is not None:
+        raise typer.BadParameter("--resume continues a run as configured; drop --task")
+    seed = 0 if seed is None else seed
     if steps is None and minutes is None:
         raise typer.BadParameter("give a budget: --steps and/or --minutes")
     if steps is not None and steps < 1:
@@ -124,6 +147,11 @@ def train(
         except (OSError, ValueError) as exc:  # e.g. --init-from a model that does not fit
             raise typer.BadParameter(str(exc), param_hint="--init-from" if run.init_from
                                      else None) from None
+    _finish(trainer)
+
+
+def _finish(trainer) -> None:
+    """Train and print the run's JSON summary (where the model is, how it did)."""
     summary = trainer.train()
     result = {"out": str(trainer.out), "model": str(trainer.out / "model"),
               "env_steps": trainer.global_step, "updates": trainer.update_idx,
@@ -136,6 +164,59 @@ def train(
     # JSON has no NaN (a figure with no episode behind it, e.g. a run shorter than an episode)
     typer.echo(json.dumps({k: None if isinstance(v, float) and math.isnan(v) else v
                            for k, v in result.items()}))
+
+
+# ------------------------------------------------------------------ a platform task's spec
+def _train_task(path: Path, *, steps, minutes, seed, out, threads, progress, tensorboard,
+                eval_every, eval_episodes, checkpoint_every, keep_best, others) -> None:
+    """``--task``: the spec parsed by the platform's own parser and trained with the worker's
+    run config (``TrainingSpec.run_config``); its experts and walls CAE must be directories
+    here (a CID is fetched with ``drlaas model pull`` first)."""
+    from workers.mdrl.experts import ExpertError
+    from workers.mdrl.medc import DemonstrationSelector
+    from workers.mdrl.train import Trainer
+    from workers.mdrl.trainingspec import SpecError, TrainingSpec
+
+    given = [name for name, v in others.items() if v is not None]
+    if given:
+        raise typer.BadParameter(f"--task trains the spec as written; drop {', '.join(given)} "
+                                 "(edit the spec instead)")
+    try:
+        spec = TrainingSpec.from_json(path.read_bytes())
+    except OSError as exc:
+        raise typer.BadParameter(f"cannot read {path}: {exc}", param_hint="--task") from None
+    except SpecError as exc:
+        raise typer.BadParameter(f"{path}: {exc}", param_hint="--task") from None
+    local = [ref for ref in (*spec.experts, spec.observation.walls_embedding)
+             if ref is not None and not Path(ref).exists() and _is_cid(ref)]
+    if local:
+        raise typer.BadParameter(f"{path} names model CIDs {local}: fetch each with `drlaas "
+                                 "model pull` and put its directory in the spec",
+                                 param_hint="--task")
+    changes = {"threads": threads, "progress": progress, "tensorboard": tensorboard}
+    for key, val in (("total_steps", steps), ("minutes", minutes), ("seed", seed),
+                     ("eval_every", eval_every), ("eval_episodes", eval_episodes),
+                     ("checkpoint_every", checkpoint_every), ("keep_best", keep_best)):
+        if val is not None:
+            changes[key] = val
+    try:
+        run = spec.run_config(**changes)
+        demo = spec.demonstration()
+        selector = (DemonstrationSelector.from_config(demo, spec.env, seed=run.seed)
+                    if demo is not None else None)
+        out = out if out is not None else Path("runs") / f"{path.stem}-s{run.seed}"
+        trainer = Trainer(spec.env, spec.observation, spec.ppo, run, out=out, selector=selector)
+    except (OSError, ValueError, ExpertError) as exc:
+        raise typer.BadParameter(str(exc), param_hint="--task") from None
+    _finish(trainer)
+
+
+def _is_cid(ref: str) -> bool:
+    import re
+
+    from workers.mdrl.trainingspec import SPEC_CID_PATTERN
+
+    return re.fullmatch(SPEC_CID_PATTERN, ref) is not None
 
 
 # ------------------------------------------------------------------ experts (DC / MEDC)
