@@ -16,7 +16,7 @@ import re
 from functools import partial
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, Field, ValidationError, field_validator
+from pydantic import BaseModel, Field, ValidationError, field_validator, model_validator
 
 from .common import CID_PATTERN
 
@@ -105,6 +105,26 @@ class CardExpertRef(BaseModel):
     ref: str = Field(min_length=1, max_length=200)
 
 
+class ExpertUsagePublic(BaseModel):
+    """How a DC / MEDC run used one expert (``training.experts.experts[i]``, medc.py): the
+    card's word, shown next to the expert."""
+
+    episodes: int = Field(ge=0, le=10**12, description="episodes this expert guided")
+    decisions: int = Field(default=0, ge=0, le=10**15, description="agent decisions it ranked")
+    followed: int = Field(
+        default=0, ge=0, le=10**15, description="of those, where the agent took its action"
+    )
+    selection_probability: float | None = Field(
+        default=None, ge=0.0, le=1.0, allow_inf_nan=False, description="R_S = QoS / sum QoS"
+    )
+
+    @model_validator(mode="after")
+    def _followed_within_decisions(self) -> ExpertUsagePublic:
+        if self.followed > self.decisions:
+            raise ValueError("followed > decisions")
+        return self
+
+
 class CardView(BaseModel):
     """The validated parts of a card the model page shows."""
 
@@ -116,6 +136,9 @@ class CardView(BaseModel):
     final_eval: FinalEvalPublic | None = None
     trained: TrainedPublic | None = None
     expert_refs: list[str] = Field(default_factory=list)
+    expert_usage: dict[str, ExpertUsagePublic] = Field(default_factory=dict)
+    """By ref: what the card says each expert did in the run (refs without a valid record
+    are left out)."""
 
     @field_validator("kind")
     @classmethod
@@ -144,6 +167,7 @@ class CardView(BaseModel):
             final_eval=_final_eval(card.get("metrics")),
             trained=_section(lambda: _trained(training)),
             expert_refs=_expert_refs(training.get("experts")),
+            expert_usage=_expert_usage(training.get("experts")),
         )
 
 
@@ -241,6 +265,25 @@ def _expert_refs(raw: Any) -> list[str]:
         return []
     refs = [_section(lambda e=e: CardExpertRef.model_validate(e).ref) for e in experts]
     return [r for r in refs if r][:MAX_EXPERTS]
+
+
+def _expert_usage(raw: Any) -> dict[str, ExpertUsagePublic]:
+    experts = _obj(raw).get("experts")
+    if not isinstance(experts, list):
+        return {}
+    out: dict[str, ExpertUsagePublic | None] = {}
+    for e in experts[:MAX_EXPERTS]:
+        if not isinstance(e, dict):
+            continue
+        ref = _section(lambda e=e: CardExpertRef.model_validate(e).ref)
+        if not ref or ref in out:  # a ref's first record decides
+            continue
+        out[ref] = _section(
+            lambda e=e: ExpertUsagePublic.model_validate(
+                {k: e.get(k) for k in ExpertUsagePublic.model_fields if k in e}
+            )
+        )
+    return {ref: usage for ref, usage in out.items() if usage is not None}
 
 
 def is_cid(text: str) -> bool:

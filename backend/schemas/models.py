@@ -6,7 +6,13 @@ from pydantic import BaseModel, Field, WithJsonSchema
 
 from workers.mdrl.trainingspec import trainingspec_json_schema
 
-from .cards import CurvePointPublic, FinalEvalPublic, HeldoutPublic, TrainedPublic
+from .cards import (
+    CurvePointPublic,
+    ExpertUsagePublic,
+    FinalEvalPublic,
+    HeldoutPublic,
+    TrainedPublic,
+)
 from .common import MAX_ID, CidStr, Domain, Fraction, ListPublic, Review, Wei
 
 EnvDocument = Annotated[
@@ -65,6 +71,11 @@ class ExpertPublic(BaseModel):
     source: Literal["card", "task_spec"] = Field(
         description="card: training.experts of the model's card (the owner's word); task_spec: "
         "the experts of the producing task's spec (its CID is on chain)"
+    )
+    usage: ExpertUsagePublic | None = Field(
+        default=None,
+        description="what the model's card says the run did with this expert (guided "
+        "episodes, decisions, followed); null when the card does not say",
     )
 
 

@@ -164,7 +164,11 @@ def initial_models() -> list[dict]:
         c = card(e, kind, pts)
         if mid == 1:  # a zoo model: held-out figures, an expert, a producing task, a request
             c["zoo"] = {"name": "odmtl-3a", "heldout": HELDOUT}
-            c["training"]["experts"] = {"experts": [{"ref": CID_B}, {"ref": "runs/local"}]}
+            c["training"]["experts"] = {"experts": [
+                {"ref": CID_B, "qos": 1.0, "selection_probability": 0.5, "episodes": 630,
+                 "decisions": 5000, "followed": 4123},
+                {"ref": "runs/local", "episodes": -1},  # a record that does not validate
+            ]}
             # delivered by selection.keep_best: the run's best evaluated policy (Trainer.save_model)
             c["training"]["selected"] = {"by": "time", "update": n - 2, "eval_time": 9.5}
         models.append(
@@ -186,12 +190,22 @@ def initial_models() -> list[dict]:
                 "owner_reputation": round(rep * 0.9, 3),
                 "owner_rating": rating,
                 # what the gateway reads from the card: the real parser (backend/schemas/cards.py)
-                **CardView.from_card(c).model_dump(exclude={"expert_refs"}),
+                **CardView.from_card(c).model_dump(exclude={"expert_refs", "expert_usage"}),
                 "env_spec": e,
-                **(MODEL_1_LINKS if mid == 1 else {}),
+                **(model_1_links(c) if mid == 1 else {}),
             }
         )
     return [ModelDetailPublic.model_validate(x).model_dump(mode="json") for x in models]
+
+
+def model_1_links(card: dict) -> dict:
+    """MODEL_1_LINKS with each expert's usage as the real card parser reads it."""
+    usage = CardView.from_card(card).expert_usage
+    links = json.loads(json.dumps(MODEL_1_LINKS))
+    for x in links["experts"]:
+        u = usage.get(x["ref"])
+        x["usage"] = u.model_dump() if u is not None else None
+    return links
 
 
 MODEL_1_LINKS = {

@@ -85,8 +85,10 @@ def test_model_page_links_task_experts_and_reads_the_card(
         curve={"x": "env_steps", "updates": 2, "points": POINTS},
         zoo={"name": "hub-test", "heldout": HELDOUT},
         training={"env_steps": 8192, "updates": 2, "wall_time_s": 3.0,
-                  "experts": {"method": "DC", "experts": [{"ref": expert["cid"]},
-                                                          {"ref": "runs/local-expert"}]}},
+                  "experts": {"method": "DC", "experts": [
+                      {"ref": expert["cid"], "episodes": 12, "decisions": 300, "followed": 250,
+                       "selection_probability": 1.0},
+                      {"ref": "runs/local-expert", "decisions": 2, "followed": 3}]}},
         metrics={"eval_success": 0.5, "eval_time": 30.0, "eval_cost": 40.0, "loss": 0.1},
     )  # fmt: skip
     store = client.app.state.store  # type: ignore[attr-defined]
@@ -116,13 +118,17 @@ def test_model_page_links_task_experts_and_reads_the_card(
     assert d["produced_by"] == {
         "task_id": task_id, "worker": owner, "review": 4, "accepted": True, "source": "chain",
     }  # fmt: skip
+    # each expert with what the card says the run did with it (followed > decisions: none)
     assert d["experts"] == [
         {"ref": expert["cid"], "cid": expert["cid"], "model_id": expert["id"],
-         "source": "task_spec"},
-        {"ref": "runs/local-expert", "cid": None, "model_id": None, "source": "card"},
+         "source": "task_spec", "usage": {"episodes": 12, "decisions": 300, "followed": 250,
+                                          "selection_probability": 1.0}},
+        {"ref": "runs/local-expert", "cid": None, "model_id": None, "source": "card",
+         "usage": None},
     ]  # fmt: skip
     assert d["name"] == "hub-test" and d["curve"] == POINTS and d["curve_updates"] == 2
-    assert d["trained"] == {"env_steps": 8192, "updates": 2, "wall_time_s": 3.0}
+    assert d["trained"] == {"env_steps": 8192, "updates": 2, "wall_time_s": 3.0,
+                            "selected_by": None}
     assert d["final_eval"] == {"success": 0.5, "time": 30.0, "cost": 40.0}
     assert d["env_spec"] == validate_env(ENV).to_dict()
     held = d["heldout"]
@@ -172,7 +178,10 @@ def test_a_hostile_card_leaves_out_what_does_not_validate(client: TestClient, lo
         zoo={"name": "<b>" * 50, "heldout": {
             "episodes": 10, "poisson": {"success": "high"}, "expected": HELDOUT["expected"],
         }},
-        training={"experts": {"experts": [{"ref": 5}, {"ref": "ok-name"}, "str", {"ref": ""}]}},
+        training={"experts": {"experts": [
+            {"ref": 5}, {"ref": "ok-name", "episodes": float("inf")}, "str", {"ref": ""},
+            {"ref": "ok-name", "episodes": 3},  # a second record of a ref: the first counts
+        ]}, "env_steps": 100, "selected": {"by": "<b>best</b>", "update": "x"}},
         metrics={"eval_success": float("nan"), "eval_time": float("inf")},
         model="<script>",
     )  # fmt: skip
@@ -181,7 +190,10 @@ def test_a_hostile_card_leaves_out_what_does_not_validate(client: TestClient, lo
     assert d["curve"] == POINTS and d["curve_updates"] is None  # sorted, bad points dropped
     assert d["name"] is None and d["kind"] is None
     assert [f["reading_model"] for f in d["heldout"]["readings"]] == ["expected"]
-    assert [x["ref"] for x in d["experts"]] == ["ok-name"]
+    assert [(x["ref"], x["usage"]) for x in d["experts"]] == [("ok-name", None)]
+    # training.selected with an unknown rule: not a kept policy; the rest of `trained` stays
+    assert d["trained"] == {"env_steps": 100, "updates": None, "wall_time_s": None,
+                            "selected_by": None}
     assert d["final_eval"] is None
     assert d["card"]["metrics"] == {"eval_success": None, "eval_time": None}  # JSON has no NaN
 

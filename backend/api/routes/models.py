@@ -26,7 +26,7 @@ from backend.api.schemas import Address
 from backend.api.writes import catch_up, field_error, receipt_public
 from backend.chain.platform import Metric, cid_hash
 from backend.db import models as m
-from backend.schemas.cards import MAX_EXPERTS, CardView, is_cid
+from backend.schemas.cards import MAX_EXPERTS, CardView, ExpertUsagePublic, is_cid
 from backend.schemas.common import (
     MAX_DOMAIN,
     MAX_ID,
@@ -342,7 +342,7 @@ def get_model(model_id: ModelId, session: SessionDep, store: StoreDep) -> ModelD
         metrics=card.get("metrics") if card else None,
         owner_reputation=from_fixed(owner.sharing_reputation if owner else HALF),
         owner_rating=from_fixed(owner.sharing_rating if owner else HALF),
-        **view.model_dump(exclude={"expert_refs"}),
+        **view.model_dump(exclude={"expert_refs", "expert_usage"}),
         env_spec=_card_env(card),
         produced_by=ProducedByPublic(
             task_id=produced.task_id,
@@ -352,7 +352,7 @@ def get_model(model_id: ModelId, session: SessionDep, store: StoreDep) -> ModelD
         )
         if produced is not None
         else None,
-        experts=_experts(session, _spec_experts(task), view.expert_refs),
+        experts=_experts(session, _spec_experts(task), view.expert_refs, view.expert_usage),
         requests=_requests(session, model_id),
     )
 
@@ -373,8 +373,14 @@ def _spec_experts(task: m.TaskRow | None) -> list[str]:
     return [r for r in refs if isinstance(r, str) and 0 < len(r) <= 200][:MAX_EXPERTS]
 
 
-def _experts(session: SessionDep, from_spec: list[str], from_card: list[str]) -> list[ExpertPublic]:
-    """Each expert once (the task spec's first: its CID is on chain), linked to its model."""
+def _experts(
+    session: SessionDep,
+    from_spec: list[str],
+    from_card: list[str],
+    usage: dict[str, ExpertUsagePublic],
+) -> list[ExpertPublic]:
+    """Each expert once (the task spec's first: its CID is on chain), linked to its model,
+    with what the card says the run did with it."""
     seen: dict[str, str] = {}
     for source, refs in (("task_spec", from_spec), ("card", from_card)):
         for ref in refs:
@@ -397,6 +403,7 @@ def _experts(session: SessionDep, from_spec: list[str], from_card: list[str]) ->
             cid=ref if is_cid(ref) else None,
             model_id=ids.get(ref),
             source=source,  # type: ignore[arg-type]
+            usage=usage.get(ref),
         )
         for ref, source in seen.items()
     ]

@@ -84,7 +84,10 @@ function expertItem(x) {
     : h("span", { class: "muted" }, x.cid ? "not on this platform" : "a local model");
   return h("li", { "data-expert": x.ref },
     label, " ", x.cid ? shortCid(x.cid) : h("code", { class: "mono" }, x.ref),
-    h("span", { class: "muted" }, x.source === "task_spec" ? " · named by the task's spec" : " · listed by the card"));
+    h("span", { class: "muted" }, x.source === "task_spec" ? " · named by the task's spec" : " · listed by the card"),
+    x.usage ? h("span", { class: "usage" }, ` · guided ${num(x.usage.episodes)} episode${x.usage.episodes === 1 ? "" : "s"}`
+      + (x.usage.decisions ? `, its action taken in ${num(100 * x.usage.followed / x.usage.decisions, 1)}% of ${num(x.usage.decisions)} decisions` : "")
+      + (x.usage.selection_probability !== null && x.usage.selection_probability !== undefined ? `, picked with R_S = ${num(x.usage.selection_probability, 3)}` : "")) : null);
 }
 
 function provenance(m) {
