@@ -283,8 +283,15 @@ def test_drlaas_train_task_trains_what_the_worker_delivers(env, tmp_path: Path) 
     theirs = load_file(worker / "model.safetensors")
     assert mine.keys() == theirs.keys()
     assert all(torch.equal(mine[k], theirs[k]) for k in mine)
-    assert load_model(local).card["training"]["selected"] == load_model(worker).card[
-        "training"]["selected"]
+    ours, theirs_card = load_model(local).card, load_model(worker).card
+    same = ("by", "update", "global_step", "eval_time", "eval_cost", "eval_success")
+    assert {k: ours["training"]["selected"][k] for k in same} == {
+        k: theirs_card["training"]["selected"][k] for k in same
+    }
+    # the kept policy's card gives its own training time, not the whole run's
+    assert 0 < ours["training"]["wall_time_s"] <= json.loads(
+        (local.parent / "model" / "model.json").read_text()
+    )["training"]["wall_time_s"]
 
 
 def test_drlaas_train_task_refuses_what_it_cannot_train_here(tmp_path: Path) -> None:

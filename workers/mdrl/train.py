@@ -404,12 +404,14 @@ class Trainer:
                 self.update_idx += 1
                 last = not self.budget_left()
                 every = run.eval_every
-                evals = {}
+                evals, kept = {}, False
                 if last or (every and self.update_idx % every == 0):
                     evals = self.evaluate()
                     self.last_eval = evals
-                    self.keep_if_best(evals)
+                    kept = self.keep_if_best(evals)
                 self.elapsed = elapsed0 + (time.perf_counter() - t0)
+                if kept:  # the kept policy's training time (its card's wall_time_s)
+                    self.best["wall_time_s"] = self.elapsed
                 sps = (self.global_step - step0) / max(time.perf_counter() - u0, 1e-9)
                 row = {"update": self.update_idx, "global_step": self.global_step,
                        "wall_time": self.elapsed, "sps": sps,
@@ -502,7 +504,8 @@ class Trainer:
         if best:
             agent = self._best_agent()
             metrics = {k: v for k, v in self.best.items() if k.startswith("eval_")}
-            training.update(env_steps=self.best["global_step"], updates=self.best["update"])
+            training.update(env_steps=self.best["global_step"], updates=self.best["update"],
+                            wall_time_s=self.best.get("wall_time_s", self.elapsed))
             training["selected"] = {**self.best, "eval_episodes": self.run.eval_episodes,
                                     "eval_seed": self.run.eval_seed}
         if self.init_info is not None:  # fine-tuned: which model's weights it started from
