@@ -11,9 +11,11 @@ import typer
 
 from backend.chain.commands import app as chain_app
 from drlaas.commands.client import model_app, requester_app, task_app, worker_app
+from drlaas.commands.client.models import fetch_model
 from drlaas.commands.deploy import app as deploy_app
 from drlaas.commands.scenario import scenario_command
 from drlaas.commands.up import up_command
+from workers.mdrl.commands import train as train_command
 from workers.mdrl.commands.cae import app as cae_app
 from workers.mdrl.commands.evaluate import eval_command
 from workers.mdrl.commands.train import train
@@ -25,6 +27,7 @@ app = typer.Typer(
     no_args_is_help=True,
     pretty_exceptions_enable=False,
 )
+train_command.MODEL_FETCHER = fetch_model  # experts / walls CAEs by CID, through the gateway
 app.command("train", help="Train an MDRL model (PPO: CMTL / DMTL / ODMTL).")(train)
 app.command("eval", help="Evaluate a model or a baseline against the oracle.")(eval_command)
 app.add_typer(zoo_app, name="zoo")  # list | train: the shipped models of models/

@@ -11,6 +11,8 @@ import json
 from pathlib import Path
 
 import pytest
+import torch
+from safetensors.torch import load_file
 from typer.testing import CliRunner
 
 from backend.chain.platform import cid_hash
@@ -126,4 +128,30 @@ def test_medc_task_with_an_mmc_expert_end_to_end(data_dir: Path, tmp_path: Path)
         assert spec.exit_code == 0, spec.output
         doc = json.loads(spec.stdout)
         assert TrainingSpec.from_dict(doc).experts == (cid,)
+
+        # ... trained on a laptop: the expert fetched by CID through the gateway and verified,
+        # the same weights as the worker's outcome, the card naming the expert by its CID
+        (tmp_path / "task.json").write_text(spec.stdout)
+        local_env = {"DRLAAS_GATEWAY": p.url, "DRLAAS_CACHE": str(tmp_path / "cache")}
+        res = cli.invoke(app, ["train", "--task", str(tmp_path / "task.json"), "--out",
+                               str(tmp_path / "local"), "--no-progress", "--no-tensorboard"],
+                         env=local_env)
+        assert res.exit_code == 0, res.output
+        assert (tmp_path / "cache" / "experts" / cid / "model.json").is_file()
+        local = tmp_path / "local" / "model"
+        assert [e["ref"] for e in json.loads((local / "model.json").read_text())["training"][
+            "experts"]["experts"]] == [cid]
+        mine = load_file(local / "model.safetensors")
+        theirs = load_file(Path(pulled["path"]) / "model.safetensors")
+        assert mine.keys() == theirs.keys() and all(torch.equal(mine[k], theirs[k]) for k in mine)
+        # a CID the platform does not hold, and an unreachable gateway: named, nothing trained
+        missing = "bafkreigh2akiscaildcqabsyg3dfr6chu3fgpregiymsck7e7aqa4s52zy"
+        for env_vars, msg in ((local_env, missing), ({**local_env, "DRLAAS_GATEWAY":
+                              "http://127.0.0.1:9"}, "cannot fetch it from the gateway")):
+            res = cli.invoke(app, ["train", "--preset", "odmtl-2a-10x10", "--steps", "64",
+                                   "--experts", missing, "--out", str(tmp_path / "never")],
+                             env=env_vars)
+            text = " ".join(res.output.replace("│", " ").split())
+            assert res.exit_code == 2 and msg in text, res.output
+        assert not (tmp_path / "never").exists()
         anon.close()

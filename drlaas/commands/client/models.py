@@ -6,6 +6,7 @@ updateModelRep, Eq. 10-11)."""
 from __future__ import annotations
 
 import json
+import os
 import re
 from pathlib import Path
 from typing import Annotated, Any
@@ -43,6 +44,29 @@ def pull(gateway: str, cid: str, out: Path) -> Path:
     gateway and each block verified against its CID here."""
     with GatewayBlocks(gateway) as store:
         return pull_model(store, cid, out)
+
+
+def fetch_model(cid: str, kind: str) -> Path:
+    """How `drlaas train` uses a model named by CID (``--experts CID``, or a ``--task`` spec's
+    experts and walls CAE): fetched block by block through the gateway ($DRLAAS_GATEWAY) into
+    the cache ($DRLAAS_CACHE, default ~/.cache/drlaas; once per CID) and verified as a worker
+    verifies it (workers/daemon/experts.py: bounded sizes, no pickle, a card that fits the
+    task bounds). ValueError names the CID and what is wrong."""
+    from backend.store import StoreUnavailable
+    from workers.daemon.experts import ExpertFetchError, fetch_expert, fetch_walls_cae
+
+    gateway = os.environ.get("DRLAAS_GATEWAY", DEFAULT_GATEWAY)
+    cache = Path(os.environ.get("DRLAAS_CACHE", Path.home() / ".cache" / "drlaas"))
+    fetch = fetch_walls_cae if kind == "walls CAE" else fetch_expert
+    try:
+        with GatewayBlocks(gateway) as store:
+            return fetch(store, cid, cache)
+    except StoreUnavailable as exc:
+        raise ValueError(
+            f"{kind} {cid}: cannot fetch it from the gateway {gateway} (DRLAAS_GATEWAY): {exc}"
+        ) from None
+    except ExpertFetchError as exc:
+        raise ValueError(f"{kind} {exc.cid}: {exc.reason}") from None
 
 
 def default_out(name: str) -> Path:

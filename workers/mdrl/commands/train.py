@@ -5,10 +5,17 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Callable
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
+
+MODEL_FETCHER: Callable[[str, str], Path] | None = None
+"""(model CID, "expert" | "walls CAE") -> its verified local directory: how `drlaas train` uses an
+expert or a walls CAE named by CID. The core alone has none (it trains from directories and
+built-ins); the platform CLI (drlaas/cli.py) sets one that fetches through the gateway and
+verifies as a worker does (workers/daemon/experts.py)."""
 
 
 def train(
@@ -187,12 +194,6 @@ def _train_task(path: Path, *, steps, minutes, seed, out, threads, progress, ten
         raise typer.BadParameter(f"cannot read {path}: {exc}", param_hint="--task") from None
     except SpecError as exc:
         raise typer.BadParameter(f"{path}: {exc}", param_hint="--task") from None
-    local = [ref for ref in (*spec.experts, spec.observation.walls_embedding)
-             if ref is not None and not Path(ref).exists() and _is_cid(ref)]
-    if local:
-        raise typer.BadParameter(f"{path} names model CIDs {local}: fetch each with `drlaas "
-                                 "model pull` and put its directory in the spec",
-                                 param_hint="--task")
     changes = {"threads": threads, "progress": progress, "tensorboard": tensorboard}
     for key, val in (("total_steps", steps), ("minutes", minutes), ("seed", seed),
                      ("eval_every", eval_every), ("eval_episodes", eval_episodes),
@@ -202,10 +203,13 @@ def _train_task(path: Path, *, steps, minutes, seed, out, threads, progress, ten
     try:
         run = spec.run_config(**changes)
         demo = spec.demonstration()
-        selector = (DemonstrationSelector.from_config(demo, spec.env, seed=run.seed)
-                    if demo is not None else None)
+        selector = (DemonstrationSelector.from_config(
+            demo, spec.env, seed=run.seed, experts=_load_experts(demo.experts, spec.env, run.seed))
+            if demo is not None else None)
+        encoder = _walls_encoder(spec.observation.walls_embedding)
         out = out if out is not None else Path("runs") / f"{path.stem}-s{run.seed}"
-        trainer = Trainer(spec.env, spec.observation, spec.ppo, run, out=out, selector=selector)
+        trainer = Trainer(spec.env, spec.observation, spec.ppo, run, out=out, selector=selector,
+                          walls_encoder=encoder)
     except (OSError, ValueError, ExpertError) as exc:
         raise typer.BadParameter(str(exc), param_hint="--task") from None
     _finish(trainer)
@@ -216,7 +220,42 @@ def _is_cid(ref: str) -> bool:
 
     from workers.mdrl.trainingspec import SPEC_CID_PATTERN
 
-    return re.fullmatch(SPEC_CID_PATTERN, ref) is not None
+    return re.fullmatch(SPEC_CID_PATTERN, ref) is not None and not Path(ref).exists()
+
+
+def _fetched(ref: str, kind: str) -> Path:
+    """The verified directory of model CID ``ref`` (MODEL_FETCHER), or a clear error."""
+    if MODEL_FETCHER is None:
+        raise ValueError(f"{kind} {ref} is a model CID and this `train` fetches nothing: pull it "
+                         "(`drlaas model pull`) and name its directory")
+    return MODEL_FETCHER(ref, kind)
+
+
+def _load_experts(refs: tuple[str, ...], env: Any, seed: int) -> list[Any] | None:
+    """The experts when some are named by CID (fetched, verified, and named by their CID as
+    a worker names them, so the card lists the CID); None: all load by path or name."""
+    if not any(_is_cid(r) for r in refs):
+        return None
+    from workers.mdrl.experts import load_expert
+
+    experts = []
+    for i, ref in enumerate(refs):  # the i-th seeded seed + i, as experts.load_experts does
+        if not _is_cid(ref):
+            experts.append(load_expert(ref, env, seed + i))
+            continue
+        expert = load_expert(str(_fetched(ref, "expert")), env, seed + i)
+        expert.name = ref
+        experts.append(expert)
+    return experts
+
+
+def _walls_encoder(ref: str | None) -> Any:
+    """A walls CAE named by CID, fetched and named by it (None: loaded by path, or none)."""
+    if ref is None or not _is_cid(ref):
+        return None
+    from workers.mdrl.cae import WallsEmbedder, load_cae
+
+    return WallsEmbedder(load_cae(_fetched(ref, "walls CAE")).encoder, ref)
 
 
 # ------------------------------------------------------------------ experts (DC / MEDC)
@@ -255,7 +294,8 @@ def _selector(chosen, seed, experts, qos, rate, threshold, credit, rate_end):
         if rate_end is not None:
             changes["rate_end"] = rate_end
         demo = dataclasses.replace(demo, **changes)
-        return DemonstrationSelector.from_config(demo, chosen.env, seed=seed)
+        return DemonstrationSelector.from_config(
+            demo, chosen.env, seed=seed, experts=_load_experts(demo.experts, chosen.env, seed))
     except (ValueError, ExpertError) as exc:
         raise typer.BadParameter(str(exc)) from None
 
