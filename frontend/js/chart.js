@@ -97,6 +97,9 @@ const PANELS = [
     series: [["training", ["time", "episode_length"]], ["evaluation", ["eval_time"]]] },
   { title: "Cost", yLabel: "cost per episode",
     series: [["training", ["cost", "episode_cost"]], ["evaluation", ["eval_cost"]]] },
+  // DC / MEDC tasks only: the share of each update's episodes that an expert guided (R_E)
+  { title: "Expert-guided episodes", yLabel: "share of episodes", yDomain: [0, 1],
+    series: [["guided", ["guided_share"]]] },
 ];
 
 function xOf(p, i) {

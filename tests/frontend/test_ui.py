@@ -344,14 +344,21 @@ def test_task_page_shows_timeline_offers_outcomes_and_live_curve(
     expect(page.locator("#task-spec-cid")).to_have_text(t["description"])
     curve = page.locator('#task-curve [data-chart="Success rate"] polyline')
     expect(curve).to_have_attribute("data-count", "3")
+    guided = page.locator('#task-curve [data-chart="Expert-guided episodes"] polyline')
+    expect(guided).to_have_count(0)  # no expert-guided episodes: no such panel
     screenshot(page, "task")
 
     # The worker posts progress and an outcome; the page follows within a poll or two.
+    # (an MEDC job's points carry guided_share, kept by the gateway as an extra metric)
+    w = t["offers"][0]["worker"]
     t["progress"] += [
-        {"worker": t["offers"][0]["worker"], "step": 8192, "success": 0.5, "time": 50, "cost": 70},
-        {"worker": t["offers"][0]["worker"], "step": 10240, "success": 0.6, "time": 45, "cost": 64},
+        {"worker": w, "step": 8192, "success": 0.5, "time": 50, "cost": 70,
+         "extra": {"guided_share": 0.12}},
+        {"worker": w, "step": 10240, "success": 0.6, "time": 45, "cost": 64,
+         "extra": {"guided_share": 0.08}},
     ]
     expect(curve).to_have_attribute("data-count", "5", timeout=5000)
+    expect(guided).to_have_attribute("data-count", "2")
     expect(page.locator("#progress-summary")).to_contain_text("latest step 10,240, success 0.6")
     t["outcomes"].append(
         {"worker": t["offers"][0]["worker"], "cid": CID_A, "review": None, "accepted": None}

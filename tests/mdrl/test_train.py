@@ -285,6 +285,20 @@ def test_train_command_needs_a_budget(tmp_path):
     assert "budget" in res.output
 
 
+def test_the_core_alone_names_an_expert_cid_it_cannot_fetch(tmp_path, monkeypatch):
+    """The MDRL core trains from directories: a CID needs the platform CLI's fetcher
+    (drlaas/cli.py sets MODEL_FETCHER), and without it the error says what to do."""
+    import workers.mdrl.commands.train as command
+
+    monkeypatch.setattr(command, "MODEL_FETCHER", None)
+    cid = "bafkreigh2akiscaildcqabsyg3dfr6chu3fgpregiymsck7e7aqa4s52zy"
+    res = CliRunner().invoke(make_app(), ["train", "--steps", "64", "--experts", f"oracle,{cid}",
+                                          "--out", str(tmp_path / "run"), "--no-progress"])
+    text = " ".join(res.output.replace("│", " ").split())
+    assert res.exit_code == 2 and cid in text and "drlaas model pull" in text, res.output
+    assert not (tmp_path / "run").exists()
+
+
 @pytest.mark.parametrize(("args", "named"), [
     (["--preset", "odmtl-3a-10x1O"], ["--preset", "unknown preset 'odmtl-3a-10x1O'"]),
     (["--config", "{dir}/missing.toml"], ["--config", "not found"]),

@@ -200,14 +200,15 @@ def test_an_offer_naming_a_path_as_expert_is_declined(env, store, tmp_path) -> N
     assert p.tmc.offer(task_id, offered[0])["state"] == OfferState.DECLINED
 
 
-def train_offer(p, actors, store, spec: dict, tmp_path: Path):
+def train_offer(p, actors, store, spec: dict, tmp_path: Path, points: list | None = None):
     """Post ``spec``, let its first offeree's handler train and submit it; (handler, task id,
-    the outcome's card as the store holds it)."""
+    the outcome's card as the store holds it); ``points`` collects the progress points."""
     task_id, offered, _ = post_task(p, store, actors.requester, spec=spec)
     h = OfferHandler(
         account=p.chain._keys[offered[0]], platform=p, store=store, data_dir=tmp_path / "w"
     )
-    h._post_progress = lambda tid, point: None  # type: ignore[method-assign]
+    sink = [] if points is None else points
+    h._post_progress = lambda tid, point: sink.append(point)  # type: ignore[method-assign]
     out = h.handle(task_id, offered[0])
     assert out["status"] == "submitted", out
     card_cid, _ = read_bundle(store, out["cid"])["model.json"]
@@ -217,10 +218,16 @@ def train_offer(p, actors, store, spec: dict, tmp_path: Path):
 def test_an_medc_offer_trains_with_its_expert_and_the_card_lists_it(env, store, tmp_path) -> None:
     p, actors = env
     cid = upload_model(store, EXPERT)
-    spec = {**TINY_SPEC, "experts": [{"model": cid, "qos": 0.25}]}
-    h, task_id, card = train_offer(p, actors, store, spec, tmp_path)
+    spec = {**TINY_SPEC, "experts": [{"model": cid, "qos": 0.25}],
+            "algorithm": {"demonstration": {"rate": 0.5}}}
+    points: list = []
+    h, task_id, card = train_offer(p, actors, store, spec, tmp_path, points)
     listed = card["training"]["experts"]["experts"]
     assert [(e["ref"], e["qos"]) for e in listed] == [(cid, 0.25)]
+    # the live curve carries the share of expert-guided episodes per update (R_E = 0.5)
+    shares = [pt["guided_share"] for pt in points if "guided_share" in pt]
+    assert shares and all(0.0 <= x <= 1.0 for x in shares) and 0.2 < sum(shares) / len(shares)
+    assert sum(shares) / len(shares) < 0.8
     assert (h.job_dir(task_id) / "experts" / cid / "model.safetensors").is_file()
 
 

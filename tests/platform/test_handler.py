@@ -63,6 +63,7 @@ def test_offer_is_trained_uploaded_as_manifest_and_submitted(env, tmp_path: Path
     # live progress: one point per update with growing steps up to the budget
     steps = [pt["step"] for pt in points]
     assert len(steps) >= 3 and steps == sorted(set(steps)) and steps[-1] >= 1900
+    assert not any("guided_share" in pt for pt in points)  # no experts, no guided episodes
     # the on-chain CID is a manifest whose two files make a loadable model
     assert sorted(read_bundle(store, out["cid"])) == sorted(MODEL_FILES)
     policy = load_model(pull_model(store, out["cid"], tmp_path / "pulled"))
@@ -302,13 +303,15 @@ def test_drlaas_train_task_refuses_what_it_cannot_train_here(tmp_path: Path) -> 
     cid = "bafkreigh2akiscaildcqabsyg3dfr6chu3fgpregiymsck7e7aqa4s52zy"
     cases = {
         "bad": ({**TINY_SPEC, "env": {"rows": 1}}, [], "env.rows"),
-        "cid": ({**TINY_SPEC, "experts": [cid]}, [], "drlaas model pull"),
+        "cid": ({**TINY_SPEC, "experts": [cid]}, [], "cannot fetch it from the gateway"),
         "mixed": (TINY_SPEC, ["--experts", "oracle"], "drop --experts"),
     }
     for name, (spec, extra, msg) in cases.items():
         doc = tmp_path / f"{name}.json"
         doc.write_text(json.dumps(spec))
-        res = CliRunner().invoke(app, ["train", "--task", str(doc), *extra])
+        res = CliRunner().invoke(app, ["train", "--task", str(doc), *extra],
+                                 env={"DRLAAS_GATEWAY": "http://127.0.0.1:9",
+                                      "DRLAAS_CACHE": str(tmp_path / "cache")})
         text = " ".join(res.output.replace("│", " ").split())
         assert res.exit_code == 2 and msg in text, (name, res.output)
     assert not (Path("runs") / "bad-s0").exists()

@@ -32,15 +32,18 @@ ProgressHook = Callable[[dict[str, Any]], None]
 
 class JobTrainer(Trainer):
     """The MDRL trainer with two hooks: ``on_first_step`` (before the first env step of this
-    process, for the submission-to-training latency) and ``on_row`` (after each update)."""
+    process, for the submission-to-training latency) and ``on_row`` (after each update, with
+    ``guided_share`` in an expert-guided run)."""
 
     on_row: ProgressHook | None = None
     on_first_step: Callable[[int], None] | None = None
     _started = False
+    _episodes_seen: tuple[int, int] | None = None
 
     def collect(self) -> dict[str, float]:
         if not self._started:
             self._started = True
+            self._episodes_seen = _episode_counts(self.selector)  # a resumed run's so far
             if self.on_first_step is not None:
                 self.on_first_step(self.global_step)
         return super().collect()
@@ -48,7 +51,26 @@ class JobTrainer(Trainer):
     def _log(self, row: dict[str, Any]) -> None:
         super()._log(row)
         if self.on_row is not None:
-            self.on_row(row)
+            self.on_row({**row, **self._guidance()})
+
+    def _guidance(self) -> dict[str, float]:
+        """``guided_share``: of the episodes begun since the last row, the share an expert
+        guided (DC / MEDC, R_E; falls with the credit rule or a rate schedule), for the live
+        curve; nothing without experts or when no episode began."""
+        now = _episode_counts(self.selector)
+        if now is None:
+            return {}
+        before = self._episodes_seen if self._episodes_seen is not None else now
+        self._episodes_seen = now
+        guided, own = now[0] - before[0], now[1] - before[1]
+        return {"guided_share": guided / (guided + own)} if guided + own > 0 else {}
+
+
+def _episode_counts(selector: Any) -> tuple[int, int] | None:
+    """(expert-guided, own) episodes begun so far of a DC / MEDC selector; None otherwise."""
+    if not (hasattr(selector, "episodes") and hasattr(selector, "own_episodes")):
+        return None
+    return int(selector.episodes.sum()), int(selector.own_episodes)
 
 
 def progress_point(row: dict[str, Any]) -> dict[str, Any]:
@@ -69,6 +91,7 @@ def progress_point(row: dict[str, Any]) -> dict[str, Any]:
         "cost": num("episode_cost"),
         "return": num("episode_return"),
         "eval_success": num("eval_success"),
+        "guided_share": num("guided_share"),
         "wall_time": num("wall_time"),
     }
     # the gateway takes numbers only: a metric not measured in this update is left out
