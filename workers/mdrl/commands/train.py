@@ -150,7 +150,8 @@ def train(
         selector = _selector(chosen, seed, *expert_options)
         try:
             trainer = Trainer(chosen.env, chosen.observation, ppo, run, out=out,
-                              selector=selector)
+                              selector=selector,
+                              walls_encoder=_walls_encoder(chosen.observation.walls_embedding))
         except (OSError, ValueError) as exc:  # e.g. --init-from a model that does not fit
             raise typer.BadParameter(str(exc), param_hint="--init-from" if run.init_from
                                      else None) from None
