@@ -188,16 +188,25 @@ def test_a_sealed_outcome_goes_to_the_requester_only(env, tmp_path: Path) -> Non
         h.publish_outcome(task_id + 100)
 
 
-def test_selection_keep_best_delivers_the_best_evaluated_policy(env, tmp_path: Path) -> None:
-    """``selection.keep_best``: greedy evaluations every ``eval_every`` updates; the outcome
-    (submitted and published) is the policy with the shortest evaluation, not the last one."""
+KEEP_BEST_SPEC = {**TINY_SPEC, "selection": {"keep_best": "time", "eval_every": 1}}
+
+
+def submitted(env, tmp_path: Path, spec: dict) -> tuple[OfferHandler, int, dict]:
+    """Post ``spec``; its first offeree trains and submits it (progress posts dropped)."""
     p, actors, store = env
-    spec = {**TINY_SPEC, "selection": {"keep_best": "time", "eval_every": 1}}
     task_id, offered, _ = post_task(p, store, actors.requester, spec=spec)
     h = handler_for(p, offered[0], store, tmp_path)
     h._post_progress = lambda tid, point: None  # type: ignore[method-assign]
     out = h.handle(task_id, offered[0])
     assert out["status"] == "submitted"
+    return h, task_id, out
+
+
+def test_selection_keep_best_delivers_the_best_evaluated_policy(env, tmp_path: Path) -> None:
+    """``selection.keep_best``: greedy evaluations every ``eval_every`` updates; the outcome
+    (submitted and published) is the policy with the shortest evaluation, not the last one."""
+    store = env[2]
+    h, task_id, out = submitted(env, tmp_path, KEEP_BEST_SPEC)
     run = h.job_dir(task_id) / "run"
     with (run / "metrics.csv").open() as f:
         rows = [r for r in csv.DictReader(f) if r["eval_time"] not in ("", "nan")]
@@ -264,16 +273,12 @@ def test_drlaas_train_task_trains_what_the_worker_delivers(env, tmp_path: Path) 
 
     from drlaas.cli import app
 
-    p, actors, store = env
-    spec = {**TINY_SPEC, "selection": {"keep_best": "time", "eval_every": 1}}
-    task_id, offered, _ = post_task(p, store, actors.requester, spec=spec)
-    h = handler_for(p, offered[0], store, tmp_path)
-    h._post_progress = lambda tid, point: None  # type: ignore[method-assign]
-    out = h.handle(task_id, offered[0])
+    store = env[2]
+    _, _, out = submitted(env, tmp_path, KEEP_BEST_SPEC)
     worker = pull_model(store, out["cid"], tmp_path / "worker")
 
     doc = tmp_path / "task.json"
-    doc.write_text(json.dumps(TrainingSpec.from_dict(spec).to_dict()))
+    doc.write_text(json.dumps(TrainingSpec.from_dict(KEEP_BEST_SPEC).to_dict()))
     res = CliRunner().invoke(app, ["train", "--task", str(doc), "--out", str(tmp_path / "local"),
                                    "--no-progress", "--no-tensorboard"])
     assert res.exit_code == 0, res.output
@@ -309,12 +314,13 @@ def test_drlaas_train_task_refuses_what_it_cannot_train_here(tmp_path: Path) -> 
     for name, (spec, extra, msg) in cases.items():
         doc = tmp_path / f"{name}.json"
         doc.write_text(json.dumps(spec))
-        res = CliRunner().invoke(app, ["train", "--task", str(doc), *extra],
+        out = tmp_path / f"run-{name}"
+        res = CliRunner().invoke(app, ["train", "--task", str(doc), "--out", str(out), *extra],
                                  env={"DRLAAS_GATEWAY": "http://127.0.0.1:9",
                                       "DRLAAS_CACHE": str(tmp_path / "cache")})
         text = " ".join(res.output.replace("│", " ").split())
         assert res.exit_code == 2 and msg in text, (name, res.output)
-    assert not (Path("runs") / "bad-s0").exists()
+        assert not out.exists()  # refused before anything was written
 
 
 def test_store_down_is_a_clear_transient_error_then_the_retry_completes(

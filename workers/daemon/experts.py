@@ -297,14 +297,12 @@ def load_job_experts(
     """The experts of a job, each named by its CID (what the outcome's card lists) while its
     weights come from its verified directory; the i-th is seeded ``seed + i`` as
     ``experts.load_experts`` does."""
-    from workers.mdrl.experts import load_expert
+    from workers.mdrl.experts import load_expert_at
 
     experts = []
     for i, ref in enumerate(refs):
         try:
-            expert = load_expert(str(dirs[ref]), task, seed + i)
+            experts.append(load_expert_at(ref, dirs[ref], task, seed + i))
         except Exception as exc:  # noqa: BLE001 - a model that cannot serve the task
             raise ExpertFetchError(ref, f"cannot guide this task: {exc}") from None
-        expert.name = ref
-        experts.append(expert)
     return experts

@@ -152,25 +152,21 @@ def make_trainer(
         encoder = load_walls_encoder(spec.observation.walls_embedding, walls_cae)
     out = run_dir(job_dir)
     budget_minutes = spec.minutes if minutes is None else minutes
-    keep_best = spec.selection.keep_best
-    overrides = {
-        "tensorboard": False,
-        "progress": False,
-        "threads": 1,
-        "checkpoint_every": checkpoint_every,
-        "minutes": budget_minutes,
-        # the spec decides what is delivered, also for a checkpoint written by another version
-        "keep_best": keep_best,
-        "eval_every": spec.selection.eval_every if keep_best else 0,
-    }
-    if has_checkpoint(job_dir):
+    run = spec.run_config(
+        tensorboard=False,
+        progress=False,
+        threads=1,
+        checkpoint_every=checkpoint_every,
+        minutes=budget_minutes,
+    )
+    if has_checkpoint(job_dir):  # the spec's run config, also over a checkpoint's older one
         return cast(
             JobTrainer,
             JobTrainer.resume(
-                out, out=out, run_overrides=overrides, selector=selector, walls_encoder=encoder
+                out, out=out, run_overrides=run.to_dict(), selector=selector,
+                walls_encoder=encoder,
             ),
         )
-    run = spec.run_config(**overrides)
     return JobTrainer(
         spec.env, spec.observation, spec.ppo, run, out=out, selector=selector, walls_encoder=encoder
     )
@@ -216,11 +212,11 @@ def run_job(
     metrics = trainer.train()
     model = delivered_model(job, spec)
     attach_curve(model, run_dir(job) / "metrics.csv")  # the card's training curve
-    chosen = trainer.best if spec.selection.keep_best else None
+    chosen = trainer.best or {}  # set only when the spec keeps the best evaluated policy
     return model, {
         **metrics,
         **trainer.last_eval,
-        **({k: v for k, v in chosen.items() if k.startswith("eval_")} if chosen else {}),
+        **{k: v for k, v in chosen.items() if k.startswith("eval_")},
         "job_seconds": time.perf_counter() - t0,
         "resumed_from_update": None,
     }

@@ -51,6 +51,7 @@ The model adapter (``ModelExpert``), what it does and where it refuses:
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -383,7 +384,19 @@ def load_expert(ref: str, task: Any, seed: int = 0) -> Any:
     return ModelExpert(policy, task, ref)
 
 
-def load_experts(refs: list[str] | tuple[str, ...], task: Any, seed: int = 0) -> list[Any]:
+def load_experts(refs: list[str] | tuple[str, ...], task: Any, seed: int = 0,
+                 dirs: Mapping[str, str | Path] | None = None) -> list[Any]:
     """``load_expert`` for each reference; the i-th random expert is seeded ``seed + i`` so
-    five random experts are five different ones."""
-    return [load_expert(r, task, seed + i) for i, r in enumerate(refs)]
+    five random experts are five different ones. ``dirs`` maps references (model CIDs) to the
+    directories they were fetched into: those load from there, named by the reference."""
+    dirs = dirs or {}
+    return [load_expert_at(r, dirs[r], task, seed + i) if r in dirs
+            else load_expert(r, task, seed + i) for i, r in enumerate(refs)]
+
+
+def load_expert_at(ref: str, directory: str | Path, task: Any, seed: int = 0) -> Any:
+    """The model in ``directory`` as an expert named ``ref`` (e.g. the CID it was fetched by:
+    what the trained model's card lists, not a local path)."""
+    expert = load_expert(str(directory), task, seed)
+    expert.name = ref
+    return expert

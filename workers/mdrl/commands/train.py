@@ -27,9 +27,9 @@ def train(
     task: Annotated[Path | None, typer.Option(help="A platform task's spec (drlaas-task/1 JSON, "
                                                    "`drlaas task show ID --spec`): train what a "
                                                    "worker trains for it (env, observation, PPO, "
-                                                   "budget, seed, experts by directory, "
-                                                   "selection); --steps/--minutes/--seed "
-                                                   "override it.")] = None,
+                                                   "budget, seed, experts, selection); "
+                                                   "--steps/--minutes/--seed override it.")
+                                ] = None,
     steps: Annotated[int | None, typer.Option(help="Env-step budget of the run (total, "
                                                    "including steps before a resume).")] = None,
     minutes: Annotated[float | None, typer.Option(help="Wall-clock budget in minutes (total, "
@@ -178,8 +178,8 @@ def _finish(trainer) -> None:
 def _train_task(path: Path, *, steps, minutes, seed, out, threads, progress, tensorboard,
                 eval_every, eval_episodes, checkpoint_every, keep_best, others) -> None:
     """``--task``: the spec parsed by the platform's own parser and trained with the worker's
-    run config (``TrainingSpec.run_config``); its experts and walls CAE must be directories
-    here (a CID is fetched with ``drlaas model pull`` first)."""
+    run config (``TrainingSpec.run_config``); experts and a walls CAE named by CID come
+    through MODEL_FETCHER, as a worker's are fetched and verified."""
     from workers.mdrl.experts import ExpertError
     from workers.mdrl.medc import DemonstrationSelector
     from workers.mdrl.train import Trainer
@@ -232,22 +232,13 @@ def _fetched(ref: str, kind: str) -> Path:
     return MODEL_FETCHER(ref, kind)
 
 
-def _load_experts(refs: tuple[str, ...], env: Any, seed: int) -> list[Any] | None:
-    """The experts when some are named by CID (fetched, verified, and named by their CID as
-    a worker names them, so the card lists the CID); None: all load by path or name."""
-    if not any(_is_cid(r) for r in refs):
-        return None
-    from workers.mdrl.experts import load_expert
+def _load_experts(refs: tuple[str, ...], env: Any, seed: int) -> list[Any]:
+    """The experts, those named by CID fetched (MODEL_FETCHER) and named by their CID as a
+    worker names them, so the card lists the CID."""
+    from workers.mdrl.experts import load_experts
 
-    experts = []
-    for i, ref in enumerate(refs):  # the i-th seeded seed + i, as experts.load_experts does
-        if not _is_cid(ref):
-            experts.append(load_expert(ref, env, seed + i))
-            continue
-        expert = load_expert(str(_fetched(ref, "expert")), env, seed + i)
-        expert.name = ref
-        experts.append(expert)
-    return experts
+    return load_experts(refs, env, seed, dirs={r: _fetched(r, "expert") for r in refs
+                                               if _is_cid(r)})
 
 
 def _walls_encoder(ref: str | None) -> Any:
