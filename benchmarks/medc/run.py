@@ -14,6 +14,9 @@ method trains for the same env-step budget of the task user:
                the same with the expert credit rule (medc.py, ``credit``: experts whose
                guided episodes run longer than the agents' own fade out)
   il           sparse + IL-assisted RL with the same experts (il.py: 20% behaviour cloning)
+  medc-mixed, medc-mixed-credit, il-mixed
+               MEDC (plain, with the credit rule) and IL with the experts plus as many faulty
+               ones (random, biased, malicious; Fig. 5.8: 3 of the 6 shared models are faulty)
   frl          sparse + FedAvg across the eight users A1W0 ... A3W3 (frl.py), seen from the task
   sparse-cae, sr-cae
                sparse / SR with the walls CAE's embedding (``--cae DIR``, Fig. 4.2) in place of
@@ -62,11 +65,13 @@ from workers.mdrl.train import RunConfig, Trainer
 from workers.mdrl.zoo import HELDOUT_SEED
 
 METHODS = ("sparse", "sr", "dc", "medc", "medc-anneal", "medc-faulty", "medc-credit",
-           "medc-faulty-credit",
-           "il", "frl", "sparse-cae", "sr-cae")
+           "medc-faulty-credit", "medc-mixed", "medc-mixed-credit",
+           "il", "il-mixed", "frl", "sparse-cae", "sr-cae")
 EXPERT_USERS = ("A1W0", "A1W3", "A2W2")
 GUIDED = ("medc", "medc-anneal", "medc-credit")
 """The methods with proper experts whose speed and rivals the targets report."""
+MIXED = ("medc-mixed", "medc-mixed-credit")
+"""The MEDC methods with proper and faulty experts, compared with IL on the same ones."""
 ANNEAL = (0.2, 0.0)
 """medc-anneal's R_E at the start and at the end of the budget."""
 CURVE_EPISODES = 100
@@ -140,6 +145,14 @@ def faulty_refs(good: str, actions: int) -> list[str]:
             + [f"malicious:{good}"] * 5)
 
 
+def mixed_refs(good: list[str], actions: int) -> list[str]:
+    """The proper experts and as many faulty ones - random, biased, malicious in turn (the
+    malicious one inverts the first good expert) - the setting of the thesis' Fig. 5.8, where
+    3 of the 6 users sharing models have faulty ones."""
+    kinds = ("random", f"biased:{actions - 1}", f"malicious:{good[0]}")
+    return [*good, *(kinds[i % 3] for i in range(len(good)))]
+
+
 def train_run(task: str, method: str, seed: int, steps: int, experts: list[str],
               qos: list[float], eval_every: int, out: Path, grid: int) -> dict[str, Any]:
     """Train one (task, method, seed) and return its curve and held-out figures."""
@@ -170,16 +183,18 @@ def train_run(task: str, method: str, seed: int, steps: int, experts: list[str],
         else:
             users = [(u, user_preset(u, "sparse", grid).env) for u in THESIS_USERS]
             trainer = FederatedTrainer(users, obs, ppo, run, target=task, out=run_dir)
-    elif method == "il":
+    elif method in ("il", "il-mixed"):
         from workers.mdrl.il import ImitationTrainer
 
-        loaded = load_experts(experts, env, seed)
+        refs = mixed_refs(experts, env.num_actions) if method == "il-mixed" else experts
+        loaded = load_experts(refs, env, seed)
         if resume:  # refuses other experts than the checkpoint's (another --out for those)
             trainer = ImitationTrainer.resume(run_dir, run_overrides=run.to_dict(),
-                                              experts=loaded, qos=qos or None)
+                                              experts=loaded, qos=None if refs is not experts
+                                              else qos or None)
         else:
             trainer = ImitationTrainer(env, obs, ppo, run, out=run_dir, experts=loaded,
-                                       qos=qos or None)
+                                       qos=None if refs is not experts else qos or None)
     else:
         selector = None
         if method == "dc":
@@ -190,6 +205,10 @@ def train_run(task: str, method: str, seed: int, steps: int, experts: list[str],
             selector = DemonstrationSelector(load_experts(experts, env, seed), qos or None,
                                              rate, seed=seed, credit=method.endswith("-credit"),
                                              threshold=THRESHOLD, rate_end=rate_end)
+        elif method in MIXED:
+            selector = DemonstrationSelector(
+                load_experts(mixed_refs(experts, env.num_actions), env, seed), seed=seed,
+                credit=method.endswith("-credit"), threshold=THRESHOLD)
         elif method in ("medc-faulty", "medc-faulty-credit"):
             refs = faulty_refs(experts[0], env.num_actions)
             selector = DemonstrationSelector(load_experts(refs, env, seed), seed=seed,
@@ -372,21 +391,21 @@ def targets(by: dict[str, list[dict]], sr_level: float) -> list[str]:
             b, b_ci = final(by[plain], "time")
             out.append(f"- {plain} with the walls CAE {a:.2f} [{a_ci[0]:.2f}, {a_ci[1]:.2f}] vs "
                        f"with the wall maps {b:.2f} [{b_ci[0]:.2f}, {b_ci[1]:.2f}]")
-    for medc in GUIDED:
-        for other in ("frl", "il"):
-            if {medc, other} <= set(by):
-                steps, m = mean_curve(by[medc])
-                steps_o, o = mean_curve(by[other])
-                shared = np.intersect1d(steps, steps_o)
-                wins = int(sum(m[steps == s][0] < o[steps_o == s][0] for s in shared))
-                out.append(f"- {medc} vs {other.upper()}: shorter mean episodes at {wins} of "
-                           f"{len(shared)} shared evaluation points; final "
-                           f"{final(by[medc], 'time')[0]:.2f} vs "
-                           f"{final(by[other], 'time')[0]:.2f}")
-                km, ko = kept(by[medc]), kept(by[other])
-                if km and ko:
-                    (a, a_ci), (b, b_ci) = final(km, "time"), final(ko, "time")
-                    out.append(f"  kept policies: {a:.2f}{_ci(a_ci)} vs {b:.2f}{_ci(b_ci)}")
+    rivals = [(m, o) for m in GUIDED for o in ("frl", "il")] + [(m, "il-mixed") for m in MIXED]
+    for medc, other in rivals:
+        if {medc, other} <= set(by):
+            steps, m = mean_curve(by[medc])
+            steps_o, o = mean_curve(by[other])
+            shared = np.intersect1d(steps, steps_o)
+            wins = int(sum(m[steps == s][0] < o[steps_o == s][0] for s in shared))
+            out.append(f"- {medc} vs {other.upper()}: shorter mean episodes at {wins} of "
+                       f"{len(shared)} shared evaluation points; final "
+                       f"{final(by[medc], 'time')[0]:.2f} vs "
+                       f"{final(by[other], 'time')[0]:.2f}")
+            km, ko = kept(by[medc]), kept(by[other])
+            if km and ko:
+                (a, a_ci), (b, b_ci) = final(km, "time"), final(ko, "time")
+                out.append(f"  kept policies: {a:.2f}{_ci(a_ci)} vs {b:.2f}{_ci(b_ci)}")
     return out
 
 

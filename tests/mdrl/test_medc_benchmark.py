@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
-METHODS = ("sparse", "medc", "medc-anneal", "medc-credit", "il")
+METHODS = ("sparse", "medc", "medc-anneal", "medc-credit", "il", "medc-mixed-credit", "il-mixed")
 
 
 def bench(out: Path, *extra: str) -> subprocess.CompletedProcess:
@@ -32,6 +32,17 @@ def test_the_benchmark_runs_every_guided_method_and_reuses_its_cache(tmp_path):
         assert run["best"]["curve_time"] == min(p["time"] for p in run["curve"])
         assert 0.0 <= run["best"]["heldout"]["success"] <= 1.0
     assert "Kept policy" in table and "kept policies:" in table
+    # Fig. 5.8: MEDC and IL are given the same experts, the proper ones plus as many faulty
+    def refs(method: str) -> list[str]:
+        card = json.loads((tmp_path / f"A3W3-10x10-{method}-s0-4096" / "model" / "model.json")
+                          .read_text())["training"]
+        block = card["experts"] if "experts" in card else card["method"]
+        return [e["ref"] for e in block["experts"]]
+
+    assert refs("medc-mixed-credit") == refs("il-mixed") == ["oracle", "random", "random",
+                                                             "biased:8"]
+    assert refs("medc") == refs("il") == ["oracle", "random"]
+    assert "medc-mixed-credit vs IL-MIXED: shorter mean episodes at" in table
     again = bench(tmp_path)  # every run is cached: nothing trains, the same table prints
     assert again.returncode == 0, again.stderr[-3000:]
     assert again.stdout == first.stdout
