@@ -138,6 +138,13 @@ class Settings(BaseSettings):
     """Embedded demo chain: seconds between two faucet top-ups of one address."""
     faucet_per_minute: int = Field(default=30, ge=1, le=10_000)
     """Embedded demo chain: faucet top-ups per minute over all addresses."""
+    rpc_gas_cap: int = Field(default=8_000_000, ge=100_000, le=2**40)
+    """Embedded ``/rpc``: most gas one ``eth_call`` / ``eth_estimateGas`` execution may use
+    (geth's ``RPCGasCap``; a larger ``gas`` is clamped to it)."""
+    rpc_gas_per_minute: int = Field(default=40_000_000, ge=100_000, le=2**50)
+    """Embedded ``/rpc``: execution gas one client (address) may use a minute; past it
+    JSON-RPC -32005 with the seconds to wait (backend.services.rpc_budget). At py-evm's ~3M gas
+    a second this bounds one client's hold on the chain to ~13 s a minute."""
     log_format: Literal["text", "json"] = "text"
     """``json``: one JSON object per log line (time, level, logger, message, task_id) for log
     collectors; ``text``: readable lines."""

@@ -6,27 +6,27 @@ allocations (``expert_allocation``: the paid model-sharing task of Eq. 10-13 / 2
 gateway writes the allocated models' CIDs with the QoS the MMC computed for them (the
 ``ModelAllocated`` events) into the spec: R_S = QoS_i / sum QoS is then each expert's chance to
 guide an episode (Table 5.3). Every expert must be a canonical CID whose bundle the content
-store holds with a ``drlaas-model/1`` card: the workers fetch and verify it again
-(``workers.daemon.experts``), this only refuses early what no worker could use.
+store holds and which passes the gateway's check of a model bundle
+(``backend.api.bundles.check_model_bundle``: exactly the two files, a ``drlaas-model/1`` card,
+safetensors weights within bounds): the workers fetch and verify it again
+(``workers.daemon.experts``), this refuses before the task is created (and paid for) what no
+worker could use.
 """
 
 from __future__ import annotations
 
-import json
 from typing import Any
 
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
+from backend.api.bundles import BundleRefused, check_model_bundle
 from backend.api.errors import RuleError
 from backend.api.writes import field_error
 from backend.db import models as m
 from backend.schemas.common import from_fixed
 from backend.store import CID, ContentStore, InvalidCID, NotFound, StoreError, StoreUnavailable
-from backend.store.bundle import MODEL_FILES, read_bundle
 
-MAX_CARD_BYTES = 1 << 20
-CARD_FORMAT = "drlaas-model/1"
 CAE_KIND = "cae"
 """``kind`` of a walls CAE's card (``workers.mdrl.cae``); a policy's card has none."""
 
@@ -61,7 +61,8 @@ def allocation_experts(session: Session, alloc_id: int, caller: str) -> list[Any
 
 def check_experts(store: ContentStore, refs: tuple[str, ...]) -> None:
     """422 naming ``experts[i]`` unless each is a canonical CID of a model bundle in the store
-    (its two files, a ``drlaas-model/1`` card); 503 while the store is down."""
+    that passes ``check_model_bundle`` (its two files, a ``drlaas-model/1`` card, safetensors
+    weights); 503 while the store is down."""
     for i, ref in enumerate(refs):
         _check_model(store, ref, ("body", "experts", i), "expert")
 
@@ -114,15 +115,7 @@ def _check_model(store: ContentStore, ref: str, loc: tuple[Any, ...], what: str)
             f"{what}_not_canonical",
         )
     try:
-        files = read_bundle(store, ref)
-        if sorted(files) != sorted(MODEL_FILES):
-            raise ValueError(f"the bundle holds {sorted(files)}, not {list(MODEL_FILES)}")
-        card_cid, size = files["model.json"]
-        if size > MAX_CARD_BYTES:
-            raise ValueError(f"its card is {size} bytes, the bound is {MAX_CARD_BYTES}")
-        card = json.loads(store.get(card_cid, max_size=MAX_CARD_BYTES))
-        if not isinstance(card, dict) or card.get("format") != CARD_FORMAT:
-            raise ValueError(f"its model.json is not a {CARD_FORMAT} card")
+        card = check_model_bundle(store, ref).card
         is_cae = card.get("kind") == CAE_KIND
         if is_cae != (what == "walls_cae"):
             raise ValueError(
@@ -131,6 +124,14 @@ def _check_model(store: ContentStore, ref: str, loc: tuple[Any, ...], what: str)
                 else "its card is a policy's, not a walls CAE's"
             )
         return card
+    except BundleRefused as exc:
+        # the bundle's files missing from the store: as the bundle itself, else unusable
+        missing = exc.rule == "bundle_file_not_found"
+        field_error(
+            loc,
+            f"{ref} is not a usable model: {exc.msg} ({exc.rule})",
+            f"{what}_not_found" if missing else f"{what}_invalid",
+        )
     except NotFound:
         field_error(loc, f"the content store does not hold {ref}", f"{what}_not_found")
     except StoreUnavailable as exc:

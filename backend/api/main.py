@@ -34,6 +34,7 @@ from backend.observability.metrics import install_metrics, instrument_web3
 from backend.services.chain import ChainService, SignLocally
 from backend.services.faucet import Faucet
 from backend.services.rpc import EmbeddedRpc
+from backend.services.rpc_budget import GasBudget
 from backend.settings import Settings, load_settings
 from backend.store import make_store
 
@@ -200,7 +201,12 @@ def _start_services(
     if app.state.chain_id is None:
         app.state.chain_id = service.chain.chain_id
     if service.chain.kind == "embedded":
-        app.state.rpc = EmbeddedRpc(service.chain, service.lock)
+        app.state.rpc = EmbeddedRpc(
+            service.chain,
+            service.lock,
+            gas_cap=settings.rpc_gas_cap,
+            budget=GasBudget(settings.rpc_gas_per_minute),
+        )
         if settings.demo_keys_allowed:  # the faucet: embedded demo chain only
             app.state.faucet = Faucet(
                 service,

@@ -25,7 +25,8 @@ from eth_utils import ValidationError as EvmValidationError
 from web3.middleware import combine_middleware
 
 from backend.chain.client import Chain
-from backend.services.rpc_call import unpriced_call
+from backend.services.rpc_budget import GasBudget
+from backend.services.rpc_call import ExecutionFailed, OutOfGas, bounded_estimate, unpriced_call
 from backend.services.rpc_params import InvalidParams, is_unpriced, normalize
 from backend.services.rpc_results import fee_history, shape
 
@@ -67,6 +68,13 @@ METHOD_NOT_FOUND = -32601
 INVALID_PARAMS = -32602
 INTERNAL_ERROR = -32603
 SERVER_ERROR = -32000  # geth: e.g. "insufficient funds for gas * price + value"
+LIMIT_EXCEEDED = -32005  # EIP-1474: request exceeds a defined limit (rate or gas)
+UNMETERED = frozenset({"127.0.0.1", "::1", "local"})
+"""Clients on this machine (the embedded platform's own workers, CLI and indexer) draw on no
+budget: whoever runs there can stop the gateway anyway. The gas cap still applies."""
+DEFAULT_GAS_CAP = 8_000_000
+"""Most gas one ``eth_call`` / ``eth_estimateGas`` execution may use (``Settings.rpc_gas_cap``):
+4x the largest platform transaction measured (an allocation among 10,000 candidates, 1.86M)."""
 EXECUTION_REVERTED = 3
 
 
@@ -104,9 +112,18 @@ def _revert_bytes(exc: BaseException) -> bytes | None:
 class EmbeddedRpc:
     """Serve JSON-RPC requests (single or batch) against an embedded :class:`Chain`."""
 
-    def __init__(self, chain: Chain, lock: threading.RLock) -> None:
+    def __init__(
+        self,
+        chain: Chain,
+        lock: threading.RLock,
+        *,
+        gas_cap: int = DEFAULT_GAS_CAP,
+        budget: GasBudget | None = None,
+    ) -> None:
         if chain._tester is None:
             raise ValueError("EmbeddedRpc serves only the embedded (eth-tester) chain")
+        self.gas_cap = gas_cap
+        self.budget = budget
         self.chain = chain
         self.tester = chain._tester
         self.lock = lock
@@ -117,15 +134,16 @@ class EmbeddedRpc:
             provider_request_fn=provider.make_request,
         )
 
-    def handle(self, payload: Any) -> Any:
-        """One JSON-RPC request object or a batch (list); returns the response(s)."""
+    def handle(self, payload: Any, client: str = "local") -> Any:
+        """One JSON-RPC request object or a batch (list) from ``client`` (its address: the
+        gas budget is per client); returns the response(s)."""
         if isinstance(payload, list):
             if not payload or len(payload) > MAX_BATCH:
                 return _error(None, INVALID_REQUEST, f"batch must hold 1..{MAX_BATCH} requests")
-            return [self._one(p) for p in payload]
-        return self._one(payload)
+            return [self._one(p, client) for p in payload]
+        return self._one(payload, client)
 
-    def _one(self, req: Any) -> dict[str, Any]:
+    def _one(self, req: Any, client: str = "local") -> dict[str, Any]:
         if not isinstance(req, dict) or not isinstance(req.get("method"), str):
             return _error(None, INVALID_REQUEST, "a request is an object with a string 'method'")
         rid = req.get("id")
@@ -142,13 +160,15 @@ class EmbeddedRpc:
             )
         try:
             with self.lock:
-                result = self._dispatch(method, params)
+                result = self._dispatch(method, params, client)
         except _RpcFailure as exc:
             return _error(rid, exc.code, exc.message, exc.data)
         except (InvalidParams, TesterValidationError) as exc:
             return _error(rid, INVALID_PARAMS, str(exc))
         except EvmValidationError as exc:  # valid request, transaction invalid on this state
             return _error(rid, SERVER_ERROR, f"invalid transaction: {exc}")
+        except (OutOfGas, ExecutionFailed) as exc:
+            return _error(rid, SERVER_ERROR, str(exc))
         except Exception as exc:  # eth-tester raises many types; report, never crash
             data = _revert_bytes(exc)
             if type(exc).__name__ == "TransactionFailed" or data is not None:
@@ -158,21 +178,77 @@ class EmbeddedRpc:
             return _error(rid, INTERNAL_ERROR, f"{type(exc).__name__}: {exc}")
         return {"jsonrpc": "2.0", "id": rid, "result": _quantities(result)}
 
-    def _dispatch(self, method: str, params: list[Any]) -> Any:
+    def _dispatch(self, method: str, params: list[Any], client: str = "local") -> Any:
         if method == "eth_accounts":
             return []  # the node holds no keys for anyone
         params = normalize(method, params, self.chain.chain_id, self._block_number_of)
-        if method == "eth_call" and is_unpriced(params[0]):
-            return unpriced_call(self.tester, params[0], *params[1:])
+        if method in ("eth_call", "eth_estimateGas"):
+            return self._execute(method, params, client)
         if method == "eth_feeHistory":
             return fee_history(self.tester, params)
-        if method == "eth_estimateGas" and is_unpriced(params[0]):
-            params[0] = {**params[0], "maxFeePerGas": 0, "maxPriorityFeePerGas": 0}
+        if method == "eth_getLogs":
+            params[0] = self._up_to_head(params[0])
+            if params[0] is None:
+                return []
         response = self._request(method, params)
         if "error" in response:
             err = response["error"]
             raise _RpcFailure(err.get("code", INTERNAL_ERROR), str(err.get("message", "")))
         return shape(method, response["result"])
+
+    def _execute(self, method: str, params: list[Any], client: str) -> Any:
+        """``eth_call`` / ``eth_estimateGas``: bounded by the gas cap and the client's budget.
+
+        A priced call (fee fields given) must be affordable by its sender, as on geth; the
+        execution itself is then unpriced, like the unpriced ones (fees change no gas used).
+        """
+        tx, block = params[0], params[1]
+        if not is_unpriced(tx):
+            self._check_affordable(tx, block)
+        budget = None if client in UNMETERED else self.budget
+        if budget is not None:
+            wait = budget.wait_s(client, self.gas_cap)
+            if wait:
+                raise _RpcFailure(
+                    LIMIT_EXCEEDED,
+                    f"execution gas of this client used up ({budget.per_minute} gas a "
+                    f"minute): retry in {wait} s",
+                )
+
+        def charge(gas: int) -> None:
+            if budget is not None:
+                budget.charge(client, gas)
+
+        if method == "eth_estimateGas":
+            return bounded_estimate(self.tester, tx, block, gas_cap=self.gas_cap, charge=charge)
+        try:
+            done = unpriced_call(self.tester, tx, block, gas_cap=self.gas_cap)
+        except OutOfGas as exc:
+            charge(exc.gas)
+            raise
+        charge(done.gas_used)
+        return done.output
+
+    def _check_affordable(self, tx: dict[str, Any], block: int | str) -> None:
+        price = max(int(tx.get(k, 0)) for k in ("gasPrice", "maxFeePerGas"))
+        need = min(int(tx.get("gas", self.gas_cap)), self.gas_cap) * price + int(tx.get("value", 0))
+        have = int(self.tester.get_balance(tx["from"], block))
+        if need > have:
+            raise _RpcFailure(
+                SERVER_ERROR,
+                f"insufficient funds for gas * price + value: have {have} want {need}",
+            )
+
+    def _up_to_head(self, flt: dict[str, Any]) -> dict[str, Any] | None:
+        """A log filter with block numbers past the head clamped to it (geth's rule); None if
+        it starts past the head (no logs)."""
+        head = int(self.tester.get_block_by_number("latest")["number"])
+        start, end = flt.get("fromBlock"), flt.get("toBlock")
+        if isinstance(start, int) and start > head:
+            return None
+        if isinstance(end, int) and end > head:
+            flt = {**flt, "toBlock": head}
+        return flt
 
     def _block_number_of(self, block_hash: str) -> int:
         try:

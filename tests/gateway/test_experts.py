@@ -14,7 +14,7 @@ from backend.services.chain import ChainService
 from backend.store.bundle import add_bundle
 
 from .conftest import ENV, Login, P, addr, register, task_body
-from .test_models import ENV2, ENV3, _share, card_of
+from .test_models import ENV2, ENV3, _share, card_of, weights_of
 
 
 def test_experts_from_an_allocation_named_checked_and_reviewed(
@@ -91,9 +91,13 @@ def test_experts_from_an_allocation_named_checked_and_reviewed(
 def test_named_experts_must_be_model_cids_in_the_store(client: TestClient, login: Login) -> None:
     register(client, login, ["user1"], {"user3": {}})
     store = client.app.state.store  # type: ignore[attr-defined]
-    model = add_bundle(store, {"model.safetensors": b"w" * 64, "model.json": card_of(ENV2, "m")})
+    model = add_bundle(
+        store, {"model.safetensors": weights_of("m"), "model.json": card_of(ENV2, "m")}
+    )
     loose = store.add(b"just some bytes")
-    not_card = add_bundle(store, {"model.safetensors": b"w", "model.json": b'{"format": "x"}'})
+    not_card = add_bundle(
+        store, {"model.safetensors": weights_of("n"), "model.json": b'{"format": "x"}'}
+    )
     absent = "bafkreigh2akiscaildcqabsyg3dfr6chu3fgpregiymsck7e7aqa4s52zy"
     cases = {
         "oracle": "expert_not_cid",
@@ -134,12 +138,14 @@ def test_a_named_walls_cae_must_be_a_cae_bundle_in_the_store(
     def cae_bundle(grid: list[int]) -> str:
         card = {"format": "drlaas-model/1", "kind": "cae", "grid": grid, "embedding": 8}
         return add_bundle(
-            store, {"model.safetensors": b"w" * 64, "model.json": json.dumps(card).encode()}
+            store, {"model.safetensors": weights_of("c"), "model.json": json.dumps(card).encode()}
         )
 
     cae = cae_bundle([ENV["rows"], ENV["cols"]])
     other_grid = cae_bundle([6, 6])
-    policy = add_bundle(store, {"model.safetensors": b"w" * 64, "model.json": card_of(ENV2, "m")})
+    policy = add_bundle(
+        store, {"model.safetensors": weights_of("p"), "model.json": card_of(ENV2, "m")}
+    )
     absent = "bafkreigh2akiscaildcqabsyg3dfr6chu3fgpregiymsck7e7aqa4s52zy"
 
     def post(ref: str, size: int = 8) -> Any:

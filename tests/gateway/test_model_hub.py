@@ -20,6 +20,7 @@ from drlaas.commands.client.models import hub_lines
 from drlaas.commands.client.tasks import env_summary
 
 from .conftest import ENV, Login, P, addr, register, task_body
+from .test_models import weights_of
 
 WORKERS = {"user3": {"cpu_cores": 16}, "user4": {"cpu_cores": 8}}
 POINTS = [
@@ -46,7 +47,7 @@ def card_bytes(env: dict, **sections: Any) -> bytes:
 
 def share(client: TestClient, login: Login, name: str, card: bytes, text: str) -> dict:
     store = client.app.state.store  # type: ignore[attr-defined]
-    cid = add_bundle(store, {"model.safetensors": text.encode() * 100, "model.json": card})
+    cid = add_bundle(store, {"model.safetensors": weights_of(text, 100), "model.json": card})
     body = {"cid": cid, "description": text, "env": json.loads(card)["env"]}
     r = client.post(f"{P}/models", json=body, headers=login(name))
     assert r.status_code == 201, r.text
@@ -92,7 +93,7 @@ def test_model_page_links_task_experts_and_reads_the_card(
         metrics={"eval_success": 0.5, "eval_time": 30.0, "eval_cost": 40.0, "loss": 0.1},
     )  # fmt: skip
     store = client.app.state.store  # type: ignore[attr-defined]
-    cid = add_bundle(store, {"model.safetensors": b"w" * 1000, "model.json": card})
+    cid = add_bundle(store, {"model.safetensors": weights_of("o", 1000), "model.json": card})
     with service.lock:
         service.platform.tmc.transact("acceptOffer", task_id, sender=owner)
         service.platform.tmc.transact("submitOutcome", task_id, cid, sender=owner)

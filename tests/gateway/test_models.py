@@ -5,7 +5,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 from fastapi.testclient import TestClient
+from safetensors.numpy import save as save_safetensors
 
 from backend.services.chain import ChainService
 from backend.services.specs import validate_env
@@ -28,9 +30,14 @@ def card_of(env: dict, text: str) -> bytes:
     return canonical_json(card)
 
 
+def weights_of(text: str, n: int = 1) -> bytes:
+    """``model.safetensors`` bytes (the gateway lists and accepts safetensors weights only)."""
+    return save_safetensors({"w": np.ones(n, np.float32)}, metadata={"name": text})
+
+
 def _share(client: TestClient, login: Login, name: str, env: dict, domain: int, text: str) -> dict:
     store = client.app.state.store  # type: ignore[attr-defined]
-    weights = f"weights of {text}".encode() * 1000
+    weights = weights_of(text, 1000)
     card = card_of(env, text)
     cid = add_bundle(store, {"model.safetensors": weights, "model.json": card})
     r = client.post(
@@ -131,7 +138,9 @@ def test_share_validation_and_roles(client: TestClient, login: Login) -> None:
         assert r.status_code == 422, r.text
         assert loc in [d["loc"][: len(loc)] for d in r.json()["detail"]]
     store = client.app.state.store  # type: ignore[attr-defined]
-    cid = add_bundle(store, {"model.safetensors": b"w", "model.json": card_of(ENV3, "x")})
+    cid = add_bundle(
+        store, {"model.safetensors": weights_of("x"), "model.json": card_of(ENV3, "x")}
+    )
     r = client.post(f"{P}/models", json={"cid": cid, "env": ENV3}, headers=login("user1"))
     assert r.status_code == 403 and r.json()["detail"]["rule"] == "models_not_worker"
     r = client.post(

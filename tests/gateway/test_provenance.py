@@ -10,7 +10,7 @@ from backend.services.chain import ChainService
 from backend.store.bundle import add_bundle
 
 from .conftest import ENV, Login, P, addr, register, task_body
-from .test_models import card_of
+from .test_models import card_of, weights_of
 
 WORKERS = {"user3": {"cpu_cores": 16}, "user4": {"cpu_cores": 8}}
 
@@ -25,7 +25,7 @@ def test_outcome_download_and_sharing_follow_provenance(
     names = {addr(service, n): n for n in WORKERS}
     owner, other = offered[0], offered[1]
     store = client.app.state.store  # type: ignore[attr-defined]
-    weights = b"trained weights " * 500
+    weights = weights_of("trained", 500)
     cid = add_bundle(store, {"model.safetensors": weights, "model.json": card_of(ENV, "o")})
     with service.lock:
         for w in offered:
@@ -80,6 +80,8 @@ def test_own_upload_needs_its_card(client: TestClient, login: Login) -> None:
         r = client.post(f"{P}/models", json={"cid": cid, "env": ENV}, headers=login("user3"))
         assert r.status_code == 422, r.text
         assert [(d["loc"], d["type"]) for d in r.json()["detail"]] == [(["body", "cid"], rule)]
-    cid = add_bundle(store, {"model.safetensors": b"w", "model.json": card_of(ENV, "mine")})
+    cid = add_bundle(
+        store, {"model.safetensors": weights_of("w"), "model.json": card_of(ENV, "mine")}
+    )
     r = client.post(f"{P}/models", json={"cid": cid, "env": ENV}, headers=login("user3"))
     assert r.status_code == 201, r.text

@@ -73,13 +73,15 @@ def test_cast_estimate_send_then_call_and_logs(gateway: str, service: ChainServi
     assert out(gateway, "call", umc.address, "isRequester(address)(bool)", me.address) == "false"
 
     estimate = int(out(gateway, "estimate", umc.address, "addRequester()", "--from", me.address))
-    assert estimate == umc.estimate("addRequester", sender=me.address)
+    # the node's estimate is the least gas that succeeds (to within 1/64; eth-tester's own
+    # search stops within 21,000 above it), and cast sends with exactly that
+    assert estimate <= umc.estimate("addRequester", sender=me.address)
 
     receipt = json.loads(
         out(gateway, "send", umc.address, "addRequester()", "--private-key", me.key.hex(), "--json")
     )
     assert receipt["status"] == "0x1" and receipt["from"].lower() == me.address.lower()
-    assert int(receipt["gasUsed"], 16) <= estimate
+    assert estimate - estimate // 64 <= int(receipt["gasUsed"], 16) <= estimate
     assert umc.call("isRequester", me.address) is True  # the chain itself saw it
     assert out(gateway, "call", umc.address, "isRequester(address)(bool)", me.address) == "true"
     # the state before the transaction is still readable at its parent block

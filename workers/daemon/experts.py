@@ -10,8 +10,9 @@ them). Nothing from the network is trusted, so before an expert guides training 
   before a byte of them is fetched);
 * every block is verified against its CID as it arrives (``ContentStore.get_to_file``) and the
   file must have the size the manifest declares;
-* the weights must be a well-formed safetensors file (a pickle or a zip archive, e.g. a
-  ``torch.save`` file, is refused by its first bytes and never unpickled);
+* the weights must be a loadable safetensors file (``workers.mdrl.weightsfile``, the check
+  the gateway runs too: a pickle or a zip archive, e.g. a ``torch.save`` file, is refused and
+  never unpickled);
 * the card must be a ``drlaas-model/1`` card whose env and observation this code can rebuild.
 
 A verified expert lives in ``<job>/experts/<CID v1>/`` (a CAE in ``<job>/cae/<CID v1>/``),
@@ -24,35 +25,18 @@ from __future__ import annotations
 import json
 import os
 import shutil
-import struct
 import tempfile
 from pathlib import Path
 from typing import Any
 
 from backend.store import CID, ContentStore, InvalidCID, StoreError, StoreUnavailable
 from backend.store.bundle import MODEL_FILES, read_bundle
+from workers.mdrl.weightsfile import MAX_WEIGHTS_BYTES, WeightsFileError, check_weights_file
 
 EXPERTS_DIR = "experts"
 CAE_DIR = "cae"
-MAX_WEIGHTS_BYTES = 64 * 2**20
-"""Bound on an expert's weights (the zoo's largest model is ~0.1 MiB)."""
 MAX_CARD_BYTES = 1 << 20
 """Bound on an expert's card (the gateway's bound on cards it reads)."""
-MAX_HEADER_BYTES = 1 << 20
-"""Bound on the JSON header of a safetensors file."""
-_DTYPE_BYTES = {
-    "F64": 8,
-    "F32": 4,
-    "F16": 2,
-    "BF16": 2,
-    "I64": 8,
-    "I32": 4,
-    "I16": 2,
-    "I8": 1,
-    "U8": 1,
-    "BOOL": 1,
-}
-
 
 class ExpertFetchError(ValueError):
     """An expert CID that cannot be used: the message names the CID and what is wrong."""
@@ -154,66 +138,12 @@ def _download(store: ContentStore, ref: str, dest: Path, max_weights: int) -> No
 
 
 def check_safetensors(path: Path, ref: str) -> None:
-    """A well-formed safetensors file: u64 header length, a JSON header of tensors whose
-    dtype, shape and byte ranges fit the file exactly. Refuses pickles and archives by name."""
-    size = path.stat().st_size
-    with path.open("rb") as f:
-        head = f.read(8)
-        if head[:1] == b"\x80" or head[:2] == b"PK":
-            kind = "a pickle" if head[:1] == b"\x80" else "a zip archive (torch.save)"
-            raise ExpertFetchError(
-                ref,
-                f"model.safetensors is {kind}, not safetensors: refused "
-                "(models are never unpickled)",
-            )
-        if len(head) < 8:
-            raise ExpertFetchError(ref, "model.safetensors is too short to be safetensors")
-        (n,) = struct.unpack("<Q", head)
-        if n > min(MAX_HEADER_BYTES, size - 8):
-            raise ExpertFetchError(
-                ref,
-                f"model.safetensors: header length {n} does not fit "
-                f"the file ({size} bytes) or the bound",
-            )
-        try:
-            header = json.loads(f.read(n))
-        except ValueError:
-            raise ExpertFetchError(ref, "model.safetensors: its header is not JSON") from None
-    if not isinstance(header, dict):
-        raise ExpertFetchError(ref, "model.safetensors: its header is not a JSON object")
-    data, spans = size - 8 - n, []
-    for name, t in header.items():
-        if name == "__metadata__":
-            continue
-        ok = (
-            isinstance(t, dict)
-            and t.get("dtype") in _DTYPE_BYTES
-            and isinstance(t.get("shape"), list)
-            and all(isinstance(d, int) and d >= 0 for d in t["shape"])
-            and isinstance(t.get("data_offsets"), list)
-            and len(t["data_offsets"]) == 2
-            and all(isinstance(o, int) for o in t["data_offsets"])
-        )
-        if not ok:
-            raise ExpertFetchError(ref, f"model.safetensors: bad entry for tensor {name!r}")
-        begin, end = t["data_offsets"]
-        count = 1
-        for d in t["shape"]:
-            count *= d
-        if not 0 <= begin <= end <= data or end - begin != count * _DTYPE_BYTES[t["dtype"]]:
-            raise ExpertFetchError(
-                ref, f"model.safetensors: tensor {name!r} does not fit its byte range"
-            )
-        spans.append((begin, end))
-    if not spans:
-        raise ExpertFetchError(ref, "model.safetensors holds no tensor")
-    spans.sort()
-    if (
-        spans[0][0] != 0
-        or spans[-1][1] != data
-        or any(a[1] != b[0] for a, b in zip(spans, spans[1:], strict=False))
-    ):
-        raise ExpertFetchError(ref, "model.safetensors: tensors overlap or leave gaps")
+    """A loadable safetensors file (``workers.mdrl.weightsfile``: header length, pickles and
+    archives refused by name, the library's check of every tensor's byte range)."""
+    try:
+        check_weights_file(path)
+    except WeightsFileError as exc:
+        raise ExpertFetchError(ref, str(exc)) from None
 
 
 def check_card(path: Path, ref: str) -> dict[str, Any]:

@@ -5,7 +5,9 @@ download of a task's outcome by its requester before anyone shares it.
 Sharing checks provenance twice: the MMC refuses another worker's outcome, a pending or
 rejected outcome and a CID listed before (docs/platform.md, "Sharing a model"); the gateway
 first checks what the chain cannot read, that the declared environment is the one on the
-model's own card (model.json of the bundle, fetched verified and size-bounded)."""
+model's own card (model.json of the bundle, fetched verified and size-bounded), and that the
+bundle is a model the workers can use (``backend.api.bundles.check_model_bundle``: its file
+set, the card's format, safetensors weights within bounds), as it checks a task's experts."""
 
 from __future__ import annotations
 
@@ -18,6 +20,7 @@ from fastapi import APIRouter, Path, Query, Request, status
 from fastapi.responses import StreamingResponse
 from sqlalchemy import func, or_, select
 
+from backend.api.bundles import BundleRefused, check_model_bundle
 from backend.api.deps import ChainDep, CurrentUser, IndexerDep, SessionDep, SettingsDep, StoreDep
 from backend.api.errors import RuleError, rule_responses
 from backend.api.limits import json_depth_exceeds
@@ -115,6 +118,32 @@ def _check_published(store: StoreDep, cid: str) -> None:
                 f"{name} of {cid} is sealed to its task's requester and not published: the "
                 "worker shares it with `drlaas worker share TASK_ID`, which uploads the files",
             )
+
+
+def _check_bundle(store: StoreDep, cid: str) -> None:
+    """422 at ``body.cid`` unless bundle ``cid`` is a model the workers can use
+    (``check_model_bundle``): ``type`` names the rule that failed (``bundle_files_invalid``,
+    ``bundle_file_name_invalid``, ``card_format_invalid``, ``weights_not_safetensors``,
+    ``weights_empty``, ``weights_too_large``, ``weights_mismatch_card``, ...) and ``msg``
+    what is wrong; 502 when the store's bytes fail verification, 503 while it is down."""
+    try:
+        check_model_bundle(store, cid)
+    except BundleRefused as exc:
+        field_error(("body", "cid"), f"{cid} is not a usable model: {exc.msg}", exc.rule)
+    except NotFound:
+        field_error(
+            ("body", "cid"),
+            f"the content store does not hold {cid}: upload the bundle first",
+            "bundle_not_found",
+        )
+    except CIDMismatch as exc:
+        raise RuleError(502, "content_corrupt", f"{cid} failed verification: {exc}") from None
+    except StoreUnavailable as exc:
+        raise RuleError(
+            503, "store_unavailable", f"content store: {exc}", headers={"Retry-After": "5"}
+        ) from None
+    except StoreError as exc:
+        field_error(("body", "cid"), f"the bundle is unusable: {exc}", "bundle_invalid")
 
 
 def _check_card_env(store: StoreDep, cid: str, declared: Any) -> None:
@@ -557,12 +586,14 @@ def share_model(
     indexer: IndexerDep,
 ) -> ModelPublic:
     """MMC.addModel by the caller (a registered worker) for its bundle ``cid``: 422 when the
-    declared environment differs from the bundle's card, 409 ``model_already_listed``, and
-    the MMC's provenance rule (403 ``models_not_outcome_owner``, 409
-    ``models_outcome_not_accepted``)."""
+    declared environment differs from the bundle's card or the bundle is not a model the
+    workers can use (``_check_bundle``: nothing is sent to the chain), 409
+    ``model_already_listed``, and the MMC's provenance rule (403 ``models_not_outcome_owner``,
+    409 ``models_outcome_not_accepted``)."""
     declared = _env_spec(body.env, ("body", "env"))
     _check_card_env(store, body.cid, declared)
     _check_published(store, body.cid)
+    _check_bundle(store, body.cid)
     listed = int(chain.call(chain.platform.mmc, "modelOfCid", cid_hash(body.cid)))
     if listed:
         raise RuleError(409, "model_already_listed", f"{body.cid} is listed as model {listed}")

@@ -122,7 +122,8 @@ async def rpc(request: Request) -> JSONResponse:
                 "error": {"code": INVALID_REQUEST, "message": "invalid request"},
             }
         )
-    return JSONResponse(await run_in_threadpool(server.handle, payload))
+    client = request.client.host if request.client else "unknown"
+    return JSONResponse(await run_in_threadpool(server.handle, payload, client))
 
 
 contracts_router = APIRouter(prefix="/chain", tags=["rpc"])
