@@ -111,3 +111,12 @@ def get_store(request: Request) -> ContentStore:
 
 
 StoreDep = Annotated[ContentStore, Depends(get_store)]
+
+
+LOOPBACK = frozenset({"127.0.0.1", "::1", "localhost"})
+
+
+def is_loopback(request: Request) -> bool:
+    """The request comes from this machine (what development-only conveniences are limited to:
+    ``drlaas up --host 0.0.0.0`` must not hand them to the network)."""
+    return (request.client.host if request.client else "") in LOOPBACK

@@ -290,7 +290,17 @@ def up_command(
     from backend.observability.logs import configure_logging
     from backend.settings import load_settings
 
-    configure_logging(load_settings().log_format)  # DRLAAS_LOG_FORMAT=json|text
+    settings = load_settings()
+    configure_logging(settings.log_format)  # DRLAAS_LOG_FORMAT=json|text
+    if settings.demo_keys_allowed and host not in ("127.0.0.1", "::1", "localhost"):
+        typer.echo(
+            f"warning: --host {host} serves the development platform beyond this machine. Its "
+            "embedded chain's accounts, the consortium admin's among them, have eth-tester's "
+            "well-known keys: anyone who reaches it can sign as them. For a network, deploy "
+            "the consortium chain and DRLAAS_MODE=production (README, 'From one machine to "
+            "many').",
+            err=True,
+        )
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())

@@ -8,10 +8,18 @@ from __future__ import annotations
 
 import datetime as dt
 
-from fastapi import APIRouter
+from fastapi import APIRouter, Request
 from pydantic import BaseModel, Field
 
-from backend.api.deps import ChainDep, ChainIdDep, ClockDep, CurrentUser, SessionDep, SettingsDep
+from backend.api.deps import (
+    ChainDep,
+    ChainIdDep,
+    ClockDep,
+    CurrentUser,
+    SessionDep,
+    SettingsDep,
+    is_loopback,
+)
 from backend.api.errors import RuleError, rule_responses
 from backend.api.schemas import Address
 from backend.auth import issue_sign_in, issue_token, verify_sign_in
@@ -104,24 +112,35 @@ class DemoTokenRequest(BaseModel):
     address: Address
 
 
-def _demo_keys(chain: ChainDep):
+def _demo_keys(chain: ChainDep, request: Request):
+    """The gateway's demo keys, for clients on this machine only: a token for a demo user
+    (the consortium admin among them) lets the gateway sign as that user, so handing one to
+    the network would hand anyone the admin's rights."""
     if chain.demo_keys is None:
         raise RuleError(404, "demo_disabled", "this gateway holds no demo keys (production mode)")
+    if not is_loopback(request):
+        raise RuleError(
+            404, "demo_not_local", "demo users are served to this machine only (loopback)"
+        )
     return chain.demo_keys
 
 
 @router.get("/demo-users", response_model=DemoUsersPublic, responses=rule_responses(404, 503))
-def demo_users(chain: ChainDep) -> DemoUsersPublic:
-    """Development only: the demo users whose keys the gateway holds (for the web UI)."""
-    keys = _demo_keys(chain)
+def demo_users(chain: ChainDep, request: Request) -> DemoUsersPublic:
+    """Development only, loopback clients only: the demo users whose keys the gateway holds
+    (for the web UI)."""
+    keys = _demo_keys(chain, request)
     data = [DemoUserPublic(name=n, address=keys.account(n).address) for n in keys.names]
     return DemoUsersPublic(data=data, count=len(data))
 
 
 @router.post("/demo-token", response_model=TokenPublic, responses=rule_responses(403, 404, 503))
-def demo_token(body: DemoTokenRequest, chain: ChainDep, settings: SettingsDep) -> TokenPublic:
-    """Development only: a token for a demo user; the gateway holds that key, so it vouches."""
-    keys = _demo_keys(chain)
+def demo_token(
+    body: DemoTokenRequest, chain: ChainDep, settings: SettingsDep, request: Request
+) -> TokenPublic:
+    """Development only, loopback clients only: a token for a demo user; the gateway holds that
+    key, so it vouches."""
+    keys = _demo_keys(chain, request)
     if body.name not in keys.names or keys.account(body.name).address != body.address:
         raise RuleError(
             403, "not_a_demo_user", f"{body.name}/{body.address} is not a demo user here"

@@ -12,11 +12,10 @@ from __future__ import annotations
 from fastapi import APIRouter, Request
 from pydantic import BaseModel, Field
 
-from backend.api.deps import SettingsDep
+from backend.api.deps import SettingsDep, is_loopback
 from backend.api.errors import RuleError, rule_responses
 
 router = APIRouter(prefix="/local", tags=["health"])
-LOOPBACK = frozenset({"127.0.0.1", "::1", "localhost"})
 
 
 class LocalServicesPublic(BaseModel):
@@ -28,8 +27,7 @@ class LocalServicesPublic(BaseModel):
 @router.get("/services", response_model=LocalServicesPublic, responses=rule_responses(404))
 def local_services(settings: SettingsDep, request: Request) -> LocalServicesPublic:
     """The gateway's embedded service locations (same machine, development mode only)."""
-    client = request.client.host if request.client else ""
-    if settings.mode != "development" or client not in LOOPBACK:
+    if settings.mode != "development" or not is_loopback(request):
         raise RuleError(
             404, "not_local", "embedded service locations are given to this machine only"
         )
