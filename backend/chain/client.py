@@ -128,7 +128,9 @@ def _revert_data(exc: BaseException) -> bytes | str | None:
     return None
 
 
-def _typed(exc: BaseException) -> errors.ContractError:
+def typed_revert(exc: BaseException) -> errors.ContractError:
+    """The revert that ``exc`` (web3, eth-tester or a node) carries, as a typed contract error
+    (:class:`errors.UnknownRevert` when it carries no known error)."""
     return errors.decode_revert(_revert_data(exc))
 
 
@@ -152,11 +154,11 @@ def _typed_reverts() -> Iterator[None]:
     try:
         yield
     except _REVERTS as exc:
-        raise _typed(exc) from None
+        raise typed_revert(exc) from None
     except _DECODE_SLIPS as exc:
         if not _slipped_revert(exc):
             raise
-        raise _typed(exc) from None
+        raise typed_revert(exc) from None
 
 
 class Chain:

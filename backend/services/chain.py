@@ -19,6 +19,7 @@ handlers, the ``/rpc`` endpoint and the indexer goes through :attr:`ChainService
 
 from __future__ import annotations
 
+import ast
 import json
 import os
 import re
@@ -29,13 +30,13 @@ from typing import Any
 
 from eth_account import Account
 from eth_account.signers.local import LocalAccount
-from hexbytes import HexBytes
 from web3 import Web3
 
 from backend.auth import DemoKeys
-from backend.chain.client import GAS_MARGIN, Chain, ContractHandle, Receipt
-from backend.chain.errors import ContractError
+from backend.chain.client import GAS_MARGIN, Chain, ContractHandle, Receipt, typed_revert
+from backend.chain.errors import ContractError, UnknownRevert
 from backend.chain.platform import CONTRACT_NAMES, Platform, connect_platform, deploy_platform
+from backend.chain.rawtx import RawTx, RawTxError, check_chain, decode_raw_tx
 from backend.errors import (
     Conflict,
     DomainError,
@@ -44,6 +45,7 @@ from backend.errors import (
     NotFound,
     PaymentRequired,
 )
+from backend.services.rpc_call import unpriced_call
 from backend.settings import Settings
 
 CONTRACTS_ENV = "DRLAAS_CONTRACTS"
@@ -155,9 +157,21 @@ def node_rule_error(exc: BaseException) -> DomainError | None:
     text = " | ".join(texts)
     for fragments, kind, rule, what in _NODE_RULES:
         if any(f in text for f in fragments):
-            detail = str(exc)[:300]
+            detail = _readable(str(exc))[:300]
             return kind(rule, f"the chain refused the transaction: {what} ({detail})")
     return None
+
+
+def _readable(text: str) -> str:
+    """A node's message with Python bytes reprs (eth-tester's ``Sender b'...'``) as hex."""
+
+    def hexed(m: re.Match[str]) -> str:
+        try:
+            return "0x" + ast.literal_eval(m.group(0)).hex()
+        except (ValueError, SyntaxError):
+            return m.group(0)
+
+    return re.sub(r"b'(?:[^'\\]|\\.)*'|b\"(?:[^\"\\]|\\.)*\"", hexed, text)
 
 
 def _jsonable_tx(tx: dict[str, Any]) -> dict[str, Any]:
@@ -343,7 +357,12 @@ class ChainService:
                 "tx_sender_mismatch",
                 f"transaction is signed by {sender}; signed in as {expected_sender}",
             )
-        to = _tx_target(raw)
+        try:
+            tx = decode_raw_tx(raw)
+            check_chain(tx, self.chain.chain_id)
+        except RawTxError as exc:
+            raise Invalid("tx_invalid", str(exc)) from None
+        to = tx.to
         targets = {h.address for h in self.platform.contracts}
         if to not in targets:
             raise Invalid(
@@ -368,8 +387,33 @@ class ChainService:
             events=events,
         )
         if receipt.status != 1:
-            raise Conflict("tx_reverted", f"transaction {receipt.tx_hash} reverted")
+            raise self._revert_reason(tx, sender, receipt)
         return receipt
+
+    def _revert_reason(self, tx: RawTx, sender: str, receipt: Receipt) -> DomainError:
+        """Why a relayed transaction reverted, as the gateway's own routes say it (the
+        contract's custom error as a rule): it is replayed as a call on its parent block's
+        state, which the embedded chain (one transaction a block) makes exact."""
+        call = {
+            "from": sender,
+            "to": tx.to,
+            "data": "0x" + tx.data.hex(),
+            "value": tx.value,
+            "gas": tx.gas,
+        }
+        parent = receipt.block_number - 1
+        try:
+            with self.lock:
+                tester = self.chain._tester
+                if tester is not None:  # eth-tester's call hides the revert data in a message
+                    unpriced_call(tester, call, parent, gas_cap=tx.gas)
+                else:
+                    self.chain.w3.eth.call(call, block_identifier=parent)  # type: ignore[arg-type]
+        except Exception as exc:  # web3 / eth-tester raise several types for a revert
+            typed = typed_revert(exc)
+            if not isinstance(typed, UnknownRevert):
+                return contract_rule_error(typed)
+        return Conflict("tx_reverted", f"transaction {receipt.tx_hash} reverted")
 
     # -- views ----------------------------------------------------------------------------------
     def call(self, handle: ContractHandle, fn: str, *args: Any) -> Any:
@@ -382,23 +426,6 @@ class ChainService:
     def block_number(self) -> int:
         with self.lock:
             return int(self.chain.w3.eth.block_number)
-
-
-def _tx_target(raw: bytes) -> str | None:
-    from eth_account.typed_transactions import TypedTransaction
-
-    try:
-        if raw[:1] and raw[0] < 0x7F:
-            to = TypedTransaction.from_bytes(HexBytes(raw)).as_dict().get("to")
-        else:
-            import rlp  # type: ignore[import-untyped]
-
-            to = rlp.decode(raw)[3]
-    except Exception:
-        raise Invalid("tx_invalid", "cannot decode the transaction") from None
-    if not to:
-        return None
-    return Web3.to_checksum_address(to)
 
 
 def load_contracts(path: str | os.PathLike[str]) -> dict[str, Any]:

@@ -25,6 +25,7 @@ from eth_utils import ValidationError as EvmValidationError
 from web3.middleware import combine_middleware
 
 from backend.chain.client import Chain
+from backend.chain.rawtx import check_chain, decode_raw_tx
 from backend.services.rpc_budget import GasBudget
 from backend.services.rpc_call import ExecutionFailed, OutOfGas, bounded_estimate, unpriced_call
 from backend.services.rpc_params import InvalidParams, is_unpriced, normalize
@@ -186,6 +187,8 @@ class EmbeddedRpc:
             return self._execute(method, params, client)
         if method == "eth_feeHistory":
             return fee_history(self.tester, params)
+        if method == "eth_sendRawTransaction":
+            self._check_replay_protected(params[0])
         if method == "eth_getLogs":
             params[0] = self._up_to_head(params[0])
             if params[0] is None:
@@ -238,6 +241,15 @@ class EmbeddedRpc:
                 SERVER_ERROR,
                 f"insufficient funds for gas * price + value: have {have} want {need}",
             )
+
+    def _check_replay_protected(self, raw: Any) -> None:
+        """A raw transaction signed for this chain (EIP-155), as geth requires over RPC."""
+        if not isinstance(raw, str) or not raw.startswith("0x"):
+            raise InvalidParams("the transaction must be hex bytes ('0x...')")
+        try:
+            check_chain(decode_raw_tx(bytes.fromhex(raw[2:])), self.chain.chain_id)
+        except ValueError as exc:  # RawTxError, or hex that does not parse
+            raise _RpcFailure(SERVER_ERROR, f"invalid transaction: {exc}") from None
 
     def _up_to_head(self, flt: dict[str, Any]) -> dict[str, Any] | None:
         """A log filter with block numbers past the head clamped to it (geth's rule); None if

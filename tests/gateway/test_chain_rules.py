@@ -60,6 +60,7 @@ def test_unfunded_key_and_replayed_tx(
     r = client.post(f"{P}/users/requesters", headers=headers)
     assert r.status_code == 402, r.text
     assert r.json()["detail"]["rule"] == "insufficient_funds"
+    assert "b'" not in r.json()["detail"]["msg"]  # the node's bytes reprs shown as hex
 
     with service.lock:  # fund it, then relay its registration twice
         admin = service.chain._keys[service.platform.admin]

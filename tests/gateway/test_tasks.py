@@ -308,12 +308,34 @@ def test_sign_locally_then_relay(client: TestClient, service: ChainService, sett
     r = client.post(f"{P}/tx", json={"raw": forged}, headers=headers)
     assert r.status_code == 403 and r.json()["detail"]["rule"] == "tx_sender_mismatch"
     assert not service.platform.umc.call("isRequester", me.address)
+    # signed for another chain (EIP-155 replay from elsewhere), or for none (pre-EIP-155)
+    legacy = {k: v for k, v in unsigned.items() if not k.startswith("max") and k != "type"}
+    legacy["gasPrice"] = unsigned["maxFeePerGas"]
+    for other in (
+        me.sign_transaction({**unsigned, "chainId": 1}),
+        me.sign_transaction({**legacy, "chainId": 5}),
+        me.sign_transaction({k: v for k, v in legacy.items() if k != "chainId"}),
+    ):
+        r = client.post(f"{P}/tx", json={"raw": "0x" + bytes(other.raw_transaction).hex()},
+                        headers=headers)
+        assert r.status_code == 422 and r.json()["detail"]["rule"] == "tx_invalid", r.text
+        assert "chain" in r.json()["detail"]["msg"]
+        rpc = client.post("/rpc", json={"jsonrpc": "2.0", "id": 1,
+                                        "method": "eth_sendRawTransaction",
+                                        "params": ["0x" + bytes(other.raw_transaction).hex()]})
+        assert rpc.json()["error"]["code"] == -32000 and "chain" in rpc.json()["error"]["message"]
+    assert not service.platform.umc.call("isRequester", me.address)
 
     raw = "0x" + bytes(me.sign_transaction(unsigned).raw_transaction).hex()
     r = client.post(f"{P}/tx", json={"raw": raw}, headers=headers)
     assert r.status_code == 200, r.text
     assert [e["name"] for e in r.json()["events"]] == ["RequesterAdded"]
     assert service.platform.umc.call("isRequester", me.address)
+    # a relayed transaction that reverts is named by the contract's error, as on own routes
+    again = {**unsigned, "nonce": unsigned["nonce"] + 1}
+    raw = "0x" + bytes(me.sign_transaction(again).raw_transaction).hex()
+    r = client.post(f"{P}/tx", json={"raw": raw}, headers=headers)
+    assert r.status_code == 409 and r.json()["detail"]["rule"] == "users_already_registered"
     assert client.post(f"{P}/tx", json={"raw": "0x12"}, headers=headers).status_code == 422
 
 
