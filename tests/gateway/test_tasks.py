@@ -268,9 +268,12 @@ def test_a_spec_beyond_the_platform_limits_is_422_naming_the_limit(
 def test_writes_need_a_token_and_a_registered_requester(
     client: TestClient, login: Login, service: ChainService
 ) -> None:
+    store = client.app.state.store  # type: ignore[attr-defined]
+    blocks = store.blocks()
     assert client.post(f"{P}/tasks", json=task_body()).status_code == 401
     r = client.post(f"{P}/tasks", json=task_body(), headers=login("user6"))  # not a requester
     assert r.status_code == 403 and r.json()["detail"]["rule"] == "tasks_not_requester"
+    assert store.blocks() == blocks  # refused before the spec is stored
     client.post(f"{P}/users/requesters", headers=login("user6"))
     r = client.post(f"{P}/users/requesters", headers=login("user6"))
     assert r.status_code == 409 and r.json()["detail"]["rule"] == "users_already_registered"

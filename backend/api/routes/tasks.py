@@ -132,6 +132,28 @@ def check_min_reward(chain: ChainDep, payment_wei: int, deadline_s: int) -> None
         )
 
 
+def check_requester_can_escrow(chain: ChainDep, address: str, escrow_wei: int) -> None:
+    """Before the spec is stored: 403 ``tasks_not_requester`` unless ``address`` is a
+    registered requester (the TMC's own rule, read from the chain), 402
+    ``insufficient_funds`` unless it holds the escrow. Anyone can sign in, so nothing a
+    stranger sends may leave blocks in the content store."""
+    if not chain.call(chain.platform.umc, "isRequester", address):
+        raise RuleError(
+            403,
+            "tasks_not_requester",
+            f"{address} is not a registered requester: register first (POST /users/requesters)",
+        )
+    with chain.lock:
+        balance = int(chain.chain.w3.eth.get_balance(address))  # type: ignore[arg-type]
+    if balance < escrow_wei:
+        raise RuleError(
+            402,
+            "insufficient_funds",
+            f"{address} holds {balance} wei, the escrow is {escrow_wei} wei "
+            "(payment_wei x num_workers) before gas",
+        )
+
+
 @router.post(
     "",
     status_code=status.HTTP_201_CREATED,
@@ -172,6 +194,7 @@ def create_task(
     )
     check_duration(chain, body.deadline_s)
     check_min_reward(chain, body.payment_wei, body.deadline_s)
+    check_requester_can_escrow(chain, user.address, body.payment_wei * body.num_workers)
     spec_cid = store.add(canonical_json(spec.to_dict()))
     tmc = chain.platform.tmc
     params = (
