@@ -147,16 +147,28 @@ def _response(code: int, model: type[BaseModel]) -> dict[str, Any]:
     }
 
 
+MAX_ISSUE_TEXT = 300
+"""Longest ``msg`` or ``loc`` entry of a 422: a message that quotes a megabyte of input must
+not answer with it."""
+MAX_ISSUES = 50
+
+
 def validation_issues(errors: Sequence[Any]) -> list[dict[str, Any]]:
     # Only loc/msg/type: pydantic's "input" would echo request data (signatures, tokens).
     return [
         {
-            "loc": list(e.get("loc", ())),
-            "msg": str(e.get("msg", "")),
-            "type": str(e.get("type", "")),
+            "loc": [p if isinstance(p, int) else _short(str(p)) for p in e.get("loc", ())],
+            "msg": _short(str(e.get("msg", ""))),
+            "type": _short(str(e.get("type", ""))),
         }
-        for e in errors
+        for e in list(errors)[:MAX_ISSUES]
     ]
+
+
+def _short(text: str) -> str:
+    if len(text) <= MAX_ISSUE_TEXT:
+        return text
+    return f"{text[: MAX_ISSUE_TEXT - 40]}... ({len(text)} characters in all)"
 
 
 _HTTP_RULES = {

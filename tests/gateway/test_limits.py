@@ -132,3 +132,20 @@ def test_recursion_limit_is_restored_in_a_fresh_gateway_process(tmp_path: Path) 
     start, raised, after = map(int, out.stdout.split())
     assert raised > start  # the dependency really raises it (else this test proves nothing)
     assert after == start == NORMAL_RECURSION_LIMIT
+
+
+def test_a_422_does_not_echo_a_huge_input(client, login) -> None:  # type: ignore[no-untyped-def]
+    """A bad value of half a megabyte is named, not sent back: messages and locations are
+    bounded (a key of the same size too)."""
+    from tests.gateway.conftest import task_body
+
+    huge = "k" * 500_000
+    body = task_body()
+    body["observation"] = {**body.get("observation", {}), "kind": huge}
+    r = client.post("/api/tasks", json=body, headers=login("user1"))
+    assert r.status_code == 422 and len(r.content) < 5_000, len(r.content)
+    body = task_body()
+    body["env"] = {**body["env"], huge: 1}
+    r = client.post("/api/tasks", json=body, headers=login("user1"))
+    assert r.status_code == 422 and len(r.content) < 5_000, len(r.content)
+    assert "characters in all" in r.text
