@@ -137,6 +137,10 @@ def test_progress_review_and_cancel_act_only_for_the_right_address(
     ]
     w = client.get(f"{P}/workers/{worker}").json()
     assert w["counters"]["rating_sum"] == 4 and w["rating"] == pytest.approx(0.8)
+    # once its outcome is reviewed, the worker's curve is closed
+    late = point | {"step": 200}
+    r = client.post(f"{P}/tasks/{task_id}/progress", json=late, headers=login(name))
+    assert r.status_code == 409 and r.json()["detail"]["rule"] == "progress_closed"
 
 
 def test_cancel_refunds_and_lists_by_status(

@@ -58,7 +58,9 @@ from workers.mdrl.trainingspec import TrainingSpec
 
 router = APIRouter(prefix="/tasks", tags=["tasks"])
 TaskId = Annotated[int, Path(ge=1, le=MAX_ID)]
-ASSIGNED_STATES = ("accepted", "submitted", "reviewed")
+PROGRESS_STATES = ("accepted", "submitted")
+"""Offer states in which a worker posts curve points: from acceptance until its outcome is
+reviewed (a point may arrive just after the submission)."""
 
 
 def build_spec(
@@ -411,7 +413,13 @@ def post_progress(
     """A live curve point from a worker assigned to the task (accepted its offer)."""
     _task(session, task_id)
     offer = session.get(m.OfferRow, (task_id, user.address))
-    if offer is None or offer.state not in ASSIGNED_STATES:
+    if offer is not None and offer.state == "reviewed":
+        raise RuleError(
+            409,
+            "progress_closed",
+            f"the outcome of {user.address} for task {task_id} was reviewed: its curve is closed",
+        )
+    if offer is None or offer.state not in PROGRESS_STATES:
         raise RuleError(
             403,
             "not_assigned_worker",
