@@ -204,6 +204,31 @@ def verify_sign_in(
         raise _unauthorized("siwe_nonce_address", "nonce was issued to another address")
     if row.used_at is not None:
         raise _unauthorized("siwe_nonce_used", "nonce was already used: request a new message")
+    issued = SiweMessage(
+        domain=settings.auth_domain,
+        address=row.address,
+        statement=SIWE_STATEMENT,
+        uri=settings.auth_uri,
+        chain_id=chain_id,
+        nonce=row.nonce,
+        issued_at=row.issued_at,
+        expiration_time=row.expires_at,
+    ).text()
+    if message != issued:  # statement, URI, times, extra lines: the text issued, not a variant
+        line = next(
+            (
+                f"line {i + 1}: {got!r}"
+                for i, (got, want) in enumerate(
+                    zip(message.split("\n"), issued.split("\n"), strict=False)
+                )
+                if got != want
+            ),
+            "its length",
+        )
+        raise _unauthorized(
+            "siwe_message_altered",
+            f"the signed message is not the one issued for this nonce (it differs at {line[:120]})",
+        )
     if now >= min(row.expires_at, msg.expiration_time):
         raise _unauthorized("siwe_expired", "sign-in message has expired: request a new one")
     consumed = cast(

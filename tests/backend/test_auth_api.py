@@ -134,6 +134,12 @@ def test_expired_message_is_refused(
         (r"Chain ID: \d+", "Chain ID: 1", "siwe_chain_mismatch"),
         (r"Nonce: \w+", "Nonce: 00000000deadbeef", "siwe_nonce_unknown"),
         (r"Version: 1", "Version: 2", "siwe_version"),
+        # the fields the gateway wrote: the signed text must be the one issued
+        (r"^Sign in.*$", "I transfer all my funds.", "siwe_message_altered"),
+        (r"^URI: .*$", "URI: javascript:alert(1)", "siwe_message_altered"),
+        (r"^Issued At: .*$", "Issued At: 2999-01-01T00:00:00Z", "siwe_message_altered"),
+        (r"^Expiration Time: .*$", "Expiration Time: 2999-01-01T00:00:00Z", "siwe_message_altered"),
+        (r"\Z", "\x00", "siwe_message_altered"),
     ],
 )
 def test_altered_message_signed_by_the_owner_is_refused(
