@@ -76,6 +76,8 @@ def test_search_allocate_review_download(
     assert ids(walls=1, domain=0) == [a["id"]]
     assert ids(q="walled") == [b["id"]]
     assert ids(q="%") == []  # LIKE wildcards are literal
+    r = client.get(f"{P}/models", params={"q": "\x00"})  # SQLite's LIKE stops at a NUL
+    assert r.status_code == 422 and r.json()["detail"][0]["loc"] == ["query", "q"]
     assert ids(owner=addr(service, "user4").lower()) == [b["id"]]
 
     # allocation: the requester asks for one model like ENV2 in domain 0, then reviews it 5/5

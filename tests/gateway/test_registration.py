@@ -46,3 +46,11 @@ def test_approval_and_removal(client: TestClient, login: Login, service: ChainSe
     assert r.status_code == 200 and r.json()["status"] == "removed", r.text
     assert umc.pool(0) == []
     assert client.get(f"{P}/workers/{me}").json()["status"] == "removed"
+
+
+def test_capabilities_are_integers_not_booleans_or_floats(client: TestClient, login: Login) -> None:
+    """JSON ``true`` is not one CPU core, nor ``2.5`` a count of anything."""
+    for bad in ({"cpu_cores": True}, {"cpu_cores": 2.5}, {"ram_gb": False}, {"gpu_series": 1.0}):
+        body = {"domains": [0], "cpu_cores": 4, "ram_gb": 8} | bad
+        r = client.post(f"{P}/users/workers", json=body, headers=login("user7"))
+        assert r.status_code == 422 and r.json()["detail"][0]["loc"] == ["body", *bad], r.text

@@ -215,7 +215,15 @@ def list_models(
     ] = None,
     min_reputation: Annotated[float | None, Query(ge=0, le=1)] = None,
     owner: Address | None = None,
-    q: Annotated[str | None, Query(min_length=1, max_length=100)] = None,
+    q: Annotated[
+        str | None,
+        Query(
+            min_length=1,
+            max_length=100,
+            pattern=r"^[^\x00-\x1f\x7f]+$",
+            description="text in the description or CID (no control characters)",
+        ),
+    ] = None,
     sort: Literal["reputation", "newest", "allocations"] = "reputation",
     limit: Annotated[int, Query(ge=1, le=500)] = 100,
     offset: Annotated[int, Query(ge=0, le=1_000_000)] = 0,
