@@ -147,9 +147,9 @@ def _response(code: int, model: type[BaseModel]) -> dict[str, Any]:
     }
 
 
-MAX_ISSUE_TEXT = 300
-"""Longest ``msg`` or ``loc`` entry of a 422: a message that quotes a megabyte of input must
-not answer with it."""
+MAX_ISSUE_TEXT = 1000
+"""Longest ``msg`` or ``loc`` entry of a 422 (its head and tail are kept): a message that
+quotes a megabyte of input must not answer with it."""
 MAX_ISSUES = 50
 
 
@@ -168,7 +168,8 @@ def validation_issues(errors: Sequence[Any]) -> list[dict[str, Any]]:
 def _short(text: str) -> str:
     if len(text) <= MAX_ISSUE_TEXT:
         return text
-    return f"{text[: MAX_ISSUE_TEXT - 40]}... ({len(text)} characters in all)"
+    # head and tail: a message's end often names the rule
+    return f"{text[:700]} ... ({len(text)} characters in all) ... {text[-200:]}"
 
 
 _HTTP_RULES = {

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Annotated, Any, Generic, TypeVar
 
-from pydantic import AfterValidator, BaseModel, Field
+from pydantic import AfterValidator, BaseModel, BeforeValidator, Field
 
 from backend.chain.addresses import checksum
 from backend.chain.platform import MAX_DOMAIN
@@ -41,7 +41,21 @@ Address = Annotated[
 ONE = 1_000_000  # QoS fixed point of the contracts (backend.chain.qos)
 T = TypeVar("T")
 
-Domain = Annotated[int, Field(ge=0, le=MAX_DOMAIN, description=f"domain code 0-{MAX_DOMAIN}")]
+
+def _not_bool(v: Any) -> Any:
+    if isinstance(v, bool):
+        raise ValueError("a count is a number, not true/false")
+    return v
+
+
+Count = Annotated[int, BeforeValidator(_not_bool)]
+"""An integer as JSON Schema has it (``3`` or ``3.0``), but never ``true``: pydantic's lax int
+takes a boolean as 0 or 1."""
+Domain = Annotated[
+    int,
+    Field(ge=0, le=MAX_DOMAIN, description=f"domain code 0-{MAX_DOMAIN}"),
+    BeforeValidator(_not_bool),  # after Field: before it, pydantic writes ge/le, not minimum
+]
 Review = Annotated[int, Field(ge=0, le=5, description="review score 0-5")]
 Fraction = Annotated[float, Field(ge=0.0, le=1.0, description="QoS value in [0, 1]")]
 

@@ -11,6 +11,7 @@ from .common import (
     CID_PATTERN,
     MAX_ID,
     Address,
+    Count,
     Domain,
     EventPublic,
     Fraction,
@@ -63,15 +64,14 @@ class TaskCreate(BaseModel):
     selection: _spec_field("selection") = None  # type: ignore[valid-type]
     outcome_key: _spec_field("outcome_key") = None  # type: ignore[valid-type]
     domain: Domain = 0
-    num_workers: int = Field(default=1, ge=1, le=16, strict=True)
+    num_workers: Count = Field(default=1, ge=1, le=16)
     min_reputation: Fraction = 0.0
     min_rating: Fraction = 0.0
-    min_cpu_cores: int = Field(default=0, ge=0, le=65_535, strict=True)
-    min_ram_gb: int = Field(default=0, ge=0, le=65_535, strict=True)
-    deadline_s: int = Field(
+    min_cpu_cores: Count = Field(default=0, ge=0, le=65_535)
+    min_ram_gb: Count = Field(default=0, ge=0, le=65_535)
+    deadline_s: Count = Field(
         default=86_400,
         ge=60,
-        strict=True,
         le=2**32 - 1,
         description="task duration (s); the TMC also requires acceptWindow + minWorkTime <= "
         "deadline_s <= maxDuration (consortium settings; 422 tasks_bad_duration otherwise)",

@@ -2,7 +2,7 @@ from __future__ import annotations
 
 from pydantic import BaseModel, Field, field_validator
 
-from .common import Domain
+from .common import Count, Domain
 
 MAX_WORKER_DOMAINS = 4
 """UMC.MAX_WORKER_DOMAINS: one registration joins at most four domains' candidate queues."""
@@ -14,11 +14,9 @@ class WorkerCreate(BaseModel):
     domains: list[Domain] = Field(
         min_length=1, max_length=MAX_WORKER_DOMAINS, json_schema_extra={"uniqueItems": True}
     )
-    cpu_cores: int = Field(ge=1, le=65_535, strict=True)
-    ram_gb: int = Field(ge=0, le=65_535, strict=True)
-    gpu_series: int = Field(
-        default=0, ge=0, le=255, strict=True, description="GPU series code, 0 = no GPU"
-    )
+    cpu_cores: Count = Field(ge=1, le=65_535)
+    ram_gb: Count = Field(ge=0, le=65_535)
+    gpu_series: Count = Field(default=0, ge=0, le=255, description="GPU series code, 0 = no GPU")
 
     @field_validator("domains")
     @classmethod

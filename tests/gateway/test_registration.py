@@ -50,7 +50,7 @@ def test_approval_and_removal(client: TestClient, login: Login, service: ChainSe
 
 def test_capabilities_are_integers_not_booleans_or_floats(client: TestClient, login: Login) -> None:
     """JSON ``true`` is not one CPU core, nor ``2.5`` a count of anything."""
-    for bad in ({"cpu_cores": True}, {"cpu_cores": 2.5}, {"ram_gb": False}, {"gpu_series": 1.0}):
+    for bad in ({"cpu_cores": True}, {"cpu_cores": 2.5}, {"ram_gb": False}, {"gpu_series": 1.5}):
         body = {"domains": [0], "cpu_cores": 4, "ram_gb": 8} | bad
         r = client.post(f"{P}/users/workers", json=body, headers=login("user7"))
         assert r.status_code == 422 and r.json()["detail"][0]["loc"] == ["body", *bad], r.text

@@ -71,7 +71,7 @@ def test_unpriced_calls_need_no_balance_priced_ones_do(gateway: str, service: Ch
     priced = rpc(
         gateway, "eth_call", call_of(service, **{"from": empty, "maxFeePerGas": "0x3b9aca00"})
     )
-    assert priced["error"]["code"] == -32000 and "afford" in priced["error"]["message"]
+    assert priced["error"]["code"] == -32000 and "insufficient funds" in priced["error"]["message"]
 
 
 def test_block_parameters(gateway: str, service: ChainService) -> None:
