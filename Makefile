@@ -45,6 +45,7 @@ demo: setup
 
 # The MDRL core alone: train the default preset briefly, then evaluate it against the baselines.
 train-demo: setup
+	rm -rf $(DEMO_OUT)/odmtl  # drlaas train refuses an --out that holds a run
 	$(BIN)/drlaas train --preset odmtl-3a-10x10 --minutes 3 --seed 0 --out $(DEMO_OUT)/odmtl
 	$(BIN)/drlaas eval --policy $(DEMO_OUT)/odmtl/model --episodes 500 --seed 1
 	$(BIN)/drlaas eval --policy bayes --agents 3 --episodes 500 --seed 1

@@ -213,8 +213,11 @@ def train_cae(spec: EnvSpec, layouts: int = 20_000, epochs: int = 20,
     data, the init and the minibatch order."""
     if not 0 < heldout < 1:
         raise ValueError(f"held-out share must be in (0, 1), got {heldout}")
-    if epochs < 1 or batch < 1 or lr <= 0:
+    if epochs < 1 or batch < 1 or not (math.isfinite(lr) and lr > 0):
         raise ValueError(f"need epochs >= 1, batch >= 1, lr > 0; got {epochs}, {batch}, {lr}")
+    if not (math.isfinite(pos_weight) and pos_weight > 0):
+        raise ValueError(f"pos_weight (the BCE weight of wall cells) must be a finite number "
+                         f"> 0, got {pos_weight}")
     data = wall_layouts(spec, layouts, seed)
     n_held = max(1, int(round(layouts * heldout)))
     if layouts - n_held < 1:

@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 import torch
+from safetensors import SafetensorError
 from safetensors.numpy import load_file as load_numpy
 from safetensors.numpy import save_file as save_numpy
 from safetensors.torch import load_file as load_torch
@@ -157,7 +158,18 @@ def load_checkpoint(path: str | Path) -> tuple[dict[str, torch.Tensor], dict[str
     missing = [str(f) for f in files if not f.is_file()]
     if missing:
         raise FileNotFoundError(f"not a checkpoint directory {path}: missing {missing}")
-    meta = json.loads(files[2].read_text())
+    try:
+        meta = json.loads(files[2].read_text())
+    except (UnicodeDecodeError, ValueError) as exc:  # JSONDecodeError is a ValueError
+        raise ValueError(f"{files[2]}: not a JSON checkpoint state ({exc})") from None
+    if not isinstance(meta, dict):
+        raise ValueError(f"{files[2]}: expected a JSON object, got {type(meta).__name__}")
     if meta.get("format") != FORMAT:
         raise ValueError(f"{files[2]}: unknown checkpoint format {meta.get('format')!r}")
-    return load_torch(str(files[0])), load_numpy(str(files[1])), meta
+    loaded = []
+    for file, load in ((files[0], load_torch), (files[1], load_numpy)):
+        try:
+            loaded.append(load(str(file)))
+        except SafetensorError as exc:  # truncated or damaged
+            raise ValueError(f"{file}: not a readable safetensors file ({exc})") from None
+    return loaded[0], loaded[1], meta

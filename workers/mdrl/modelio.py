@@ -21,6 +21,7 @@ from typing import Any
 
 import numpy as np
 import torch
+from safetensors import SafetensorError
 from safetensors.torch import load_file, save_file
 
 from workers.mdrl.rollout import GreedySelector, PolicyHead, policy_step
@@ -155,13 +156,43 @@ def load_card(path: str | Path) -> dict[str, Any]:
     card_path = Path(path) / CARD
     if not card_path.is_file():
         raise FileNotFoundError(f"not a model directory {path}: no {CARD}")
-    card = json.loads(card_path.read_text())
+    try:
+        card = json.loads(card_path.read_text())
+    except (UnicodeDecodeError, ValueError) as exc:  # JSONDecodeError is a ValueError
+        raise ValueError(f"{card_path}: not JSON ({exc})") from None
+    if not isinstance(card, dict):
+        raise ValueError(f"{card_path}: a model card is a JSON object, got "
+                         f"{type(card).__name__}")
     if card.get("format") != CARD_FORMAT:
         raise ValueError(f"{card_path}: unknown model format {card.get('format')!r}")
     if "kind" in card:
         raise ValueError(f"{card_path}: a {card['kind']!r} model, not a policy (a walls CAE "
                          "loads with cae.load_cae)")
+    for section in ("env", "observation"):
+        if not isinstance(card.get(section), dict):
+            raise ValueError(f"{card_path}: the card has no {section!r} section (an object), "
+                             f"got {card.get(section)!r}")
     return card
+
+
+def load_weights(path: str | Path) -> dict[str, torch.Tensor]:
+    """The tensors of a model directory's ``model.safetensors``; ValueError naming the model
+    when the file is not readable safetensors or a weight is NaN or infinite (a diverged
+    run's model acts on garbage)."""
+    path = Path(path)
+    file = path / WEIGHTS
+    if not file.is_file():
+        raise FileNotFoundError(f"not a model directory {path}: no {WEIGHTS}")
+    try:
+        tensors = load_file(str(file))
+    except SafetensorError as exc:
+        raise ValueError(f"{file}: not a readable safetensors file ({exc})") from None
+    broken = sorted(k for k, v in tensors.items()
+                    if v.is_floating_point() and not bool(torch.isfinite(v).all()))
+    if broken:
+        raise ValueError(f"{file}: the model's weights hold NaN/inf ({len(broken)} tensor(s), "
+                         f"e.g. {broken[0]!r}): a diverged run's model, refused")
+    return tensors
 
 
 SHAPE_KEYS = ("actor_shape", "critic_shape")
@@ -183,7 +214,7 @@ def load_model(path: str | Path) -> GreedyPolicy:
     card = load_card(path)
     env_spec = EnvSpec.from_dict(card["env"])
     obs_spec = ObservationSpec.from_dict(card_observation(card))
-    tensors = load_file(str(path / WEIGHTS))
+    tensors = load_weights(path)
     encoder = {k[len(ENCODER_PREFIX):]: tensors.pop(k) for k in list(tensors)
                if k.startswith(ENCODER_PREFIX)}
     embedder = None
@@ -237,7 +268,7 @@ def load_initial_weights(agent: torch.nn.Module, path: str | Path, obs_spec: Any
         raise ValueError(f"init_from {str(path)!r}: a model for {space.get('agents')} agent(s) "
                          f"and {space.get('per_agent_actions')} actions, this run has {agents} "
                          f"and {num_actions}")
-    tensors = {k: v for k, v in load_file(str(path / WEIGHTS)).items()
+    tensors = {k: v for k, v in load_weights(path).items()
                if not k.startswith(ENCODER_PREFIX)}
     own = agent.state_dict()
     wrong = sorted(k for k in set(own) | set(tensors)

@@ -353,6 +353,22 @@ def _normalise(maps: np.ndarray) -> np.ndarray:
 
 
 # --------------------------------------------------------------------------- joint actions (CMTL)
+MAX_JOINT_ACTIONS = 2**20
+"""Largest CMTL joint action space A**N an observer is built for (5 actions: 8 agents; 9
+actions: 6): the actor's output layer, the policy masks of every rollout step and the logits
+of a minibatch all hold A**N values, 5**20 of them is petabytes."""
+
+
+def check_joint_actions(num_actions: int, agents: int) -> None:
+    """ValueError when CMTL's joint action space A**N exceeds MAX_JOINT_ACTIONS (before
+    anything of that size is allocated)."""
+    joint = num_actions**agents
+    if joint > MAX_JOINT_ACTIONS:
+        raise ValueError(
+            f"CMTL's joint actor picks one of {num_actions}**{agents} = {joint:.3g} joint "
+            f"actions ({num_actions} actions per agent, {agents} agents), more than "
+            f"{MAX_JOINT_ACTIONS:,}: use dmtl or odmtl (one shared actor per agent) or fewer "
+            f"agents")
 
 
 def encode_joint(actions: np.ndarray, num_actions: int) -> np.ndarray:
@@ -418,6 +434,8 @@ class Observer:
         self.walls, self.full_critic = layout.walls, layout.full_critic
         self.has_others = any(c.endswith("others") for c in layout.actor)
         self.joint_actions = self.kind == "cmtl"
+        if self.joint_actions and getattr(env_spec, "num_actions", None) is not None:
+            check_joint_actions(int(env_spec.num_actions), agents)
         self.actor_channels, self.critic_channels = layout.actor, layout.critic
         self.actor_shape, self.critic_shape = layout.actor_shape, layout.critic_shape
         self.embedding = layout.embedding
@@ -454,6 +472,8 @@ class Observer:
     def num_actor_outputs(self, num_actions_per_agent: int) -> int:
         """A for the shared CLDE actor (DMTL/ODMTL), A**N for the joint CMTL actor."""
         a = int(num_actions_per_agent)
+        if self.joint_actions:
+            check_joint_actions(a, self.agents)
         return a**self.agents if self.joint_actions else a
 
     # ------------------------------------------------------------------ helpers

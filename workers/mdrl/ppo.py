@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import numbers
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
@@ -53,22 +54,26 @@ class PPOConfig:
     """Multiplies the team reward before GAE (keeps value targets O(1); metrics stay unscaled)."""
 
     def __post_init__(self) -> None:
+        _check_types(self)
         checks = {
-            "learning_rate": self.learning_rate > 0,
-            "clip_coef": self.clip_coef > 0,
-            "gamma": 0.0 <= self.gamma <= 1.0,
-            "gae_lambda": 0.0 <= self.gae_lambda <= 1.0,
-            "horizon": self.horizon >= 1,
-            "update_epochs": self.update_epochs >= 1,
-            "num_minibatches": self.num_minibatches >= 1,
-            "num_envs": self.num_envs >= 1,
-            "max_grad_norm": self.max_grad_norm > 0,
-            "reward_scale": self.reward_scale > 0,
+            "learning_rate": (self.learning_rate > 0, "> 0"),
+            "clip_coef": (self.clip_coef > 0, "> 0"),
+            "gamma": (0.0 <= self.gamma <= 1.0, "in [0, 1]"),
+            "gae_lambda": (0.0 <= self.gae_lambda <= 1.0, "in [0, 1]"),
+            "horizon": (self.horizon >= 1, ">= 1"),
+            "update_epochs": (self.update_epochs >= 1, ">= 1"),
+            "num_minibatches": (self.num_minibatches >= 1, ">= 1"),
+            "num_envs": (self.num_envs >= 1, ">= 1"),
+            "max_grad_norm": (self.max_grad_norm > 0, "> 0"),
+            "reward_scale": (self.reward_scale > 0, "> 0"),
+            "adam_eps": (self.adam_eps > 0, "> 0"),
+            "target_kl": (self.target_kl is None or self.target_kl > 0, "> 0 or None"),
         }
-        bad = [k for k, ok in checks.items() if not ok]
+        bad = [k for k, (ok, _) in checks.items() if not ok]
         if bad:
             raise ValueError(f"PPOConfig: invalid value for {bad}: "
-                             + ", ".join(f"{k}={getattr(self, k)!r}" for k in bad))
+                             + ", ".join(f"{k}={getattr(self, k)!r} (must be {checks[k][1]})"
+                                         for k in bad))
 
     # -- derived values (computed here only) --
     @property
@@ -91,6 +96,33 @@ class PPOConfig:
         if unknown:
             raise ValueError(f"PPOConfig: unknown field(s) {unknown}; known: {sorted(names)}")
         return cls(**d)
+
+
+_INT_FIELDS = ("horizon", "update_epochs", "num_minibatches", "num_envs")
+_BOOL_FIELDS = ("anneal_lr", "norm_adv", "clip_vloss")
+_REAL_FIELDS = ("learning_rate", "clip_coef", "ent_coef", "gamma", "gae_lambda", "vf_coef",
+                "max_grad_norm", "adam_eps", "reward_scale", "target_kl")
+
+
+def _check_types(cfg: PPOConfig) -> None:
+    """ValueError naming the field when a config file gives a value of the wrong type or a
+    non-finite number (``horizon = 100.5``, ``learning_rate = "fast"``, ``ent_coef = NaN``),
+    before a comparison fails with a TypeError or NaN slips through it. bool is neither an
+    integer nor a number here."""
+    for name in _INT_FIELDS:
+        v = getattr(cfg, name)
+        if isinstance(v, bool) or not isinstance(v, numbers.Integral):
+            raise ValueError(f"PPOConfig: {name} must be an integer, got {v!r}")
+    for name in _BOOL_FIELDS:
+        v = getattr(cfg, name)
+        if not isinstance(v, bool):
+            raise ValueError(f"PPOConfig: {name} must be true or false, got {v!r}")
+    for name in _REAL_FIELDS:
+        v = getattr(cfg, name)
+        if v is None and name == "target_kl":
+            continue
+        if isinstance(v, bool) or not isinstance(v, numbers.Real) or not math.isfinite(v):
+            raise ValueError(f"PPOConfig: {name} must be a finite number, got {v!r}")
 
 
 def gae(

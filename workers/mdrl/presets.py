@@ -212,6 +212,9 @@ def preset_from_dict(doc: dict[str, Any], name: str = "custom") -> Preset:
                  "observation")
     ppo = _merge(base.ppo.to_dict() if base else {}, doc.get("ppo", {}), "ppo")
     run = _merge(dict(base.run) if base else {}, doc.get("run", {}), "run")
+    from workers.mdrl.train import RunConfig
+
+    RunConfig.from_dict(run)  # checked now (names the field), not after training
     experts = DemonstrationConfig.from_dict(doc["experts"]) if "experts" in doc else None
     return Preset(name=doc.get("name", name), env=EnvSpec.from_dict(env),
                   observation=ObservationSpec.from_dict(obs), ppo=PPOConfig.from_dict(ppo),

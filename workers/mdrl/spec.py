@@ -25,6 +25,14 @@ MOVES_8 = np.array(
     dtype=np.int64,
 )
 MOVES = {4: MOVES_4, 8: MOVES_8}
+#: Most cells (rows * cols) of a grid. The env and observers build dense cells x cells tables
+#: (distances, path gains, the belief filter): 64 x 64 = 4,096 cells is ~128 MiB per float64
+#: table, 120 x 120 already runs out of memory. The task spec's grid (trainingspec.MAX_GRID
+#: per side) stays within it; a long thin grid (6 x 70) is fine.
+MAX_CELLS = 64 * 64
+#: Largest expected reading (counts) an env may draw: numpy's Poisson sampler refuses means
+#: above ~9.2e18, and float32 reading maps lose all meaning long before float64 overflows.
+MAX_EXPECTED_COUNT = 1e18
 ACTION_NAMES = {
     4: ("idle", "up", "down", "left", "right"),
     8: ("idle", "E", "NE", "N", "NW", "W", "SW", "S", "SE"),
@@ -39,6 +47,10 @@ class IntensitySpec:
     values: tuple[float, ...] = (1e9,)
 
     def __post_init__(self) -> None:
+        if not isinstance(self.values, tuple) or not all(
+                isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)
+                for v in self.values):
+            raise ValueError(f"intensity values must be a tuple of numbers, got {self.values!r}")
         if self.kind not in ("fixed", "choice", "uniform"):
             raise ValueError(f"intensity kind must be fixed, choice or uniform, got {self.kind!r}")
         if not self.values or any(not (v > 0 and math.isfinite(v)) for v in self.values):
@@ -126,7 +138,12 @@ class EnvSpec:
         _check_types(self)
         problems = []
         if self.rows < 2 or self.cols < 2:
-            problems.append(f"grid must be at least 2x2, got {self.rows}x{self.cols}")
+            problems.append(f"grid (rows x cols) must be at least 2x2, got "
+                            f"{self.rows}x{self.cols}")
+        elif self.rows * self.cols > MAX_CELLS:
+            problems.append(f"grid (rows x cols) {self.rows}x{self.cols} has "
+                            f"{self.rows * self.cols:,} cells, more than {MAX_CELLS:,} (64x64): "
+                            f"the env keeps cells x cells tables")
         if self.agents < 1:
             problems.append(f"agents must be >= 1, got {self.agents}")
         if self.agents + 1 > self.rows * self.cols:
@@ -146,7 +163,7 @@ class EnvSpec:
                 )
         if hi > 0 and min(self.rows, self.cols) < 4:
             problems.append("walls need a grid of at least 4x4")
-        elif hi > 2 * (self.rows - 2) + 2 * (self.cols - 2):
+        elif hi > 0 and hi > 2 * (self.rows - 2) + 2 * (self.cols - 2):
             problems.append(
                 f"at most {2 * (self.rows - 2) + 2 * (self.cols - 2)} walls fit on "
                 f"{self.rows}x{self.cols} (one per non-corner side cell), got {hi}"
@@ -163,6 +180,14 @@ class EnvSpec:
             problems.append(f"idle_limit must be >= 1, got {self.idle_limit}")
         if min(self.area_m) <= 0:
             problems.append(f"area_m must be positive, got {self.area_m}")
+        elif self.rows >= 2 and self.cols >= 2 and self.detector_area_cm2 > 0 and \
+                self.dwell_min > 0 and self.peak_expected_count > MAX_EXPECTED_COUNT:
+            problems.append(
+                f"intensity up to {max(self.intensity.values):g} photons/min gives an expected "
+                f"reading of {self.peak_expected_count:.3g} counts next to the source "
+                f"(dwell_min {self.dwell_min:g}, detector_area_cm2 {self.detector_area_cm2:g}, "
+                f"cells of {min(self.cell_size_m):g} m), more than the readings can take "
+                f"({MAX_EXPECTED_COUNT:g}): lower the intensity")
         for name in ("detector_area_cm2", "dwell_min"):
             if getattr(self, name) <= 0:
                 problems.append(f"{name} must be positive")
@@ -170,6 +195,14 @@ class EnvSpec:
             problems.append("wall attenuation parameters must be non-negative")
         if problems:
             raise ValueError("; ".join(problems))
+
+    @property
+    def peak_expected_count(self) -> float:
+        """The largest mean reading of Eq. 6 this env can produce: the largest intensity at
+        the floored distance of half a cell side, no wall in between."""
+        d_cm = min(self.cell_size_m) * 100 / 2
+        return (max(self.intensity.values) * self.dwell_min * self.detector_area_cm2
+                / (4 * math.pi * d_cm**2))
 
     @property
     def num_actions(self) -> int:
@@ -208,17 +241,31 @@ class EnvSpec:
             raise ValueError(f"unknown environment fields: {sorted(unknown)}")
         d = dict(d)
         if "intensity" in d and not isinstance(d["intensity"], IntensitySpec):
-            it = d["intensity"]
-            if isinstance(it, (int, float)):
-                d["intensity"] = IntensitySpec.fixed(it)
-            elif isinstance(it, str):
-                d["intensity"] = IntensitySpec.parse(it)
-            else:
-                d["intensity"] = IntensitySpec(it["kind"], tuple(float(v) for v in it["values"]))
+            d["intensity"] = _intensity_from(d["intensity"])
         for key in ("area_m", "walls", "wall_length"):
-            if d.get(key) is not None:
+            if isinstance(d.get(key), list):  # anything else: _check_types names the field
                 d[key] = tuple(d[key])
         return cls(**d)
+
+
+def _intensity_from(it: Any) -> IntensitySpec:
+    """An IntensitySpec from a config value: a number, a string ('1e9', '1e8,1e9',
+    '1e8:1e9') or {"kind": ..., "values": [...]}; ValueError naming the field otherwise."""
+    what = ("a number (1e9), a string ('1e8,5e8,1e9' or '1e8:1e9') or "
+            "{\"kind\": fixed|choice|uniform, \"values\": [numbers]}")
+    if isinstance(it, (int, float)) and not isinstance(it, bool):
+        return IntensitySpec.fixed(it)
+    if isinstance(it, str):
+        return IntensitySpec.parse(it)
+    if not isinstance(it, dict):
+        raise ValueError(f"environment field intensity must be {what}, got {it!r}")
+    unknown = sorted(set(it) - {"kind", "values"})
+    values = it.get("values")
+    if unknown or not isinstance(values, (list, tuple)) or not isinstance(
+            it.get("kind", "fixed"), str) or not all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) for v in values):
+        raise ValueError(f"environment field intensity must be {what}, got {it!r}")
+    return IntensitySpec(it.get("kind", "fixed"), tuple(float(v) for v in values))
 
 
 _INT_FIELDS = ("rows", "cols", "agents", "moves", "max_steps", "idle_limit")
@@ -252,6 +299,8 @@ def _check_types(spec: EnvSpec) -> None:
         if not (isinstance(v, tuple) and len(v) == 2 and all(
                 isinstance(x, kinds) and not isinstance(x, bool) for x in v)):
             raise bad(name, "a pair of " + ("numbers" if name == "area_m" else "integers"))
+        if name == "area_m" and not all(math.isfinite(x) for x in v):
+            raise bad(name, "a pair of finite numbers")
     for name in ("reward", "readings"):
         if not isinstance(getattr(spec, name), str):
             raise bad(name, "a string")

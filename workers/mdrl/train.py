@@ -14,6 +14,7 @@ import csv
 import dataclasses
 import json
 import math
+import numbers
 import time
 import warnings
 from dataclasses import dataclass
@@ -78,8 +79,28 @@ class RunConfig:
 
     def __post_init__(self) -> None:
         if self.keep_best is not None and self.keep_best not in tuple(KEEP_BEST):  # [] too
-            raise ValueError(f"RunConfig.keep_best must be 'time', 'cost' or None, "
-                             f"got {self.keep_best!r}")
+            raise RunConfigError("keep_best", f"RunConfig.keep_best must be 'time', 'cost' or "
+                                 f"None, got {self.keep_best!r}")
+        ints = {"seed": (0, MAX_SEED), "eval_seed": (0, MAX_SEED), "eval_every": (0, None),
+                "eval_episodes": (1, None), "checkpoint_every": (0, None), "threads": (1, None)}
+        if self.total_steps is not None:
+            ints["total_steps"] = (1, None)
+        for name, (lo, hi) in ints.items():
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, numbers.Integral):
+                raise RunConfigError(name, f"RunConfig.{name} must be an integer, got {v!r}")
+            if v < lo or (hi is not None and v > hi):
+                bound = f">= {lo}" if hi is None else f"in [{lo}, {hi}]"
+                raise RunConfigError(name, f"RunConfig.{name} must be {bound}, got {v!r}")
+        m = self.minutes
+        if m is not None and (isinstance(m, bool) or not isinstance(m, numbers.Real)
+                              or not math.isfinite(m) or m <= 0):
+            raise RunConfigError("minutes", f"RunConfig.minutes must be a finite number > 0 "
+                                 f"(or None), got {m!r}")
+        if self.init_from is not None and (not isinstance(self.init_from, str)
+                                           or not self.init_from):
+            raise RunConfigError("init_from", f"RunConfig.init_from must be a model directory "
+                                 f"(or None), got {self.init_from!r}")
 
     def budget_left(self, global_step: int, elapsed_s: float) -> bool:
         """Whether a run that took ``global_step`` env steps in ``elapsed_s`` may go on."""
@@ -92,12 +113,32 @@ class RunConfig:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> RunConfig:
+        if not isinstance(d, dict):
+            raise RunConfigError("", f"RunConfig: expected a table/object, got {d!r}")
         names = {f.name for f in dataclasses.fields(cls)}
         unknown = sorted(set(d) - names)
         if unknown:
-            raise ValueError(f"RunConfig: unknown field(s) {unknown}; known: {sorted(names)}")
+            raise RunConfigError(unknown[0], f"RunConfig: unknown field(s) {unknown}; known: "
+                                 f"{sorted(names)}")
         return cls(**d)
 
+
+class RunConfigError(ValueError):
+    """A RunConfig value that is wrong; ``field`` names it (so a CLI can name its flag)."""
+
+    def __init__(self, field: str, msg: str) -> None:
+        super().__init__(msg)
+        self.field = field
+
+
+class TrainingDiverged(FloatingPointError):
+    """The PPO loss or the network's weights became NaN or infinite: training stops before a
+    broken policy is stepped, checkpointed or saved as a model."""
+
+
+MAX_SEED = 2**63 - 1
+"""Largest RunConfig seed / eval_seed (torch generators take 64-bit seeds; the trainer seeds
+one with ``seed + 1``)."""
 
 KEEP_BEST = {"time": ("eval_time", "eval_cost"), "cost": ("eval_cost", "eval_time")}
 """RunConfig.keep_best: the evaluation figures a better policy is lower in, in order."""
@@ -313,6 +354,10 @@ class Trainer:
                     b_ret[idx], entropy, clip_coef=cfg.clip_coef, vf_coef=cfg.vf_coef,
                     ent_coef=cfg.ent_coef, old_values=b_values[idx], clip_vloss=cfg.clip_vloss,
                     weights=None if b_weights is None else b_weights[idx].unsqueeze(1).expand(k, n))
+                if not bool(torch.isfinite(losses.loss)):
+                    self._diverged(f"the PPO loss is {losses.loss.item()} (policy "
+                                   f"{losses.pg_loss.item()}, value {losses.v_loss.item()}, "
+                                   f"entropy {losses.entropy.item()})")
                 self.optimizer.zero_grad(set_to_none=True)
                 losses.loss.backward()
                 # actor and critic are separate networks: clip each, so the critic's larger
@@ -325,6 +370,9 @@ class Trainer:
                 count += 1
             if cfg.target_kl is not None and float(losses.approx_kl) > cfg.target_kl:
                 break
+        broken = [k for k, p in agent.named_parameters() if not bool(torch.isfinite(p).all())]
+        if broken:
+            self._diverged(f"the network's weights hold NaN/inf after the update ({broken[:3]})")
         var_ret = float(b_ret.var()) if m > 1 else 0.0  # one sample has no variance
         explained = math.nan if var_ret == 0 else 1.0 - float((b_ret - b_values).var()) / var_ret
         out = {k: v / count for k, v in sums.items()}
@@ -333,6 +381,14 @@ class Trainer:
                 "value_loss": out["v_loss"], "entropy": out["entropy"],
                 "approx_kl": out["approx_kl"], "clipfrac": out["clipfrac"],
                 "explained_variance": explained}
+
+    def _diverged(self, what: str) -> None:
+        cfg = self.ppo
+        raise TrainingDiverged(
+            f"training diverged at update {self.update_idx + 1} (env step {self.global_step}): "
+            f"{what}; nothing of this update was saved. Lower ppo.learning_rate (now "
+            f"{cfg.learning_rate:g}) or ppo.reward_scale (now {cfg.reward_scale:g}), or check "
+            f"ppo.ent_coef / vf_coef / adam_eps")
 
     # ------------------------------------------------------------------ evaluation
     def policy(self, best: bool = False) -> Any:
@@ -395,14 +451,19 @@ class Trainer:
         self._open_outputs()
         bar = self._progress_bar()
         t0, elapsed0 = time.perf_counter(), self.elapsed
+        more = self.budget_left()
         try:
-            while self.budget_left():
+            while more:
                 u0 = time.perf_counter()
                 step0 = self.global_step
                 episode_stats = self.collect()
                 loss_stats = self.update()
                 self.update_idx += 1
+                # the time this update took counts: a time budget used up by it makes it the
+                # last one (final evaluation and checkpoint), as a step budget does
+                self.elapsed = elapsed0 + (time.perf_counter() - t0)
                 last = not self.budget_left()
+                more = not last
                 every = run.eval_every
                 evals, kept = {}, False
                 if last or (every and self.update_idx % every == 0):
@@ -583,6 +644,12 @@ class Trainer:
         if (path / "checkpoint").is_dir():
             path = path / "checkpoint"
         tensors, env_arrays, meta = ckpt.load_checkpoint(path)
+        parts = {"run": dict, "env": dict, "ppo": dict, "observation": dict, "counters": dict,
+                 "optimizer": dict, "env_state": dict}
+        bad = [k for k, kind in parts.items() if not isinstance(meta.get(k), kind)]
+        if bad:
+            raise ValueError(f"checkpoint {path}: state.json lacks {bad} (not a checkpoint of "
+                             f"a {cls.__name__} run, or a damaged one)")
         run = RunConfig.from_dict({**meta["run"], **(run_overrides or {})})
         env_spec, ppo = EnvSpec.from_dict(meta["env"]), PPOConfig.from_dict(meta["ppo"])
         obs_spec = ObservationSpec.from_dict(meta["observation"])

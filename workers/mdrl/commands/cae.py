@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -77,8 +78,15 @@ def train_command(
     import torch
 
     from workers.mdrl.cae import parameters, save_cae, train_cae
+    from workers.mdrl.commands.train import usable_cpus
     from workers.mdrl.spec import EnvSpec
 
+    if not 1 <= threads <= usable_cpus():
+        raise typer.BadParameter(f"must be between 1 and {usable_cpus()} (the CPUs this process "
+                                 f"may use), got {threads}", param_hint="--threads")
+    if not (math.isfinite(pos_weight) and pos_weight > 0):
+        raise typer.BadParameter(f"must be a finite number > 0, got {pos_weight}",
+                                 param_hint="--pos-weight")
     torch.set_num_threads(threads)
     if preset is not None:
         from workers.mdrl.presets import get_preset
@@ -89,7 +97,10 @@ def train_command(
             raise typer.BadParameter(str(exc), param_hint="--preset") from None
     else:
         rows, cols = _grid(grid)
-        spec = EnvSpec(rows=rows, cols=cols, walls=_walls(walls))
+        try:
+            spec = EnvSpec(rows=rows, cols=cols, walls=_walls(walls))
+        except ValueError as exc:  # e.g. a grid beyond spec.MAX_CELLS, more walls than fit
+            raise typer.BadParameter(str(exc), param_hint="--grid / --walls") from None
     bar = None
     if progress:
         from tqdm.auto import tqdm

@@ -153,7 +153,7 @@ def resolve_policy(
 
     try:
         policy = load_model(path)
-    except (FileNotFoundError, ValueError, KeyError, RuntimeError) as exc:
+    except (OSError, ValueError, KeyError, RuntimeError) as exc:
         raise typer.BadParameter(
             f"cannot load model {name!r}: {exc}", param_hint="--policy"
         ) from None

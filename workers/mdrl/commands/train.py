@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import json
 import math
+import os
+import tempfile
 from collections.abc import Callable
 from pathlib import Path
 from typing import Annotated, Any
@@ -16,6 +18,73 @@ MODEL_FETCHER: Callable[[str, str], Path] | None = None
 expert or a walls CAE named by CID. The core alone has none (it trains from directories and
 built-ins); the platform CLI (drlaas/cli.py) sets one that fetches through the gateway and
 verifies as a worker does (workers/daemon/experts.py)."""
+
+
+def _out_path(text: str) -> Path:
+    """--out: a directory path; an empty one (the current directory by accident) is refused."""
+    if not text.strip():
+        raise typer.BadParameter("must name a directory, got an empty path")
+    return Path(text)
+
+
+RUN_FLAGS = {"total_steps": "--steps", "minutes": "--minutes", "seed": "--seed",
+             "eval_every": "--eval-every", "eval_episodes": "--eval-episodes",
+             "checkpoint_every": "--checkpoint-every", "threads": "--threads",
+             "keep_best": "--keep-best", "init_from": "--init-from"}
+"""The flag of each RunConfig field the command sets (to name it in errors)."""
+
+RUN_FILES = ("checkpoint", "model", "metrics.csv")
+"""What makes a directory hold a run: --out refuses to write a new run over them."""
+
+
+def usable_cpus() -> int:
+    """CPUs this process may run on (its affinity, else the machine's count)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        return os.cpu_count() or 1
+
+
+def _check_flags(given: dict[str, Any]) -> None:
+    """The run flags given on the command line, checked by RunConfig before anything is built
+    (BadParameter naming the flag); --threads also against this machine's CPUs."""
+    from workers.mdrl.train import RunConfig, RunConfigError
+
+    try:
+        RunConfig.from_dict(given)
+    except RunConfigError as exc:
+        raise typer.BadParameter(str(exc), param_hint=RUN_FLAGS.get(exc.field)) from None
+    threads, cpus = given.get("threads", 1), usable_cpus()
+    if threads > cpus:
+        raise typer.BadParameter(f"must be between 1 and {cpus} (the CPUs this process may use; "
+                                 f"more threads only contend), got {threads}",
+                                 param_hint="--threads")
+
+
+def _check_out(out: Path, *, same_run: Path | None = None) -> None:
+    """Refuse an --out that cannot be a run directory before anything is built or written: a
+    file, a path under a file, a place where no directory can be made, or a directory that
+    already holds a run (unless it is ``same_run``, the run being resumed)."""
+    if out.exists():
+        if not out.is_dir():
+            raise typer.BadParameter(f"{out} is a file, not a directory", param_hint="--out")
+        held = [name for name in RUN_FILES if (out / name).exists()]
+        same = same_run is not None and out.resolve() == same_run.resolve()
+        if held and not same:
+            raise typer.BadParameter(
+                f"{out} already holds a run ({', '.join(held)}): continue it with --resume "
+                f"{out}, or give another --out", param_hint="--out")
+    parent = out
+    while not parent.exists():  # the nearest existing ancestor must take a new directory
+        parent = parent.parent
+    if not parent.is_dir():
+        raise typer.BadParameter(f"cannot make {out}: {parent} is a file, not a directory",
+                                 param_hint="--out")
+    try:  # the one reliable test (permissions, read-only or special file systems)
+        os.rmdir(tempfile.mkdtemp(prefix=".drlaas-out-", dir=parent))
+    except OSError as exc:
+        raise typer.BadParameter(f"cannot write {out}: {exc.strerror or exc} in {parent}",
+                                 param_hint="--out") from None
 
 
 def train(
@@ -36,8 +105,10 @@ def train(
                                                        "including time before a resume).")] = None,
     seed: Annotated[int | None, typer.Option(help="Seed of envs, network init and sampling "
                                                   "(default 0, or the --task spec's).")] = None,
-    out: Annotated[Path | None, typer.Option(help="Output directory (metrics.csv, tb/, "
-                                                  "checkpoint/, model/).")] = None,
+    out: Annotated[Path | None, typer.Option(parser=_out_path, metavar="PATH",
+                                             help="Output directory (metrics.csv, tb/, "
+                                                  "checkpoint/, model/); must not hold a run "
+                                                  "yet (default runs/NAME-sSEED).")] = None,
     resume: Annotated[Path | None, typer.Option(help="Continue the run in this directory (or "
                                                      "checkpoint directory).")] = None,
     num_envs: Annotated[int | None, typer.Option(help="Override PPO num_envs.")] = None,
@@ -56,8 +127,8 @@ def train(
     init_from: Annotated[Path | None, typer.Option(help="Start from this model's weights "
                                                         "(fine-tuning; same observation, team "
                                                         "size and actions).")] = None,
-    threads: Annotated[int, typer.Option(help="torch threads (1-2; fixed for reproducibility).")
-                       ] = 1,
+    threads: Annotated[int, typer.Option(help="torch threads (1 to the CPU count; fixed for "
+                                              "reproducibility).")] = 1,
     progress: Annotated[bool, typer.Option(help="Show a progress bar.")] = True,
     tensorboard: Annotated[bool, typer.Option(help="Write TensorBoard event files.")] = True,
     experts: Annotated[str | None, typer.Option(help="DC / MEDC experts, comma-separated: model "
@@ -86,9 +157,23 @@ def train(
     """Train with PPO (Alg. 3.3); writes metrics, TensorBoard, checkpoints and model files."""
     import dataclasses
 
+    from workers.mdrl.experts import ExpertError
     from workers.mdrl.presets import get_preset, load_config
-    from workers.mdrl.train import KEEP_BEST, RunConfig, Trainer
+    from workers.mdrl.train import KEEP_BEST, RunConfig, RunConfigError, Trainer
 
+    if keep_best is not None and keep_best not in KEEP_BEST:
+        raise typer.BadParameter(f"must be time or cost, got {keep_best!r}",
+                                 param_hint="--keep-best")
+    if steps is not None and steps < 1:
+        raise typer.BadParameter(f"--steps must be >= 1, got {steps}")
+    if minutes is not None and not (math.isfinite(minutes) and minutes > 0):
+        raise typer.BadParameter(f"--minutes must be a finite number > 0, got {minutes}")
+    # the run flags given: only these override a config's [run], a task's spec or a checkpoint
+    given = {key: val for key, val in (
+        ("total_steps", steps), ("minutes", minutes), ("seed", seed),
+        ("eval_every", eval_every), ("eval_episodes", eval_episodes),
+        ("checkpoint_every", checkpoint_every), ("keep_best", keep_best)) if val is not None}
+    _check_flags({**given, "threads": threads})
     if task is not None and resume is None:
         _train_task(task, steps=steps, minutes=minutes, seed=seed, out=out, threads=threads,
                     progress=progress, tensorboard=tensorboard, eval_every=eval_every,
@@ -103,64 +188,87 @@ def train(
         return
     if task is not None:
         raise typer.BadParameter("--resume continues a run as configured; drop --task")
-    seed = 0 if seed is None else seed
-    if steps is None and minutes is None:
-        raise typer.BadParameter("give a budget: --steps and/or --minutes")
-    if steps is not None and steps < 1:
-        raise typer.BadParameter(f"--steps must be >= 1, got {steps}")
-    if minutes is not None and minutes <= 0:
-        raise typer.BadParameter(f"--minutes must be > 0, got {minutes}")
-    if keep_best is not None and keep_best not in KEEP_BEST:
-        raise typer.BadParameter(f"must be time or cost, got {keep_best!r}",
-                                 param_hint="--keep-best")
-    run_changes = {"total_steps": steps, "minutes": minutes, "threads": threads,
-                   "progress": progress, "tensorboard": tensorboard}
-    for key, val in (("eval_every", eval_every), ("eval_episodes", eval_episodes),
-                     ("checkpoint_every", checkpoint_every), ("keep_best", keep_best)):
-        if val is not None:
-            run_changes[key] = val
+    machine = {"threads": threads, "progress": progress, "tensorboard": tensorboard}
     expert_options = (experts, expert_qos, expert_rate, expert_threshold, expert_credit,
                       expert_rate_end)
     if resume is not None:
         if num_envs is not None or config is not None or readings is not None or init_from or any(
-                o is not None for o in expert_options):
+                o is not None for o in expert_options) or seed is not None:
             raise typer.BadParameter("--resume continues a run as configured; drop --config, "
-                                     "--num-envs, --readings, --init-from and the --expert* "
-                                     "options")
-        trainer = Trainer.resume(resume, out=out, run_overrides=run_changes,
-                                 selector=_resume_selector(resume))
-    else:
+                                     "--seed, --num-envs, --readings, --init-from and the "
+                                     "--expert* options")
+        if steps is None and minutes is None:
+            raise typer.BadParameter("give a budget: --steps and/or --minutes (the total, "
+                                     "including the steps or time before the resume)")
+        if not resume.is_dir():
+            raise typer.BadParameter(f"{resume}: no such directory", param_hint="--resume")
+        if (resume / "model.json").is_file() and not (resume / "state.json").is_file():
+            raise typer.BadParameter(f"{resume} is a model directory; --resume takes a run "
+                                     "directory (holding checkpoint/) or its checkpoint/",
+                                     param_hint="--resume")
+        run_dir = resume if (resume / "checkpoint").is_dir() else resume.parent
+        if out is not None:
+            _check_out(out, same_run=run_dir)
+        # a resume's budget is the one given now: --steps alone drops an old time budget
+        changes = {**given, "total_steps": steps, "minutes": minutes, **machine}
         try:
-            chosen = get_preset(preset) if config is None else load_config(config)
-        except (OSError, ValueError, TypeError, KeyError) as exc:  # the message names the field
-            raise typer.BadParameter(str(exc), param_hint="--preset" if config is None
-                                     else "--config") from None
-        ppo = chosen.ppo
-        if num_envs is not None:
+            trainer = Trainer.resume(resume, out=out, run_overrides=changes,
+                                     selector=_resume_selector(resume))
+        except (OSError, ValueError, KeyError, TypeError, ExpertError) as exc:
+            text = str(exc) if not isinstance(exc, KeyError) else f"incomplete checkpoint ({exc})"
+            raise typer.BadParameter(f"cannot resume {resume}: {text}",
+                                     param_hint="--resume") from None
+        _finish(trainer)
+        return
+    source = "--preset" if config is None else "--config"
+    try:
+        chosen = get_preset(preset) if config is None else load_config(config)
+    except (OSError, ValueError, TypeError, KeyError) as exc:  # the message names the field
+        raise typer.BadParameter(str(exc), param_hint=source) from None
+    ppo = chosen.ppo
+    if num_envs is not None:
+        try:
             ppo = dataclasses.replace(ppo, num_envs=num_envs)
-        if readings is not None:
-            if readings not in ("poisson", "expected"):
-                raise typer.BadParameter(f"must be poisson or expected, got {readings!r}",
-                                         param_hint="--readings")
-            chosen = dataclasses.replace(chosen, env=chosen.env.replace(readings=readings))
-        if init_from is not None:
-            run_changes["init_from"] = str(init_from)
-        run = RunConfig.from_dict({**chosen.run, **run_changes, "seed": seed})
-        out = out if out is not None else Path("runs") / f"{chosen.name}-s{seed}"
-        selector = _selector(chosen, seed, *expert_options)
-        try:
-            trainer = Trainer(chosen.env, chosen.observation, ppo, run, out=out,
-                              selector=selector,
-                              walls_encoder=_walls_encoder(chosen.observation.walls_embedding))
-        except (OSError, ValueError) as exc:  # e.g. --init-from a model that does not fit
-            raise typer.BadParameter(str(exc), param_hint="--init-from" if run.init_from
-                                     else None) from None
+        except ValueError as exc:
+            raise typer.BadParameter(str(exc), param_hint="--num-envs") from None
+    if readings is not None:
+        if readings not in ("poisson", "expected"):
+            raise typer.BadParameter(f"must be poisson or expected, got {readings!r}",
+                                     param_hint="--readings")
+        chosen = dataclasses.replace(chosen, env=chosen.env.replace(readings=readings))
+    if init_from is not None:
+        given["init_from"] = str(init_from)
+    try:
+        run = RunConfig.from_dict({**chosen.run, **given, **machine})
+    except RunConfigError as exc:  # a flag's value was checked above: the config's is wrong
+        raise typer.BadParameter(str(exc), param_hint=RUN_FLAGS.get(exc.field) if exc.field
+                                 in given else source) from None
+    if run.total_steps is None and run.minutes is None:
+        raise typer.BadParameter("give a budget: --steps and/or --minutes (or total_steps / "
+                                 "minutes in the config's [run])")
+    out = out if out is not None else Path("runs") / f"{chosen.name}-s{run.seed}"
+    _check_out(out)
+    selector = _selector(chosen, run.seed, *expert_options)
+    try:
+        trainer = Trainer(chosen.env, chosen.observation, ppo, run, out=out,
+                          selector=selector,
+                          walls_encoder=_walls_encoder(chosen.observation.walls_embedding))
+    except (OSError, ValueError) as exc:  # e.g. --init-from a model that does not fit
+        raise typer.BadParameter(str(exc), param_hint="--init-from" if run.init_from
+                                 else source) from None
     _finish(trainer)
 
 
 def _finish(trainer) -> None:
-    """Train and print the run's JSON summary (where the model is, how it did)."""
-    summary = trainer.train()
+    """Train and print the run's JSON summary (where the model is, how it did); a diverged
+    run (NaN/inf loss or weights) is an error without a model (exit code 1)."""
+    from workers.mdrl.train import TrainingDiverged
+
+    try:
+        summary = trainer.train()
+    except TrainingDiverged as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(1) from None
     result = {"out": str(trainer.out), "model": str(trainer.out / "model"),
               "env_steps": trainer.global_step, "updates": trainer.update_idx,
               "wall_time_s": round(trainer.elapsed, 1), **trainer.last_eval,
@@ -203,12 +311,13 @@ def _train_task(path: Path, *, steps, minutes, seed, out, threads, progress, ten
             changes[key] = val
     try:
         run = spec.run_config(**changes)
+        out = out if out is not None else Path("runs") / f"{path.stem}-s{run.seed}"
+        _check_out(out)  # before experts or a walls CAE are fetched
         demo = spec.demonstration()
         selector = (DemonstrationSelector.from_config(
             demo, spec.env, seed=run.seed, experts=_load_experts(demo.experts, spec.env, run.seed))
             if demo is not None else None)
         encoder = _walls_encoder(spec.observation.walls_embedding)
-        out = out if out is not None else Path("runs") / f"{path.stem}-s{run.seed}"
         trainer = Trainer(spec.env, spec.observation, spec.ppo, run, out=out, selector=selector,
                           walls_encoder=encoder)
     except (OSError, ValueError, ExpertError) as exc:
@@ -300,4 +409,10 @@ def _resume_selector(path: Path):
     meta_file = path / "state.json"
     if not meta_file.is_file():
         return None  # Trainer.resume reports the missing checkpoint
-    return resume_selector(json.loads(meta_file.read_text()))
+    try:
+        meta = json.loads(meta_file.read_text())
+    except (UnicodeDecodeError, ValueError) as exc:
+        raise ValueError(f"{meta_file}: not a JSON checkpoint state ({exc})") from None
+    if not isinstance(meta, dict):
+        return None  # Trainer.resume names it
+    return resume_selector(meta)
