@@ -104,6 +104,12 @@ def test_search_allocate_review_download(
     assert r.status_code == 200, r.text
     detail = client.get(f"{P}/models/{b['id']}").json()
     assert detail["reputation"] == 1.0 and detail["allocations"] == 1  # Eq. 11: 5 / (1 * 5)
+    again = client.post(
+        f"{P}/models/requests/{alloc['alloc_id']}/reviews",
+        json={"model_id": b["id"], "review": 1},
+        headers=login("user1"),
+    )
+    assert again.status_code == 409 and again.json()["detail"]["rule"] == "model_already_reviewed"
     assert detail["card"]["name"] == "two agents walled" and detail["metrics"] == {"success": 0.9}
     assert ids(min_reputation=0.6) == [b["id"]]
     top = client.get(f"{P}/models", params={"sort": "reputation"}).json()["data"]

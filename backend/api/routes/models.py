@@ -709,6 +709,14 @@ def review_model(
         raise RuleError(
             403, "not_allocation_requester", f"allocation {alloc_id} belongs to {alloc.requester}"
         )
+    # MMC.AllocState: None, Allocated, Reviewed. The contract answers ModelsNotAllocated to
+    # both None and Reviewed; a second review is named here (the contract still decides).
+    if int(chain.call(chain.platform.mmc, "allocState", alloc_id, body.model_id)) == 2:
+        raise RuleError(
+            409,
+            "model_already_reviewed",
+            f"model {body.model_id} of allocation {alloc_id} was already reviewed (once each)",
+        )
     rc = chain.send(
         user.address, chain.platform.mmc, "updateModelRep", alloc_id, body.model_id, body.review
     )
