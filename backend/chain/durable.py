@@ -10,7 +10,11 @@ kill -9 (SQLite's WAL: a committed transaction outlives the process). Nothing is
 file grows with history (a few KB per block).
 
 The file also holds a small ``meta`` table: the platform deployment (contract addresses,
-deploy block), written by the caller once the contracts are deployed. A chain whose deployment
+deploy block), written by the caller once the contracts are deployed, and the funded accounts'
+private keys. Those are drawn at random when the file is made: eth-tester's default keys are
+0x..01, 0x..02, ..., known to everyone, and the first of them deploys the contracts, so a
+gateway reachable from outside would let a stranger sign as the platform admin (``/api/tx``
+relays any signed transaction). The file is created readable by its owner only (0600). A chain whose deployment
 was never recorded was interrupted during its first start and is started over (nothing else
 can have happened on it: the gateway serves nothing before the deployment is complete).
 """
@@ -28,7 +32,9 @@ from typing import Any
 from eth.db.atomic import AtomicDB
 from eth.db.backends.base import BaseDB
 from eth_tester import PyEVMBackend
+from eth_keys import keys as eth_keys
 from eth_tester.backends.pyevm.main import (
+    generate_genesis_state_for_keys,
     get_default_account_keys,
     get_default_genesis_params,
     setup_tester_chain,
@@ -39,6 +45,7 @@ from backend.locks import hold_lock
 log = logging.getLogger(__name__)
 
 CHAIN_FILE = "chain.sqlite"
+ACCOUNTS_META = "accounts"  # meta key: hex private keys of the genesis-funded accounts
 _DELETED = None
 
 
@@ -49,6 +56,8 @@ class SQLiteKV(BaseDB):
         self.path = Path(path)
         # one process per chain file: a second gateway on it would fork the chain silently
         self._owner = hold_lock(self.path.with_suffix(".lock"), "embedded chain (drlaas up)")
+        if not self.path.exists():  # it will hold private keys: owner-only from the start
+            os.close(os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600))
         # ``with self._db:`` is one transaction: committed on success, rolled back on error
         self._db = sqlite3.connect(self.path, check_same_thread=False)
         self._db.execute("PRAGMA journal_mode=WAL")
@@ -132,8 +141,9 @@ def _tester_chain_class(num_accounts: int) -> type:
 class DurableBackend(PyEVMBackend):
     """eth-tester's py-evm backend on a :class:`SQLiteKV` file (see the module docstring).
 
-    A new file gets a fresh genesis with eth-tester's default funded accounts; an existing one
-    is reopened at its canonical head, with the same accounts."""
+    A new file gets a fresh genesis with ``num_accounts`` funded accounts of random keys (see
+    the module docstring); an existing one is reopened at its canonical head, with the same
+    accounts."""
 
     def __init__(self, directory: str | Path, num_accounts: int) -> None:
         self.kv = SQLiteKV(Path(directory) / CHAIN_FILE)
@@ -143,20 +153,35 @@ class DurableBackend(PyEVMBackend):
             )
             self.kv.wipe()
         self.reopened = not self.kv.empty
-        keys = get_default_account_keys(quantity=num_accounts)
-        self.account_keys = keys
         chain_class = _tester_chain_class(num_accounts)
         base_db = AtomicDB(self.kv)
         if self.reopened:
+            self.account_keys = self._recorded_keys(num_accounts)
             self.chain = chain_class(base_db)
         else:
+            self.account_keys = tuple(
+                eth_keys.PrivateKey(os.urandom(32)) for _ in range(num_accounts)
+            )
             self.chain = chain_class.from_genesis(
                 base_db,
                 # a random extra_data: two chains made in the same second differ (identity)
                 get_default_genesis_params(overrides={"extra_data": os.urandom(32)}),
-                PyEVMBackend.generate_genesis_state(num_accounts=num_accounts),
+                generate_genesis_state_for_keys(self.account_keys),
             )
-            self.kv.commit()
+            # genesis, then the keys; a start killed in between has no deployment either and
+            # is started over (above)
+            self.kv.set_meta(ACCOUNTS_META, [k.to_hex() for k in self.account_keys])
+
+    def _recorded_keys(self, num_accounts: int) -> tuple[eth_keys.PrivateKey, ...]:
+        recorded = self.kv.get_meta(ACCOUNTS_META)
+        if recorded is None:  # a chain file from before the keys were random
+            log.warning(
+                "embedded chain %s was made with eth-tester's well-known keys: anyone can sign "
+                "as its admin; keep its gateway on loopback or start a new data dir",
+                self.kv.path,
+            )
+            return tuple(get_default_account_keys(quantity=num_accounts))
+        return tuple(eth_keys.PrivateKey(bytes.fromhex(k[2:])) for k in recorded)
 
     def reset_to_genesis(self, *args: Any, **kwargs: Any) -> None:
         raise RuntimeError("the durable embedded chain is never reset; delete its directory")

@@ -139,3 +139,28 @@ def test_one_process_per_chain_file(tmp_path: Path) -> None:
         raise AssertionError("a second process opened the same chain file")
     first.close()
     Chain.embedded(accounts=2, directory=tmp_path).close()  # free again once closed
+
+
+def test_a_new_data_dir_has_its_own_random_keys_kept_across_restarts(tmp_path: Path) -> None:
+    """eth-tester's default keys are 0x..01, 0x..02, ...: with them anyone could sign as the
+    admin that deployed the contracts. Each data dir draws its own, owner-readable only."""
+    from eth_account import Account
+    from eth_tester.backends.pyevm.main import get_default_account_keys
+
+    well_known = {Account.from_key(k.to_bytes()).address for k in get_default_account_keys(10)}
+    a = ChainService.embedded(load_settings(data_dir=str(tmp_path / "a")))
+    b = ChainService.embedded(load_settings(data_dir=str(tmp_path / "b")))
+    accounts_a, admin_a = list(a.chain.accounts), a.platform.admin
+    assert not well_known & (set(accounts_a) | set(b.chain.accounts))
+    assert not set(accounts_a) & set(b.chain.accounts)
+    assert admin_a == accounts_a[0] and a.chain.balance(admin_a) > 0
+    assert (tmp_path / "a" / "chain" / CHAIN_FILE).stat().st_mode & 0o077 == 0
+    a.chain.close()
+    b.chain.close()
+
+    again = ChainService.embedded(load_settings(data_dir=str(tmp_path / "a")))
+    assert list(again.chain.accounts) == accounts_a and again.platform.admin == admin_a
+    # the admin signs as before: the reopened chain holds the key, not just the address
+    again.platform.umc.add_requester(again.chain.accounts[2])
+    assert again.platform.umc.call("isRequester", again.chain.accounts[2]) is True
+    again.chain.close()
