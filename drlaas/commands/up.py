@@ -294,9 +294,9 @@ def up_command(
     configure_logging(settings.log_format)  # DRLAAS_LOG_FORMAT=json|text
     if settings.demo_keys_allowed and host not in ("127.0.0.1", "::1", "localhost"):
         typer.echo(
-            f"warning: --host {host} serves the development platform beyond this machine. Its "
-            "embedded chain's accounts, the consortium admin's among them, have eth-tester's "
-            "well-known keys: anyone who reaches it can sign as them. For a network, deploy "
+            f"warning: --host {host} serves the development platform beyond this machine: "
+            "workers join without the consortium's approval, the faucet funds any new key, and "
+            "the whole platform (chain, store, broker) is this one process. For a network, deploy "
             "the consortium chain and DRLAAS_MODE=production (README, 'From one machine to "
             "many').",
             err=True,
