@@ -115,6 +115,10 @@ class Settings(BaseSettings):
     """EIP-4361 ``URI`` written into sign-in messages."""
     nonce_ttl_s: int = Field(default=300, ge=10, le=3600)
     """How long a sign-in message (its nonce) stays usable."""
+    auth_nonces_per_minute: int = Field(default=30, ge=1, le=100_000)
+    """Sign-in messages one remote client (IP) may ask for a minute; past it 429
+    ``auth_rate_limited`` + Retry-After. Each is a database row until it expires, so this bounds
+    what one client can make the gateway store (loopback clients are not metered)."""
 
     confirmations: int = Field(default=2, ge=0, le=1000)
     """Blocks to wait before trusting an event on a real chain (embedded: always 0)."""

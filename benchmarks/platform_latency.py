@@ -20,11 +20,12 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from eth_account import Account  # noqa: E402
 
-from drlaas.commands.scenario import DEMO_REQUESTER_KEYS, SCENARIO_ENV  # noqa: E402
+from drlaas.commands.scenario import (  # noqa: E402
+    SCENARIO_ENV,
+    DemoUser,
+)
 from drlaas.commands.up import running_platform  # noqa: E402
-from workers.daemon.gateway import Gateway  # noqa: E402
 
 
 def main() -> None:
@@ -37,7 +38,7 @@ def main() -> None:
     with running_platform(workers=1, data_dir=data) as p:
         p.wait_registered()
         worker = p.workers[0]
-        req = Gateway(p.url, Account.from_key(DEMO_REQUESTER_KEYS[0]))
+        req = DemoUser(p.url, "user1")
         req.post("/users/requesters", auth=True)
         req.sign_in()
         for _ in range(args.tasks):

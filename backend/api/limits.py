@@ -1,10 +1,13 @@
-"""Request bodies are bounded before anything parses them: size (413) and JSON depth (422).
+"""Request bodies are bounded before anything parses them: size (413), JSON depth and number
+length (422).
 
 A pure ASGI middleware in front of every route (``/api/*``, ``/rpc``, the sign-in nonce
 endpoint): it reads the body itself, refusing it as soon as it passes ``max_bytes`` (at once
 when ``Content-Length`` says so), then measures bracket nesting by scanning bytes, without
 recursion, so a 100,000-deep array is refused in microseconds instead of reaching a recursive
-JSON parser. Accepted bodies are handed on unchanged. Refusals use the gateway's rule shape
+JSON parser. A number with more digits than any field takes (a uint256 has 78) is refused by
+name too: Python's parser would stop at 4,300 digits with a bare "error parsing the body".
+Accepted bodies are handed on unchanged. Refusals use the gateway's rule shape
 ``{"detail": {"rule", "msg"}}``.
 """
 
@@ -22,6 +25,8 @@ from starlette.types import ASGIApp, Message, Receive, Scope, Send
 _STRING = re.compile(rb'"[^"\\]*(?:\\.[^"\\]*)*"?', re.DOTALL)
 _OPENERS = b"[{"
 _NOT_BRACKETS = bytes(b for b in range(256) if b not in b"[]{}")
+MAX_NUMBER_DIGITS = 256
+_LONG_DIGITS = re.compile(rb"[0-9]{%d}" % (MAX_NUMBER_DIGITS + 1))
 
 
 def json_depth_exceeds(body: bytes, limit: int) -> bool:
@@ -42,6 +47,14 @@ def json_depth_exceeds(body: bytes, limit: int) -> bool:
         else:
             depth -= 1
     return False
+
+
+def json_number_too_long(body: bytes) -> bool:
+    """True if a run of more than :data:`MAX_NUMBER_DIGITS` digits stands outside JSON strings
+    (digits inside strings, hex or CIDs, are the fields' own business)."""
+    return _LONG_DIGITS.search(body) is not None and (
+        _LONG_DIGITS.search(_STRING.sub(b"", body)) is not None
+    )
 
 
 class BodyLimits:
@@ -83,6 +96,16 @@ class BodyLimits:
                 422,
                 "json_too_deep",
                 f"request bodies nest at most {self.max_depth} levels of arrays/objects",
+            )
+            return
+        if json_number_too_long(body):
+            await _refuse(
+                scope,
+                receive,
+                send,
+                422,
+                "json_number_too_long",
+                f"numbers in request bodies have at most {MAX_NUMBER_DIGITS} digits",
             )
             return
         await self.app(scope, _replay(body, receive), send)

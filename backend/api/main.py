@@ -126,6 +126,7 @@ def create_app(
     app.state.faucet = None
     app.state.store = None
     app.state.page_cache = PageCache()  # list pages while the index stands still
+    app.state.nonce_budget = GasBudget(settings.auth_nonces_per_minute)  # one per sign-in msg
     install_error_handlers(app)
     app.add_middleware(
         BodyLimits, max_bytes=settings.max_request_bytes, max_depth=settings.max_json_depth

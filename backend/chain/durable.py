@@ -14,9 +14,10 @@ deploy block), written by the caller once the contracts are deployed, and the fu
 private keys. Those are drawn at random when the file is made: eth-tester's default keys are
 0x..01, 0x..02, ..., known to everyone, and the first of them deploys the contracts, so a
 gateway reachable from outside would let a stranger sign as the platform admin (``/api/tx``
-relays any signed transaction). The file is created readable by its owner only (0600). A chain whose deployment
-was never recorded was interrupted during its first start and is started over (nothing else
-can have happened on it: the gateway serves nothing before the deployment is complete).
+relays any signed transaction). The file is created readable by its owner only (0600).
+A chain whose deployment was never recorded was interrupted during its first start and is
+started over (nothing else can have happened on it: the gateway serves nothing before the
+deployment is complete).
 """
 
 from __future__ import annotations
@@ -31,8 +32,8 @@ from typing import Any
 
 from eth.db.atomic import AtomicDB
 from eth.db.backends.base import BaseDB
-from eth_tester import PyEVMBackend
 from eth_keys import keys as eth_keys
+from eth_tester import PyEVMBackend
 from eth_tester.backends.pyevm.main import (
     generate_genesis_state_for_keys,
     get_default_account_keys,

@@ -8,6 +8,8 @@ cap per call (``RPCGasCap``) and a time limit; here each execution is capped
 drawn from its bucket, refilled at ``rpc_gas_per_minute``. A client whose bucket holds less
 than one capped execution waits (JSON-RPC -32005, "limit exceeded", with the seconds to wait).
 Calls that read the contracts' views use a few hundred thousand gas and never notice.
+
+The bucket counts any unit: ``POST /auth/nonce`` draws one per sign-in message it stores.
 """
 
 from __future__ import annotations

@@ -11,9 +11,10 @@ guided), then reviews the expert, which moves its reputation on chain. Finally t
 publish the model zoo (``models/``: one trained model per thesis row, uploaded with its card),
 so the listing shows what the platform sells.
 
-The requesters are demo users whose keys the embedded gateway holds (``user1``, ``user2`` =
-eth-tester's deterministic keys, funded); the workers sign with their own key files from
-``<data>/keys`` (the gateway holds none of them, so their writes go through ``sign_locally``).
+The requesters are demo users whose keys the development gateway holds (``user1``, ``user2``:
+the chain's funded accounts 1 and 2, random per data directory on the embedded chain); the
+workers sign with their own key files from ``<data>/keys`` (the gateway holds none of them,
+so their writes go through ``sign_locally``).
 """
 
 from __future__ import annotations
@@ -33,26 +34,32 @@ from drlaas.commands.client import write
 from drlaas.commands.up import running_platform
 from workers.daemon.gateway import Gateway, GatewayError
 
-#: eth-tester's account i has private key i + 1 (demo user ``user<i>`` of the gateway).
-DEMO_REQUESTER_KEYS = ("0x" + "0" * 63 + "2", "0x" + "0" * 63 + "3")
 SCENARIO_ENV = {"rows": 6, "cols": 6, "agents": 2, "walls": [0, 0]}
 #: The shipped models (workers/mdrl/zoo.py) the demo workers publish.
 ZOO_DIR = Path(__file__).resolve().parents[2] / "models"
+DEMO_REQUESTERS = ("user1", "user2")  # demo users of the gateway: chain accounts 1 and 2
 
 
-def demo_requester_keys(chain_kind: str) -> tuple[str, str]:
-    """Keys of two funded demo users the gateway holds: eth-tester's deterministic accounts 1
-    and 2 on the embedded chain, the dev mnemonic's accounts 1 and 2 on a dev node (anvil)."""
-    if chain_kind == "embedded":
-        return DEMO_REQUESTER_KEYS
-    from backend.chain.client import DEV_MNEMONIC
+class DemoUser(Gateway):
+    """A demo user of a development gateway, on this machine: the gateway holds its key (the
+    embedded chain's accounts are random per data directory, a dev node's come from its
+    mnemonic) and signs its transactions; its token comes from ``POST /auth/demo-token``."""
 
-    Account.enable_unaudited_hdwallet_features()
-    return tuple(  # type: ignore[return-value]
-        "0x"
-        + bytes(Account.from_mnemonic(DEV_MNEMONIC, account_path=f"m/44'/60'/0'/0/{i}").key).hex()
-        for i in (1, 2)
-    )
+    def __init__(self, url: str, name: str) -> None:
+        super().__init__(url)
+        users = {u["name"]: u["address"] for u in self.get("/auth/demo-users")["data"]}
+        if name not in users:
+            raise LookupError(f"no demo user {name!r} at {url}; it has {sorted(users)}")
+        self.name, self._address = name, str(users[name])
+
+    @property
+    def address(self) -> str:
+        return self._address
+
+    def sign_in(self) -> str:
+        body = {"name": self.name, "address": self._address}
+        self._token = str(self.post("/auth/demo-token", body)["access_token"])
+        return self._token
 
 
 def wait_for(
@@ -91,12 +98,12 @@ def run_scenario(
     steps: int = 2000,
     timeout: float = 300.0,
     say: Callable[[str], None] = print,
-    requester_keys: tuple[str, str] = DEMO_REQUESTER_KEYS,
+    requesters: tuple[str, str] = DEMO_REQUESTERS,
     zoo: Path | None = None,
 ) -> dict[str, Any]:
-    """Run the scenario; returns what happened (task id, CID, reputations, allocation)."""
-    req1 = Gateway(url, Account.from_key(requester_keys[0]))
-    req2 = Gateway(url, Account.from_key(requester_keys[1]))
+    """Run the scenario as two demo users of the gateway (``requesters``); returns what
+    happened (task id, CID, reputations, allocation)."""
+    req1, req2 = DemoUser(url, requesters[0]), DemoUser(url, requesters[1])
     anon = Gateway(url)
     report: dict[str, Any] = {"url": url}
 
@@ -403,11 +410,8 @@ def scenario_command(
     """Run the issue-4 scenario; without --gateway, start a platform for it and stop it after."""
     say = (lambda s: typer.echo(s, err=True)) if as_json else typer.echo
     settings = load_settings()
-    keys = demo_requester_keys(settings.chain_service.kind)
     if gateway:
-        report = run_scenario(
-            gateway, data or settings.data_dir, steps=steps, say=say, requester_keys=keys
-        )
+        report = run_scenario(gateway, data or settings.data_dir, steps=steps, say=say)
     else:
         # a platform of its own starts from nothing: never reuse an earlier run's jobs or chain
         fresh = data or settings.data_dir / f"demo-{time.strftime('%Y%m%d-%H%M%S')}-{os.getpid()}"
@@ -418,9 +422,7 @@ def scenario_command(
             say(f"platform up at {p.url}")
             # the platform it started: its store is this process's to write the zoo into
             zoo = ZOO_DIR if settings.ipfs_service.embedded else None
-            report = run_scenario(
-                p.url, p.data_dir, steps=steps, say=say, requester_keys=keys, zoo=zoo
-            )
+            report = run_scenario(p.url, p.data_dir, steps=steps, say=say, zoo=zoo)
     if as_json:
         typer.echo(json.dumps(report, indent=1, default=str))
     else:

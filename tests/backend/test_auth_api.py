@@ -294,3 +294,22 @@ def test_nonce_consumed_by_a_concurrent_request_is_refused(
         with pytest.raises(Unauthorized) as err:
             verify_sign_in(loser, **kwargs)
     assert err.value.rule == "siwe_nonce_used"
+
+
+def test_sign_in_messages_are_rate_limited_per_remote_client(
+    settings: Settings, clock: Clock, keys: DemoKeys
+) -> None:
+    """Each message is a row until it expires: one client must not fill the table."""
+    limited = settings.model_copy(update={"auth_nonces_per_minute": 3})
+    app = create_app(limited, clock=clock)
+    body = {"address": keys.address("alice")}
+    with TestClient(app, client=("198.51.100.7", 4000)) as remote:
+        codes = [remote.post(f"{P}/auth/nonce", json=body).status_code for _ in range(3)]
+        assert codes == [200] * 3
+        r = remote.post(f"{P}/auth/nonce", json=body)
+        assert_rule(r, 429, "auth_rate_limited")
+        assert 1 <= int(r.headers["Retry-After"]) <= 60
+    with TestClient(app, client=("198.51.100.8", 4000)) as other:  # another client: its own
+        assert other.post(f"{P}/auth/nonce", json=body).status_code == 200
+    with TestClient(app, client=("127.0.0.1", 4000)) as local:  # this machine: unmetered
+        assert all(local.post(f"{P}/auth/nonce", json=body).status_code == 200 for _ in range(5))

@@ -54,6 +54,21 @@ def test_brackets_inside_strings_do_not_count(gateway: str) -> None:
     assert r.json()["detail"][0]["loc"][-1] == "address"
 
 
+@pytest.mark.parametrize("path", ["/api/auth/nonce", "/rpc", "/api/tasks"])
+def test_a_number_of_5000_digits_is_refused_by_name(gateway: str, path: str) -> None:
+    """Python's JSON parser stops at 4,300 digits with a bare 400 'error parsing the body'."""
+    body = b'{"address": "0x7E5F4552091A69125d5DfCb7b8C2659029395Bdf", "n": ' + b"7" * 5000 + b"}"
+    r = httpx.post(gateway + path, content=body, headers=JSON, timeout=30)
+    assert (r.status_code, r.json()["detail"]["rule"]) == (422, "json_number_too_long")
+
+
+def test_long_digit_runs_inside_strings_and_uint256_numbers_pass(gateway: str) -> None:
+    body = b'{"address": "' + b"7" * 5000 + b'", "n": ' + str(2**256 - 1).encode() + b"}"
+    r = httpx.post(gateway + "/api/auth/nonce", content=body, headers=JSON, timeout=30)
+    assert r.status_code == 422 and isinstance(r.json()["detail"], list)  # the field's own check
+    assert "address" in r.text
+
+
 def test_body_at_the_depth_limit_is_parsed(gateway: str) -> None:
     limit = Settings().max_json_depth
     params = "[" * (limit - 2) + "]" * (limit - 2)  # request object + params list + nesting

@@ -5,11 +5,12 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from eth_account import Account
-
-from drlaas.commands.scenario import DEMO_REQUESTER_KEYS, SCENARIO_ENV, wait_for
+from drlaas.commands.scenario import (
+    SCENARIO_ENV,
+    DemoUser,
+    wait_for,
+)
 from drlaas.commands.up import running_platform
-from workers.daemon.gateway import Gateway
 
 from .conftest import worker_logs
 
@@ -21,7 +22,7 @@ def test_killed_worker_resumes_from_its_checkpoint(data_dir: Path) -> None:
         workers=1, data_dir=data_dir, worker_args=["--checkpoint-every", "1"]
     ) as p:
         p.wait_registered()
-        req = Gateway(p.url, Account.from_key(DEMO_REQUESTER_KEYS[0]))
+        req = DemoUser(p.url, "user1")
         req.post("/users/requesters", auth=True)
         created = req.post(
             "/tasks",

@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 
 from backend.chain.client import Chain
-from drlaas.commands.scenario import demo_requester_keys, run_scenario
+from drlaas.commands.scenario import run_scenario
 from drlaas.commands.up import running_platform
 
 from ..backend.conftest import port_open
@@ -93,7 +93,6 @@ def test_scenario_on_real_services(
                 steps=2000,
                 timeout=300,
                 say=lambda s: None,
-                requester_keys=demo_requester_keys("rpc"),
             )
         except Exception as exc:
             raise AssertionError(f"{exc}\n{worker_logs(p)}") from exc

@@ -13,9 +13,13 @@ from pathlib import Path
 from typing import Any
 
 import httpx
-from eth_account import Account
 
-from drlaas.commands.scenario import DEMO_REQUESTER_KEYS, SCENARIO_ENV, run_scenario, wait_for
+from drlaas.commands.scenario import (
+    SCENARIO_ENV,
+    DemoUser,
+    run_scenario,
+    wait_for,
+)
 from workers.daemon.gateway import Gateway
 
 from .test_up import REPO, processes_mentioning
@@ -108,7 +112,7 @@ def test_restart_after_sigterm_and_kill_9_keeps_the_whole_record(data_dir: Path)
         url = info["url"]
         report = run_scenario(url, data_dir, steps=2000, say=lambda s: None)
         # one more task still training when the platform goes down
-        req = Gateway(url, Account.from_key(DEMO_REQUESTER_KEYS[0]))
+        req = DemoUser(url, "user1")
         created = req.post("/tasks", task_body(steps=40_000, minutes=10, seed=11), auth=True)
         training, worker = created["task_id"], created["offered"][0]
         wait_for(
@@ -166,7 +170,7 @@ def test_restart_after_sigterm_and_kill_9_keeps_the_whole_record(data_dir: Path)
         assert [o["worker"] for o in done["outcomes"]] == [worker]
         assert done["outcomes"][0]["cid"] != report["cid"]
         # a new task gets the next id and a fresh job: never the model of an earlier task
-        req3 = Gateway(url3, Account.from_key(DEMO_REQUESTER_KEYS[0]))
+        req3 = DemoUser(url3, "user1")
         fresh = req3.post("/tasks", task_body(steps=2000, minutes=2, seed=7), auth=True)
         assert fresh["task_id"] == training + 1
     finally:

@@ -23,6 +23,8 @@ from backend.api.deps import (
 from backend.api.errors import RuleError, rule_responses
 from backend.api.schemas import Address
 from backend.auth import issue_sign_in, issue_token, verify_sign_in
+from backend.errors import RateLimited
+from backend.services.rpc_budget import GasBudget
 
 router = APIRouter(prefix="/auth", tags=["auth"])
 
@@ -53,15 +55,28 @@ class UserPublic(BaseModel):
     address: str
 
 
-@router.post("/nonce", response_model=NoncePublic, responses=rule_responses(503))
+@router.post("/nonce", response_model=NoncePublic, responses=rule_responses(429, 503))
 def create_nonce(
     body: NonceRequest,
+    request: Request,
     session: SessionDep,
     settings: SettingsDep,
     chain_id: ChainIdDep,
     now: ClockDep,
 ) -> NoncePublic:
-    """A sign-in message with a fresh single-use nonce for ``address``."""
+    """A sign-in message with a fresh single-use nonce for ``address``; at most
+    ``auth_nonces_per_minute`` per remote client (429 ``auth_rate_limited`` + Retry-After)."""
+    if not is_loopback(request):
+        budget: GasBudget = request.app.state.nonce_budget
+        client = request.client.host if request.client else ""
+        wait = budget.wait_s(client, 1)
+        if wait:
+            raise RateLimited(
+                "auth_rate_limited",
+                f"at most {budget.per_minute} sign-in messages a minute per client",
+                retry_after=wait,
+            )
+        budget.charge(client, 1)
     msg = issue_sign_in(
         session, address=body.address, settings=settings, chain_id=chain_id, now=now
     )
