@@ -25,6 +25,7 @@ from web3.exceptions import ContractCustomError, ContractLogicError
 from . import errors
 from .artifacts import load_artifact
 from .pyevm import restore_recursion_limit
+from .tx_lookup import use_indexed_lookup
 
 try:  # eth-tester raises its own exception type for reverts
     from eth_tester.exceptions import TransactionFailed as _TesterFailed
@@ -188,6 +189,7 @@ class Chain:
         from web3 import EthereumTesterProvider
 
         restore_recursion_limit()
+        use_indexed_lookup()
 
         if accounts < 1:
             raise ValueError(f"accounts must be >= 1, got {accounts}")

@@ -25,7 +25,7 @@ from eth_utils import ValidationError as EvmValidationError
 from web3.middleware import combine_middleware
 
 from backend.chain.client import Chain
-from backend.chain.rawtx import check_chain, decode_raw_tx
+from backend.chain.rawtx import RawTx, check_chain, decode_raw_tx
 from backend.services.rpc_budget import GasBudget
 from backend.services.rpc_call import ExecutionFailed, OutOfGas, bounded_estimate, unpriced_call
 from backend.services.rpc_params import InvalidParams, is_unpriced, normalize
@@ -77,6 +77,11 @@ DEFAULT_GAS_CAP = 8_000_000
 """Most gas one ``eth_call`` / ``eth_estimateGas`` execution may use (``Settings.rpc_gas_cap``):
 4x the largest platform transaction measured (an allocation among 10,000 candidates, 1.86M)."""
 EXECUTION_REVERTED = 3
+MAX_LOG_BLOCKS = 500
+"""Most blocks one remote ``eth_getLogs`` may span: every receipt in the range is read under the
+chain lock (~10 ms a block here), so the whole history of a long chain would hold it for
+minutes. Providers bound it the same way (Alchemy: 2,000 blocks); the REST API's index of
+events is the way to read history."""
 
 
 def _quantities(value: Any, key: str | None = None) -> Any:
@@ -120,11 +125,13 @@ class EmbeddedRpc:
         *,
         gas_cap: int = DEFAULT_GAS_CAP,
         budget: GasBudget | None = None,
+        targets: frozenset[str] = frozenset(),
     ) -> None:
         if chain._tester is None:
             raise ValueError("EmbeddedRpc serves only the embedded (eth-tester) chain")
         self.gas_cap = gas_cap
         self.budget = budget
+        self.targets = targets  # the platform contracts: what remote transactions may call
         self.chain = chain
         self.tester = chain._tester
         self.lock = lock
@@ -171,6 +178,8 @@ class EmbeddedRpc:
         except (OutOfGas, ExecutionFailed) as exc:
             return _error(rid, SERVER_ERROR, str(exc))
         except Exception as exc:  # eth-tester raises many types; report, never crash
+            if type(exc).__name__ == "BlockNotFound":  # a block past the head: geth's answer
+                return _error(rid, SERVER_ERROR, "header not found")
             data = _revert_bytes(exc)
             if type(exc).__name__ == "TransactionFailed" or data is not None:
                 return _error(
@@ -188,11 +197,15 @@ class EmbeddedRpc:
         if method == "eth_feeHistory":
             return fee_history(self.tester, params)
         if method == "eth_sendRawTransaction":
-            self._check_replay_protected(params[0])
+            tx = self._check_replay_protected(params[0])
+            if client not in UNMETERED:
+                self._check_remote_tx(tx, client)
         if method == "eth_getLogs":
             params[0] = self._up_to_head(params[0])
             if params[0] is None:
                 return []
+            if client not in UNMETERED:
+                self._check_log_span(params[0])
         response = self._request(method, params)
         if "error" in response:
             err = response["error"]
@@ -242,14 +255,60 @@ class EmbeddedRpc:
                 f"insufficient funds for gas * price + value: have {have} want {need}",
             )
 
-    def _check_replay_protected(self, raw: Any) -> None:
+    def _check_replay_protected(self, raw: Any) -> RawTx:
         """A raw transaction signed for this chain (EIP-155), as geth requires over RPC."""
         if not isinstance(raw, str) or not raw.startswith("0x"):
             raise InvalidParams("the transaction must be hex bytes ('0x...')")
         try:
-            check_chain(decode_raw_tx(bytes.fromhex(raw[2:])), self.chain.chain_id)
+            tx = decode_raw_tx(bytes.fromhex(raw[2:]))
+            check_chain(tx, self.chain.chain_id)
         except ValueError as exc:  # RawTxError, or hex that does not parse
             raise _RpcFailure(SERVER_ERROR, f"invalid transaction: {exc}") from None
+        return tx
+
+    def _check_remote_tx(self, tx: RawTx, client: str) -> None:
+        """What a remote client may have mined: calls of the platform contracts and plain
+        transfers, with at most the gas cap, drawn from its gas budget. A transaction holds
+        the chain lock while it runs (a 30M-gas loop: ~7 s), and the faucet pays its fee, so
+        arbitrary code (a contract it deployed) would let anyone stop the platform."""
+        if tx.to is None:
+            raise _RpcFailure(
+                SERVER_ERROR, "contract creation is not accepted from remote clients here"
+            )
+        plain_transfer = not tx.data and self.tester.get_code(tx.to) in ("0x", b"")
+        if tx.to not in self.targets and not plain_transfer:
+            raise _RpcFailure(
+                SERVER_ERROR,
+                f"transaction goes to {tx.to}: remote clients may call the platform contracts "
+                f"({', '.join(sorted(self.targets))}) or send plain transfers",
+            )
+        if tx.gas > self.gas_cap:
+            raise _RpcFailure(
+                SERVER_ERROR, f"gas limit {tx.gas} is over this gateway's cap of {self.gas_cap}"
+            )
+        if self.budget is not None:
+            wait = self.budget.wait_s(client, tx.gas)
+            if wait:
+                raise _RpcFailure(
+                    LIMIT_EXCEEDED,
+                    f"execution gas of this client used up ({self.budget.per_minute} gas a "
+                    f"minute): retry in {wait} s",
+                )
+            self.budget.charge(client, tx.gas)
+
+    def _check_log_span(self, flt: dict[str, Any]) -> None:
+        head = int(self.tester.get_block_by_number("latest")["number"])
+
+        def number(at: Any) -> int:
+            return 0 if at == "earliest" else at if isinstance(at, int) else head
+
+        start, end = number(flt.get("fromBlock", "latest")), number(flt.get("toBlock", "latest"))
+        if end - start + 1 > MAX_LOG_BLOCKS:
+            raise _RpcFailure(
+                LIMIT_EXCEEDED,
+                f"eth_getLogs spans {end - start + 1} blocks; at most {MAX_LOG_BLOCKS} from "
+                "remote clients (read history from the REST API's index)",
+            )
 
     def _up_to_head(self, flt: dict[str, Any]) -> dict[str, Any] | None:
         """A log filter with block numbers past the head clamped to it (geth's rule); None if

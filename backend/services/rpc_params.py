@@ -38,6 +38,7 @@ SERVED_TX_TYPES = frozenset({0, 1, 2, 4})  # legacy, access list, EIP-1559, EIP-
 FILTER_FIELDS = frozenset({"fromBlock", "toBlock", "address", "topics", "blockHash"})
 _QUANTITY = re.compile(r"0x[0-9a-fA-F]{1,64}")
 _HASH = re.compile(r"0x[0-9a-fA-F]{64}")
+_ADDRESS = re.compile(r"0x[0-9a-fA-F]{40}")
 _DATA = re.compile(r"0x(?:[0-9a-fA-F]{2})*")
 
 #: Position of the block parameter for the methods that take one.
@@ -50,7 +51,15 @@ BLOCK_PARAM = {
     "eth_estimateGas": 1,
     "eth_getBlockByNumber": 0,
     "eth_feeHistory": 1,
+    "eth_getBlockTransactionCountByNumber": 0,
+    "eth_getTransactionByBlockNumberAndIndex": 0,
 }
+BY_BLOCK_HASH = (
+    "eth_getBlockByHash",
+    "eth_getBlockTransactionCountByHash",
+    "eth_getTransactionByBlockHashAndIndex",
+)
+BY_INDEX = ("eth_getTransactionByBlockNumberAndIndex", "eth_getTransactionByBlockHashAndIndex")
 
 BlockByHash = Callable[[str], int]
 """Block number of a block hash; raises :class:`InvalidParams` when no such block exists."""
@@ -122,10 +131,40 @@ def call_object(tx: Any, chain_id: int) -> dict[str, Any]:
     for key in ("gas", "value", *FEE_FIELDS):
         if key in tx:
             tx[key] = quantity(tx[key], key)
+    if "accessList" in tx:
+        _access_list(tx["accessList"])
+    if "authorizationList" in tx:
+        if not isinstance(tx["authorizationList"], list) or not all(
+            isinstance(a, dict) for a in tx["authorizationList"]
+        ):
+            raise InvalidParams("authorizationList must be a list of authorization objects")
     if "maxFeePerGas" in tx:
         tx.setdefault("maxPriorityFeePerGas", 0)  # a fee cap alone: no tip (eth-tester needs both)
     tx.setdefault("from", ZERO_ADDRESS)
     return tx
+
+
+def _access_list(value: Any) -> None:
+    """EIP-2930: a list of ``{"address", "storageKeys": [32-byte hex, ...]}``."""
+    ok = isinstance(value, list) and all(
+        isinstance(e, dict)
+        and set(e) == {"address", "storageKeys"}
+        and isinstance(e["address"], str)
+        and _ADDRESS.fullmatch(e["address"])
+        and isinstance(e["storageKeys"], list)
+        and all(isinstance(k, str) and _HASH.fullmatch(k) for k in e["storageKeys"])
+        for e in value
+    )
+    if not ok:
+        raise InvalidParams(
+            "accessList must be a list of {address, storageKeys: [32-byte hex]} objects"
+        )
+
+
+def _block_hash(value: Any, what: str) -> str:
+    if not isinstance(value, str) or not _HASH.fullmatch(value):
+        raise InvalidParams(f"{what} must be 32 bytes of hex, got {str(value)[:80]!r}")
+    return value
 
 
 def is_unpriced(tx: dict[str, Any]) -> bool:
@@ -151,6 +190,8 @@ def log_filter(flt: Any, by_hash: BlockByHash) -> dict[str, Any]:
             if isinstance(flt[key], dict):
                 raise InvalidParams(f"{key} is a tag or a number")
             flt[key] = _executed(block_id(flt[key], by_hash))
+            if flt[key] == "earliest":  # eth-tester's log filter finds nothing from this tag
+                flt[key] = 0
     return flt
 
 
@@ -174,6 +215,12 @@ def normalize(method: str, params: list[Any], chain_id: int, by_hash: BlockByHas
         if len(params) != 1:
             raise InvalidParams("eth_getLogs takes one filter object")
         params[0] = log_filter(params[0], by_hash)
+    elif method in BY_BLOCK_HASH and params:
+        params[0] = _block_hash(params[0], "block hash")
+    elif method in ("eth_getTransactionByHash", "eth_getTransactionReceipt") and params:
+        params[0] = _block_hash(params[0], "transaction hash")
+    if method in BY_INDEX and len(params) > 1:
+        params[1] = hex(quantity(params[1], "index"))
     at = BLOCK_PARAM.get(method)
     if at is not None and at == len(params):
         params.append("latest")  # the spec's default; web3's formatters want it spelled out

@@ -19,6 +19,9 @@ from hexbytes import HexBytes
 from backend.services.rpc_params import InvalidParams, quantity
 
 MAX_FEE_HISTORY_BLOCKS = 1024
+MAX_REWARD_BLOCKS = 128
+"""With ``rewardPercentiles`` every receipt of every block is read (~10 ms a block under the
+chain lock), so fewer blocks."""
 TX_KEYS = {
     "block_hash": "blockHash",
     "block_number": "blockNumber",
@@ -103,6 +106,8 @@ def fee_history(tester: Any, params: list[Any]) -> dict[str, Any]:
         )
         if not ok or any(a > b for a, b in zip(percentiles, percentiles[1:], strict=False)):
             raise InvalidParams("rewardPercentiles must be increasing numbers in 0..100")
+        if count > MAX_REWARD_BLOCKS:  # rewards read every receipt of every block
+            raise InvalidParams(f"blockCount must be 1..{MAX_REWARD_BLOCKS} with rewardPercentiles")
     latest = int(tester.get_block_by_number("latest")["number"])
     newest = params[1]
     if newest in ("latest", "pending", "safe", "finalized"):

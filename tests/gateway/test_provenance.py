@@ -85,3 +85,30 @@ def test_own_upload_needs_its_card(client: TestClient, login: Login) -> None:
     )
     r = client.post(f"{P}/models", json={"cid": cid, "env": ENV}, headers=login("user3"))
     assert r.status_code == 201, r.text
+
+
+def test_a_listed_model_resubmitted_as_an_outcome_keeps_no_producer(
+    client: TestClient, login: Login, service: ChainService
+) -> None:
+    """The TMC takes any CID as an outcome, a listed one too: someone who submits another
+    owner's model as the outcome of its own task must not become its producer on the page."""
+    register(client, login, ["user1"], {"user3": {}, "user4": {}})
+    store = client.app.state.store  # type: ignore[attr-defined]
+    cid = add_bundle(
+        store, {"model.safetensors": weights_of("victim"), "model.json": card_of(ENV, "v")}
+    )
+    r = client.post(f"{P}/models", json={"cid": cid, "env": ENV}, headers=login("user3"))
+    assert r.status_code == 201, r.text
+    model_id = r.json()["id"]
+    r = client.post(f"{P}/tasks", json=task_body(num_workers=2), headers=login("user1"))
+    task_id, offered = r.json()["task_id"], r.json()["offered"]
+    thief = next(w for w in offered if w == addr(service, "user4"))
+    with service.lock:
+        service.platform.tmc.transact("acceptOffer", task_id, sender=thief)
+        service.platform.tmc.transact("submitOutcome", task_id, cid, sender=thief)
+        service.platform.tmc.transact(
+            "reviewOutcome", task_id, thief, 5, True, sender=addr(service, "user1")
+        )
+    client.app.state.indexer.poll()  # type: ignore[attr-defined]
+    page = client.get(f"{P}/models/{model_id}").json()
+    assert page["produced_by"] is None and page["owner"] == addr(service, "user3")

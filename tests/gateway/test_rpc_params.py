@@ -129,3 +129,38 @@ def test_log_filters(gateway: str, service: ChainService) -> None:
 )
 def test_fee_history_bounds(gateway: str, params: list[Any]) -> None:
     assert rpc(gateway, "eth_feeHistory", *params)["error"]["code"] == -32602
+
+
+@pytest.mark.parametrize(
+    ("method", "params", "names"),
+    [
+        ("eth_getTransactionByBlockNumberAndIndex", ["0x1", "latest"], "index"),
+        ("eth_getTransactionByBlockNumberAndIndex", ["0x1", "0x"], "index"),
+        ("eth_getTransactionByBlockNumberAndIndex", [{}, "0x0"], "block"),
+        ("eth_getTransactionByBlockHashAndIndex", ["0x12", "0x0"], "block hash"),
+        ("eth_getBlockTransactionCountByNumber", [{}], "block"),
+        ("eth_getBlockTransactionCountByHash", [[]], "block hash"),
+        ("eth_getTransactionReceipt", ["0x" + "f" * 65], "transaction hash"),
+        ("eth_call", [{"to": "0x" + "11" * 20, "accessList": 1}], "accessList"),
+        (
+            "eth_call",
+            [{"to": "0x" + "11" * 20, "authorizationList": {"a": 1}}],
+            "authorizationList",
+        ),
+    ],
+)
+def test_malformed_parameters_are_named_not_internal_errors(
+    gateway: str, method: str, params: list[Any], names: str
+) -> None:
+    err = rpc(gateway, method, *params)["error"]
+    assert err["code"] == -32602 and names in err["message"], err
+
+
+def test_a_block_past_the_head_is_header_not_found(gateway: str) -> None:
+    """State at a block that does not exist (a block itself past the head is null)."""
+    for method, params in [
+        ("eth_getCode", ["0x" + "11" * 20, "0x" + "f" * 16]),
+        ("eth_getBalance", ["0x" + "11" * 20, "0x" + "f" * 16]),
+    ]:
+        err = rpc(gateway, method, *params)["error"]
+        assert (err["code"], err["message"]) == (-32000, "header not found"), (method, err)

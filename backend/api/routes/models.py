@@ -368,8 +368,17 @@ def get_model(model_id: ModelId, session: SessionDep, store: StoreDep) -> ModelD
     owner = session.get(m.WorkerRow, row.owner)
     card = _card(store, row.cid)
     view = CardView.from_card(card)
+    # The outcome this model came from: submitted no later than the listing, by its owner
+    # (MMC.addModel's provenance rule). An outcome submitted later with the same CID is
+    # someone re-submitting a listed model as their own work: it says nothing about this one.
     produced = session.scalars(
-        select(m.OutcomeRow).where(m.OutcomeRow.cid == row.cid).limit(1)
+        select(m.OutcomeRow)
+        .where(
+            m.OutcomeRow.cid == row.cid,
+            m.OutcomeRow.worker == row.owner,
+            m.OutcomeRow.block_number <= row.block_number,
+        )
+        .limit(1)
     ).first()
     task = session.get(m.TaskRow, produced.task_id) if produced is not None else None
     return ModelDetailPublic(

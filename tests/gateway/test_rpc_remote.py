@@ -1,0 +1,159 @@
+"""What a remote ``/rpc`` client can make the embedded chain do while it holds the chain lock:
+mine only platform calls and plain transfers within the gas cap and its budget, read logs over
+a bounded span, fee rewards over fewer blocks; and a transaction is found by hash from py-evm's
+index, not by walking the chain back from the head."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import pytest
+from eth_account import Account
+from fastapi.testclient import TestClient
+
+from backend.api.main import create_app
+from backend.chain.tx_lookup import indexed_transaction_by_hash
+from backend.services.chain import ChainService
+from backend.services.rpc import (
+    INVALID_PARAMS,
+    LIMIT_EXCEEDED,
+    MAX_LOG_BLOCKS,
+    SERVER_ERROR,
+    EmbeddedRpc,
+)
+from backend.services.rpc_budget import GasBudget
+from backend.settings import Settings
+
+LOOP_RUNTIME = "5b600056"  # JUMPDEST PUSH1 0 JUMP: runs until the gas is gone
+# init code: CODECOPY the 4 runtime bytes after these 11 to memory 0 and RETURN them
+DEPLOY_LOOP = "0x600480600b6000396000f3" + LOOP_RUNTIME
+CAP = 3_000_000
+
+
+def call(rpc: EmbeddedRpc, method: str, params: list[Any], client: str) -> dict[str, Any]:
+    return rpc.handle({"jsonrpc": "2.0", "id": 1, "method": method, "params": params}, client)
+
+
+@pytest.fixture
+def rpc(service: ChainService) -> EmbeddedRpc:
+    targets = frozenset(h.address for h in service.platform.contracts)
+    budget = GasBudget(4 * CAP, clock=lambda: 0.0)
+    return EmbeddedRpc(service.chain, service.lock, gas_cap=CAP, budget=budget, targets=targets)
+
+
+def signed(service: ChainService, sender: str, **tx: Any) -> str:
+    w3 = service.chain.w3
+    full = {
+        "chainId": service.chain.chain_id,
+        "nonce": w3.eth.get_transaction_count(sender),
+        "maxFeePerGas": 10 * w3.eth.get_block("latest")["baseFeePerGas"],
+        "maxPriorityFeePerGas": 0,
+        "value": 0,
+        **tx,
+    }
+    return "0x" + bytes(service.chain._keys[sender].sign_transaction(full).raw_transaction).hex()
+
+
+def test_a_remote_client_cannot_deploy_or_run_its_own_code(
+    service: ChainService, rpc: EmbeddedRpc
+) -> None:
+    me = service.chain.accounts[3]
+    create = signed(service, me, data=DEPLOY_LOOP, gas=100_000)
+    err = call(rpc, "eth_sendRawTransaction", [create], "198.51.100.7")["error"]
+    assert err["code"] == SERVER_ERROR and "contract creation" in err["message"]
+    # this machine may (the platform's own tools); then a remote call of that code is refused
+    assert "result" in call(rpc, "eth_sendRawTransaction", [create], "local")
+    loop = service.chain.w3.eth.get_transaction_receipt(
+        service.chain.w3.eth.get_block("latest")["transactions"][0]
+    )["contractAddress"]
+    assert service.chain.w3.eth.get_code(loop).hex().endswith(LOOP_RUNTIME)
+    run = signed(service, me, to=loop, gas=CAP)
+    err = call(rpc, "eth_sendRawTransaction", [run], "198.51.100.7")["error"]
+    assert err["code"] == SERVER_ERROR and "platform contracts" in err["message"]
+    # even with no data: value sent to code runs it
+    err = call(
+        rpc,
+        "eth_sendRawTransaction",
+        [signed(service, me, to=loop, gas=CAP, value=1)],
+        "198.51.100.7",
+    )["error"]
+    assert err["code"] == SERVER_ERROR
+
+
+def test_a_remote_client_may_transfer_and_call_the_platform_within_cap_and_budget(
+    service: ChainService, rpc: EmbeddedRpc
+) -> None:
+    me, you = service.chain.accounts[3], Account.create().address
+    ok = call(
+        rpc,
+        "eth_sendRawTransaction",
+        [signed(service, me, to=you, value=5, gas=21_000)],
+        "198.51.100.7",
+    )
+    assert "result" in ok and service.chain.balance(you) == 5
+    umc = service.platform.umc
+    data = umc.contract.encode_abi("addRequester", [])
+    over = signed(service, me, to=umc.address, data=data, gas=CAP + 1)
+    err = call(rpc, "eth_sendRawTransaction", [over], "198.51.100.7")["error"]
+    assert err["code"] == SERVER_ERROR and str(CAP) in err["message"]
+    assert rpc.budget is not None
+    before = rpc.budget.available("198.51.100.7")
+    tx = signed(service, me, to=umc.address, data=data, gas=CAP)
+    assert "result" in call(rpc, "eth_sendRawTransaction", [tx], "198.51.100.7")
+    assert umc.call("isRequester", me) is True
+    assert rpc.budget.available("198.51.100.7") == before - CAP  # its gas limit, drawn
+    # the budget is four capped transactions: the fifth waits
+    for _ in range(3):
+        rpc.budget.charge("198.51.100.7", CAP)
+    again = signed(service, me, to=you, value=1, gas=21_000)
+    err = call(rpc, "eth_sendRawTransaction", [again], "198.51.100.7")["error"]
+    assert err["code"] == LIMIT_EXCEEDED
+
+
+def test_remote_log_queries_span_a_bounded_number_of_blocks(
+    service: ChainService, rpc: EmbeddedRpc
+) -> None:
+    service.chain._tester.mine_blocks(MAX_LOG_BLOCKS + 5)
+    whole = {"fromBlock": "earliest", "toBlock": "latest"}
+    err = call(rpc, "eth_getLogs", [whole], "198.51.100.7")["error"]
+    assert err["code"] == LIMIT_EXCEEDED and str(MAX_LOG_BLOCKS) in err["message"]
+    assert call(rpc, "eth_getLogs", [whole], "local")["result"]  # the deployment's events
+    head = service.chain.w3.eth.block_number
+    recent = {"fromBlock": hex(head - MAX_LOG_BLOCKS + 1)}
+    assert call(rpc, "eth_getLogs", [recent], "198.51.100.7")["result"] == []
+
+
+def test_fee_rewards_are_read_over_at_most_128_blocks(rpc: EmbeddedRpc) -> None:
+    err = call(rpc, "eth_feeHistory", ["0x81", "latest", [50]], "local")["error"]
+    assert err["code"] == INVALID_PARAMS and "128" in err["message"]
+    assert "result" in call(rpc, "eth_feeHistory", ["0x80", "latest", [50]], "local")
+    assert "result" in call(rpc, "eth_feeHistory", ["0x400", "latest"], "local")  # no rewards
+
+
+def test_an_old_transaction_is_found_without_walking_the_chain(
+    service: ChainService, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    w3, tester = service.chain.w3, service.chain._tester
+    me = service.chain.accounts[3]
+    old = w3.eth.send_raw_transaction(signed(service, me, to=me, gas=21_000))
+    tester.mine_blocks(50)
+    chain = tester.backend.chain
+    reads: list[int] = []
+    by_number = chain.get_canonical_block_by_number
+    monkeypatch.setattr(
+        chain, "get_canonical_block_by_number", lambda n: reads.append(n) or by_number(n)
+    )
+    block, tx, index = indexed_transaction_by_hash(chain, bytes(old))
+    assert tx.hash == bytes(old) and index == 0 and len(reads) == 1
+    receipt = w3.eth.get_transaction_receipt(old)  # eth-tester's own path uses it too
+    assert receipt["blockNumber"] == block.number and len(reads) == 2
+    with pytest.raises(Exception, match="No transaction found"):
+        tester.get_transaction_receipt("0x" + "11" * 32)
+
+
+def test_the_gateway_gives_the_rpc_its_platform_targets(
+    service: ChainService, tmp_path: Any
+) -> None:
+    app = create_app(Settings(data_dir=tmp_path), chain=service, indexer_interval=None)
+    with TestClient(app) as c:
+        assert c.app.state.rpc.targets == {h.address for h in service.platform.contracts}
