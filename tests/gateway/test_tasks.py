@@ -10,6 +10,7 @@ import pytest
 from eth_account import Account
 from fastapi.testclient import TestClient
 
+from backend.api.routes import tasks as tasks_routes
 from backend.chain.platform import OfferState, TaskStatus
 from backend.services.chain import ChainService
 from backend.settings import Settings
@@ -80,7 +81,7 @@ def _accept(service: ChainService, task_id: int, worker: str) -> None:
 
 
 def test_progress_review_and_cancel_act_only_for_the_right_address(
-    client: TestClient, login: Login, service: ChainService
+    client: TestClient, login: Login, service: ChainService, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     register(client, login, ["user1", "user2"], WORKERS)
     task_id = client.post(
@@ -112,10 +113,21 @@ def test_progress_review_and_cancel_act_only_for_the_right_address(
         client.post(f"{P}/tasks/{task_id}/progress", json=point, headers=login(name)).status_code
         == 409
     )
+    # a bounded number of points per worker and task (each is a row)
+    monkeypatch.setattr(tasks_routes, "MAX_PROGRESS_POINTS", 2)
+    r = client.post(
+        f"{P}/tasks/{task_id}/progress", json=point | {"step": 200}, headers=login(name)
+    )
+    assert r.status_code == 201, r.text
+    r = client.post(
+        f"{P}/tasks/{task_id}/progress", json=point | {"step": 300}, headers=login(name)
+    )
+    assert r.status_code == 409 and r.json()["detail"]["rule"] == "progress_full"
     r = client.post(f"{P}/tasks/{task_id}/progress", json=point | {"step": 5}, headers=login(other))
     assert r.status_code == 403
     detail = client.get(f"{P}/tasks/{task_id}").json()
-    assert [(p["step"], p["extra"]) for p in detail["progress"]] == [(100, {"entropy": 1.2})]
+    assert [p["step"] for p in detail["progress"]] == [100, 200]
+    assert detail["progress"][0]["extra"] == {"entropy": 1.2}
 
     # a task with an accepted worker cannot be cancelled (contract rule, named)
     r = client.post(f"{P}/tasks/{task_id}/cancel", headers=login("user1"))
@@ -323,13 +335,20 @@ def test_sign_locally_then_relay(client: TestClient, service: ChainService, sett
         me.sign_transaction({**legacy, "chainId": 5}),
         me.sign_transaction({k: v for k, v in legacy.items() if k != "chainId"}),
     ):
-        r = client.post(f"{P}/tx", json={"raw": "0x" + bytes(other.raw_transaction).hex()},
-                        headers=headers)
+        r = client.post(
+            f"{P}/tx", json={"raw": "0x" + bytes(other.raw_transaction).hex()}, headers=headers
+        )
         assert r.status_code == 422 and r.json()["detail"]["rule"] == "tx_invalid", r.text
         assert "chain" in r.json()["detail"]["msg"]
-        rpc = client.post("/rpc", json={"jsonrpc": "2.0", "id": 1,
-                                        "method": "eth_sendRawTransaction",
-                                        "params": ["0x" + bytes(other.raw_transaction).hex()]})
+        rpc = client.post(
+            "/rpc",
+            json={
+                "jsonrpc": "2.0",
+                "id": 1,
+                "method": "eth_sendRawTransaction",
+                "params": ["0x" + bytes(other.raw_transaction).hex()],
+            },
+        )
         assert rpc.json()["error"]["code"] == -32000 and "chain" in rpc.json()["error"]["message"]
     assert not service.platform.umc.call("isRequester", me.address)
 

@@ -59,6 +59,10 @@ from workers.mdrl.trainingspec import TrainingSpec
 router = APIRouter(prefix="/tasks", tags=["tasks"])
 TaskId = Annotated[int, Path(ge=1, le=MAX_ID)]
 PROGRESS_STATES = ("accepted", "submitted")
+MAX_PROGRESS_POINTS = 5_000
+"""Curve points one worker may post for one task: each is a row, and an assigned worker could
+otherwise post a point for every one of 10^12 steps (a long run posts one per update: ~750 for
+12M steps)."""
 """Offer states in which a worker posts curve points: from acceptance until its outcome is
 reviewed (a point may arrive just after the submission)."""
 
@@ -424,6 +428,18 @@ def post_progress(
             403,
             "not_assigned_worker",
             f"{user.address} is not an assigned worker of task {task_id}",
+        )
+    posted = session.scalar(
+        select(func.count())
+        .select_from(m.ProgressPoint)
+        .where(m.ProgressPoint.task_id == task_id, m.ProgressPoint.worker == user.address)
+    )
+    if (posted or 0) >= MAX_PROGRESS_POINTS:
+        raise RuleError(
+            409,
+            "progress_full",
+            f"{user.address} has posted {MAX_PROGRESS_POINTS} points for task {task_id}, the most "
+            "one worker may",
         )
     point = m.ProgressPoint(
         task_id=task_id,
