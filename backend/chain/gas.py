@@ -40,6 +40,7 @@ DOMAIN = 7
 NUM_WORKERS = 5  # NW of the measured training task and of the model request
 FIRST_WORKER = 2  # accounts 0 (admin) and 1 (requester) are not workers
 CID = "bafkreidot3j5vvbthwtydmn3ny2pq2ckibhbuj5sech6wpzsxokrkqntsy"
+OUTCOME_CID = "bafkreigh2akiscaildcqabsyg3dfr6chu3fgpregiymsck7e7aqa4s52zy"  # not a listed one
 
 
 def intrinsic_gas(calldata: bytes, create: bool = False) -> int:
@@ -163,7 +164,7 @@ def gas_report(workers: int = 50, scaling: Sequence[int] = (50, 200, 600), seed:
         "TMC.declineOffer", p.tmc.transact("declineOffer", tid, sender=offered[1])
     )
     f["TMC.submitOutcome"] = _entry(
-        "TMC.submitOutcome", p.tmc.transact("submitOutcome", tid, CID, sender=offered[0])
+        "TMC.submitOutcome", p.tmc.transact("submitOutcome", tid, OUTCOME_CID, sender=offered[0])
     )
     f["TMC.reviewOutcome"] = _entry(
         "TMC.reviewOutcome",

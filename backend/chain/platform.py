@@ -391,6 +391,7 @@ def deploy_platform(
     mmc, r_mmc = chain.deploy("ModelsManager", umc.address, tmc.address, sender=admin)
     umc.transact("setPlatform", tmc.address, True, sender=admin)
     umc.transact("setPlatform", mmc.address, True, sender=admin)
+    tmc.transact("setModels", mmc.address, sender=admin)  # listed CIDs are no outcomes
     if min_reward_per_hour:
         tmc.transact("setMinRewardPerHour", min_reward_per_hour, sender=admin)
     if min_model_price:

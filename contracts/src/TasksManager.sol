@@ -4,6 +4,7 @@ pragma solidity ^0.8.24;
 import {ReentrancyGuardTransient} from "@openzeppelin/contracts/utils/ReentrancyGuardTransient.sol";
 import {IUsersManager, Packed} from "./IUsersManager.sol";
 import {ITasksOutcomes} from "./ITasksOutcomes.sol";
+import {IModelsListing} from "./IModelsListing.sol";
 import {QoSMath} from "./QoSMath.sol";
 
 /**
@@ -167,6 +168,8 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
     error TasksNotSubmitted(uint256 taskId, address worker);
     error TasksEmptyCid();
     error TasksDuplicateOutcome(uint256 taskId, address worker);
+    error TasksOutcomeIsListedModel(uint256 modelId);
+    error TasksModelsAlreadySet(address models);
     error TasksRewardBelowMinimum(uint256 reward, uint256 minimum);
     error TasksBadReview(uint8 review);
     error TasksHasAcceptedWorkers(uint256 taskId);
@@ -206,8 +209,11 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
     event MinRewardPerHourUpdated(uint256 weiPerHour);
     event TaskLimitsUpdated(uint32 minWorkTime, uint40 maxDuration);
     event SlotsCancelled(uint256 indexed taskId, uint8 cancelled, uint8 numWorkers);
+    event ModelsListingSet(address models);
 
     IUsersManager public immutable umc;
+    /// The MMC, set once by an admin after both are deployed (each names the other).
+    IModelsListing public models;
 
     /// Admin-set parameters (one slot): Eq. 20 weight w1 (scaled by 1e6), windows in seconds.
     uint64 public w1;
@@ -267,6 +273,19 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
         mask = accepted ? mask | (uint256(1) << series) : mask & ~(uint256(1) << series);
         acceptedGpus = mask;
         emit AcceptedGpusUpdated(mask);
+    }
+
+    /**
+     * @dev Names the MMC whose listed CIDs {submitOutcome} refuses, once (the MMC is deployed
+     * after the TMC, with its address). Requirements: caller is a consortium admin; not set
+     * before; a nonzero address. Emits a {ModelsListingSet} event.
+     */
+    function setModels(IModelsListing models_) external {
+        _checkAdmin();
+        if (address(models) != address(0)) revert TasksModelsAlreadySet(address(models));
+        if (address(models_) == address(0)) revert TasksBadConfig();
+        models = models_;
+        emit ModelsListingSet(address(models_));
     }
 
     /**
@@ -551,9 +570,12 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
      * counts as a completed task (E of Eq. 18, N of Eq. 16). The CID is recorded as this
      * worker's outcome of this task ({outcomeOf}); a CID is an outcome once on this chain,
      * so no worker can hand in a model already submitted (by itself or anyone else) for
-     * another task or slot.
+     * another task or slot, nor one already listed on the MMC ({setModels}): a shared model
+     * handed in as an outcome would be someone else's work, and its outcome record would
+     * name the wrong producer of a listed model.
      * Requirements: task open; caller accepted the task and has not submitted; before the
-     * deadline; non-empty CID never submitted before. Emits an {OutcomeSubmitted} event.
+     * deadline; non-empty CID never submitted before nor listed as a model. Emits an
+     * {OutcomeSubmitted} event.
      */
     function submitOutcome(uint256 taskId, string calldata cid) external {
         Task storage t = _tasks[taskId];
@@ -563,6 +585,10 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
         if (bytes(cid).length == 0) revert TasksEmptyCid();
         OutcomeRecord storage rec = _outcomes[keccak256(bytes(cid))];
         if (rec.worker != address(0)) revert TasksDuplicateOutcome(rec.taskId, rec.worker);
+        if (address(models) != address(0)) {
+            uint256 listed = models.modelOfCid(keccak256(bytes(cid)));
+            if (listed != 0) revert TasksOutcomeIsListedModel(listed);
+        }
         (rec.worker, rec.taskId) = (msg.sender, uint64(taskId));
         o.state = OfferState.Submitted;
         umc.updateInfo(msg.sender, _reqs[taskId].domain, TRAINING, COMPLETED, 0);

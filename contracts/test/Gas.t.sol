@@ -6,6 +6,7 @@ import {UsersManager} from "../src/UsersManager.sol";
 import {TasksManager} from "../src/TasksManager.sol";
 import {ModelsManager} from "../src/ModelsManager.sol";
 import {IUsersManager} from "../src/IUsersManager.sol";
+import {IModelsListing} from "../src/IModelsListing.sol";
 import {ITasksOutcomes} from "../src/ITasksOutcomes.sol";
 
 /**
@@ -43,6 +44,7 @@ contract GasTest is Fixture {
         vm.startPrank(admin);
         umc.setPlatform(address(tmc), true);
         umc.setPlatform(address(mmc), true);
+        tmc.setModels(IModelsListing(address(mmc)));
         umc.setApprovalRequired(false); // as gas.py: workers are Active at registration
         vm.stopPrank();
         vm.deal(requester, 1e30);

@@ -3,6 +3,7 @@ pragma solidity ^0.8.24;
 
 import {Fixture} from "./utils/Fixture.sol";
 import {TasksManager} from "../src/TasksManager.sol";
+import {IModelsListing} from "../src/IModelsListing.sol";
 
 /// @dev Fuzz tests of every external state-changing function of the TMC: valid path (state,
 /// money, event) and wrong-role / bad-input reverts with the exact custom error.
@@ -323,6 +324,33 @@ contract TasksManagerFuzzTest is Fixture {
         vm.expectRevert(abi.encodeWithSelector(TasksManager.TasksDuplicateOutcome.selector, id, w));
         vm.prank(w2);
         tmc.submitOutcome(id2, cid);
+    }
+
+    function testFuzz_submitOutcome_listedModelRefused(string calldata cid) public {
+        vm.assume(bytes(cid).length != 0);
+        // a worker lists its own upload; another hands the same CID in as its task's outcome
+        address owner_ = workers[5];
+        uint32[] memory env = new uint32[](2);
+        (env[0], env[1]) = (3, 3);
+        vm.prank(owner_);
+        uint256 modelId = mmc.addModel(cid, "mine", DOMAIN, env);
+        (uint256 id, address w) = _accepted(1e9);
+        vm.expectRevert(abi.encodeWithSelector(TasksManager.TasksOutcomeIsListedModel.selector, modelId));
+        vm.prank(w);
+        tmc.submitOutcome(id, cid);
+        (address who,,) = tmc.outcomeOf(keccak256(bytes(cid)));
+        vm.assertEq(who, address(0), "no outcome recorded");
+    }
+
+    function testFuzz_setModels(address caller, address other) public {
+        vm.assume(caller != admin && other != address(0));
+        vm.assertEq(address(tmc.models()), address(mmc), "set at deployment");
+        vm.expectRevert(abi.encodeWithSelector(TasksManager.TasksNotAdmin.selector, caller));
+        vm.prank(caller);
+        tmc.setModels(IModelsListing(other));
+        vm.expectRevert(abi.encodeWithSelector(TasksManager.TasksModelsAlreadySet.selector, address(mmc)));
+        vm.prank(admin);
+        tmc.setModels(IModelsListing(other));
     }
 
     // ------------------------------------------------------------------ reviewOutcome

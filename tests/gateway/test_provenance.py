@@ -4,8 +4,10 @@ one on the model's card, and a CID is listed once."""
 
 from __future__ import annotations
 
+import pytest
 from fastapi.testclient import TestClient
 
+from backend.chain.errors import ContractError
 from backend.services.chain import ChainService
 from backend.store.bundle import add_bundle
 
@@ -87,11 +89,12 @@ def test_own_upload_needs_its_card(client: TestClient, login: Login) -> None:
     assert r.status_code == 201, r.text
 
 
-def test_a_listed_model_resubmitted_as_an_outcome_keeps_no_producer(
+def test_a_listed_model_cannot_be_handed_in_as_an_outcome(
     client: TestClient, login: Login, service: ChainService
 ) -> None:
-    """The TMC takes any CID as an outcome, a listed one too: someone who submits another
-    owner's model as the outcome of its own task must not become its producer on the page."""
+    """Someone who hands another owner's listed model in as the outcome of its own task would
+    pass that work off as its own and become the model's producer: the TMC refuses the CID
+    (``setModels`` names the MMC at deployment), and the page names no producer."""
     register(client, login, ["user1"], {"user3": {}, "user4": {}})
     store = client.app.state.store  # type: ignore[attr-defined]
     cid = add_bundle(
@@ -105,10 +108,10 @@ def test_a_listed_model_resubmitted_as_an_outcome_keeps_no_producer(
     thief = next(w for w in offered if w == addr(service, "user4"))
     with service.lock:
         service.platform.tmc.transact("acceptOffer", task_id, sender=thief)
-        service.platform.tmc.transact("submitOutcome", task_id, cid, sender=thief)
-        service.platform.tmc.transact(
-            "reviewOutcome", task_id, thief, 5, True, sender=addr(service, "user1")
-        )
+        with pytest.raises(ContractError) as refused:
+            service.platform.tmc.transact("submitOutcome", task_id, cid, sender=thief)
+    assert refused.value.name == "TasksOutcomeIsListedModel"
+    assert refused.value.args_dict["modelId"] == model_id
     client.app.state.indexer.poll()  # type: ignore[attr-defined]
     page = client.get(f"{P}/models/{model_id}").json()
     assert page["produced_by"] is None and page["owner"] == addr(service, "user3")

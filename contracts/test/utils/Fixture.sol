@@ -6,6 +6,7 @@ import {UsersManager} from "../../src/UsersManager.sol";
 import {TasksManager} from "../../src/TasksManager.sol";
 import {ModelsManager} from "../../src/ModelsManager.sol";
 import {IUsersManager} from "../../src/IUsersManager.sol";
+import {IModelsListing} from "../../src/IModelsListing.sol";
 import {ITasksOutcomes} from "../../src/ITasksOutcomes.sol";
 
 /// @dev The platform as backend/chain/platform.py deploys it (same constructor arguments),
@@ -36,6 +37,7 @@ abstract contract Fixture is TestBase {
         vm.startPrank(admin);
         umc.setPlatform(address(tmc), true);
         umc.setPlatform(address(mmc), true);
+        tmc.setModels(IModelsListing(address(mmc)));
         vm.stopPrank();
         vm.prank(requester);
         umc.addRequester();
