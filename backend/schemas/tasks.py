@@ -161,9 +161,10 @@ class ProgressCreate(BaseModel):
     )
 
     step: int = Field(ge=0, le=10**12)
-    success: float | None = Field(default=None, ge=0.0, le=1.0)
-    time: float | None = Field(default=None, ge=0.0, le=1e9)
-    cost: float | None = Field(default=None, ge=-1e12, le=1e12)
+    # NaN/Infinity: "should be a finite number", not a bound's message
+    success: float | None = Field(default=None, ge=0.0, le=1.0, allow_inf_nan=False)
+    time: float | None = Field(default=None, ge=0.0, le=1e9, allow_inf_nan=False)
+    cost: float | None = Field(default=None, ge=-1e12, le=1e12, allow_inf_nan=False)
 
     @model_validator(mode="after")
     def _extra(self) -> ProgressCreate:

@@ -384,3 +384,16 @@ def test_outcome_key_must_be_the_requesters(
     assert r.status_code == 201, r.text
     spec = client.get(f"{P}/tasks/{r.json()['task_id']}").json()["spec"]
     assert spec["outcome_key"] == own.lower()
+
+
+@pytest.mark.parametrize("field", ["success", "time", "cost"])
+@pytest.mark.parametrize("value", ["NaN", "Infinity", "-Infinity"])
+def test_a_progress_point_names_a_non_finite_number(field: str, value: str) -> None:
+    from pydantic import ValidationError
+
+    from backend.schemas.tasks import ProgressCreate
+
+    with pytest.raises(ValidationError) as bad:
+        ProgressCreate.model_validate_json(f'{{"step": 1, "{field}": {value}}}')
+    [err] = bad.value.errors()
+    assert (err["loc"], err["type"]) == ((field,), "finite_number")
