@@ -225,11 +225,7 @@ class EmbeddedRpc:
         if budget is not None:
             wait = budget.wait_s(client, self.gas_cap)
             if wait:
-                raise _RpcFailure(
-                    LIMIT_EXCEEDED,
-                    f"execution gas of this client used up ({budget.per_minute} gas a "
-                    f"minute): retry in {wait} s",
-                )
+                raise _gas_used_up(budget, wait)
 
         def charge(gas: int) -> None:
             if budget is not None:
@@ -287,14 +283,9 @@ class EmbeddedRpc:
                 SERVER_ERROR, f"gas limit {tx.gas} is over this gateway's cap of {self.gas_cap}"
             )
         if self.budget is not None:
-            wait = self.budget.wait_s(client, tx.gas)
+            wait = self.budget.take(client, tx.gas)
             if wait:
-                raise _RpcFailure(
-                    LIMIT_EXCEEDED,
-                    f"execution gas of this client used up ({self.budget.per_minute} gas a "
-                    f"minute): retry in {wait} s",
-                )
-            self.budget.charge(client, tx.gas)
+                raise _gas_used_up(self.budget, wait)
 
     def _check_log_span(self, flt: dict[str, Any]) -> None:
         head = int(self.tester.get_block_by_number("latest")["number"])
@@ -332,6 +323,14 @@ class _RpcFailure(Exception):
     def __init__(self, code: int, message: str, data: str | None = None) -> None:
         super().__init__(message)
         self.code, self.message, self.data = code, message, data
+
+
+def _gas_used_up(budget: GasBudget, wait: int) -> _RpcFailure:
+    return _RpcFailure(
+        LIMIT_EXCEEDED,
+        f"execution gas of this client used up ({budget.per_minute} gas a minute): retry in "
+        f"{wait} s",
+    )
 
 
 def _error(rid: Any, code: int, message: str, data: str | None = None) -> dict[str, Any]:

@@ -44,6 +44,14 @@ class GasBudget:
         missing = gas - self.available(client)
         return 0 if missing <= 0 else math.ceil(60.0 * missing / self.per_minute)
 
+    def take(self, client: str, amount: int) -> int:
+        """Draw ``amount`` now if the bucket holds it and return 0; else draw nothing and
+        return the whole seconds to wait."""
+        wait = self.wait_s(client, amount)
+        if not wait:
+            self.charge(client, amount)
+        return wait
+
     def charge(self, client: str, gas: int) -> None:
         """Draw the gas an execution used (the bucket may go below zero: the client waits)."""
         with self._lock:

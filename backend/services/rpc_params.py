@@ -78,6 +78,13 @@ def quantity(value: Any, what: str) -> int:
     raise InvalidParams(f"{what} must be a hex quantity like '0x1a', got {value!r}")
 
 
+def hash32(value: Any, what: str) -> str:
+    """A 32-byte hash parameter (block or transaction hash)."""
+    if not isinstance(value, str) or not _HASH.fullmatch(value):
+        raise InvalidParams(f"{what} must be 32 bytes of hex, got {str(value)[:80]!r}")
+    return value
+
+
 def block_id(value: Any, by_hash: BlockByHash) -> int | str:
     """A block parameter: tag, number, or EIP-1898 ``{"blockNumber"}`` / ``{"blockHash"}``."""
     if value is None:
@@ -89,10 +96,7 @@ def block_id(value: Any, by_hash: BlockByHash) -> int | str:
         if keys == {"blockNumber"}:
             return quantity(value["blockNumber"], "blockNumber")
         if keys == {"blockHash"}:
-            block_hash = value["blockHash"]
-            if not isinstance(block_hash, str) or not _HASH.fullmatch(block_hash):
-                raise InvalidParams(f"blockHash must be 32 bytes of hex, got {block_hash!r}")
-            return by_hash(block_hash)
+            return by_hash(hash32(value["blockHash"], "blockHash"))
         raise InvalidParams("a block object names exactly one of 'blockNumber' or 'blockHash'")
     return quantity(value, "block")
 
@@ -161,12 +165,6 @@ def _access_list(value: Any) -> None:
         )
 
 
-def _block_hash(value: Any, what: str) -> str:
-    if not isinstance(value, str) or not _HASH.fullmatch(value):
-        raise InvalidParams(f"{what} must be 32 bytes of hex, got {str(value)[:80]!r}")
-    return value
-
-
 def is_unpriced(tx: dict[str, Any]) -> bool:
     """No fee field: the call runs at gas price 0 and needs no balance (geth's rule)."""
     return not any(k in tx for k in FEE_FIELDS)
@@ -216,9 +214,9 @@ def normalize(method: str, params: list[Any], chain_id: int, by_hash: BlockByHas
             raise InvalidParams("eth_getLogs takes one filter object")
         params[0] = log_filter(params[0], by_hash)
     elif method in BY_BLOCK_HASH and params:
-        params[0] = _block_hash(params[0], "block hash")
+        params[0] = hash32(params[0], "block hash")
     elif method in ("eth_getTransactionByHash", "eth_getTransactionReceipt") and params:
-        params[0] = _block_hash(params[0], "transaction hash")
+        params[0] = hash32(params[0], "transaction hash")
     if method in BY_INDEX and len(params) > 1:
         params[1] = hex(quantity(params[1], "index"))
     at = BLOCK_PARAM.get(method)

@@ -105,9 +105,12 @@ def test_a_remote_client_may_transfer_and_call_the_platform_within_cap_and_budge
     # the budget is four capped transactions: the fifth waits
     for _ in range(3):
         rpc.budget.charge("198.51.100.7", CAP)
+    left = rpc.budget.available("198.51.100.7")
     again = signed(service, me, to=you, value=1, gas=21_000)
     err = call(rpc, "eth_sendRawTransaction", [again], "198.51.100.7")["error"]
     assert err["code"] == LIMIT_EXCEEDED
+    # refused: not mined, and nothing drawn for it
+    assert service.chain.balance(you) == 5 and rpc.budget.available("198.51.100.7") == left
 
 
 def test_remote_log_queries_span_a_bounded_number_of_blocks(

@@ -69,14 +69,13 @@ def create_nonce(
     if not is_loopback(request):
         budget: GasBudget = request.app.state.nonce_budget
         client = request.client.host if request.client else ""
-        wait = budget.wait_s(client, 1)
+        wait = budget.take(client, 1)
         if wait:
             raise RateLimited(
                 "auth_rate_limited",
                 f"at most {budget.per_minute} sign-in messages a minute per client",
                 retry_after=wait,
             )
-        budget.charge(client, 1)
     msg = issue_sign_in(
         session, address=body.address, settings=settings, chain_id=chain_id, now=now
     )

@@ -59,12 +59,12 @@ from workers.mdrl.trainingspec import TrainingSpec
 router = APIRouter(prefix="/tasks", tags=["tasks"])
 TaskId = Annotated[int, Path(ge=1, le=MAX_ID)]
 PROGRESS_STATES = ("accepted", "submitted")
+"""Offer states in which a worker posts curve points: from acceptance until its outcome is
+reviewed (a point may arrive just after the submission)."""
 MAX_PROGRESS_POINTS = 5_000
 """Curve points one worker may post for one task: each is a row, and an assigned worker could
 otherwise post a point for every one of 10^12 steps (a long run posts one per update: ~750 for
 12M steps)."""
-"""Offer states in which a worker posts curve points: from acceptance until its outcome is
-reviewed (a point may arrive just after the submission)."""
 
 
 def build_spec(
