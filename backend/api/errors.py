@@ -168,8 +168,9 @@ def validation_issues(errors: Sequence[Any]) -> list[dict[str, Any]]:
 def _short(text: str) -> str:
     if len(text) <= MAX_ISSUE_TEXT:
         return text
-    # head and tail: a message's end often names the rule
-    return f"{text[:700]} ... ({len(text)} characters in all) ... {text[-200:]}"
+    # head and tail (a message's end often names the rule), 90% of the budget in all
+    head, tail = MAX_ISSUE_TEXT * 7 // 10, MAX_ISSUE_TEXT // 5
+    return f"{text[:head]} ... ({len(text)} characters in all) ... {text[-tail:]}"
 
 
 _HTTP_RULES = {

@@ -41,25 +41,34 @@ class GasBudget:
 
     def wait_s(self, client: str, gas: int) -> int:
         """Whole seconds until the client's bucket holds ``gas`` (0: now)."""
-        missing = gas - self.available(client)
-        return 0 if missing <= 0 else math.ceil(60.0 * missing / self.per_minute)
+        with self._lock:
+            return self._wait_s(client, gas, self._clock())
 
     def take(self, client: str, amount: int) -> int:
         """Draw ``amount`` now if the bucket holds it and return 0; else draw nothing and
-        return the whole seconds to wait."""
-        wait = self.wait_s(client, amount)
-        if not wait:
-            self.charge(client, amount)
-        return wait
+        return the whole seconds to wait. One step under the lock: callers racing for the
+        last tokens cannot all pass the check before any of them draws."""
+        with self._lock:
+            now = self._clock()
+            wait = self._wait_s(client, amount, now)
+            if not wait:
+                self._draw(client, amount, now)
+            return wait
 
     def charge(self, client: str, gas: int) -> None:
         """Draw the gas an execution used (the bucket may go below zero: the client waits)."""
         with self._lock:
-            now = self._clock()
-            tokens = self._refilled(client, now) - gas
-            if client not in self._buckets and len(self._buckets) >= MAX_CLIENTS:
-                self._forget_full(now)
-            self._buckets[client] = (tokens, now)
+            self._draw(client, gas, self._clock())
+
+    def _wait_s(self, client: str, gas: int, now: float) -> int:
+        missing = gas - self._refilled(client, now)
+        return 0 if missing <= 0 else math.ceil(60.0 * missing / self.per_minute)
+
+    def _draw(self, client: str, gas: int, now: float) -> None:
+        tokens = self._refilled(client, now) - gas
+        if client not in self._buckets and len(self._buckets) >= MAX_CLIENTS:
+            self._forget_full(now)
+        self._buckets[client] = (tokens, now)
 
     def _refilled(self, client: str, now: float) -> float:
         tokens, at = self._buckets.get(client, (float(self.per_minute), now))

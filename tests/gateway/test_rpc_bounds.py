@@ -114,3 +114,32 @@ def test_the_gateway_applies_the_settings(service: ChainService, tmp_path: Any) 
         body = {"jsonrpc": "2.0", "id": 1, "method": "eth_call", "params": [{"data": LOOP}]}
         codes = [c.post("/rpc", json=body).json()["error"]["code"] for _ in range(3)]
     assert codes == [SERVER_ERROR, SERVER_ERROR, LIMIT_EXCEEDED]
+
+
+def test_clients_racing_for_the_last_tokens_draw_them_once() -> None:
+    """``take`` checks and draws in one step: eight sign-in requests racing for a bucket that
+    holds one token get one admission, not one each (the clock yields the thread, as a busy
+    gateway would, between the check and the draw)."""
+    import threading
+    import time
+
+    def slow_clock() -> float:
+        time.sleep(0.002)
+        return 0.0  # frozen: no refill
+
+    budget = GasBudget(1, clock=slow_clock)
+    start = threading.Barrier(8)
+    admitted: list[int] = []
+
+    def ask() -> None:
+        start.wait()
+        if budget.take("198.51.100.7", 1) == 0:
+            admitted.append(1)
+
+    threads = [threading.Thread(target=ask) for _ in range(8)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert len(admitted) == 1
+    assert budget.wait_s("198.51.100.7", 1) > 0

@@ -155,6 +155,60 @@ def test_progress_review_and_cancel_act_only_for_the_right_address(
     assert r.status_code == 409 and r.json()["detail"]["rule"] == "progress_closed"
 
 
+def test_racing_progress_posts_stay_within_the_cap(
+    client: TestClient, login: Login, service: ChainService, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Eight posts of distinct steps at once, one point below the cap: one lands, seven get
+    ``progress_full``. The database sleeps after each count, so without the offer-row lock
+    every post counts before any inserts and all eight land."""
+    import threading
+    import time
+
+    from sqlalchemy import event
+
+    register(client, login, ["user1"], WORKERS)
+    task_id = client.post(
+        f"{P}/tasks", json=task_body(num_workers=1), headers=login("user1")
+    ).json()["task_id"]
+    worker = client.get(f"{P}/tasks/{task_id}").json()["offers"][0]["worker"]
+    name = next(n for n in WORKERS if addr(service, n) == worker)
+    _accept(service, task_id, worker)
+    client.app.state.indexer.poll()  # type: ignore[attr-defined]
+    monkeypatch.setattr(tasks_routes, "MAX_PROGRESS_POINTS", 3)
+    headers = login(name)
+    url = f"{P}/tasks/{task_id}/progress"
+    point = {"success": 0.5, "time": 10.0, "cost": 2.0}
+    for step in (1, 2):
+        r = client.post(url, json=point | {"step": step}, headers=headers)
+        assert r.status_code == 201, r.text
+
+    engine = client.app.state.sessions.kw["bind"]  # type: ignore[attr-defined]
+
+    def slow_count(_conn: Any, _cursor: Any, statement: str, *_: Any) -> None:
+        if "count(" in statement.lower() and "progress" in statement.lower():
+            time.sleep(0.05)
+
+    event.listen(engine, "after_cursor_execute", slow_count)
+    start = threading.Barrier(8)
+    codes: list[tuple[int, str]] = []
+
+    def post(step: int) -> None:
+        start.wait()
+        r = client.post(url, json=point | {"step": step}, headers=headers)
+        codes.append((r.status_code, r.json().get("detail", {}).get("rule", "")))
+
+    try:
+        threads = [threading.Thread(target=post, args=(10 + i,)) for i in range(8)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
+    finally:
+        event.remove(engine, "after_cursor_execute", slow_count)
+    assert sorted(codes) == [(201, "")] + [(409, "progress_full")] * 7, codes
+    assert len(client.get(f"{P}/tasks/{task_id}").json()["progress"]) == 3
+
+
 def test_cancel_refunds_and_lists_by_status(
     client: TestClient, login: Login, service: ChainService, settings: Settings
 ) -> None:

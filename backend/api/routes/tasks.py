@@ -6,7 +6,7 @@ from __future__ import annotations
 from typing import Annotated, Any, Literal
 
 from fastapi import APIRouter, Path, Query, Request, status
-from sqlalchemy import func, select
+from sqlalchemy import func, select, update
 from sqlalchemy.exc import IntegrityError
 
 from backend.api.deps import ChainDep, CurrentUser, IndexerDep, SessionDep, SettingsDep, StoreDep
@@ -416,7 +416,16 @@ def post_progress(
 ) -> ProgressPublic:
     """A live curve point from a worker assigned to the task (accepted its offer)."""
     _task(session, task_id)
-    offer = session.get(m.OfferRow, (task_id, user.address))
+    # Lock the worker's offer row first (a row lock on PostgreSQL, the database's write lock on
+    # SQLite) and hold it to the commit: two posts that both counted 4,999 points before either
+    # inserted would otherwise both land, past MAX_PROGRESS_POINTS.
+    session.execute(
+        update(m.OfferRow)
+        .where(m.OfferRow.task_id == task_id, m.OfferRow.worker == user.address)
+        .values(state=m.OfferRow.state)
+        .execution_options(synchronize_session=False)
+    )
+    offer = session.get(m.OfferRow, (task_id, user.address), populate_existing=True)
     if offer is not None and offer.state == "reviewed":
         raise RuleError(
             409,
