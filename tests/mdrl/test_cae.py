@@ -341,3 +341,72 @@ def test_shipped_cae_holds_its_card_on_fresh_layouts(name):
     observer = make_observer(spec.replace(agents=3, moves=8), obs)
     planes = -(-d // (window * window))
     assert observer.actor_channels[-planes:] == tuple(f"walls_code_{i}" for i in range(planes))
+
+
+def test_a_diverging_cae_run_is_an_error_and_saves_nothing(tmp_path):
+    from drlaas.cli import app
+
+    out = tmp_path / "cae"
+    res = CliRunner().invoke(app, ["cae", "train", "--out", str(out), "--grid", "6",
+                                   "--walls", "1:2", "--layouts", "200", "--epochs", "2",
+                                   "--lr", "1e12", "--no-progress"])
+    assert res.exit_code == 2, res.output
+    assert "diverged" in res.output and "--lr" in res.output
+    assert not out.exists()
+
+
+def _damage(kind: str, path: Path) -> None:
+    card = json.loads((path / "model.json").read_text())
+    weights = path / "model.safetensors"
+    if kind == "truncated":
+        weights.write_bytes(weights.read_bytes()[: weights.stat().st_size // 2])
+    elif kind == "no_grid":
+        del card["grid"]
+    elif kind == "other_embedding":
+        card["embedding"] = 2 * card["embedding"]
+    elif kind == "grid_text":
+        card["grid"] = "12x12"
+    elif kind == "nan_weights":  # a diverged CAE saved by an older version: digest matches
+        from safetensors.torch import save_file
+
+        from workers.mdrl.cae import tensor_digest
+
+        tensors = load_file(str(weights))
+        tensors = {k: torch.full_like(v, math.nan) if v.is_floating_point() else v
+                   for k, v in tensors.items()}
+        save_file(tensors, str(weights))
+        enc = {k[len("encoder."):]: v for k, v in tensors.items() if k.startswith("encoder.")}
+        card["encoder_digest"] = tensor_digest(enc)
+    (path / "model.json").write_text(json.dumps(card))
+
+
+@pytest.mark.parametrize("kind", ["truncated", "no_grid", "other_embedding", "grid_text",
+                                  "nan_weights"])
+def test_a_damaged_cae_directory_is_named_by_every_loader(tiny_cae, tmp_path, kind):
+    """``load_cae``, ``drlaas cae eval`` and a config's walls_embedding refuse a damaged CAE
+    with a ValueError / usage error naming the directory, never a traceback."""
+    from drlaas.cli import app
+
+    path = tmp_path / "cae"
+    shutil.copytree(tiny_cae[0], path)
+    _damage(kind, path)
+    with pytest.raises(ValueError, match="cae"):
+        load_cae(path)
+    res = CliRunner().invoke(app, ["cae", "eval", str(path), "--layouts", "20"])
+    assert res.exit_code == 2 and "PATH" in res.output, res.output
+    with pytest.raises(ValueError):
+        WallsEmbedder.load(path)
+
+
+def test_a_policy_card_with_a_malformed_walls_encoder_is_refused():
+    from workers.mdrl.cae import WallsEncoder, encoder_card, encoder_from_tensors
+
+    enc = WallsEncoder((12, 12), 8)
+    good = encoder_card(enc)
+    assert encoder_from_tensors(good, enc.state_dict()).embedding == 8
+    for card, named in (("models/cae-10x10", "must be an object"),
+                        ({k: v for k, v in good.items() if k != "grid"}, "no 'grid'"),
+                        ({**good, "embedding": "big"}, "unusable"),
+                        ({**good, "embedding": 16}, "size mismatch")):
+        with pytest.raises(ValueError, match=named):
+            encoder_from_tensors(card, enc.state_dict())

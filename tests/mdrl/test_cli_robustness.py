@@ -296,6 +296,9 @@ def test_bad_run_and_ppo_values_are_usage_errors_before_training(tmp_path, args,
     ("bad_json", "not a JSON checkpoint state"),
     ("json_list", "expected a JSON object"),
     ("no_run", "state.json lacks"),
+    ("step_text", "not numbers >= 0"),
+    ("step_negative", "not numbers >= 0"),
+    ("other_window", "do not fit its configuration"),
 ])
 def test_resume_of_a_missing_or_damaged_checkpoint_is_a_usage_error(trained, tmp_path, damage,
                                                                     named):
@@ -317,6 +320,14 @@ def test_resume_of_a_missing_or_damaged_checkpoint_is_a_usage_error(trained, tmp
     elif damage == "no_run":
         doc = json.loads(state.read_text())
         del doc["run"]
+        state.write_text(json.dumps(doc))
+    elif damage.startswith("step_"):
+        doc = json.loads(state.read_text())
+        doc["counters"]["global_step"] = "64" if damage == "step_text" else -5
+        state.write_text(json.dumps(doc))
+    elif damage == "other_window":  # state.json of another network than the weights
+        doc = json.loads(state.read_text())
+        doc["observation"]["window"] = 3 if doc["observation"]["window"] == 5 else 5
         state.write_text(json.dumps(doc))
     res = invoke("train", "--resume", run, "--steps", 128, *QUIET)
     assert_usage_error(res, "--resume", named)
@@ -379,3 +390,24 @@ def test_cae_pos_weight_must_be_finite_and_positive(tmp_path, weight):
         train_cae(EnvSpec(rows=6, cols=6, walls=(1, 1)), layouts=8, epochs=1,
                   pos_weight=float(weight))
 
+
+
+@pytest.mark.parametrize("args", [
+    ["eval", "--policy", "bayes", "--grid", "4x4", "--walls", "8", "--episodes", "5"],
+    ["eval", "--policy", "uniform", "--agents", "1", "--grid", "5x5", "--walls", "12",
+     "--episodes", "5"],
+])
+def test_walls_that_leave_no_room_are_a_usage_error_not_a_hang(args):
+    """Walls within the per-side bound can still enclose no area where the team and the target
+    fit: the layout draws give up after MAX_LAYOUT_DRAWS and name the walls (this hung, or
+    overflowed the stack, before)."""
+    r = CliRunner().invoke(make_app(), args)
+    assert r.exit_code == 2, r.output
+    assert "wall layouts in a row" in r.output and "--walls" in r.output
+
+
+def test_env_with_no_room_for_the_team_raises_layout_error():
+    from workers.mdrl.env import MAX_LAYOUT_DRAWS, LayoutError, TargetLocalizationEnv
+
+    with pytest.raises(LayoutError, match=f"{MAX_LAYOUT_DRAWS} wall layouts"):
+        TargetLocalizationEnv(EnvSpec(rows=5, cols=5, walls=(12, 12)), 4, 0)

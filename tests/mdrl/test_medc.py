@@ -187,9 +187,9 @@ def test_rate_schedule_through_the_trainer_config_and_spec():
     # the last rollout starts with (updates - 1) of the updates' steps done
     assert sel.rate == pytest.approx(0.8 * (1 - (updates - 1) / updates))
     timed = DemonstrationSelector(load_experts(["oracle"], TASK), rate_end=0.0)
-    with pytest.raises(ValueError, match="rate_end"):
+    with pytest.raises(ValueError, match="rate_end"):  # at construction, before any output
         Trainer(TASK, obs, TINY_PPO, tiny_run(total_steps=None, minutes=0.1),
-                selector=timed).train()
+                selector=timed)
     config = DemonstrationConfig.from_dict({"models": ["oracle"], "rate": 0.3, "rate_end": 0.0})
     again = DemonstrationConfig.from_dict(config.to_dict())
     assert (again.rate, again.rate_end) == (0.3, 0.0)
@@ -421,6 +421,24 @@ def test_bad_expert_references_are_named():
         load_expert("biased:x", TASK)
 
 
+def test_an_expert_card_without_its_input_shape_is_named(tmp_path):
+    """The adapter checks what it builds against the card's actor_shape: a card without it is
+    an ExpertError naming the field (was a KeyError traceback, or on resume 'incomplete
+    checkpoint')."""
+    import shutil
+    from pathlib import Path
+
+    zoo = Path(__file__).resolve().parents[2] / "models" / "odmtl-1a"
+    expert = tmp_path / "expert"
+    shutil.copytree(zoo, expert)
+    card = json.loads((expert / "model.json").read_text())
+    assert load_expert(str(expert), TASK).name == str(expert)
+    del card["observation"]["actor_shape"]
+    (expert / "model.json").write_text(json.dumps(card))
+    with pytest.raises(ExpertError, match="observation.actor_shape"):
+        load_expert(str(expert), TASK)
+
+
 @pytest.fixture(scope="module")
 def models(tmp_path_factory):
     """Small saved models (one update of training each): the expert zoo of these tests."""
@@ -619,3 +637,38 @@ def test_task_spec_carries_experts_with_qos_and_settings():
         with pytest.raises(SpecError) as info:
             TrainingSpec.from_dict({**doc, **change})
         assert info.value.field == field
+
+
+def test_resume_refuses_an_expert_whose_model_was_swapped(tmp_path):
+    """A model expert's weights digest goes on the card and into the checkpoint: a resumed run
+    whose expert path now holds another model stops with a usage error (it would otherwise go
+    on learning from a model the card does not name)."""
+    import shutil
+    from pathlib import Path
+
+    zoo = Path(__file__).resolve().parents[2] / "models"
+    expert = tmp_path / "expert"
+    shutil.copytree(zoo / "odmtl-1a", expert)
+    cfg = tmp_path / "tiny.toml"
+    cfg.write_text('preset = "odmtl-2a-10x10"\n[env]\nrows = 6\ncols = 6\n'
+                   '[ppo]\nhorizon = 64\nnum_envs = 8\nupdate_epochs = 1\n'
+                   '[run]\neval_episodes = 4\neval_every = 0\n')
+    out = tmp_path / "run"
+    runner = CliRunner()
+    res = runner.invoke(make_app(), ["train", "--config", str(cfg), "--steps", "128",
+                                     "--out", str(out), "--no-progress", "--no-tensorboard",
+                                     "--experts", str(expert)])
+    assert res.exit_code == 0, res.output
+    listed = json.loads((out / "model" / "model.json").read_text())["training"]["experts"]
+    assert listed["experts"][0]["digest"].startswith("sha256:")
+    resume = ["train", "--resume", str(out), "--steps", "192", "--no-progress",
+              "--no-tensorboard"]
+    shutil.rmtree(expert)
+    shutil.copytree(zoo / "odmtl-2a", expert)  # same kind and inputs, other weights
+    res = runner.invoke(make_app(), resume)
+    said = " ".join(res.output.replace("│", " ").split())
+    assert res.exit_code == 2 and "not the model this run learned from" in said, res.output
+    shutil.rmtree(expert)
+    shutil.copytree(zoo / "odmtl-1a", expert)  # the original back: the run goes on
+    res = runner.invoke(make_app(), resume)
+    assert res.exit_code == 0, res.output

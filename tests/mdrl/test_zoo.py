@@ -174,3 +174,24 @@ def test_a_finished_run_of_an_entry_is_published_and_another_is_refused(tmp_path
     res = runner.invoke(app, ["publish", "pub", "--run", str(tmp_path / "missing"),
                               "--models", str(models)])
     assert res.exit_code == 2 and "no finished run" in res.output
+
+
+def test_zoo_list_and_complete_name_a_malformed_card(tmp_path):
+    """One damaged card does not hide the others from ``zoo list`` (it is named in its row);
+    ``zoo complete`` of it is a usage error naming the directory; a missing zoo is named."""
+    from typer.testing import CliRunner
+
+    from workers.mdrl.commands.zoo import app
+
+    (tmp_path / "odmtl-2a").mkdir()
+    (tmp_path / "odmtl-2a" / "model.json").write_text('{"zoo": {"heldout": ')
+    runner = CliRunner()
+    res = runner.invoke(app, ["list", "--models", str(tmp_path)])
+    assert res.exit_code == 0, res.output
+    rows = {line.split()[0]: line for line in res.output.splitlines() if line.strip()}
+    assert set(rows) == set(ZOO) and "unreadable card" in rows["odmtl-2a"]
+    res = runner.invoke(app, ["complete", "odmtl-2a", "--models", str(tmp_path)])
+    assert res.exit_code == 2 and "cannot complete its" in res.output, res.output
+    res = runner.invoke(app, ["list", "--models", str(tmp_path / "none")])
+    said = " ".join(res.output.replace("│", " ").split())
+    assert res.exit_code == 2 and "no such directory" in said, res.output

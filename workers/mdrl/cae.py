@@ -33,6 +33,7 @@ from typing import Any
 
 import numpy as np
 import torch
+from safetensors import SafetensorError
 from safetensors.torch import load_file, save_file
 from torch import nn
 
@@ -199,6 +200,14 @@ def predict(model: WallsCAE, walls: np.ndarray, batch: int = 1024) -> np.ndarray
 # ----------------------------------------------------------------------------- training
 
 
+class CAEDiverged(ValueError):
+    """The loss or a weight went NaN/inf: nothing worth saving came out of the run."""
+
+
+def _finite(module: nn.Module) -> bool:
+    return all(bool(torch.isfinite(t).all()) for t in module.state_dict().values())
+
+
 def train_cae(spec: EnvSpec, layouts: int = 20_000, epochs: int = 20,
               embedding: int = DEFAULT_EMBEDDING, seed: int = 0, lr: float = 1e-3,
               batch: int = 128, heldout: float = 0.1, channels: tuple[int, ...] = CHANNELS,
@@ -247,6 +256,9 @@ def train_cae(spec: EnvSpec, layouts: int = 20_000, epochs: int = 20,
             opt.step()
             total += loss.item() * len(x)
         history.append(total / len(train))
+        if not math.isfinite(history[-1]) or not _finite(model):
+            raise CAEDiverged(f"CAE training diverged in epoch {epoch + 1} (train BCE "
+                              f"{history[-1]}): lower the learning rate (now {lr:g})")
         if progress is not None:
             progress(epoch + 1, history[-1])
     wall_time = time.perf_counter() - t0
@@ -329,6 +341,8 @@ def load_cae_card(path: str | Path) -> dict[str, Any]:
     if not card_path.is_file():
         raise FileNotFoundError(f"not a CAE directory {path}: no {CARD}")
     card = json.loads(card_path.read_text())
+    if not isinstance(card, dict):
+        raise ValueError(f"{card_path}: a card is a JSON object, got {type(card).__name__}")
     if card.get("format") != FORMAT or card.get("kind") != KIND:
         raise ValueError(f"{card_path}: not a walls CAE card (format {card.get('format')!r}, "
                          f"kind {card.get('kind')!r}; want {FORMAT!r}, kind {KIND!r})")
@@ -336,29 +350,62 @@ def load_cae_card(path: str | Path) -> dict[str, Any]:
 
 
 def load_cae(path: str | Path) -> WallsCAE:
-    """Rebuild a CAE from its directory (safetensors + JSON card only; never unpickles)."""
+    """Rebuild a CAE from its directory (safetensors + JSON card only; never unpickles).
+    A damaged directory (card fields missing or of the wrong type, weights truncated, of other
+    shapes, not finite or not the card's digest) is a ValueError naming it."""
     card = load_cae_card(path)
-    model = WallsCAE(tuple(card["grid"]), int(card["embedding"]),
-                     tuple(card["architecture"]["channels"]))
     weights = Path(path) / WEIGHTS
     if not weights.is_file():
         raise FileNotFoundError(f"CAE directory {path} has no {WEIGHTS}")
-    model.load_state_dict(load_file(str(weights)))
-    if tensor_digest(model.encoder.state_dict()) != card["encoder_digest"]:
+    try:
+        model = WallsCAE(_grid_field(card["grid"]), int(card["embedding"]),
+                         tuple(card["architecture"]["channels"]))
+        model.load_state_dict(load_file(str(weights)))
+        digest = card["encoder_digest"]
+    except (KeyError, TypeError, ValueError, RuntimeError, SafetensorError) as exc:
+        raise ValueError(f"{path} is not a usable walls CAE: {_reason(exc)}") from None
+    if tensor_digest(model.encoder.state_dict()) != digest:
         raise ValueError(f"{weights}: encoder weights do not match the card's digest")
+    if not _finite(model):
+        raise ValueError(f"{weights}: the CAE holds NaN or infinite weights (a diverged run)")
     model.eval()
     return model
 
 
 def encoder_from_tensors(card: dict[str, Any], tensors: dict[str, torch.Tensor]) -> WallsEncoder:
     """Rebuild an encoder from ``encoder_card`` fields and its state dict (digest checked)."""
+    if not isinstance(card, dict):
+        raise ValueError(f"the card's walls_encoder must be an object, got {type(card).__name__}")
     if card.get("kind") != KIND:
         raise ValueError(f"walls encoder card has kind {card.get('kind')!r}, want {KIND!r}")
-    enc = WallsEncoder(tuple(card["grid"]), int(card["embedding"]), tuple(card["channels"]))
-    enc.load_state_dict(tensors)
-    if tensor_digest(enc.state_dict()) != card["digest"]:
+    try:
+        enc = WallsEncoder(_grid_field(card["grid"]), int(card["embedding"]),
+                           tuple(card["channels"]))
+        enc.load_state_dict(tensors)
+        digest = card["digest"]
+    except (KeyError, TypeError, ValueError, RuntimeError) as exc:
+        raise ValueError(f"the card's walls_encoder is unusable: {_reason(exc)}") from None
+    if tensor_digest(enc.state_dict()) != digest:
         raise ValueError("walls encoder weights do not match the digest recorded in the card")
+    if not _finite(enc):
+        raise ValueError("the walls encoder holds NaN or infinite weights")
     return enc.eval()
+
+
+def _grid_field(value: Any) -> tuple[int, int]:
+    if not (isinstance(value, list) and len(value) == 2
+            and all(isinstance(v, int) and not isinstance(v, bool) for v in value)):
+        raise ValueError(f"grid must be [rows, cols], got {value!r}")
+    return value[0], value[1]
+
+
+def _reason(exc: BaseException) -> str:
+    """One line for a card or weights error (a KeyError names the missing field)."""
+    if isinstance(exc, KeyError):
+        return f"the card has no {exc}"
+    # torch's load_state_dict says what it is about on the first line, what is wrong on the next
+    text = " ".join(line.strip() for line in str(exc).splitlines()[:2])
+    return text[:300] or type(exc).__name__
 
 
 # ----------------------------------------------------------------------------- observations

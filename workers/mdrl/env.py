@@ -28,6 +28,13 @@ from .spec import MOVES, EnvSpec
 UNREACHABLE = 1_000_000
 #: Positions remembered per env for ``past_pos`` (ODMTL windows need (w - 1) / 2 steps back).
 HISTORY = 16
+#: Layout draws in a row that may leave a team no room before reset gives up: a valid spec
+#: needs a handful at most, one whose walls can enclose no area large enough never succeeds.
+MAX_LAYOUT_DRAWS = 100
+
+
+class LayoutError(ValueError):
+    """The spec's walls leave no area for the team and the target (too many for the grid)."""
 
 
 @dataclass
@@ -183,7 +190,7 @@ class TargetLocalizationEnv:
             self.seed(seed)
         self._reset_rows(self._rows)
 
-    def _reset_rows(self, rows: np.ndarray) -> None:
+    def _reset_rows(self, rows: np.ndarray, draw: int = 1) -> None:
         spec, rng = self.spec, self.layout_rng
         R, C, N = len(rows), spec.num_cells, spec.agents
         walls = self.draw_walls(spec, rng, R)
@@ -198,8 +205,14 @@ class TargetLocalizationEnv:
         reachable = dist < UNREACHABLE
         short = reachable.sum(1) < N + 1
         if short.any():  # a pocket too small to hold the team: draw those layouts again
-            self._reset_rows(rows[~short]) if (~short).any() else None
-            self._reset_rows(rows[short])
+            if draw >= MAX_LAYOUT_DRAWS:
+                raise LayoutError(
+                    f"{MAX_LAYOUT_DRAWS} wall layouts in a row left no area where {N} agents "
+                    f"and a target fit ({spec.rows}x{spec.cols}, walls {spec.walls}, "
+                    f"wall_length {spec.wall_length}): use fewer or shorter walls or a larger grid"
+                )
+            self._reset_rows(rows[~short], draw + 1) if (~short).any() else None
+            self._reset_rows(rows[short], draw + 1)
             return
         keys = rng.random((R, C))
         keys[~reachable] = 2.0

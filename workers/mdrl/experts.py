@@ -300,13 +300,32 @@ class ModelExpert:
         if missing:
             raise ExpertError(f"{what}: the task cannot provide its input channel(s) {missing}")
         self.channels = np.array([have.index(c) if c in have else -1 for c in want])
-        card_shape = tuple(policy.card["observation"]["actor_shape"])
+        card_obs = policy.card.get("observation")
+        card_shape = card_obs.get("actor_shape") if isinstance(card_obs, dict) else None
+        if not isinstance(card_shape, list):
+            raise ExpertError(f"{what}: its card has no observation.actor_shape (the input "
+                              "shape the adapter must build)")
+        card_shape = tuple(card_shape)
         shape = (len(want), *self.observer.actor_shape[1:])
         if shape != card_shape:
             raise ExpertError(f"{what}: the adapter builds inputs of shape {shape}, the model "
                               f"expects {card_shape}")
         self.amap = action_map(exp.moves, task.moves)
         self.task_actions = task.num_actions
+        from workers.mdrl.cae import tensor_digest
+
+        self.digest = tensor_digest(self.agent.state_dict())
+
+    def state_dict(self) -> dict[str, Any]:
+        """The weights' digest: a resumed run checks that the model at the expert's path is
+        still the one it learned from (the card lists the path, so a swap would go unseen)."""
+        return {"digest": self.digest}
+
+    def load_state_dict(self, d: dict[str, Any]) -> None:
+        if d.get("digest", self.digest) != self.digest:
+            raise ExpertError(f"expert {self.name!r} is not the model this run learned from "
+                              f"(weights {self.digest}, the checkpoint's {d['digest']}): put "
+                              "the original back or start a new run")
 
     @torch.inference_mode()
     def scores(self, env: Any, rows: np.ndarray | None = None) -> np.ndarray:

@@ -406,7 +406,8 @@ class DemonstrationSelector:
                if self.config.rate_end is not None else {}),
             "own_episodes": self.own_episodes,
             "experts": [
-                {"ref": e.name, "qos": float(w[i]), "selection_probability": float(w[i] / w.sum()),
+                {"ref": e.name, **({"digest": e.digest} if hasattr(e, "digest") else {}),
+                 "qos": float(w[i]), "selection_probability": float(w[i] / w.sum()),
                  "episodes": int(self.episodes[i]), "decisions": int(self.decisions[i]),
                  "followed": int(self.followed[i])}
                 | ({"mean_length": float(self.mean_length[i]), "credit": float(factors[i]),

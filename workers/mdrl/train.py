@@ -201,6 +201,9 @@ class Trainer:
                                           eps=ppo.adam_eps)
         self.generator = torch.Generator().manual_seed(run.seed + 1)
         self.selector = selector if selector is not None else SampleSelector(self.generator)
+        if getattr(self.selector, "needs_step_budget", False) and run.total_steps is None:
+            raise ValueError("experts rate_end (an expert rate schedule) needs a step budget: "
+                             "give total_steps (--steps)")  # refused before anything is built
         if hasattr(self.selector, "bind"):  # an expert selector samples with our generator
             self.selector.bind(self.generator)
         self.selector.episode_start(np.arange(ppo.num_envs))
@@ -611,13 +614,23 @@ class Trainer:
         if by and type(self).checkpoint_extras is Trainer.checkpoint_extras:
             raise ValueError(f"checkpoint holds the state of a {by} run; resume it with "
                              f"{by}.resume, not as plain PPO")
+        c = meta["counters"]
+        kinds = {"update": int, "global_step": int, "episodes": int, "elapsed": (int, float)}
+        wrong = [k for k, kind in kinds.items() if not isinstance(c.get(k), kind)
+                 or isinstance(c.get(k), bool) or not c[k] >= 0]
+        if wrong:
+            raise ValueError(f"checkpoint counters {wrong} are not numbers >= 0 (a damaged "
+                             "state.json)")
         sd = {k[len("agent/"):]: v for k, v in tensors.items() if k.startswith("agent/")}
-        self.agent.load_state_dict(sd)
+        try:
+            self.agent.load_state_dict(sd)
+        except RuntimeError as exc:  # the weights are of another network than state.json says
+            first = " ".join(line.strip() for line in str(exc).splitlines()[:2])[:300]
+            raise ValueError(f"checkpoint weights do not fit its configuration: {first}") from None
         ckpt.optimizer_from_parts(self.optimizer, tensors, meta["optimizer"])
         self.generator.set_state(tensors["torch_generator"])
         self.ep_return = tensors["trainer/ep_return"].numpy().copy()
         ckpt.restore_env_state(self.env, env_arrays, meta["env_state"])
-        c = meta["counters"]
         self.update_idx, self.global_step = c["update"], c["global_step"]
         self.episodes, self.elapsed = c["episodes"], c["elapsed"]
         self.last_eval = meta.get("last_eval", {})

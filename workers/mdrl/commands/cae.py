@@ -77,7 +77,7 @@ def train_command(
     """Train a walls CAE on the env's own layouts; prints held-out error vs the baselines."""
     import torch
 
-    from workers.mdrl.cae import parameters, save_cae, train_cae
+    from workers.mdrl.cae import CAEDiverged, parameters, save_cae, train_cae
     from workers.mdrl.commands.train import usable_cpus
     from workers.mdrl.spec import EnvSpec
 
@@ -116,6 +116,8 @@ def train_command(
         model, info = train_cae(spec, layouts=layouts, epochs=epochs, embedding=embedding,
                                 seed=seed, lr=lr, batch=batch, heldout=heldout,
                                 pos_weight=pos_weight, progress=tick)
+    except CAEDiverged as exc:  # nothing is saved
+        raise typer.BadParameter(str(exc), param_hint="--lr") from None
     except ValueError as exc:
         raise typer.BadParameter(str(exc)) from None
     finally:
@@ -151,18 +153,26 @@ def eval_command(
     )
     from workers.mdrl.spec import EnvSpec
 
-    try:
+    if layouts is not None and layouts < 2:
+        raise typer.BadParameter(f"must be >= 2, got {layouts}", param_hint="--layouts")
+    try:  # the whole CAE, not only its card: a damaged directory is named here, not mid-way
         card = load_cae_card(path)
-    except (OSError, ValueError) as exc:
-        raise typer.BadParameter(str(exc), param_hint="PATH") from None
-    result: dict[str, Any] = {"card": card.get("heldout", {})}
-    if layouts is not None:
-        if layouts < 2:
-            raise typer.BadParameter(f"must be >= 2, got {layouts}", param_hint="--layouts")
+        model = load_cae(path)
         spec = EnvSpec.from_dict(card["env"])
+        if [spec.rows, spec.cols] != list(card["grid"]):
+            raise ValueError(f"the card's env is {spec.rows}x{spec.cols} but its grid is "
+                             f"{card['grid']}")
+    except KeyError as exc:
+        raise typer.BadParameter(f"{path}: the card has no {exc}", param_hint="PATH") from None
+    except (OSError, ValueError, TypeError) as exc:
+        raise typer.BadParameter(str(exc), param_hint="PATH") from None
+    heldout = card.get("heldout")
+    valid = isinstance(heldout, dict) and all(isinstance(v, dict) for v in heldout.values())
+    result: dict[str, Any] = {"card": heldout if valid else {}}
+    if layouts is not None:
         fresh = wall_layouts(spec, layouts, seed)
         other = wall_layouts(spec, layouts, seed + 1)  # the mean map comes from other layouts
-        result["fresh"] = {"cae": reconstruction_figures(predict(load_cae(path), fresh), fresh),
+        result["fresh"] = {"cae": reconstruction_figures(predict(model, fresh), fresh),
                            **baseline_figures(other, fresh)}
     if as_json:
         typer.echo(json.dumps(result))

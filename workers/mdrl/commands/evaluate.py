@@ -12,6 +12,7 @@ from typing import Annotated, Any
 import typer
 
 from workers.mdrl.baselines import BASELINES, OraclePolicy, make_baseline
+from workers.mdrl.env import LayoutError
 from workers.mdrl.evaluate import EvalReport, compare, evaluate
 from workers.mdrl.spec import EnvSpec, IntensitySpec, parse_grid, parse_walls
 
@@ -197,7 +198,9 @@ def eval_command(
     episodes: Annotated[int, typer.Option(min=1, help="seeded test episodes")] = 1000,
     seed: Annotated[int, typer.Option(min=0, help="seed of the episode layouts")] = 0,
     moves: Annotated[int | None, typer.Option(help="4 or 8 directions (+ idle)")] = None,
-    batch: Annotated[int | None, typer.Option(min=1, help="environments stepped together")] = None,
+    batch: Annotated[int | None, typer.Option(
+        min=1, help="environments stepped together; episodes are seeded per batch, so compare "
+        "runs at the same --seed, --episodes and --batch")] = None,
     readings: Annotated[
         str | None,
         typer.Option(help="reading model: poisson (product default) or expected (noise-free "
@@ -207,7 +210,10 @@ def eval_command(
 ) -> None:
     """Evaluate a model directory or a baseline on seeded episodes, next to the oracle."""
     pol, spec, label = resolve_policy(policy, agents, grid, walls, intensity, moves, seed, readings)
-    report = evaluate(pol, spec, episodes, seed=seed, batch=batch, name=label)
+    try:
+        report = evaluate(pol, spec, episodes, seed=seed, batch=batch, name=label)
+    except LayoutError as exc:  # walls the spec allows but no layout can hold the team with
+        raise typer.BadParameter(str(exc), param_hint="--walls") from None
     oracle = evaluate(OraclePolicy(), spec, episodes, seed=seed, batch=batch, name="oracle")
     ratios = compare(report, oracle)
     if json_out:

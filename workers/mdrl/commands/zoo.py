@@ -18,15 +18,20 @@ def list_command(
     """Each zoo model: preset, budget, and its card's held-out figures if trained."""
     from workers.mdrl.zoo import ZOO
 
+    if not models.is_dir():
+        raise typer.BadParameter(f"{models}: no such directory", param_hint="--models")
     for name, entry in ZOO.items():
         card = models / name / "model.json"
         figures = ""
         if card.is_file():
-            zoo = json.loads(card.read_text()).get("zoo", {})
-            held = zoo.get("heldout", {})
-            figures = "  ".join(
-                f"{r}: time {held[r]['time']:.2f} cost {held[r]['cost']:.2f}"
-                for r in ("poisson", "expected") if r in held)
+            try:
+                doc = json.loads(card.read_text())
+                held = doc.get("zoo", {}).get("heldout", {})
+                figures = "  ".join(
+                    f"{r}: time {held[r]['time']:.2f} cost {held[r]['cost']:.2f}"
+                    for r in ("poisson", "expected") if r in held)
+            except (ValueError, AttributeError, KeyError, TypeError) as exc:
+                figures = f"(unreadable card {card}: {exc})"  # the other entries still list
         typer.echo(f"{name:12s} {entry.preset:18s} {entry.minutes:5.1f} min  {figures}")
 
 
@@ -87,8 +92,15 @@ def complete_command(
     the card's own episodes) and, with --runs, the training curve of the model's own run."""
     from workers.mdrl.zoo import ZOO, add_baselines, attach_run_curve
 
+    unknown = [n for n in names or [] if n not in ZOO]
+    if unknown:
+        raise typer.BadParameter(f"unknown zoo model(s) {unknown}; known: {', '.join(ZOO)}")
     for name in names or [n for n in ZOO if (models / n / "model.json").is_file()]:
-        held = add_baselines(models / name)
+        try:
+            held = add_baselines(models / name)
+        except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
+            raise typer.BadParameter(f"{models / name}: cannot complete its card ({exc})",
+                                     param_hint="NAMES") from None
         line = {"model": name, "baselines": {r: {b: round(f["time"], 2) for b, f in
                                                  held[r]["baselines"].items()}
                                              for r in ("poisson", "expected") if r in held}}

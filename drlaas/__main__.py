@@ -1,0 +1,5 @@
+"""``python -m drlaas``: the same as the ``drlaas`` console script."""
+
+from drlaas.cli import main
+
+main()
