@@ -235,6 +235,19 @@ def test_out_that_cannot_be_a_directory_is_refused_before_training(tmp_path, whe
     assert_usage_error(res, "--out")
 
 
+@pytest.mark.parametrize(("name", "kind"), [("tb", "file"), ("best", "file"),
+                                          ("config.json", "directory")])
+def test_out_with_a_leftover_in_the_runs_way_is_refused_before_training(tmp_path, name, kind):
+    """A file where the run makes a directory (or the reverse) failed mid-run, leaving rows
+    without a checkpoint: it is refused up front and nothing is written."""
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / name).mkdir() if kind == "directory" else (out / name).write_text("x")
+    res = invoke("train", "--config", config(tmp_path), "--steps", 64, "--out", out, *QUIET)
+    assert_usage_error(res, "--out", f"({'a ' + kind})")
+    assert sorted(p.name for p in out.iterdir()) == [name]
+
+
 # ---------------------------------------------------------------- 7. grid bound
 @pytest.mark.parametrize(("rows", "cols"), [(120, 120), (3000, 3000), (65, 64)])
 def test_a_grid_beyond_the_cell_bound_is_refused_before_allocating(tmp_path, rows, cols):

@@ -35,6 +35,9 @@ RUN_FLAGS = {"total_steps": "--steps", "minutes": "--minutes", "seed": "--seed",
 
 RUN_FILES = ("checkpoint", "model", "metrics.csv")
 """What makes a directory hold a run: --out refuses to write a new run over them."""
+RUN_DIRS, RUN_PLAIN = ("checkpoint", "model", "best", "tb"), ("metrics.csv", "config.json")
+"""What a run writes into --out as directories and as files: one of another kind in the way
+would fail mid-run (after the first update's rows were written)."""
 
 
 def usable_cpus() -> int:
@@ -74,6 +77,13 @@ def _check_out(out: Path, *, same_run: Path | None = None) -> None:
             raise typer.BadParameter(
                 f"{out} already holds a run ({', '.join(held)}): continue it with --resume "
                 f"{out}, or give another --out", param_hint="--out")
+        blocked = [f"{n} (a file)" for n in RUN_DIRS if (out / n).exists()
+                   and not (out / n).is_dir()]
+        blocked += [f"{n} (a directory)" for n in RUN_PLAIN if (out / n).is_dir()]
+        if blocked:
+            raise typer.BadParameter(
+                f"{out} holds {', '.join(blocked)} where the run writes its own: move it or "
+                "give another --out", param_hint="--out")
     parent = out
     while not parent.exists():  # the nearest existing ancestor must take a new directory
         parent = parent.parent
