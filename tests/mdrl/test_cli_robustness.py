@@ -346,6 +346,30 @@ def test_resume_of_a_missing_or_damaged_checkpoint_is_a_usage_error(trained, tmp
     assert_usage_error(res, "--resume", named)
 
 
+@pytest.mark.parametrize(("other", "named"), [
+    ({"seed": 9}, "run.seed"),
+    ({"ppo": {"horizon": 32}}, "ppo"),
+])
+def test_resume_refuses_another_runs_checkpoint_copied_into_a_run(trained, tmp_path, other,
+                                                                  named):
+    """Another run's checkpoint in a run directory would splice two curves into one
+    metrics.csv and replace config.json and the model: refused, the directory untouched."""
+    seed = other.get("seed")
+    sections = {k: v for k, v in other.items() if k != "seed"}
+    second = tmp_path / "second"
+    args = ["train", "--config", config(tmp_path, "other", **sections), "--steps", 64,
+            "--out", second, *QUIET] + (["--seed", seed] if seed is not None else [])
+    assert invoke(*args).exit_code == 0
+    run = tmp_path / "run"
+    shutil.copytree(trained, run)
+    shutil.rmtree(run / "checkpoint")
+    shutil.copytree(second / "checkpoint", run / "checkpoint")
+    before = {p.name: p.read_bytes() for p in run.iterdir() if p.is_file()}
+    res = invoke("train", "--resume", run, "--steps", 256, *QUIET)
+    assert_usage_error(res, "--resume", "another run's", named)
+    assert {p.name: p.read_bytes() for p in run.iterdir() if p.is_file()} == before
+
+
 def test_eval_refuses_an_intensity_the_readings_cannot_take():
     res = invoke("eval", "--policy", "bayes", "--intensity", "1e300", "--episodes", 2)
     assert_usage_error(res, "--intensity", "lower the intensity")

@@ -675,7 +675,48 @@ class Trainer:
             raise ValueError(f"checkpoint {path} was trained with walls encoder {saved}; "
                              f"{obs_spec.walls_embedding!r} now holds another one")
         trainer.load_state(tensors, env_arrays, meta)
+        trainer._check_same_run()
         return trainer
+
+    def _check_same_run(self) -> None:
+        """Resuming writes into the run directory: refuse when what it holds is not this
+        checkpoint's run (another run's checkpoint copied in), since the curve would splice two
+        runs together. config.json must name the same env, observation, PPO and seed, and the
+        metrics.csv row of the checkpoint's update the same env step."""
+        if self.out is None:
+            return
+        mine = self.config_dict()
+        try:
+            theirs = json.loads((self.out / "config.json").read_text())
+        except (OSError, ValueError):
+            theirs = None  # none yet (a fresh --out) or unreadable: nothing to compare
+        if isinstance(theirs, dict):
+            parsers = {"env": EnvSpec, "observation": ObservationSpec, "ppo": PPOConfig}
+            differ = []
+            for key, kind in parsers.items():
+                try:  # through the type: a file from before a field existed gets its default
+                    same = kind.from_dict(theirs.get(key)).to_dict() == mine[key]
+                except (TypeError, ValueError, KeyError, AttributeError):
+                    same = False
+                if not same:
+                    differ.append(key)
+            if (theirs.get("run") or {}).get("seed", mine["run"]["seed"]) != mine["run"]["seed"]:
+                differ.append("run.seed")
+            if differ:
+                raise ValueError(f"{self.out}/config.json is another run's ({', '.join(differ)} "
+                                 "differ from the checkpoint's): resume into another --out")
+        metrics = self.out / "metrics.csv"
+        if not metrics.is_file() or self.update_idx == 0:
+            return
+        with metrics.open(newline="") as f:
+            for row in csv.DictReader(f):
+                if row.get("update") == str(self.update_idx):
+                    if row.get("global_step") != str(self.global_step):
+                        raise ValueError(
+                            f"{metrics} is not this checkpoint's run: its update "
+                            f"{self.update_idx} was at env step {row.get('global_step')}, the "
+                            f"checkpoint's at {self.global_step}; resume into another --out")
+                    return
 
 
 def _fmt(v: Any) -> str:
