@@ -407,6 +407,26 @@ def test_a_policy_card_with_a_malformed_walls_encoder_is_refused():
     for card, named in (("models/cae-10x10", "must be an object"),
                         ({k: v for k, v in good.items() if k != "grid"}, "no 'grid'"),
                         ({**good, "embedding": "big"}, "unusable"),
-                        ({**good, "embedding": 16}, "size mismatch")):
+                        ({**good, "embedding": 16}, "do not hold"),
+                        # a few numbers that would ask for ~10 GB: refused before allocating
+                        ({**good, "grid": [40000, 40000]}, "do not hold"),
+                        ({**good, "channels": [1024, 1024, 1024]}, "do not hold")):
         with pytest.raises(ValueError, match=named):
             encoder_from_tensors(card, enc.state_dict())
+
+
+def test_a_cae_card_asking_for_a_huge_network_is_refused_before_building(tiny_cae, tmp_path):
+    """``load_cae`` lays the card's network out on the meta device and compares it with the
+    weights before building it: a card's grid / d / channels cannot make the loader allocate
+    more than the weights file holds."""
+    import resource
+
+    path = tmp_path / "cae"
+    shutil.copytree(tiny_cae[0], path)
+    card = json.loads((path / "model.json").read_text())
+    card["grid"], card["embedding"] = [1024, 1024], 1024
+    (path / "model.json").write_text(json.dumps(card))
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    with pytest.raises(ValueError, match="do not hold"):
+        load_cae(path)
+    assert resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - before < 500_000  # KiB

@@ -358,9 +358,10 @@ def load_cae(path: str | Path) -> WallsCAE:
     if not weights.is_file():
         raise FileNotFoundError(f"CAE directory {path} has no {WEIGHTS}")
     try:
-        model = WallsCAE(_grid_field(card["grid"]), int(card["embedding"]),
-                         tuple(card["architecture"]["channels"]))
-        model.load_state_dict(load_file(str(weights)))
+        tensors = load_file(str(weights))
+        model = _build_for(WallsCAE, tensors, _grid_field(card["grid"]), int(card["embedding"]),
+                           tuple(card["architecture"]["channels"]))
+        model.load_state_dict(tensors)
         digest = card["encoder_digest"]
     except (KeyError, TypeError, ValueError, RuntimeError, SafetensorError) as exc:
         raise ValueError(f"{path} is not a usable walls CAE: {_reason(exc)}") from None
@@ -379,8 +380,8 @@ def encoder_from_tensors(card: dict[str, Any], tensors: dict[str, torch.Tensor])
     if card.get("kind") != KIND:
         raise ValueError(f"walls encoder card has kind {card.get('kind')!r}, want {KIND!r}")
     try:
-        enc = WallsEncoder(_grid_field(card["grid"]), int(card["embedding"]),
-                           tuple(card["channels"]))
+        enc = _build_for(WallsEncoder, tensors, _grid_field(card["grid"]),
+                         int(card["embedding"]), tuple(card["channels"]))
         enc.load_state_dict(tensors)
         digest = card["digest"]
     except (KeyError, TypeError, ValueError, RuntimeError) as exc:
@@ -390,6 +391,23 @@ def encoder_from_tensors(card: dict[str, Any], tensors: dict[str, torch.Tensor])
     if not _finite(enc):
         raise ValueError("the walls encoder holds NaN or infinite weights")
     return enc.eval()
+
+
+def _build_for(kind: type[nn.Module], tensors: dict[str, torch.Tensor], *args: Any) -> Any:
+    """``kind(*args)`` once its parameter shapes (laid out on the meta device, which allocates
+    nothing) are the shapes of ``tensors``: a card's grid, d and channels come from the network,
+    and a few numbers can ask for gigabytes (a 79 kB card made the worker allocate 1.9 GB)
+    while the weights, bounded by the file's size, cannot."""
+    with torch.device("meta"):
+        layout = kind(*args)
+    want = {k: tuple(v.shape) for k, v in layout.state_dict().items()}
+    have = {k: tuple(v.shape) for k, v in tensors.items()}
+    if want != have:
+        wrong = sorted(k for k in want.keys() | have.keys() if want.get(k) != have.get(k))
+        raise ValueError(f"the card's grid, embedding and channels ask for tensors the weights "
+                         f"do not hold ({', '.join(wrong[:4])}"
+                         f"{', ...' if len(wrong) > 4 else ''})")
+    return kind(*args)
 
 
 def _grid_field(value: Any) -> tuple[int, int]:

@@ -492,7 +492,7 @@ def _check_experts(v: Any) -> tuple[tuple[str, ...], tuple[float, ...]]:
 
 class _ExpertRef:
     def check(self, v: Any, field: str) -> str:
-        if not isinstance(v, str) or not re.match(EXPERT_PATTERN, v):
+        if not isinstance(v, str) or not re.fullmatch(EXPERT_PATTERN, v):
             raise SpecError(field, f"expected a model CID or relative path, got {v!r}")
         return v
 
@@ -517,7 +517,7 @@ class _OutcomeKey:
     """An uncompressed secp256k1 public key (x || y), checked to be on the curve."""
 
     def check(self, v: Any, field: str) -> str:
-        if not isinstance(v, str) or not re.match(OUTCOME_KEY_PATTERN, v):
+        if not isinstance(v, str) or not re.fullmatch(OUTCOME_KEY_PATTERN, v):
             raise SpecError(field, "expected 0x + 128 hex digits (a secp256k1 public key)")
         x, y = int(v[2:66], 16), int(v[66:], 16)
         if x >= _SECP256K1_P or y >= _SECP256K1_P or (y * y - x**3 - 7) % _SECP256K1_P:
