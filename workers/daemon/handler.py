@@ -246,6 +246,14 @@ class OfferHandler:
             )
         return None
 
+    def give_up(self, task_id: int, reason: str) -> dict[str, Any]:
+        """The job's retries ran out (the store or the node stayed down): a job accepted and
+        not yet submitted fails and is given back on chain, instead of its offer staying
+        accepted, and the worker busy, until the deadline with nobody working on it."""
+        if self._state(task_id).get("phase") in PHASES[:-1]:
+            return self._fail(task_id, reason)
+        return {"task_id": task_id, "status": "given up", "reason": reason}
+
     def _fail(self, task_id: int, reason: str) -> dict[str, Any]:
         """Mark an accepted job failed (it stops counting against capacity) and report it."""
         self._save(task_id, phase="failed", reason=reason[:2000], failed_at=self.clock())

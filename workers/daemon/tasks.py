@@ -5,7 +5,9 @@ Jobs go to the worker's own queue ``worker.<address>`` with the idempotent id
 ``offer:<task_id>:<worker>``; ``acks_late`` + ``reject_on_worker_lost`` mean a worker killed
 mid-training gets the job again when it comes back, and :class:`OfferHandler` resumes from the
 job's checkpoint. Only :class:`~workers.daemon.handler.Transient` errors (store or node down)
-are retried, with capped exponential backoff and jitter (STYLE.md, "Workers").
+are retried, with capped exponential backoff and jitter (STYLE.md, "Workers"); when the last
+retry fails too, the handler gives the job back (``OfferHandler.give_up``: abandonOffer) rather
+than leave its offer accepted with nobody working on it.
 
 The handler of a daemon process is built once from the environment (``runtime_from_env``):
 ``DRLAAS_WORKER_KEY`` (key file), ``DRLAAS_GATEWAY`` (gateway URL), ``DRLAAS_WORKER_DATA``
@@ -15,6 +17,7 @@ The handler of a daemon process is built once from the environment (``runtime_fr
 
 from __future__ import annotations
 
+import logging
 import os
 import random
 import threading
@@ -29,6 +32,8 @@ from backend.chain.addresses import checksum
 from backend.observability.logs import task_context
 from backend.settings import Settings, load_settings
 from workers.daemon.handler import OfferHandler, Transient
+
+log = logging.getLogger(__name__)
 
 TASK_NAME = "drlaas.handle_offer"
 MAX_RETRIES = 8
@@ -134,4 +139,8 @@ def handle_offer(self: Any, task_id: int, worker: str) -> dict[str, Any]:
         with task_context(int(task_id)):  # JSON log lines of this job carry its task id
             return runtime().handle(int(task_id), worker)
     except Transient as exc:
+        if self.request.retries >= self.max_retries:  # the last try: give the job back
+            reason = f"gave up after {self.max_retries} retries: {exc}"
+            log.error("task %s: %s", task_id, reason)
+            return runtime().give_up(int(task_id), reason)  # Transient if the node is down too
         raise self.retry(exc=exc, countdown=retry_delay(self.request.retries)) from exc
