@@ -146,3 +146,24 @@ def test_progress_points_wait_for_the_gateway_index_and_keep_their_order(tmp_pat
     h._post_progress(7, {"step": 2})  # refused again, then 1 goes; 2 is a duplicate: dropped
     h._post_progress(7, {"step": 3})
     assert gw.got == [1, 3] and h._pending[7] == []
+
+
+def test_give_up_abandons_only_a_job_in_hand(tmp_path: Path) -> None:
+    """Out of retries: an accepted (trained, uploaded) job fails and is given back on chain;
+    one never accepted or already submitted is left as it is (nothing to give back)."""
+    from types import SimpleNamespace
+
+    from workers.daemon.handler import OfferHandler
+
+    chain = SimpleNamespace(identity="chain-1")  # only the job directories' key is read
+    h = OfferHandler(account=None, platform=chain, store=None, data_dir=tmp_path)  # type: ignore[arg-type]
+    sent: list[tuple[str, int]] = []
+    h._transact = lambda fn, task_id: sent.append((fn, task_id))  # type: ignore[method-assign]
+    assert h.give_up(1, "store down")["status"] == "given up"  # no job state: never accepted
+    h._save(2, phase="submitted", cid="bafy")
+    assert h.give_up(2, "store down")["status"] == "given up"
+    assert sent == []
+    h._save(3, phase="uploaded", cid="bafy")
+    out = h.give_up(3, "gave up after 8 retries: store down")
+    assert out["status"] == "failed" and sent == [("abandonOffer", 3)]
+    assert h._state(3)["phase"] == "failed" and "8 retries" in h._state(3)["reason"]
