@@ -1,5 +1,5 @@
 """``python -m drlaas``: the same as the ``drlaas`` console script."""
 
-from drlaas.cli import main
+from drlaas.cli import app
 
-main()
+app()

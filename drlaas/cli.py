@@ -20,7 +20,6 @@ from workers.mdrl.commands.cae import app as cae_app
 from workers.mdrl.commands.evaluate import eval_command
 from workers.mdrl.commands.train import train
 from workers.mdrl.commands.zoo import app as zoo_app
-from workers.mdrl.env import LayoutError
 
 app = typer.Typer(
     name="drlaas",
@@ -47,15 +46,5 @@ app.add_typer(chain_app, name="chain")
 app.add_typer(deploy_app, name="deploy")  # consortium: genesis, contracts, workers
 
 
-def main() -> None:
-    """The console script: ``app`` with the errors a spec can only show once episodes are drawn
-    (walls that leave the team no room) printed as one line, not a traceback."""
-    try:
-        app()
-    except LayoutError as exc:
-        typer.echo(f"Error: {exc}", err=True)
-        raise SystemExit(2) from None
-
-
 if __name__ == "__main__":
-    main()
+    app()

@@ -71,7 +71,6 @@ def test_round_trip_and_defaults() -> None:
         ({"experts": ["m1", "m1"]}, "experts"),
         # a trailing newline passed `$` (re.match), so one model could guide as two experts
         ({"experts": ["m1", "m1\n"]}, "experts[1]"),
-        ({"outcome_key": "0x" + "ab" * 64 + "\n"}, "outcome_key"),
         ({"format": "other/2"}, "format"),
         ({"observation": {"walls_embedding": "/etc/cae"}}, "observation.walls_embedding"),
         ({"observation": {"walls_embedding_size": 0}}, "observation.walls_embedding_size"),

@@ -364,7 +364,7 @@ def load_cae(path: str | Path) -> WallsCAE:
         model.load_state_dict(tensors)
         digest = card["encoder_digest"]
     except (KeyError, TypeError, ValueError, RuntimeError, SafetensorError) as exc:
-        raise ValueError(f"{path} is not a usable walls CAE: {_reason(exc)}") from None
+        raise ValueError(f"{path} is not a usable walls CAE: {error_text(exc)}") from None
     if tensor_digest(model.encoder.state_dict()) != digest:
         raise ValueError(f"{weights}: encoder weights do not match the card's digest")
     if not _finite(model):
@@ -385,7 +385,7 @@ def encoder_from_tensors(card: dict[str, Any], tensors: dict[str, torch.Tensor])
         enc.load_state_dict(tensors)
         digest = card["digest"]
     except (KeyError, TypeError, ValueError, RuntimeError) as exc:
-        raise ValueError(f"the card's walls_encoder is unusable: {_reason(exc)}") from None
+        raise ValueError(f"the card's walls_encoder is unusable: {error_text(exc)}") from None
     if tensor_digest(enc.state_dict()) != digest:
         raise ValueError("walls encoder weights do not match the digest recorded in the card")
     if not _finite(enc):
@@ -417,8 +417,9 @@ def _grid_field(value: Any) -> tuple[int, int]:
     return value[0], value[1]
 
 
-def _reason(exc: BaseException) -> str:
-    """One line for a card or weights error (a KeyError names the missing field)."""
+def error_text(exc: BaseException) -> str:
+    """One line for a card or weights error (a KeyError names the missing field); also what
+    ``Trainer.load_state`` says of checkpoint weights that do not fit."""
     if isinstance(exc, KeyError):
         return f"the card has no {exc}"
     # torch's load_state_dict says what it is about on the first line, what is wrong on the next

@@ -447,9 +447,6 @@ class Trainer:
         if self.ppo.anneal_lr and run.total_steps is None:
             warnings.warn("anneal_lr needs a step budget; learning rate stays constant",
                           stacklevel=2)
-        if getattr(self.selector, "needs_step_budget", False) and run.total_steps is None:
-            raise ValueError("experts rate_end (an expert rate schedule) needs a step budget: "
-                             "give total_steps")
         torch.set_num_threads(run.threads)
         self._open_outputs()
         bar = self._progress_bar()
@@ -625,8 +622,10 @@ class Trainer:
         try:
             self.agent.load_state_dict(sd)
         except RuntimeError as exc:  # the weights are of another network than state.json says
-            first = " ".join(line.strip() for line in str(exc).splitlines()[:2])[:300]
-            raise ValueError(f"checkpoint weights do not fit its configuration: {first}") from None
+            from workers.mdrl.cae import error_text
+
+            raise ValueError(f"checkpoint weights do not fit its configuration: "
+                             f"{error_text(exc)}") from None
         ckpt.optimizer_from_parts(self.optimizer, tensors, meta["optimizer"])
         self.generator.set_state(tensors["torch_generator"])
         self.ep_return = tensors["trainer/ep_return"].numpy().copy()
