@@ -103,6 +103,38 @@ def test_trainer_time_budget_saves_the_last_update(tmp_path):
     assert resumed.update_idx == trainer.update_idx
 
 
+def test_a_time_budget_leaves_room_for_the_final_evaluation(tmp_path, monkeypatch):
+    """A worker trains to its task's deadline: the final evaluation must fit in the budget, not
+    start when it is used up. On a fake clock (updates 10 s, evaluations 25 s, 100 s budget,
+    an evaluation after every update) the run stops after update 2 (45 s, its evaluation ends
+    at 70 s: a third update and its evaluation would end at 105 s); it used to run 4 updates
+    and end at 140 s."""
+    from types import SimpleNamespace
+
+    import workers.mdrl.train as train_module
+
+    preset = preset_from_dict(TINY)
+    run = RunConfig(minutes=100 / 60, eval_every=1, checkpoint_every=0, eval_episodes=2,
+                    progress=False, tensorboard=False)
+    trainer = Trainer(preset.env, preset.observation, preset.ppo, run, out=tmp_path)
+    now = [0.0]
+    monkeypatch.setattr(train_module, "time", SimpleNamespace(perf_counter=lambda: now[0]))
+    real_update, real_evaluate = trainer.update, trainer.evaluate
+
+    def update():
+        now[0] += 10.0
+        return real_update()
+
+    def evaluate():
+        now[0] += 25.0
+        return real_evaluate()
+
+    trainer.update, trainer.evaluate = update, evaluate
+    trainer.train()
+    assert trainer.update_idx == 2 and trainer.elapsed == pytest.approx(70.0)
+    assert (tmp_path / "model" / "model.json").is_file() and trainer.last_eval
+
+
 # ---------------------------------------------------------------- 2. --resume --seed
 def test_resume_refuses_a_new_seed(trained):
     before = (trained / "checkpoint" / "state.json").read_text()

@@ -256,3 +256,16 @@ def test_any_wrong_type_anywhere_is_a_spec_error_never_a_crash() -> None:
                 TrainingSpec.from_dict(_replaced(full, path, value))
             except SpecError as exc:
                 assert exc.field, (path, value)
+
+
+def test_experts_of_qos_zero_are_left_out_of_the_demonstration():
+    """R_S = QoS / sum QoS never picks an expert of weight 0: the run neither loads it nor
+    lists it on the card; plain references (equal weights) all stay."""
+    base = {"env": {"rows": 6, "cols": 6}, "budget": {"steps": 100}}
+    spec = TrainingSpec.from_dict({**base, "experts": [
+        {"model": "m0", "qos": 0}, "m1", {"model": "m2", "qos": 0.5}]})
+    demo = spec.demonstration()
+    assert demo.experts == ("m1", "m2") and demo.weights == (1.0, 0.5)
+    assert spec.experts == ("m0", "m1", "m2")  # the spec itself is what the requester wrote
+    plain = TrainingSpec.from_dict({**base, "experts": ["m0", "m1"]}).demonstration()
+    assert plain.experts == ("m0", "m1") and plain.weights == (1.0, 1.0)

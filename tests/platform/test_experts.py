@@ -228,7 +228,28 @@ def test_an_medc_offer_trains_with_its_expert_and_the_card_lists_it(env, store, 
     shares = [pt["guided_share"] for pt in points if "guided_share" in pt]
     assert shares and all(0.0 <= x <= 1.0 for x in shares) and 0.2 < sum(shares) / len(shares)
     assert sum(shares) / len(shares) < 0.8
-    assert (h.job_dir(task_id) / "experts" / cid / "model.safetensors").is_file()
+    assert h._state(task_id)["experts"] == [cid]  # fetched, and removed once submitted
+    assert not (h.job_dir(task_id) / "experts").exists()
+
+
+def test_an_expert_of_qos_zero_is_neither_fetched_nor_listed(env, store, tmp_path) -> None:
+    """R_S = QoS / sum QoS never picks an expert of QoS 0: the worker does not download it
+    (here it is in no store at all: fetching it would fail the job) and the card does not
+    list it among the experts used."""
+    p, actors = env
+    cid = upload_model(store, EXPERT)
+    elsewhere = EmbeddedStore(tmp_path / "elsewhere")
+    card = json.loads((EXPERT / "model.json").read_text())
+    ghost = add_bundle(elsewhere, {
+        "model.safetensors": (EXPERT / "model.safetensors").read_bytes(),
+        "model.json": json.dumps({**card, "name": "never fetched"}).encode(),
+    })
+    spec = {**TINY_SPEC, "experts": [{"model": ghost, "qos": 0}, {"model": cid, "qos": 0.5}],
+            "algorithm": {"demonstration": {"rate": 0.5}}}
+    h, task_id, card = train_offer(p, actors, store, spec, tmp_path)
+    listed = card["training"]["experts"]["experts"]
+    assert [(e["ref"], e["qos"]) for e in listed] == [(cid, 0.5)]
+    assert h._state(task_id)["experts"] == [cid]
 
 
 def walls_cae(tmp_path: Path, grid: tuple[int, int] = (6, 6), d: int = 16) -> Path:
@@ -271,7 +292,7 @@ def test_a_task_naming_a_walls_cae_trains_with_it_and_the_card_names_its_cid(
     assert card["observation"]["walls_embedding"] == cid
     assert card["walls_encoder"]["source"] == cid
     assert card["walls_encoder"]["digest"] == load_cae_card(local)["encoder_digest"]
-    assert (h.job_dir(task_id) / "cae" / cid / "model.safetensors").is_file()
+    assert not (h.job_dir(task_id) / "cae").exists()  # removed once submitted (_prune)
 
 
 def test_a_walls_cae_that_is_not_one_fails_the_job_naming_its_cid(env, store, tmp_path) -> None:

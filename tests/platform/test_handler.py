@@ -396,3 +396,103 @@ def test_a_failing_job_is_given_back_on_chain_and_releases_the_worker(
     t2, offered2, _ = post_task(p, store, actors.requester, num_workers=3)
     assert worker in offered2
     assert h.handle(t2, worker)["status"] == "submitted"
+
+
+class Killed(BaseException):
+    """The training process dying (killed for memory): not an exception a job handles."""
+
+
+def test_a_job_that_dies_at_every_start_is_given_back_not_redelivered_forever(
+    env, tmp_path: Path
+) -> None:
+    from workers.daemon.handler import MAX_STARTS_WITHOUT_PROGRESS
+
+    p, actors, store = env
+    task_id, offered, _ = post_task(p, store, actors.requester)
+    worker = offered[0]
+    h = handler_for(p, worker, store, tmp_path, checkpoint_every=1)
+
+    def die(tid: int, step: int) -> None:  # dies before its first update, every time
+        raise Killed()
+
+    h.on_first_step = die
+    for _ in range(MAX_STARTS_WITHOUT_PROGRESS):
+        with pytest.raises(Killed):
+            h.handle(task_id, worker)
+        assert p.tmc.offer(task_id, worker)["state"] == OfferState.ACCEPTED
+    out = h.handle(task_id, worker)  # the next delivery does not start it again
+    assert out["status"] == "failed" and out["offer"] == "failed"
+    assert f"started {MAX_STARTS_WITHOUT_PROGRESS} times" in out["reason"]
+    assert p.tmc.offer(task_id, worker)["state"] == OfferState.FAILED
+    assert not (h.job_dir(task_id) / "run" / "checkpoint").exists()  # pruned
+
+
+def test_a_job_killed_often_but_moving_on_each_time_is_finished(env, tmp_path: Path) -> None:
+    """Only starts that get no further count: a job whose checkpoint moves between kills (here
+    at updates 2, 3 and 4 of 5, one more than the limit of starts) is trained to the end."""
+    from workers.daemon.handler import MAX_STARTS_WITHOUT_PROGRESS
+
+    p, actors, store = env
+    task_id, offered, _ = post_task(p, store, actors.requester)
+    h = handler_for(p, offered[0], store, tmp_path, checkpoint_every=1)
+    kills = list(range(2, 2 + MAX_STARTS_WITHOUT_PROGRESS))  # the progress point of update k
+
+    def kill(tid: int, point: dict) -> None:
+        if kills and point["update"] == kills[0]:
+            kills.pop(0)
+            raise Killed()
+
+    h._post_progress = kill  # type: ignore[method-assign]
+    for _ in range(MAX_STARTS_WITHOUT_PROGRESS):
+        with pytest.raises(Killed):
+            h.handle(task_id, offered[0])
+    out = h.handle(task_id, offered[0])
+    assert out["status"] == "submitted", out
+    assert p.tmc.offer(task_id, offered[0])["state"] == OfferState.SUBMITTED
+    # the finished job keeps its model (publish reads it), not its checkpoint
+    assert (h.job_dir(task_id) / "run" / "model" / "model.json").is_file()
+    assert not (h.job_dir(task_id) / "run" / "checkpoint").exists()
+
+
+def test_recover_at_start_reconciles_job_directories_with_the_chain(env, tmp_path: Path) -> None:
+    p, actors, store = env
+    # three tasks offered to every worker; one worker's daemon left them in different states
+    t_failed, offered, _ = post_task(p, store, actors.requester, num_workers=3)
+    worker = offered[0]
+    t_in_hand, o2, _ = post_task(p, store, actors.requester, num_workers=3)
+    t_gone, o3, _ = post_task(p, store, actors.requester, num_workers=3)
+    assert worker in o2 and worker in o3
+    h = handler_for(p, worker, store, tmp_path)
+    for tid in (t_failed, t_in_hand):
+        p.tmc.transact("acceptOffer", tid, sender=worker)
+    # failed while the node was down: abandonOffer never reached the chain
+    h._save(t_failed, phase="failed", reason="gave up after 8 retries: node down")
+    h._save(t_in_hand, phase="trained", model="model")  # its message lost with the broker
+    h._save(t_gone, phase="accepted")  # on disk only: the chain never saw the acceptance
+    (h.job_dir(t_failed) / "run" / "checkpoint").mkdir(parents=True)
+    (h.job_dir(t_in_hand) / "run" / "checkpoint").mkdir(parents=True)
+    queued: list[tuple[int, str]] = []
+    done = h.recover(lambda tid, w: queued.append((tid, w)))
+    assert done == {
+        "reported": [t_failed], "queued": [t_in_hand], "closed": [t_gone], "pruned": [t_failed]
+    }
+    assert queued == [(t_in_hand, worker)]
+    assert p.tmc.offer(t_failed, worker)["state"] == OfferState.FAILED
+    assert p.tmc.offer(t_in_hand, worker)["state"] == OfferState.ACCEPTED
+    assert h._state(t_gone)["phase"] == "closed"
+    assert (h.job_dir(t_in_hand) / "run" / "checkpoint").is_dir()  # still needed to resume
+    assert not (h.job_dir(t_failed) / "run" / "checkpoint").exists()
+    # a second start finds nothing left to do but the job in hand
+    block = p.chain.w3.eth.block_number
+    assert h.recover(None) == {"reported": [], "queued": [t_in_hand], "closed": [], "pruned": []}
+    assert p.chain.w3.eth.block_number == block
+
+
+def test_walls_that_leave_the_team_no_room_are_declined_not_accepted(env, tmp_path: Path) -> None:
+    p, actors, store = env
+    # within every bound of the spec (4 walls on a 4 x 4 grid), yet 8 agents never fit
+    cramped = {**TINY_SPEC, "env": {"rows": 4, "cols": 4, "agents": 8, "walls": [4, 4]}}
+    task_id, offered, _ = post_task(p, store, actors.requester, spec=cramped)
+    out = handler_for(p, offered[0], store, tmp_path).handle(task_id, offered[0])
+    assert out["status"] == "declined" and "wall layouts in a row" in out["reason"], out
+    assert p.tmc.offer(task_id, offered[0])["state"] == OfferState.DECLINED

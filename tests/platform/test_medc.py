@@ -96,8 +96,10 @@ def test_medc_task_with_an_mmc_expert_end_to_end(data_dir: Path, tmp_path: Path)
         used = card["training"]["experts"]
         assert [(e["ref"], e["qos"]) for e in used["experts"]] == [(cid, qos)]
         assert used["rate"] == 0.5 and used["experts"][0]["episodes"] > 0
-        # the worker kept the verified expert in the job directory (a resume needs no fetch)
-        assert list((p.data_dir / "workers").glob(f"*/jobs/*/{task['task_id']}/experts/{cid}"))
+        # the worker fetched the expert into the job directory, and removed it once submitted
+        (job,) = (p.data_dir / "workers").glob(f"*/jobs/*/{task['task_id']}")
+        assert json.loads((job / "state.json").read_text())["experts"] == [cid]
+        assert not (job / "experts").exists()
 
         # the requester reviews the expert it used
         mmc = p.chain.platform.mmc

@@ -167,3 +167,29 @@ def test_give_up_abandons_only_a_job_in_hand(tmp_path: Path) -> None:
     out = h.give_up(3, "gave up after 8 retries: store down")
     assert out["status"] == "failed" and sent == [("abandonOffer", 3)]
     assert h._state(3)["phase"] == "failed" and "8 retries" in h._state(3)["reason"]
+
+
+def test_recovery_at_start_never_stops_the_daemon_when_the_node_is_down(caplog) -> None:
+    """``drlaas worker run`` reconciles its jobs before it consumes offers; a node still down
+    is logged (the next start tries again), not a crash of the daemon."""
+    import logging
+
+    from workers.daemon.command import recover_jobs
+    from workers.daemon.handler import Transient
+
+    class Handler:
+        def __init__(self, result: dict | Exception) -> None:
+            self.result, self.enqueue = result, None
+
+        def recover(self, enqueue):
+            self.enqueue = enqueue
+            if isinstance(self.result, Exception):
+                raise self.result
+            return self.result
+
+    caplog.set_level(logging.INFO, logger="workers.daemon.command")
+    down = Handler(Transient("chain node unreachable: refused"))
+    recover_jobs(down, enqueue=print)
+    assert down.enqueue is print and "recovery at start skipped" in caplog.text
+    recover_jobs(Handler({"reported": [4], "queued": [], "closed": [], "pruned": [2, 3]}), print)
+    assert "reported [4], pruned [2, 3]" in caplog.text

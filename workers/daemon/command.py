@@ -156,6 +156,7 @@ def worker_command(
     )
     job.warm_up()
     tasks.set_runtime(handler)
+    recover_jobs(handler, tasks.make_on_offer(settings, app))
     app.worker_main(
         [
             "worker",
@@ -172,6 +173,21 @@ def worker_command(
             loglevel,
         ]
     )
+
+
+def recover_jobs(handler: Any, enqueue: Any) -> None:
+    """Reconcile the job directories with the chain before consuming offers
+    (``OfferHandler.recover``); a node still down is logged and retried at the next start."""
+    from workers.daemon.handler import Transient
+
+    try:
+        done = handler.recover(enqueue)
+    except Transient as exc:
+        log.warning("job recovery at start skipped: %s", exc)
+        return
+    summary = ", ".join(f"{what} {ids}" for what, ids in done.items() if ids)
+    if summary:
+        log.info("jobs recovered at start: %s", summary)
 
 
 def open_worker(key: Path, gateway: str | None, data: Path | None) -> Any:

@@ -15,6 +15,12 @@ back on chain at once (TMC ``abandonOffer``: the offer becomes ``Failed`` and th
 for the requester to re-allocate). So is a job whose expert models (MEDC, the spec's
 ``experts``) cannot be fetched or fail verification (``workers.daemon.experts``): the reason
 names the CID and what is wrong.
+
+A job whose training process dies again and again without its checkpoint moving (killed for
+memory, say) is given back after :data:`MAX_STARTS_WITHOUT_PROGRESS` starts instead of being
+redelivered until the deadline. At daemon start :meth:`OfferHandler.recover` reconciles the
+job directories with the chain (a failure the chain has not heard of is reported, a job still
+accepted is queued again, a finished job's checkpoint and fetched models are removed).
 """
 
 from __future__ import annotations
@@ -22,6 +28,7 @@ from __future__ import annotations
 import json
 import logging
 import os
+import shutil
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -49,6 +56,7 @@ from workers.daemon.experts import (
 )
 from workers.daemon.gateway import Gateway, GatewayError
 from workers.daemon.links import task_spec_cid
+from workers.mdrl.env import TargetLocalizationEnv
 from workers.mdrl.resources import estimate
 from workers.mdrl.trainingspec import MAX_SPEC_BYTES, SpecError, TrainingSpec
 
@@ -58,10 +66,23 @@ log = logging.getLogger(__name__)
 DEADLINE_MARGIN_S = 30.0
 #: Phases a job goes through, in order (``state.json``).
 PHASES = ("accepted", "trained", "uploaded", "submitted")
+#: Phases after which a job holds nothing on chain (``declined``: never accepted).
+FINISHED = ("submitted", "declined", "closed", "failed")
+#: Training starts in a row that got no further than the last one (the process died before
+#: its checkpoint moved: killed for memory, say) before the job is given back.
+MAX_STARTS_WITHOUT_PROGRESS = 3
+#: What a finished job no longer needs (``_prune``): the delivered model, metrics.csv and
+#: progress.jsonl stay (``drlaas worker publish`` reads the model).
+PRUNED = ("run/checkpoint", "experts", "cae")
 
 
 class Transient(RuntimeError):
     """A failure worth retrying later (service down); the message says which service."""
+
+
+class JobKeepsDying(RuntimeError):
+    """Training was started MAX_STARTS_WITHOUT_PROGRESS times and the process died each time
+    before its checkpoint moved: starting it again would only die again."""
 
 
 @dataclass
@@ -125,7 +146,7 @@ class OfferHandler:
             if st.get("phase") not in PHASES[:-1]:
                 continue
             if not self._still_accepted(tid):
-                self._save(tid, phase="closed", reason="offer no longer accepted on chain")
+                self._close(tid, phase="closed", reason="offer no longer accepted on chain")
                 continue
             out.append(tid)
         return out
@@ -163,7 +184,7 @@ class OfferHandler:
         if task["status"] != TaskStatus.OPEN:
             return {"task_id": task_id, "status": f"task {TaskStatus(task['status']).name.lower()}"}
         if state not in (OfferState.OFFERED, OfferState.ACCEPTED):
-            self._save(task_id, phase="closed", offer=state.name.lower())
+            self._close(task_id, phase="closed", offer=state.name.lower())
             return {"task_id": task_id, "status": f"offer {state.name.lower()}"}
 
         if state == OfferState.ACCEPTED and self._state(task_id).get("phase") == "failed":
@@ -197,7 +218,9 @@ class OfferHandler:
             or not (model_dir / "model.json").is_file()
         ):
             model_dir = self._train(task_id, spec, deadline=int(task["deadline"]))
-            st = self._save(task_id, phase="trained", model=model_dir.name)  # model | best
+            st = self._save(  # model | best
+                task_id, phase="trained", model=model_dir.name, starts_without_progress=0
+            )
         if st.get("phase") != "uploaded" or not st.get("cid"):
             try:
                 cid = (
@@ -212,7 +235,7 @@ class OfferHandler:
         cid = st["cid"]
         self._flush_progress(task_id, wait_s=5.0)  # the curve is complete before the outcome
         rc = self._transact("submitOutcome", task_id, cid)
-        self._save(task_id, phase="submitted", tx=rc.tx_hash, submitted_at=self.clock())
+        self._close(task_id, phase="submitted", tx=rc.tx_hash, submitted_at=self.clock())
         return {"task_id": task_id, "status": "submitted", "cid": cid, "tx": rc.tx_hash}
 
     # -- capacity and failure --------------------------------------------------------------
@@ -244,6 +267,10 @@ class OfferHandler:
                 f"spec_exceeds_worker_memory: needs about {need / 2**30:.3g} GiB, this worker "
                 f"has {share / 2**30:.3g} GiB per job"
             )
+        try:  # walls the spec's bounds allow can still leave the team no room (env.LayoutError)
+            TargetLocalizationEnv(spec.env, 1, seed=spec.seed)
+        except ValueError as exc:  # LayoutError, or an env rule the spec check does not mirror
+            return f"env: {exc}"
         return None
 
     def give_up(self, task_id: int, reason: str) -> dict[str, Any]:
@@ -256,8 +283,59 @@ class OfferHandler:
 
     def _fail(self, task_id: int, reason: str) -> dict[str, Any]:
         """Mark an accepted job failed (it stops counting against capacity) and report it."""
-        self._save(task_id, phase="failed", reason=reason[:2000], failed_at=self.clock())
+        self._close(task_id, phase="failed", reason=reason[:2000], failed_at=self.clock())
         return self._report_failure(task_id)
+
+    def _close(self, task_id: int, **changes: Any) -> dict[str, Any]:
+        """Save a finished phase (FINISHED) and prune what the job no longer needs."""
+        state = self._save(task_id, **changes)
+        self._prune(task_id)
+        return state
+
+    def _prune(self, task_id: int) -> None:
+        """Remove a finished job's checkpoint and fetched expert models and CAE (PRUNED): a
+        worker's disk does not fill up with jobs it will never resume."""
+        for part in PRUNED:
+            shutil.rmtree(self.job_dir(task_id) / part, ignore_errors=True)
+
+    def recover(self, enqueue: Callable[[int, str], None] | None = None) -> dict[str, list[int]]:
+        """Reconcile this chain's job directories with the chain at daemon start; returns the
+        task ids by what was done.
+
+        * ``reported``: failed jobs whose ``abandonOffer`` never reached the chain (the node was
+          down when the job gave up) are given back now;
+        * ``queued``: jobs in hand (accepted, trained, uploaded) that the chain still holds as
+          accepted go to ``enqueue(task_id, worker)`` again: their message may be gone (a broker
+          restarted without persistence). A duplicate is harmless: the handler is idempotent and
+          the daemon's solo pool runs one job at a time;
+        * ``closed``: jobs in hand that the chain no longer holds (cancelled, closed, past the
+          deadline) are closed;
+        * ``pruned``: finished jobs lose their checkpoint and fetched models (``_prune``).
+
+        A node still down raises :class:`Transient` for the caller to log; nothing is lost, the
+        next start tries again."""
+        done: dict[str, list[int]] = {"reported": [], "queued": [], "closed": [], "pruned": []}
+        root = self._jobs_root
+        for f in sorted(root.glob("*/state.json")) if root.is_dir() else []:
+            if not f.parent.name.isdigit():
+                continue
+            tid, st = int(f.parent.name), json.loads(f.read_text())
+            phase = st.get("phase")
+            if phase == "failed" and "offer" not in st:  # abandonOffer not confirmed
+                self._report_failure(tid)
+                done["reported"].append(tid)
+            elif phase in PHASES[:-1]:
+                if self._still_accepted(tid):
+                    if enqueue is not None:
+                        enqueue(tid, self.address)
+                    done["queued"].append(tid)
+                else:
+                    self._close(tid, phase="closed", reason="offer no longer accepted on chain")
+                    done["closed"].append(tid)
+            if phase in FINISHED and any((f.parent / part).exists() for part in PRUNED):
+                self._prune(tid)
+                done["pruned"].append(tid)
+        return done
 
     def _report_failure(self, task_id: int) -> dict[str, Any]:
         """Give the task back on chain (TMC ``abandonOffer``: the offer becomes Failed and the
@@ -319,11 +397,21 @@ class OfferHandler:
         if left_min <= 0:
             raise RuntimeError(f"task {task_id}: deadline {deadline} leaves no time to train")
         minutes = min(spec.minutes, left_min) if spec.minutes is not None else left_min
+        st = self._state(task_id)
+        starts = int(st.get("starts_without_progress", 0))
+        if starts >= MAX_STARTS_WITHOUT_PROGRESS:
+            raise JobKeepsDying(
+                f"training was started {starts} times and its process died each time before "
+                f"getting past step {st.get('resumed_from_step', 0)} (killed for memory?)"
+            )
+        self._save(task_id, starts_without_progress=starts + 1)
         experts = self._fetch_experts(task_id, spec)
         walls_cae = self._fetch_walls_cae(task_id, spec)
 
         def first(step: int) -> None:
-            self._save(task_id, first_step_at=self.clock(), resumed_from_step=step)
+            before = self._state(task_id).get("resumed_from_step")
+            moved = {"starts_without_progress": 1} if before is not None and step > before else {}
+            self._save(task_id, first_step_at=self.clock(), resumed_from_step=step, **moved)
             if self.on_first_step is not None:
                 self.on_first_step(task_id, step)
 
@@ -342,15 +430,16 @@ class OfferHandler:
     def _fetch_experts(self, task_id: int, spec: TrainingSpec) -> dict[str, Path]:
         """The spec's expert models, verified, in the job directory (kept for a resume);
         ExpertFetchError (the job fails naming the CID) or Transient (store down)."""
-        if not spec.experts:
+        demo = spec.demonstration()  # the experts the run can pick (QoS weight > 0)
+        if demo is None:
             return {}
         try:
             dirs = fetch_experts(
-                self.store, spec.experts, self.job_dir(task_id), max_weights=self.max_expert_bytes
+                self.store, demo.experts, self.job_dir(task_id), max_weights=self.max_expert_bytes
             )
         except StoreUnavailable as exc:
             raise Transient(f"cannot fetch the task's expert models: {exc}") from exc
-        self._save(task_id, experts=list(spec.experts))
+        self._save(task_id, experts=list(demo.experts))
         return dirs
 
     def _fetch_walls_cae(self, task_id: int, spec: TrainingSpec) -> Path | None:

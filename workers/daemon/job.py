@@ -4,7 +4,8 @@ Layout of a job directory ``<worker data>/jobs/<task_id>/``: ``run/`` is the tra
 (``checkpoint/`` every ``checkpoint_every`` updates, ``metrics.csv``, ``model/`` at the end,
 ``best/`` the best evaluated policy when the spec's ``selection.keep_best`` asks for it),
 ``progress.jsonl`` the points posted to the gateway, ``experts/<CID>/`` the verified expert
-models of an MEDC task (``workers.daemon.experts``). A job started again in the same directory
+models of an MEDC task (``workers.daemon.experts``); a finished job keeps its model, metrics
+and progress, not its checkpoint and experts (``OfferHandler._prune``). A job started again in the same directory
 resumes from its last checkpoint (the trainer restores weights, optimiser, RNGs and env state,
 and the DC / MEDC selector's state: roulette-wheel RNG, each env's guiding expert, counters),
 so the continued run is the run that would have happened without the interruption.

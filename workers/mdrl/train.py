@@ -181,9 +181,14 @@ class Trainer:
         self.out = Path(out) if out is not None else None
         torch.set_num_threads(run.threads)
         # environment: B envs stepped together as arrays
+        built = time.perf_counter()
         self.env = TargetLocalizationEnv(env_spec, ppo.num_envs, seed=run.seed)
         # observer: env state -> actor (B, Np, C, H, W) and critic (B, C, H, W) maps
         self.observer = make_observer(env_spec, obs_spec, walls_encoder)
+        self._setup_s = time.perf_counter() - built
+        """Seconds to build the env and observer (an evaluation builds its own)."""
+        self._eval_s: float | None = None
+        """Seconds the last greedy evaluation of this process took (None: none yet)."""
         self.head = PolicyHead(env_spec.num_actions, env_spec.agents,
                                joint=bool(self.observer.joint_actions))
         # agent: shared actor + centralized critic (Table 3.1); init from the seed only
@@ -439,8 +444,27 @@ class Trainer:
     def budget_left(self) -> bool:
         return self.run.budget_left(self.global_step, self.elapsed)
 
+    def _no_time_for_another(self, update_s: float, evaluating: bool = False) -> bool:
+        """A time budget (``RunConfig.minutes``, a worker's task deadline) holds the final
+        evaluation too: this update is the last when one more update of ``update_s`` and the
+        final evaluation would not fit (after this update's own periodic evaluation when
+        ``evaluating``). The evaluation's time is the last one measured, before
+        the first an upper bound: every episode runs ``max_steps`` at this update's seconds per
+        env step (rollout and learning, which a greedy step does not pay) plus the setup of an
+        env and observer (an evaluation builds its own: ~1 s at 30 x 30 with route maps)."""
+        if self.run.minutes is None:
+            return False
+        eval_s = self._eval_s
+        if eval_s is None:
+            per_step = update_s / max(1, self.ppo.batch_steps)
+            steps = self.run.eval_episodes * self.env_spec.max_steps
+            eval_s = steps * per_step + self._setup_s
+        evals = 2 if evaluating else 1
+        return self.elapsed + update_s + evals * eval_s > self.run.minutes * 60.0
+
     def train(self) -> dict[str, Any]:
-        """Run updates until the step or time budget is used; returns the last metrics row."""
+        """Run updates until the step or time budget is used; returns the last metrics row.
+        A time budget ends early enough for the final evaluation (``_no_time_for_another``)."""
         run = self.run
         if run.total_steps is None and run.minutes is None:
             raise ValueError("Trainer.train: give a budget (RunConfig.total_steps and/or minutes)")
@@ -462,12 +486,16 @@ class Trainer:
                 # the time this update took counts: a time budget used up by it makes it the
                 # last one (final evaluation and checkpoint), as a step budget does
                 self.elapsed = elapsed0 + (time.perf_counter() - t0)
-                last = not self.budget_left()
-                more = not last
                 every = run.eval_every
+                due = bool(every and self.update_idx % every == 0)  # a periodic evaluation
+                last = not self.budget_left() or self._no_time_for_another(
+                    time.perf_counter() - u0, evaluating=due)
+                more = not last
                 evals, kept = {}, False
-                if last or (every and self.update_idx % every == 0):
+                if last or due:
+                    e0 = time.perf_counter()
                     evals = self.evaluate()
+                    self._eval_s = time.perf_counter() - e0
                     self.last_eval = evals
                     kept = self.keep_if_best(evals)
                 self.elapsed = elapsed0 + (time.perf_counter() - t0)

@@ -279,13 +279,19 @@ class TrainingSpec:
         return self.budget.steps
 
     def demonstration(self) -> Any:
-        """The run's ``medc.DemonstrationConfig``, or None when the spec names no experts."""
+        """The run's ``medc.DemonstrationConfig``, or None when the spec names no experts.
+        An expert of QoS weight 0 is left out: the roulette wheel (R_S = QoS / sum QoS) never
+        picks it, so a worker does not fetch it and the model's card does not list it as used."""
         if not self.experts:
             return None
         from workers.mdrl.medc import DemonstrationConfig
 
+        experts, qos = self.experts, self.expert_qos
+        if qos:  # _check_experts: not all 0
+            experts = tuple(m for m, q in zip(experts, qos, strict=True) if q > 0)
+            qos = tuple(q for q in qos if q > 0)
         d = self.algorithm.demonstration
-        return DemonstrationConfig(self.experts, self.expert_qos, d.get("rate"),
+        return DemonstrationConfig(experts, qos, d.get("rate"),
                                    d.get("threshold", DemonstrationConfig.threshold),
                                    d.get("credit", False), d.get("rate_end"))
 
