@@ -174,6 +174,24 @@ def test_a_finished_run_of_an_entry_is_published_and_another_is_refused(tmp_path
     res = runner.invoke(app, ["publish", "pub", "--run", str(tmp_path / "missing"),
                               "--models", str(models)])
     assert res.exit_code == 2 and "no finished run" in res.output
+    # a damaged card is named; a publish that fails midway leaves the published model whole
+    published = (models / "pub" / "model.json").read_text()
+    shutil.copytree(tmp_path / "good", tmp_path / "damaged")
+    (tmp_path / "damaged" / "model" / "model.json").write_text("{not json")
+    res = runner.invoke(app, ["publish", "pub", "--run", str(tmp_path / "damaged"),
+                              "--models", str(models)])
+    flat = "".join(res.output.replace("│", " ").split())
+    assert res.exit_code == 2 and "damaged/model/model.json" in flat, res.output
+
+    def interrupted(policy, spec):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(zoo, "heldout", interrupted)
+    res = runner.invoke(app, ["publish", "pub", "--run", str(tmp_path / "good"),
+                              "--models", str(models)])
+    assert res.exit_code != 0
+    assert (models / "pub" / "model.json").read_text() == published
+    assert sorted(x.name for x in models.iterdir()) == ["ch4-a1w0-10x10", "pub"]
 
 
 def test_zoo_list_and_complete_name_a_malformed_card(tmp_path):

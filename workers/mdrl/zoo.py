@@ -177,23 +177,41 @@ def publish_run(name: str, run_dir: Path, models: Path) -> Path:
     against the entry first: ValueError naming what differs. Returns the model directory."""
     entry = ZOO[name]
     run_dir = Path(run_dir)
-    card = json.loads((run_dir / "model" / CARD).read_text())
+    card_file = run_dir / "model" / CARD
+    try:
+        card = json.loads(card_file.read_text())
+        if not isinstance(card, dict):
+            raise ValueError("not a JSON object")
+    except (OSError, ValueError) as exc:
+        raise ValueError(f"{card_file}: not a readable model card ({exc})") from None
     spec = None
     if entry.preset != "generalist":
         _check_run_is_entry(name, entry, card, models)
         spec = get_preset(entry.preset).env
+    # built beside the published model and swapped in only when complete: a failure (a bad
+    # weights file, an interrupted held-out evaluation) leaves the published model as it was
     target = models / name
+    staging = models / f".{name}.publishing"
+    shutil.rmtree(staging, ignore_errors=True)
+    shutil.copytree(run_dir / "model", staging)
+    try:
+        policy = load_model(staging)
+        training = card.get("training", {})
+        card["zoo"] = {"name": name, "preset": entry.preset, "seed": entry.seed,
+                       "env_steps": training.get("env_steps"),
+                       "wall_clock_s": round(float(training.get("wall_time_s", 0.0)), 1),
+                       "heldout": heldout(policy, spec if spec is not None else policy.env_spec)}
+        card[CURVE_KEY] = training_curve(run_dir / "metrics.csv")
+        (staging / CARD).write_text(json.dumps(card, indent=1))
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise
+    old = models / f".{name}.replaced"
+    shutil.rmtree(old, ignore_errors=True)
     if target.exists():
-        shutil.rmtree(target)
-    shutil.copytree(run_dir / "model", target)
-    policy = load_model(target)
-    training = card.get("training", {})
-    card["zoo"] = {"name": name, "preset": entry.preset, "seed": entry.seed,
-                   "env_steps": training.get("env_steps"),
-                   "wall_clock_s": round(float(training.get("wall_time_s", 0.0)), 1),
-                   "heldout": heldout(policy, spec if spec is not None else policy.env_spec)}
-    card[CURVE_KEY] = training_curve(run_dir / "metrics.csv")
-    (target / CARD).write_text(json.dumps(card, indent=1))
+        target.rename(old)
+    staging.rename(target)
+    shutil.rmtree(old, ignore_errors=True)
     return target
 
 
