@@ -473,9 +473,8 @@ def test_recover_at_start_reconciles_job_directories_with_the_chain(env, tmp_pat
     (h.job_dir(t_in_hand) / "run" / "checkpoint").mkdir(parents=True)
     queued: list[tuple[int, str]] = []
     done = h.recover(lambda tid, w: queued.append((tid, w)))
-    assert done == {
-        "reported": [t_failed], "queued": [t_in_hand], "closed": [t_gone], "pruned": [t_failed]
-    }
+    assert done == {"reported": [t_failed], "queued": [t_in_hand], "submitted": [],
+                    "closed": [t_gone], "pruned": [t_failed]}
     assert queued == [(t_in_hand, worker)]
     assert p.tmc.offer(t_failed, worker)["state"] == OfferState.FAILED
     assert p.tmc.offer(t_in_hand, worker)["state"] == OfferState.ACCEPTED
@@ -484,7 +483,8 @@ def test_recover_at_start_reconciles_job_directories_with_the_chain(env, tmp_pat
     assert not (h.job_dir(t_failed) / "run" / "checkpoint").exists()
     # a second start finds nothing left to do but the job in hand
     block = p.chain.w3.eth.block_number
-    assert h.recover(None) == {"reported": [], "queued": [t_in_hand], "closed": [], "pruned": []}
+    assert h.recover(None) == {"reported": [], "queued": [t_in_hand], "submitted": [],
+                               "closed": [], "pruned": []}
     assert p.chain.w3.eth.block_number == block
 
 
@@ -496,3 +496,170 @@ def test_walls_that_leave_the_team_no_room_are_declined_not_accepted(env, tmp_pa
     out = handler_for(p, offered[0], store, tmp_path).handle(task_id, offered[0])
     assert out["status"] == "declined" and "wall layouts in a row" in out["reason"], out
     assert p.tmc.offer(task_id, offered[0])["state"] == OfferState.DECLINED
+
+
+def test_a_node_answering_5xx_or_mining_late_is_retried_never_a_failed_job(
+    env, tmp_path: Path
+) -> None:
+    """A 503 from the node (or a proxy before it) and a receipt wait that times out are the
+    node's trouble, not the job's: Transient (the Celery job retries), never a trained model
+    thrown away with abandonOffer. A submitOutcome mined after its receipt wait gave up is
+    recorded as submitted on the next delivery."""
+    import requests
+    from web3.exceptions import TimeExhausted
+
+    from workers.daemon.handler import node_unreachable
+
+    p, actors, store = env
+    task_id, offered, _ = post_task(p, store, actors.requester)
+    worker = offered[0]
+    h = handler_for(p, worker, store, tmp_path)
+    h._post_progress = lambda tid, point: None  # type: ignore[method-assign]
+    real = p.tmc.transact
+    busy = requests.Response()
+    busy.status_code = 503
+    calls = {"503": 0}
+
+    def flaky(fn, *args, **kw):
+        if fn == "submitOutcome" and calls["503"] == 0:
+            calls["503"] += 1
+            raise requests.HTTPError("503 Service Unavailable", response=busy)
+        if fn == "submitOutcome":
+            real(fn, *args, **kw)  # mined, but the receipt wait gives up first
+            raise TimeExhausted("not in the chain after 120 seconds")
+        return real(fn, *args, **kw)
+
+    p.tmc.transact = flaky  # type: ignore[method-assign]
+    try:
+        with pytest.raises(Transient, match="submitOutcome"):
+            h.handle(task_id, worker)
+        assert h._state(task_id)["phase"] == "uploaded"
+        with pytest.raises(Transient, match="submitOutcome"):
+            h.handle(task_id, worker)
+    finally:
+        p.tmc.transact = real  # type: ignore[method-assign]
+    assert p.tmc.offer(task_id, worker)["state"] == OfferState.SUBMITTED
+    out = h.handle(task_id, worker)
+    assert out["status"] == "submitted" and h._state(task_id)["phase"] == "submitted"
+    assert h.publish_outcome(task_id)["cid"] == out["cid"]
+    assert not p.tmc.contract.events.OfferFailed().get_logs(from_block=0)
+    bad_request = requests.Response()
+    bad_request.status_code = 400
+    assert not node_unreachable(requests.HTTPError("400", response=bad_request))
+
+
+def test_a_submit_mined_by_an_earlier_try_is_recorded_not_failed(env, tmp_path: Path) -> None:
+    """The retry of a submitOutcome whose first try was mined meanwhile reverts; the job reads
+    the chain and records the outcome as submitted instead of failing it."""
+    p, actors, store = env
+    task_id, offered, _ = post_task(p, store, actors.requester)
+    worker = offered[0]
+    h = handler_for(p, worker, store, tmp_path)
+    h._post_progress = lambda tid, point: None  # type: ignore[method-assign]
+    real = p.tmc.transact
+
+    def twice(fn, *args, **kw):
+        if fn == "submitOutcome":
+            real(fn, *args, **kw)  # the earlier try, mined late
+        return real(fn, *args, **kw)
+
+    p.tmc.transact = twice  # type: ignore[method-assign]
+    try:
+        out = h.handle(task_id, worker)
+    finally:
+        p.tmc.transact = real  # type: ignore[method-assign]
+    assert out["status"] == "submitted" and h._state(task_id)["phase"] == "submitted"
+    assert p.tmc.offer(task_id, worker)["state"] == OfferState.SUBMITTED
+
+
+def test_store_outages_while_fetching_models_are_not_starts_that_died(
+    env, tmp_path: Path
+) -> None:
+    from workers.daemon.handler import MAX_STARTS_WITHOUT_PROGRESS
+
+    p, actors, store = env
+    task_id, offered, _ = post_task(p, store, actors.requester)
+    h = handler_for(p, offered[0], store, tmp_path)
+    h._post_progress = lambda tid, point: None  # type: ignore[method-assign]
+    real = h._fetch_experts
+    outages = [Transient("content store unavailable")] * (MAX_STARTS_WITHOUT_PROGRESS + 1)
+
+    def fetch(tid, spec):
+        if outages:
+            raise outages.pop()
+        return real(tid, spec)
+
+    h._fetch_experts = fetch  # type: ignore[method-assign]
+    for _ in range(MAX_STARTS_WITHOUT_PROGRESS + 1):
+        with pytest.raises(Transient):
+            h.handle(task_id, offered[0])
+    assert h._state(task_id).get("starts_without_progress", 0) == 0
+    assert h.handle(task_id, offered[0])["status"] == "submitted"
+
+
+def test_recover_survives_damaged_job_directories_and_records_late_submits(
+    env, tmp_path: Path
+) -> None:
+    """An unreadable state.json is set aside and the job rebuilt from the chain; a job killed
+    between acceptOffer and its record, or between submitOutcome and its record, is seen;
+    directory names that are not task ids as the daemon writes them are not jobs; a failure
+    whose give-back the chain refused is not reported again at every start."""
+    p, actors, store = env
+    tasks = [post_task(p, store, actors.requester, num_workers=3) for _ in range(4)]
+    worker = tasks[0][1][0]
+    assert all(worker in offered for _, offered, _ in tasks)
+    t_corrupt, t_accepting, t_submitted, t_refused = (t for t, _, _ in tasks)
+    h = handler_for(p, worker, store, tmp_path)
+    for tid in (t_corrupt, t_accepting, t_submitted):
+        p.tmc.transact("acceptOffer", tid, sender=worker)
+    h._save(t_corrupt, phase="trained")
+    (h.job_dir(t_corrupt) / "state.json").write_text("")  # a disk fault
+    h._save(t_accepting, phase="accepting")  # killed right after the acceptOffer transaction
+    # killed after submitOutcome, before the record: the disk says uploaded
+    cid = "bafkreigh2akiscaildcqabsyg3dfr6chu3fgpregiymsck7e7aqa4s52zy"
+    h._save(t_submitted, phase="uploaded", cid=cid)
+    p.tmc.transact("submitOutcome", t_submitted, cid, sender=worker)
+    # never accepted on chain: abandonOffer is refused; the refusal is recorded once
+    h._save(t_refused, phase="failed", reason="broken")
+    assert h._report_failure(t_refused)["offer"].startswith("not abandoned")
+    for odd in ("01", "\u00b2", "x"):  # not task ids as job_dir writes them
+        (h._jobs_root / odd).mkdir()
+        (h._jobs_root / odd / "state.json").write_text(json.dumps({"phase": "failed"}))
+    queued: list[int] = []
+    done = h.recover(lambda tid, w: queued.append(tid))
+    assert done == {"reported": [], "queued": [t_corrupt, t_accepting], "submitted": [t_submitted],
+                    "closed": [], "pruned": []}
+    assert queued == [t_corrupt, t_accepting]
+    assert list(h.job_dir(t_corrupt).glob("state.json.unreadable-*"))
+    assert h._state(t_corrupt)["phase"] == "accepted"
+    assert h._state(t_submitted)["phase"] == "submitted"
+    assert p.tmc.offer(t_refused, worker)["state"] == OfferState.OFFERED
+    # the job in hand counts against capacity; the offered-only one is not a job
+    assert sorted(h.active_jobs(exclude=0)) == [t_corrupt, t_accepting]
+
+
+def test_a_resumed_job_trains_for_the_time_left_not_the_time_already_spent(
+    env, tmp_path: Path
+) -> None:
+    """Trainer budgets count the training time of earlier runs; a job resumed with less wall
+    time left before its deadline than it already trained still trains for that time (its
+    budget is the time so far plus the time left), and ends with its final evaluation."""
+    from workers.daemon import job as jobs
+
+    spec = TrainingSpec.from_dict({**TINY_SPEC, "budget": {"steps": 100_000, "minutes": 60}})
+    job = tmp_path / "job"
+
+    class Stop(BaseException):
+        pass
+
+    def stop_at_update_2(point: dict) -> None:
+        if point["update"] == 2:
+            raise Stop()
+
+    with pytest.raises(Stop):
+        jobs.run_job(spec, job, checkpoint_every=1, on_progress=stop_at_update_2)
+    trainer = jobs.make_trainer(spec, job, minutes_left=0.5)
+    assert trainer.elapsed > 0 and trainer.update_idx == 1
+    assert trainer.run.minutes == pytest.approx(trainer.elapsed / 60 + 0.5)
+    capped = jobs.make_trainer(spec, job, minutes_left=600)
+    assert capped.run.minutes == 60  # within the spec's own budget

@@ -177,17 +177,17 @@ def worker_command(
 
 def recover_jobs(handler: Any, enqueue: Any) -> None:
     """Reconcile the job directories with the chain before consuming offers
-    (``OfferHandler.recover``); a node still down is logged and retried at the next start."""
-    from workers.daemon.handler import Transient
-
+    (``OfferHandler.recover``), and say what was done on stderr (Celery's logging is not set up
+    yet). Best effort: a node still down, or anything else that stops the scan, is reported and
+    the daemon starts anyway; the next start scans again."""
     try:
         done = handler.recover(enqueue)
-    except Transient as exc:
-        log.warning("job recovery at start skipped: %s", exc)
+    except Exception as exc:  # noqa: BLE001 - recovery never keeps a worker from serving
+        typer.echo(f"job recovery at start skipped: {type(exc).__name__}: {exc}", err=True)
         return
     summary = ", ".join(f"{what} {ids}" for what, ids in done.items() if ids)
     if summary:
-        log.info("jobs recovered at start: %s", summary)
+        typer.echo(f"jobs recovered at start: {summary}", err=True)
 
 
 def open_worker(key: Path, gateway: str | None, data: Path | None) -> Any:

@@ -30,7 +30,8 @@ import logging
 import os
 import shutil
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -38,6 +39,7 @@ from typing import Any
 import httpx
 import requests
 from eth_account.signers.local import LocalAccount
+from web3.exceptions import TimeExhausted
 
 from backend.chain.addresses import checksum
 from backend.chain.errors import ContractError
@@ -66,18 +68,45 @@ log = logging.getLogger(__name__)
 DEADLINE_MARGIN_S = 30.0
 #: Phases a job goes through, in order (``state.json``).
 PHASES = ("accepted", "trained", "uploaded", "submitted")
+#: Phases of a job in hand: ``accepting`` is saved before the acceptOffer transaction, so a
+#: process killed in between leaves a job that capacity and ``recover`` see.
+IN_HAND = ("accepting", *PHASES[:-1])
 #: Phases after which a job holds nothing on chain (``declined``: never accepted).
 FINISHED = ("submitted", "declined", "closed", "failed")
 #: Training starts in a row that got no further than the last one (the process died before
 #: its checkpoint moved: killed for memory, say) before the job is given back.
 MAX_STARTS_WITHOUT_PROGRESS = 3
 #: What a finished job no longer needs (``_prune``): the delivered model, metrics.csv and
-#: progress.jsonl stay (``drlaas worker publish`` reads the model).
+#: progress.jsonl stay (``drlaas worker share`` reads the model).
 PRUNED = ("run/checkpoint", "experts", "cae")
 
 
 class Transient(RuntimeError):
     """A failure worth retrying later (service down); the message says which service."""
+
+
+def node_unreachable(exc: BaseException) -> bool:
+    """Whether a chain call failed because the node (or a proxy before it) is down, busy or
+    slow, not because of the call itself: worth retrying (a 5xx or 429 answer, a connection or
+    read timeout, a transaction not mined within the receipt wait)."""
+    if isinstance(exc, (requests.ConnectionError, requests.Timeout, httpx.TransportError,
+                        TimeExhausted)):
+        return True
+    if isinstance(exc, (requests.HTTPError, httpx.HTTPStatusError)):
+        response = exc.response
+        return response is None or response.status_code >= 500 or response.status_code == 429
+    return False
+
+
+@contextmanager
+def chain_call(what: str) -> Iterator[None]:
+    """Turn a failure of the node into :class:`Transient` (retried), naming ``what``."""
+    try:
+        yield
+    except Exception as exc:
+        if node_unreachable(exc):
+            raise Transient(f"chain node unreachable during {what}: {exc}") from exc
+        raise
 
 
 class JobKeepsDying(RuntimeError):
@@ -119,49 +148,81 @@ class OfferHandler:
 
     # -- job state -------------------------------------------------------------------------
     def _state(self, task_id: int) -> dict[str, Any]:
+        """The job's state.json; {} when there is none. An unreadable one (a disk fault: the
+        writes are atomic) is set aside as ``state.json.unreadable-<time>`` and logged, and the
+        job goes on from what the chain says (its checkpoint, if any, resumes it)."""
         f = self.job_dir(task_id) / "state.json"
-        return json.loads(f.read_text()) if f.is_file() else {}
+        if not f.is_file():
+            return {}
+        try:
+            state = json.loads(f.read_text())
+            if not isinstance(state, dict):
+                raise ValueError("not a JSON object")
+            return state
+        except (OSError, ValueError) as exc:
+            kept = f.with_name(f"state.json.unreadable-{int(self.clock())}")
+            os.replace(f, kept)
+            log.error("task %s: job state %s unreadable (%s), set aside as %s", task_id, f,
+                      exc, kept.name)
+            return {}
 
     def _save(self, task_id: int, **changes: Any) -> dict[str, Any]:
         d = self.job_dir(task_id)
         d.mkdir(parents=True, exist_ok=True)
         state = {**self._state(task_id), **changes, "pid": os.getpid()}
         tmp = d / "state.json.tmp"
-        tmp.write_text(json.dumps(state, indent=1))
+        with tmp.open("w") as fh:  # on disk before it replaces the old state (power loss)
+            fh.write(json.dumps(state, indent=1))
+            fh.flush()
+            os.fsync(fh.fileno())
         os.replace(tmp, d / "state.json")
         return state
+
+    def _jobs(self) -> Iterator[tuple[int, dict[str, Any]]]:
+        """(task id, state) of every job directory of this chain, in task order; directories
+        whose name is not a task id as this handler writes it (``1``, not ``01``) are not
+        jobs."""
+        root = self._jobs_root
+        if not root.is_dir():
+            return
+        names = [d.name for d in root.iterdir() if (d / "state.json").is_file()]
+        for name in sorted((n for n in names if _task_dir_name(n)), key=int):
+            yield int(name), self._state(int(name))
 
     def active_jobs(self, exclude: int) -> list[int]:
         """Tasks of this chain that this worker accepted and has not submitted yet (other than
         ``exclude``). A job whose offer the chain no longer holds as accepted (task cancelled,
         closed or past its deadline) does not count, and is marked closed: capacity is never
         held by work nobody can submit."""
-        root = self._jobs_root
         out = []
-        for f in root.glob("*/state.json") if root.is_dir() else []:
-            tid = int(f.parent.name) if f.parent.name.isdigit() else None
-            if tid is None or tid == exclude:
+        for tid, st in self._jobs():
+            if tid == exclude or st.get("phase") not in IN_HAND:
                 continue
-            st = json.loads(f.read_text())
-            if st.get("phase") not in PHASES[:-1]:
-                continue
-            if not self._still_accepted(tid):
-                self._close(tid, phase="closed", reason="offer no longer accepted on chain")
-                continue
-            out.append(tid)
+            if self._settle(tid, st) is None:
+                out.append(tid)
         return out
 
-    def _still_accepted(self, task_id: int) -> bool:
-        try:
+    def _settle(self, task_id: int, st: dict[str, Any]) -> str | None:
+        """A job in hand on disk that the chain no longer holds as accepted is finished:
+        ``submitted`` if the chain has its outcome (killed after submitOutcome, before its
+        record), else ``closed`` (task cancelled, closed or past its deadline); returns that
+        phase, or None while the chain still holds the job."""
+        with chain_call(f"reading the offer of task {task_id}"):
             offer = self.platform.tmc.offer(task_id, self.address)
             task = self.platform.tmc.task(task_id)
-        except (requests.ConnectionError, requests.Timeout, httpx.TransportError) as exc:
-            raise Transient(f"chain node unreachable: {exc}") from exc
-        return (
-            offer["state"] == OfferState.ACCEPTED
+            now = self.platform.chain.now()
+        state = offer["state"]
+        if (
+            state == OfferState.ACCEPTED
             and task["status"] == TaskStatus.OPEN
-            and int(task["deadline"]) > self.platform.chain.now()
-        )
+            and int(task["deadline"]) > now
+        ):
+            return None
+        if state in (OfferState.SUBMITTED, OfferState.REVIEWED) and st.get("cid"):
+            self._close(task_id, phase="submitted")
+            return "submitted"
+        self._close(task_id, phase="closed", reason="offer no longer accepted on chain")
+        return "closed"
 
     # -- the pipeline ----------------------------------------------------------------------
     def handle(self, task_id: int, worker: str) -> dict[str, Any]:
@@ -172,14 +233,14 @@ class OfferHandler:
                 f"queues must be per worker"
             )
         tmc = self.platform.tmc
-        try:
+        with chain_call(f"reading the offer of task {task_id}"):
             offer = tmc.offer(task_id, self.address)
             task = tmc.task(task_id)
-        except (requests.ConnectionError, requests.Timeout, httpx.TransportError) as exc:
-            raise Transient(f"chain node unreachable: {exc}") from exc
         state = OfferState(offer["state"])
         if state in (OfferState.SUBMITTED, OfferState.REVIEWED):
             st = self._state(task_id)
+            if st.get("phase") != "submitted" and st.get("cid"):  # killed before its record
+                st = self._close(task_id, phase="submitted")
             return {"task_id": task_id, "status": "submitted", "cid": st.get("cid")}
         if task["status"] != TaskStatus.OPEN:
             return {"task_id": task_id, "status": f"task {TaskStatus(task['status']).name.lower()}"}
@@ -196,6 +257,7 @@ class OfferHandler:
                 self._transact("declineOffer", task_id)
                 self._save(task_id, phase="declined", reason=reason)
                 return {"task_id": task_id, "status": "declined", "reason": reason}
+            self._save(task_id, phase="accepting")
             self._transact("acceptOffer", task_id)
             self._save(task_id, phase="accepted", accepted_at=self.clock())
         elif isinstance(spec, SpecError):  # accepted earlier, spec cannot be trained: give up
@@ -234,7 +296,16 @@ class OfferHandler:
             st = self._save(task_id, phase="uploaded", cid=cid, files=files)
         cid = st["cid"]
         self._flush_progress(task_id, wait_s=5.0)  # the curve is complete before the outcome
-        rc = self._transact("submitOutcome", task_id, cid)
+        try:
+            rc = self._transact("submitOutcome", task_id, cid)
+        except ContractError:
+            with chain_call(f"reading the offer of task {task_id}"):
+                now = OfferState(self.platform.tmc.offer(task_id, self.address)["state"])
+            if now not in (OfferState.SUBMITTED, OfferState.REVIEWED):
+                raise
+            # an earlier try whose receipt wait timed out was mined after all
+            self._close(task_id, phase="submitted", submitted_at=self.clock())
+            return {"task_id": task_id, "status": "submitted", "cid": cid}
         self._close(task_id, phase="submitted", tx=rc.tx_hash, submitted_at=self.clock())
         return {"task_id": task_id, "status": "submitted", "cid": cid, "tx": rc.tx_hash}
 
@@ -277,7 +348,7 @@ class OfferHandler:
         """The job's retries ran out (the store or the node stayed down): a job accepted and
         not yet submitted fails and is given back on chain, instead of its offer staying
         accepted, and the worker busy, until the deadline with nobody working on it."""
-        if self._state(task_id).get("phase") in PHASES[:-1]:
+        if self._state(task_id).get("phase") in IN_HAND:
             return self._fail(task_id, reason)
         return {"task_id": task_id, "status": "given up", "reason": reason}
 
@@ -304,35 +375,38 @@ class OfferHandler:
 
         * ``reported``: failed jobs whose ``abandonOffer`` never reached the chain (the node was
           down when the job gave up) are given back now;
-        * ``queued``: jobs in hand (accepted, trained, uploaded) that the chain still holds as
-          accepted go to ``enqueue(task_id, worker)`` again: their message may be gone (a broker
-          restarted without persistence). A duplicate is harmless: the handler is idempotent and
-          the daemon's solo pool runs one job at a time;
+        * ``queued``: jobs in hand (accepting, accepted, trained, uploaded) that the chain still
+          holds as accepted go to ``enqueue(task_id, worker)`` again: their message may be gone
+          (a broker restarted without persistence). A duplicate is harmless: the handler is
+          idempotent and the daemon's solo pool runs one job at a time. So does a job whose
+          state.json was unreadable (set aside by ``_state``) when the chain holds it;
+        * ``submitted``: jobs in hand whose outcome the chain has (killed after submitOutcome,
+          before its record) are recorded as submitted (``drlaas worker share`` needs that);
         * ``closed``: jobs in hand that the chain no longer holds (cancelled, closed, past the
           deadline) are closed;
         * ``pruned``: finished jobs lose their checkpoint and fetched models (``_prune``).
 
-        A node still down raises :class:`Transient` for the caller to log; nothing is lost, the
-        next start tries again."""
-        done: dict[str, list[int]] = {"reported": [], "queued": [], "closed": [], "pruned": []}
-        root = self._jobs_root
-        for f in sorted(root.glob("*/state.json")) if root.is_dir() else []:
-            if not f.parent.name.isdigit():
-                continue
-            tid, st = int(f.parent.name), json.loads(f.read_text())
+        The first chain call that fails for the node raises :class:`Transient` for the caller
+        to log; nothing is lost, the next start tries again."""
+        done: dict[str, list[int]] = {
+            "reported": [], "queued": [], "submitted": [], "closed": [], "pruned": []
+        }
+        for tid, st in self._jobs():
             phase = st.get("phase")
             if phase == "failed" and "offer" not in st:  # abandonOffer not confirmed
                 self._report_failure(tid)
                 done["reported"].append(tid)
-            elif phase in PHASES[:-1]:
-                if self._still_accepted(tid):
-                    if enqueue is not None:
-                        enqueue(tid, self.address)
-                    done["queued"].append(tid)
-                else:
-                    self._close(tid, phase="closed", reason="offer no longer accepted on chain")
-                    done["closed"].append(tid)
-            if phase in FINISHED and any((f.parent / part).exists() for part in PRUNED):
+            elif phase in IN_HAND or phase is None:
+                settled = self._settle(tid, st)
+                if settled is not None:
+                    done[settled].append(tid)
+                    continue  # _close pruned it
+                if phase is None:
+                    self._save(tid, phase="accepted", reason="job state rebuilt from the chain")
+                if enqueue is not None:
+                    enqueue(tid, self.address)
+                done["queued"].append(tid)
+            if phase in FINISHED and any((self.job_dir(tid) / p).exists() for p in PRUNED):
                 self._prune(tid)
                 done["pruned"].append(tid)
         return done
@@ -349,6 +423,7 @@ class OfferHandler:
             raise
         except ContractError as exc:  # e.g. the task was closed meanwhile: nothing to give back
             log.warning("task %s: giving the failed job back refused: %s", task_id, exc)
+            self._save(task_id, offer=f"not abandoned: {exc.name}")  # recover: nothing to redo
             return out | {"offer": f"not abandoned: {exc.name}"}
         self._save(task_id, offer="failed")
         return out | {"offer": "failed"}
@@ -377,10 +452,8 @@ class OfferHandler:
 
     def _fetch_spec(self, task_id: int) -> TrainingSpec | SpecError:
         """The verified spec, or the SpecError saying why it cannot be trained."""
-        try:
+        with chain_call(f"reading the spec CID of task {task_id}"):
             cid = task_spec_cid(self.platform, task_id)
-        except (requests.ConnectionError, requests.Timeout) as exc:
-            raise Transient(f"chain node unreachable: {exc}") from exc
         try:
             raw = self.store.get(cid, max_size=MAX_SPEC_BYTES)
         except StoreUnavailable as exc:
@@ -393,10 +466,10 @@ class OfferHandler:
             return exc
 
     def _train(self, task_id: int, spec: TrainingSpec, *, deadline: int) -> Path:
-        left_min = (deadline - self.clock() - DEADLINE_MARGIN_S) / 60.0
-        if left_min <= 0:
-            raise RuntimeError(f"task {task_id}: deadline {deadline} leaves no time to train")
-        minutes = min(spec.minutes, left_min) if spec.minutes is not None else left_min
+        """Fetch the job's models, then train until the spec's budget or DEADLINE_MARGIN_S
+        before the deadline, whichever comes first (the fetches' time comes off the training
+        time, not off the margin). A start counts against MAX_STARTS_WITHOUT_PROGRESS only
+        once the fetches are done: a store outage is not a process dying."""
         st = self._state(task_id)
         starts = int(st.get("starts_without_progress", 0))
         if starts >= MAX_STARTS_WITHOUT_PROGRESS:
@@ -404,9 +477,12 @@ class OfferHandler:
                 f"training was started {starts} times and its process died each time before "
                 f"getting past step {st.get('resumed_from_step', 0)} (killed for memory?)"
             )
-        self._save(task_id, starts_without_progress=starts + 1)
         experts = self._fetch_experts(task_id, spec)
         walls_cae = self._fetch_walls_cae(task_id, spec)
+        left_min = (deadline - self.clock() - DEADLINE_MARGIN_S) / 60.0
+        if left_min <= 0:
+            raise RuntimeError(f"task {task_id}: deadline {deadline} leaves no time to train")
+        self._save(task_id, starts_without_progress=starts + 1)
 
         def first(step: int) -> None:
             before = self._state(task_id).get("resumed_from_step")
@@ -418,7 +494,7 @@ class OfferHandler:
         model_dir, _ = jobs.run_job(
             spec,
             self.job_dir(task_id),
-            minutes=minutes,
+            minutes_left=left_min,
             checkpoint_every=self.checkpoint_every,
             on_progress=lambda p: self._post_progress(task_id, p),
             on_first_step=first,
@@ -456,10 +532,8 @@ class OfferHandler:
             raise Transient(f"cannot fetch the task's walls CAE: {exc}") from exc
 
     def _transact(self, fn: str, *args: Any) -> Any:
-        try:
+        with chain_call(fn):
             return self.platform.tmc.transact(fn, *args, sender=self.address)
-        except (requests.ConnectionError, requests.Timeout, httpx.TransportError) as exc:
-            raise Transient(f"chain node unreachable during {fn}: {exc}") from exc
 
     def _post_progress(self, task_id: int, point: dict[str, Any]) -> None:
         """Queue ``point`` and send every queued point of the task, oldest first.
@@ -499,3 +573,8 @@ class OfferHandler:
         self.progress_errors += 1
         if self.progress_errors <= 3:
             log.warning("progress point of task %s not posted: %s", task_id, exc)
+
+
+def _task_dir_name(name: str) -> bool:
+    """Whether a job directory's name is a task id as ``job_dir`` writes it."""
+    return name.isascii() and name.isdigit() and name == str(int(name))

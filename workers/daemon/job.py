@@ -5,14 +5,16 @@ Layout of a job directory ``<worker data>/jobs/<task_id>/``: ``run/`` is the tra
 ``best/`` the best evaluated policy when the spec's ``selection.keep_best`` asks for it),
 ``progress.jsonl`` the points posted to the gateway, ``experts/<CID>/`` the verified expert
 models of an MEDC task (``workers.daemon.experts``); a finished job keeps its model, metrics
-and progress, not its checkpoint and experts (``OfferHandler._prune``). A job started again in the same directory
-resumes from its last checkpoint (the trainer restores weights, optimiser, RNGs and env state,
-and the DC / MEDC selector's state: roulette-wheel RNG, each env's guiding expert, counters),
-so the continued run is the run that would have happened without the interruption.
+and progress, not its checkpoint and experts (``OfferHandler._prune``). A job started again in
+the same directory resumes from its last checkpoint (the trainer restores weights, optimiser,
+RNGs and env state, and the DC / MEDC selector's state: roulette-wheel RNG, each env's guiding
+expert, counters), so the continued run is the run that would have happened without the
+interruption.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import time
@@ -135,12 +137,15 @@ def make_trainer(
     job_dir: str | Path,
     *,
     minutes: float | None = None,
+    minutes_left: float | None = None,
     checkpoint_every: int = CHECKPOINT_EVERY,
     experts: dict[str, Path] | None = None,
     walls_cae: Path | None = None,
 ) -> JobTrainer:
     """A trainer for ``spec`` in ``job_dir``: resumed from its checkpoint when there is one.
-    ``minutes`` (e.g. capped by the task deadline) overrides the spec's time budget;
+    ``minutes`` overrides the spec's time budget (training time over all of the job's runs);
+    ``minutes_left`` is the wall time this process may still train (a task deadline): the
+    budget becomes the training time so far plus that, within the spec's;
     ``experts`` maps the spec's expert CIDs to their verified directories; ``walls_cae`` is
     the verified directory of the spec's ``observation.walls_embedding`` CID."""
     selector = make_selector(spec, experts)
@@ -161,16 +166,24 @@ def make_trainer(
         minutes=budget_minutes,
     )
     if has_checkpoint(job_dir):  # the spec's run config, also over a checkpoint's older one
-        return cast(
+        trainer = cast(
             JobTrainer,
             JobTrainer.resume(
                 out, out=out, run_overrides=run.to_dict(), selector=selector,
                 walls_encoder=encoder,
             ),
         )
-    return JobTrainer(
-        spec.env, spec.observation, spec.ppo, run, out=out, selector=selector, walls_encoder=encoder
-    )
+    else:
+        trainer = JobTrainer(
+            spec.env, spec.observation, spec.ppo, run, out=out, selector=selector,
+            walls_encoder=encoder,
+        )
+    if minutes_left is not None:  # Trainer budgets count the elapsed time of earlier runs
+        total = trainer.elapsed / 60.0 + minutes_left
+        if trainer.run.minutes is not None:
+            total = min(trainer.run.minutes, total)
+        trainer.run = dataclasses.replace(trainer.run, minutes=total)
+    return trainer
 
 
 def run_job(
@@ -180,6 +193,7 @@ def run_job(
     on_progress: ProgressHook | None = None,
     on_first_step: Callable[[int], None] | None = None,
     minutes: float | None = None,
+    minutes_left: float | None = None,
     checkpoint_every: int = CHECKPOINT_EVERY,
     experts: dict[str, Path] | None = None,
     walls_cae: Path | None = None,
@@ -194,6 +208,7 @@ def run_job(
         spec,
         job,
         minutes=minutes,
+        minutes_left=minutes_left,
         checkpoint_every=checkpoint_every,
         experts=experts,
         walls_cae=walls_cae,
