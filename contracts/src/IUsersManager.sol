@@ -8,10 +8,17 @@ interface IUsersManager {
     function workerId(address account) external view returns (uint32);
     function workerRecord(address account) external view returns (uint32 id, uint256 word);
     function updateInfo(address worker, uint32 domain, uint8 taskType, uint8 flags, uint8 review) external;
+    function updateInfoBatch(uint32[] calldata ids, uint32 domain, uint8 taskType, uint8 flags, uint8 review)
+        external
+        returns (address[] memory workers);
     function candidates(uint32 domain, uint8 taskType)
         external
         view
         returns (uint256[] memory workers, uint256[] memory stats);
+    function candidateIds(uint32 domain, uint8 taskType, bool withCounters)
+        external
+        view
+        returns (uint256[] memory ids, uint256[] memory stats);
     function profiles(uint32[] calldata ids, uint32 domain, uint8 taskType)
         external
         view

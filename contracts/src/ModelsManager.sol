@@ -57,7 +57,7 @@ import {QoSMath} from "./QoSMath.sol";
  *
  * Gas: a model is one slot: owner id, domain, attribute count, both Eq. 11 totals and its
  * first four environment attributes (uint32 each), so a candidate with d <= 4 attributes
- * costs one cold SLOAD (plus its owner's profile); attributes 5-64 go eight per slot. The
+ * costs one cold SLOAD (plus its owner's list word); attributes 5-64 go eight per slot. The
  * CID is stored (requesters read it after allocation); the description lives only in the
  * {ModelAdded} event.
  */
@@ -74,7 +74,6 @@ contract ModelsManager is ReentrancyGuardTransient {
     uint32 public constant DEFAULT_MODELS_PER_OWNER = 8;
     uint256 internal constant ID_MASK = (1 << 32) - 1;
     uint256 internal constant ONE = QoSMath.ONE;
-    uint256 internal constant ELIGIBLE = 1 << 255;
     uint256 internal constant MODELS_PER_WORD = 7;
     uint256 internal constant REVIEWED_SHIFT = 224;
     uint256 internal constant COUNT_SHIFT = 248;
@@ -140,6 +139,16 @@ contract ModelsManager is ReentrancyGuardTransient {
         uint32[] weights; // Eq. 13/22 weights scaled by 1e6 summing to 1e6; empty = equal
     }
 
+    /// What the candidate scans of {allocateModel} read from the request, read once.
+    struct Scan {
+        uint256 domain;
+        uint256 minA; // Model: Rep_i (Eq. 10); Sharing: Rep_MS (Eq. 19)
+        uint256 minB; // Model: Rep_m (Eq. 11); Sharing: R_MS
+        uint256 selfId; // the requester's worker id (0 if none): its models are skipped
+        uint256[] env;
+        uint256[] weights;
+    }
+
     error ModelsNotWorker(address account);
     error ModelsNotApproved(address account);
     error ModelsOwnerNotInDomain(address account, uint32 domain);
@@ -192,12 +201,20 @@ contract ModelsManager is ReentrancyGuardTransient {
     IUsersManager public immutable umc;
     /// The TMC whose outcomes the provenance rule checks.
     ITasksOutcomes public immutable tmc;
-    uint256 public modelCount;
-    uint256 public allocCount;
-    /// Least price per allocated model (wei, >= 1): allocations count in Eq. 10-11.
-    uint256 public minModelPrice;
-    /// Models one owner may list (all domains together). Admin setting.
-    uint32 public maxModelsPerOwner;
+    /// Counters and settings in one slot: {modelCount}, {allocCount}, {minModelPrice} (least
+    /// price per allocated model, wei, >= 1: allocations count in Eq. 10-11) and
+    /// {maxModelsPerOwner} (models one owner may list, all domains together; admin settings).
+    /// The constructor writes the slot, so the first listing and the first allocation rewrite
+    /// it instead of creating a slot, and an allocation reads its price floor and id counter
+    /// in one SLOAD. Ids stay below 2^32 in practice (models are listed as uint32).
+    struct Globals {
+        uint64 modelCount;
+        uint64 allocCount;
+        uint80 minModelPrice; // <= type(uint80).max (setMinModelPrice)
+        uint32 maxModelsPerOwner;
+    }
+
+    Globals internal _g;
 
     mapping(uint256 => Model) internal _models;
     /// Attributes 4.. of a model, eight uint32 per word: word k holds attributes 4+8k..11+8k.
@@ -223,9 +240,9 @@ contract ModelsManager is ReentrancyGuardTransient {
     constructor(IUsersManager umc_, ITasksOutcomes tmc_) {
         umc = umc_;
         tmc = tmc_;
-        minModelPrice = 1;
+        _g.minModelPrice = 1;
         emit MinModelPriceUpdated(1);
-        maxModelsPerOwner = DEFAULT_MODELS_PER_OWNER;
+        _g.maxModelsPerOwner = DEFAULT_MODELS_PER_OWNER;
         emit MaxModelsPerOwnerUpdated(DEFAULT_MODELS_PER_OWNER);
     }
 
@@ -237,7 +254,7 @@ contract ModelsManager is ReentrancyGuardTransient {
     function setMinModelPrice(uint256 weiPerModel) external {
         if (!umc.isAdmin(msg.sender)) revert ModelsNotAdmin(msg.sender);
         if (weiPerModel == 0 || weiPerModel > type(uint80).max) revert ModelsBadConfig();
-        minModelPrice = weiPerModel;
+        _g.minModelPrice = uint80(weiPerModel); // <= type(uint80).max, checked above
         emit MinModelPriceUpdated(weiPerModel);
     }
 
@@ -250,7 +267,7 @@ contract ModelsManager is ReentrancyGuardTransient {
     function setMaxModelsPerOwner(uint256 limit) external {
         if (!umc.isAdmin(msg.sender)) revert ModelsNotAdmin(msg.sender);
         if (limit == 0 || limit > MAX_MODELS_PER_OWNER) revert ModelsBadLimit(limit);
-        maxModelsPerOwner = uint32(limit);
+        _g.maxModelsPerOwner = uint32(limit);
         emit MaxModelsPerOwnerUpdated(limit);
     }
 
@@ -274,7 +291,8 @@ contract ModelsManager is ReentrancyGuardTransient {
         if (domain > Packed.MAX_DOMAIN) revert ModelsBadDomain(domain);
         if (!record.covers(domain)) revert ModelsOwnerNotInDomain(msg.sender, domain);
         uint256 owned = _owners[ownerId].modelCount;
-        if (owned >= maxModelsPerOwner) revert ModelsOwnerLimit(msg.sender, maxModelsPerOwner);
+        uint256 maxOwned = _g.maxModelsPerOwner;
+        if (owned >= maxOwned) revert ModelsOwnerLimit(msg.sender, maxOwned);
         if (bytes(cid).length == 0) revert ModelsEmptyCid();
         if (env.length > MAX_ENV_DIMS) revert ModelsBadEnv(env.length);
         bytes32 cidHash = keccak256(bytes(cid));
@@ -285,7 +303,7 @@ contract ModelsManager is ReentrancyGuardTransient {
             if (worker != msg.sender) revert ModelsNotOutcomeOwner(taskId, worker);
             if (verdict != ITasksOutcomes.Verdict.Accepted) revert ModelsOutcomeNotAccepted(taskId, verdict);
         }
-        modelId = ++modelCount;
+        modelId = ++_g.modelCount;
         modelOfCid[cidHash] = modelId;
         _owners[ownerId].modelCount = uint32(owned + 1); // owned < maxModelsPerOwner <= 16
         _pushOwnerModel((uint256(ownerId) << 8) | domain, modelId);
@@ -332,47 +350,56 @@ contract ModelsManager is ReentrancyGuardTransient {
         if (price * r.numModels != msg.value || price > type(uint80).max) {
             revert ModelsBadPayment(msg.value, r.numModels);
         }
-        uint256 minimum = minModelPrice;
+        uint256 minimum = _g.minModelPrice;
         if (price < minimum) revert ModelsPriceBelowMinimum(price, minimum);
         uint256[] memory weights = _weights(r.env.length, r.weights);
-
-        // No self-dealing: the requester's own models are skipped (owner id 0 never exists).
-        uint32 selfId = umc.workerId(msg.sender);
-        (uint256[] memory ws, uint256[] memory cs) = umc.candidates(r.domain, SHARING);
-        (uint256[] memory idx, uint256[] memory qs, uint256 count) = r.metric == Metric.Model
-            ? _selectModel(r, weights, selfId, ws)
-            : _selectSharing(r, weights, selfId, ws, cs);
+        bool sharing = r.metric == Metric.Sharing;
+        Scan memory s = Scan({
+            domain: r.domain,
+            minA: r.minReputation,
+            minB: sharing ? r.minRating : r.minModelReputation,
+            // No self-dealing: the requester's own models are skipped (owner id 0 never exists).
+            selfId: umc.workerId(msg.sender),
+            env: _envOf(r.env),
+            weights: weights
+        });
+        // The pool owners' ids (and, for Eq. 16-19, their model-sharing counters): the scan
+        // needs nothing else of them.
+        (uint256[] memory ids, uint256[] memory cs) = umc.candidateIds(r.domain, SHARING, sharing);
+        (uint256[] memory idx, uint256[] memory qs, uint256 count) =
+            sharing ? _selectSharing(s, r.numModels, ids, cs) : _selectModel(s, r.numModels, ids);
         if (count == 0) revert ModelsNoEligibleModel(r.domain);
 
-        allocId = ++allocCount;
+        allocId = ++_g.allocCount;
         _allocs[allocId] = Allocation(msg.sender, uint8(r.domain), r.metric, uint80(price));
         emit ModelsRequested(allocId, msg.sender, r.domain, r.metric, r.numModels, uint80(price));
         uint32[] memory owners = new uint32[](count);
         uint256 word = 0;
         for (uint256 i; i < count; ++i) {
-            owners[i] = _models[idx[i]].ownerId;
-            // idx[i] < 2^32 (ids are listed as uint32), so the entry never spills over.
-            word |= idx[i] << (32 * (i % MODELS_PER_WORD));
+            // idx[i] = pool position << 32 | model id: the model was read from the list of the
+            // owner at that position, so ids[position] is its owner (= _models[id].ownerId).
+            uint256 modelId = idx[i] & ID_MASK;
+            uint32 ownerId = uint32(ids[idx[i] >> 32]);
+            owners[i] = ownerId;
+            // modelId < 2^32 (ids are listed as uint32), so the entry never spills over.
+            word |= modelId << (32 * (i % MODELS_PER_WORD));
             if (i % MODELS_PER_WORD == MODELS_PER_WORD - 1 || i == count - 1) {
                 _allocModels[allocId][i / MODELS_PER_WORD] = word;
                 word = 0;
             }
+            _models[modelId].allocCount += 1;
+            _owners[ownerId].allocCount += 1;
         }
-        // Only the owners' addresses are needed here, not their counters.
-        // slither-disable-next-line unused-return
-        (uint256[] memory words,) = umc.profiles(owners, r.domain, SHARING);
+        // The owners' model-sharing counters (A, Ac, E of Eq. 17-18) in one UMC call for all
+        // the models, in allocation order (one WorkerInfoUpdated per model, as one updateInfo
+        // call per model emitted); it returns the owners' addresses.
+        // The UMC is the immutable platform registry set at construction; updateInfoBatch makes
+        // no external call, so no re-entry can observe this allocation half written.
+        // slither-disable-next-line reentrancy-no-eth
+        address[] memory addrs = umc.updateInfoBatch(owners, r.domain, SHARING, SHARED, 0);
         for (uint256 i; i < count; ++i) {
-            uint256 modelId = idx[i];
-            Model storage m = _models[modelId];
-            address owner = words[i].addr();
-            m.allocCount += 1;
-            _owners[owners[i]].allocCount += 1;
-            // The UMC is the immutable platform registry set at construction; updateInfo makes
-            // no external call, so no re-entry can observe this allocation half written.
-            // slither-disable-next-line reentrancy-no-eth
-            umc.updateInfo(owner, r.domain, SHARING, SHARED, 0);
-            emit ModelAllocated(allocId, modelId, owner, qs[i] >> 32);
-            _credit(owner, allocId, price);
+            emit ModelAllocated(allocId, idx[i] & ID_MASK, addrs[i], qs[i] >> 32);
+            _credit(addrs[i], allocId, price);
         }
         _credit(msg.sender, allocId, (r.numModels - count) * price);
     }
@@ -418,6 +445,26 @@ contract ModelsManager is ReentrancyGuardTransient {
 
     // ---------------------------------------------------------------------------- views
 
+    /// @dev Models listed so far (ids 1..modelCount).
+    function modelCount() external view returns (uint256) {
+        return _g.modelCount;
+    }
+
+    /// @dev Allocations made so far (ids 1..allocCount).
+    function allocCount() external view returns (uint256) {
+        return _g.allocCount;
+    }
+
+    /// @dev Least price per allocated model (wei, >= 1).
+    function minModelPrice() external view returns (uint256) {
+        return _g.minModelPrice;
+    }
+
+    /// @dev Models one owner may list (all domains together).
+    function maxModelsPerOwner() external view returns (uint32) {
+        return _g.maxModelsPerOwner;
+    }
+
     /// @dev Whether model `modelId` is in allocation `allocId`, and reviewed.
     function allocState(uint256 allocId, uint256 modelId) external view returns (AllocState) {
         (, uint256 word, uint256 bit) = _findModel(allocId, modelId);
@@ -460,78 +507,138 @@ contract ModelsManager is ReentrancyGuardTransient {
 
     // ---------------------------------------------------------------------------- internal
 
-    /// @dev Eq. 10-13 over the models of the pool owners `ws`: Rep_i (owner totals) and Rep_m
-    /// (model totals) filter and rank. Returns model ids and keys (QoS << 32 | ~id).
-    function _selectModel(ModelRequest calldata r, uint256[] memory weights, uint32 selfId, uint256[] memory ws)
+    /// @dev Eq. 10-13 over the models of the pool owners `ids`: Rep_i (owner totals) and Rep_m
+    /// (model totals) filter and rank. Returns entries (pool position << 32 | model id) and
+    /// keys (QoS << 32 | ~id), best first.
+    function _selectModel(Scan memory s, uint256 k, uint256[] memory ids)
         internal
         view
         returns (uint256[] memory idx, uint256[] memory qs, uint256 count)
     {
-        idx = new uint256[](r.numModels);
-        qs = new uint256[](r.numModels);
-        uint256 d = r.env.length;
-        for (uint256 i; i < ws.length; ++i) {
-            uint32 ownerId = ws[i].id();
-            if (ownerId == selfId) continue;
-            OwnerRecord memory o = _owners[ownerId];
-            uint256 repI = QoSMath.rating(o.totalReview, o.allocCount);
-            if (repI < r.minReputation) continue;
-            uint256[] memory list = _ownerList((uint256(ownerId) << 8) | r.domain);
-            for (uint256 j; j < list.length; ++j) {
-                uint256 mid = list[j];
-                Model memory m = _models[mid];
-                if (m.envLen != d) continue;
-                uint256 repM = QoSMath.rating(m.totalReview, m.allocCount);
-                if (repM < r.minModelReputation) continue;
-                uint256 q = (repI * repM) / (ONE + _distance(mid, m.envHead, r.env, weights));
-                count = QoSMath.insertTop(idx, qs, count, mid, (q << 32) | (ID_MASK - mid));
-            }
+        uint256 n = ids.length;
+        uint256[] memory repI = new uint256[](n);
+        uint256[] memory found = new uint256[](n);
+        uint256 used = 0;
+        for (uint256 i; i < n; ++i) {
+            uint256 ownerId = ids[i];
+            if (ownerId == s.selfId) continue;
+            uint256 o = _rawOwner(ownerId);
+            uint256 rep = QoSMath.rating(uint40(o >> 40), uint40(o)); // totalReview, allocCount
+            if (rep < s.minA) continue;
+            repI[i] = rep;
+            (found, used) = _collect(found, used, (ownerId << 8) | s.domain, i, s.env, s.weights);
+        }
+        idx = new uint256[](k);
+        qs = new uint256[](k);
+        uint256 minB = s.minB;
+        for (uint256 t; t < used; ++t) {
+            uint256 f = found[t];
+            // Rep_m from the model's totals: entry bits 128-167 allocCount, 168-207 totalReview.
+            uint256 repM = QoSMath.rating(uint40(f >> 168), uint40(f >> 128));
+            if (repM < minB) continue;
+            count = _rank(idx, qs, count, f, (repI[uint32(f >> 32)] * repM) / (ONE + uint64(f >> 64)));
         }
     }
 
-    /// @dev Eq. 16-19, 22-23 over the models of the pool owners `ws` (their model-sharing
-    /// counters `cs`). N_max (Eq. 16) is taken over the owners with an eligible model.
-    function _selectSharing(
-        ModelRequest calldata r,
-        uint256[] memory weights,
-        uint32 selfId,
-        uint256[] memory ws,
-        uint256[] memory cs
-    ) internal view returns (uint256[] memory idx, uint256[] memory qs, uint256 count) {
-        uint256 n = ws.length;
-        uint256 d = r.env.length;
+    /// @dev Eq. 16-19, 22-23 over the models of the pool owners `ids` (their model-sharing
+    /// counters `cs`). N_max (Eq. 16) is taken over the owners with an eligible model, so the
+    /// QoS waits for a first pass: it reads each owner's list and models once and keeps the
+    /// models of d attributes with their distance; the second pass ranks them.
+    function _selectSharing(Scan memory s, uint256 k, uint256[] memory ids, uint256[] memory cs)
+        internal
+        view
+        returns (uint256[] memory idx, uint256[] memory qs, uint256 count)
+    {
+        uint256 n = ids.length;
         uint256 nMax = 0;
-        uint256[] memory part = new uint256[](n);
-        uint256[][] memory lists = new uint256[][](n); // each owner's list, read once
+        uint256[] memory part = new uint256[](n); // E << 64 | Rep * R (< 1e12) per eligible owner
+        uint256[] memory found = new uint256[](n);
+        uint256 used = 0;
         for (uint256 i; i < n; ++i) {
-            uint32 ownerId = ws[i].id();
-            if (ownerId == selfId) continue;
+            uint256 ownerId = ids[i];
+            if (ownerId == s.selfId) continue;
             uint256 c = cs[i];
             uint256 rep = QoSMath.reputation(c.assigned(), c.accepted(), c.completed());
             uint256 rat = QoSMath.rating(c.ratingSum(), c.ratingCount());
-            if (rep < r.minReputation || rat < r.minRating) continue;
-            uint256[] memory list = _ownerList((uint256(ownerId) << 8) | r.domain);
-            if (!_hasModelOfDims(list, d)) continue;
-            lists[i] = list;
-            uint256 e = c.completed();
-            if (e > nMax) nMax = e;
-            // eligible flag | E << 64 | Rep * R (< 1e12)
-            part[i] = ELIGIBLE | (e << 64) | (rep * rat);
+            if (rep < s.minA || rat < s.minB) continue;
+            uint256 first = used;
+            (found, used) = _collect(found, used, (ownerId << 8) | s.domain, i, s.env, s.weights);
+            if (used == first) continue; // no model of d attributes: not eligible
+            uint256 ex = c.completed();
+            if (ex > nMax) nMax = ex;
+            part[i] = (ex << 64) | (rep * rat);
         }
-        idx = new uint256[](r.numModels);
-        qs = new uint256[](r.numModels);
-        for (uint256 i; i < n; ++i) {
-            uint256 p = part[i];
-            if (p == 0) continue;
-            uint256 top = QoSMath.expertise(uint48(p >> 64), nMax) * uint64(p);
-            uint256[] memory list = lists[i];
-            for (uint256 j; j < list.length; ++j) {
-                uint256 mid = list[j];
-                Model memory m = _models[mid];
-                if (m.envLen != d) continue;
-                uint256 q = top / ((ONE + _distance(mid, m.envHead, r.env, weights)) * ONE);
-                count = QoSMath.insertTop(idx, qs, count, mid, (q << 32) | (ID_MASK - mid));
+        idx = new uint256[](k);
+        qs = new uint256[](k);
+        for (uint256 t; t < used; ++t) {
+            uint256 f = found[t];
+            uint256 p = part[uint32(f >> 32)];
+            uint256 top = QoSMath.expertise(p >> 64, nMax) * uint64(p);
+            count = _rank(idx, qs, count, f, top / ((ONE + uint64(f >> 64)) * ONE));
+        }
+    }
+
+    /// @dev Appends to `found` (its first `used` entries taken; grown when full) the models of
+    /// owner list `key` (the owner at pool position `pos`) with env.length attributes, in
+    /// listing order, as: model totals (allocCount | totalReview << 40) << 128 | distance << 64
+    /// | pos << 32 | model id. Each list word and model is one SLOAD.
+    function _collect(
+        uint256[] memory found,
+        uint256 used,
+        uint256 key,
+        uint256 pos,
+        uint256[] memory env,
+        uint256[] memory weights
+    ) internal view returns (uint256[] memory, uint256) {
+        uint256 d = env.length;
+        mapping(uint256 => uint256) storage list = _ownerModels[key];
+        uint256 word = list[0];
+        uint256 len = word >> COUNT_SHIFT; // < 256
+        unchecked {
+            // j < len < 256 and used < found.length (grown before it is reached): no overflow.
+            for (uint256 j; j < len; ++j) {
+                uint256 e = j % MODELS_PER_WORD;
+                if (e == 0 && j != 0) word = list[j / MODELS_PER_WORD];
+                uint256 mid = (word >> (32 * e)) & ID_MASK;
+                uint256 m = _rawModel(mid);
+                if (uint8(m >> 40) != d) continue; // envLen
+                if (used == found.length) found = _grow(found);
+                // distance < 2^58 (_distance), pos < 2^32, mid < 2^32: the fields never overlap.
+                found[used++] = (uint256(uint80(m >> 48)) << 128) | (_distance(mid, m >> 128, env, weights) << 64)
+                    | (pos << 32) | mid;
             }
+        }
+        return (found, used);
+    }
+
+    /// @dev Ranks entry `f` (pool position << 32 | model id in its low 64 bits) with QoS `q`
+    /// (< 2^64) into the top-k arrays: key q << 32 | ~id, so equal QoS goes to the lower id.
+    function _rank(uint256[] memory idx, uint256[] memory qs, uint256 count, uint256 f, uint256 q)
+        internal
+        pure
+        returns (uint256)
+    {
+        uint256 mid = f & ID_MASK;
+        // q < 2^64 and mid < 2^32: the key fits, ID_MASK - mid >= 0.
+        return QoSMath.insertTop(idx, qs, count, uint64(f), (q << 32) | (ID_MASK - mid));
+    }
+
+    /// @dev The storage word of model `modelId`, the {Model} fields from the low bits: ownerId
+    /// 0-31, domain 32-39, envLen 40-47, allocCount 48-87, totalReview 88-127, envHead 128-255
+    /// (one SLOAD, no memory copy of the struct).
+    function _rawModel(uint256 modelId) internal view returns (uint256 w) {
+        Model storage m = _models[modelId];
+        assembly ("memory-safe") {
+            w := sload(m.slot)
+        }
+    }
+
+    /// @dev The storage word of owner `ownerId`'s {OwnerRecord}: allocCount 0-39, totalReview
+    /// 40-79, modelCount 80-111.
+    function _rawOwner(uint256 ownerId) internal view returns (uint256 w) {
+        OwnerRecord storage o = _owners[uint32(ownerId)];
+        assembly ("memory-safe") {
+            w := sload(o.slot)
         }
     }
 
@@ -569,42 +676,50 @@ contract ModelsManager is ReentrancyGuardTransient {
         }
     }
 
-    /// @dev The model ids of owner list `key`, in listing order.
-    function _ownerList(uint256 key) internal view returns (uint256[] memory ids) {
-        uint256 word = _ownerModels[key][0];
-        uint256 n = word >> COUNT_SHIFT;
-        ids = new uint256[](n);
-        for (uint256 i; i < n; ++i) {
-            uint256 e = i % MODELS_PER_WORD;
-            if (e == 0 && i != 0) word = _ownerModels[key][i / MODELS_PER_WORD];
-            ids[i] = (word >> (32 * e)) & ID_MASK;
-        }
+    /// @dev A copy of `a` with twice its length (plus one), for a buffer that fills up.
+    function _grow(uint256[] memory a) internal pure returns (uint256[] memory b) {
+        b = new uint256[](2 * a.length + 1);
+        for (uint256 j; j < a.length; ++j) b[j] = a[j];
     }
 
-    function _hasModelOfDims(uint256[] memory list, uint256 d) internal view returns (bool) {
-        for (uint256 j; j < list.length; ++j) {
-            if (_models[list[j]].envLen == d) return true;
-        }
-        return false;
+    /// @dev The request's environment attributes, copied once from calldata.
+    function _envOf(uint32[] calldata env) internal pure returns (uint256[] memory out) {
+        out = new uint256[](env.length);
+        for (uint256 j; j < env.length; ++j) out[j] = env[j];
     }
 
     /// @dev Eq. 13 / Eq. 22: sum_n w_n |F_n^m - F_n^r| (exact; weights scaled by 1e6).
-    function _distance(uint256 modelId, uint256 head, uint32[] calldata env, uint256[] memory weights)
+    /// `env` and `weights` have the same length (_weights), at most MAX_ENV_DIMS.
+    function _distance(uint256 modelId, uint256 head, uint256[] memory env, uint256[] memory weights)
         internal
         view
         returns (uint256 s)
     {
-        uint256 word = 0;
-        for (uint256 j; j < env.length; ++j) {
-            uint256 a;
-            if (j < 4) {
-                a = uint32(head >> (32 * j));
-            } else {
-                if ((j - 4) & 7 == 0) word = _envTail[modelId][(j - 4) >> 3]; // one SLOAD per 8
-                a = uint32(word >> (32 * ((j - 4) & 7)));
+        uint256 d = env.length;
+        // Attributes 0-3 from the model word (no SLOAD); no bounds checks: j < d = both lengths.
+        // No overflow: each weight is <= 1e6 (they sum to ONE) and |a - b| < 2^32, so a term is
+        // < 2^52 and the sum of at most MAX_ENV_DIMS = 64 terms is < 2^58.
+        assembly ("memory-safe") {
+            let n := d
+            if gt(n, 4) { n := 4 }
+            for { let j := 0 } lt(j, n) { j := add(j, 1) } {
+                let a := and(shr(shl(5, j), head), 0xffffffff)
+                let b := mload(add(env, shl(5, add(j, 1))))
+                let diff := sub(a, b)
+                if lt(a, b) { diff := sub(b, a) }
+                s := add(s, mul(mload(add(weights, shl(5, add(j, 1)))), diff))
             }
-            uint256 b = env[j];
-            s += weights[j] * (a >= b ? a - b : b - a);
+        }
+        if (d > 4) {
+            uint256 word = 0;
+            unchecked {
+                for (uint256 j = 4; j < d; ++j) {
+                    if ((j - 4) & 7 == 0) word = _envTail[modelId][(j - 4) >> 3]; // one SLOAD per 8
+                    uint256 a = uint32(word >> (32 * ((j - 4) & 7)));
+                    uint256 b = env[j];
+                    s += weights[j] * (a >= b ? a - b : b - a);
+                }
+            }
         }
     }
 

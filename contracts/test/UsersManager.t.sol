@@ -350,4 +350,78 @@ contract UsersManagerFuzzTest is Fixture {
         umc.updateInfo(w, DOMAIN, 0, 4, 0);
         vm.stopPrank();
     }
+
+    // ------------------------------------------------------------------ updateInfoBatch
+
+    /// The batch is many {updateInfo} calls: entries in order, a repeated id counted per
+    /// entry, one WorkerInfoUpdated per entry with the running counters, the addresses back.
+    function testFuzz_updateInfoBatch(uint8 n, uint256 seed, uint8 taskType) public {
+        uint256 workers = _bound(n, 1, 6);
+        for (uint256 i; i < workers; ++i) _worker(address(uint160(0x1000 + i)), 1 << DOMAIN, 8);
+        uint8 t = uint8(_bound(taskType, 0, 1));
+        uint256 len = _bound(seed, 0, 8);
+        uint32[] memory ids = new uint32[](len);
+        uint48[] memory seen = new uint48[](workers);
+        for (uint256 i; i < len; ++i) {
+            uint256 k = uint256(keccak256(abi.encode(seed, i))) % workers;
+            ids[i] = umc.workerId(address(uint160(0x1000 + k)));
+            ++seen[k];
+            vm.expectEmit(true, true, true, true, address(umc));
+            emit UsersManager.WorkerInfoUpdated(address(uint160(0x1000 + k)), DOMAIN, t, seen[k], 0, 0, 0, 0);
+        }
+        vm.prank(address(mmc));
+        address[] memory got = umc.updateInfoBatch(ids, DOMAIN, t, 1, 0);
+        vm.assertEq(got.length, len, "one address per entry");
+        for (uint256 i; i < len; ++i) vm.assertEq(umc.workerId(got[i]), ids[i], "address of the id");
+        for (uint256 k; k < workers; ++k) {
+            vm.assertEq(umc.counters(address(uint160(0x1000 + k)), DOMAIN, t).assigned, seen[k], "per entry");
+        }
+    }
+
+    function testFuzz_updateInfoBatch_rejects(address caller, uint32 unknown, uint8 flags) public {
+        address w = _actor("worker");
+        _worker(w, 1 << DOMAIN, 8);
+        uint32[] memory ids = new uint32[](1);
+        ids[0] = umc.workerId(w);
+        vm.assume(caller != address(tmc) && caller != address(mmc));
+        vm.expectRevert(abi.encodeWithSelector(UsersManager.UsersNotPlatform.selector, caller));
+        vm.prank(caller);
+        umc.updateInfoBatch(ids, DOMAIN, 0, 1, 0);
+
+        vm.startPrank(address(mmc));
+        uint32 bad = unknown == ids[0] ? 0 : unknown; // 0 and unused ids are no worker
+        uint32[] memory two = new uint32[](2);
+        (two[0], two[1]) = (ids[0], bad);
+        vm.expectRevert(abi.encodeWithSelector(UsersManager.UsersNotWorkerId.selector, bad));
+        umc.updateInfoBatch(two, DOMAIN, 0, 1, 0);
+        uint8 badFlags = flags > 15 ? flags : 0;
+        vm.expectRevert(abi.encodeWithSelector(UsersManager.UsersBadFlags.selector, badFlags));
+        umc.updateInfoBatch(ids, DOMAIN, 0, badFlags, 0);
+        vm.stopPrank();
+        vm.assertEq(umc.counters(w, DOMAIN, 0).assigned, 0, "nothing counted by a reverted batch");
+    }
+
+    // ------------------------------------------------------------------ candidateIds
+
+    /// candidateIds is {candidates} without the worker words: the pool's ids in queue order,
+    /// and the same counters (none unless asked).
+    function testFuzz_candidateIds(uint8 n, uint8 size, bool withCounters) public {
+        uint256 workers = _bound(n, 0, 30);
+        vm.prank(admin);
+        umc.setPoolSize(_bound(size, 1, 40));
+        for (uint256 i; i < workers; ++i) _worker(address(uint160(0x1000 + i)), 1 << DOMAIN, 8);
+        if (workers > 0) {
+            vm.prank(address(tmc));
+            umc.updateInfo(address(uint160(0x1000)), DOMAIN, 1, 1, 0);
+        }
+        (uint256[] memory ids, uint256[] memory stats) = umc.candidateIds(DOMAIN, 1, withCounters);
+        (, uint256[] memory want) = umc.candidates(DOMAIN, 1);
+        address[] memory pool = umc.pool(DOMAIN);
+        vm.assertEq(ids.length, pool.length, "the pool's size");
+        vm.assertEq(stats.length, withCounters ? pool.length : 0, "counters only when asked");
+        for (uint256 i; i < ids.length; ++i) {
+            vm.assertEq(ids[i], umc.workerId(pool[i]), "the pool's workers, in order");
+            if (withCounters) vm.assertEq(stats[i], want[i], "the same counters");
+        }
+    }
 }

@@ -24,7 +24,7 @@ contract ModelsManagerHarness is ModelsManager {
         for (uint256 o; o < owners; ++o) {
             uint32 ownerId = firstOwner + uint32(o);
             for (uint256 k; k < perOwner; ++k) {
-                uint256 modelId = ++modelCount;
+                uint256 modelId = ++_g.modelCount;
                 uint256 head = (modelId % 7) | ((modelId % 5) << 32);
                 _models[modelId] = Model(ownerId, uint8(domain), 2, 0, 0, uint128(head));
                 _domainModels[domain].push(uint32(modelId));
