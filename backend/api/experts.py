@@ -15,6 +15,7 @@ worker could use.
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 from sqlalchemy import select
@@ -26,6 +27,7 @@ from backend.api.writes import field_error
 from backend.db import models as m
 from backend.schemas.common import from_fixed
 from backend.store import CID, ContentStore, InvalidCID, NotFound, StoreError, StoreUnavailable
+from workers.mdrl.trainingspec import MAX_EXPERTS
 
 CAE_KIND = "cae"
 """``kind`` of a walls CAE's card (``workers.mdrl.cae``); a policy's card has none."""
@@ -54,6 +56,13 @@ def allocation_experts(session: Session, alloc_id: int, caller: str) -> list[Any
     ).all()
     if not rows:
         field_error(loc, f"allocation {alloc_id} holds no model", "allocation_empty")
+    if len(rows) > MAX_EXPERTS:
+        field_error(
+            loc,
+            f"allocation {alloc_id} holds {len(rows)} models; a task trains with at most "
+            f"{MAX_EXPERTS} experts: name the ones to use in experts instead",
+            "allocation_too_many_experts",
+        )
     if not any(q for q, _ in rows):
         return [cid for _, cid in rows]
     return [{"model": cid, "qos": from_fixed(q)} for q, cid in rows]
@@ -149,13 +158,18 @@ def task_experts(
     reputation) when listed, and the requester's latest allocation of that model (id and
     review, for ``updateModelRep``)."""
     items = (spec or {}).get("experts") or []
+    if not isinstance(items, list):  # an index row from before specs were validated
+        return []
     weighted = any(isinstance(x, dict) for x in items)
     out = []
     for x in items[:64]:
         cid = x.get("model") if isinstance(x, dict) else x
         if not isinstance(cid, str):
             continue
-        qos = float(x.get("qos", 1.0)) if isinstance(x, dict) else 1.0
+        qos = x.get("qos", 1.0) if isinstance(x, dict) else 1.0
+        if isinstance(qos, bool) or not isinstance(qos, (int, float)) or not math.isfinite(qos):
+            continue
+        qos = float(qos)
         model = session.scalars(select(m.ModelRow).where(m.ModelRow.cid == cid)).first()
         alloc = None
         if model is not None:

@@ -19,9 +19,10 @@ Guarantees:
 from __future__ import annotations
 
 import logging
+import math
 import threading
 from collections.abc import Callable, Iterable
-from typing import Any
+from typing import Any, cast
 
 from hexbytes import HexBytes
 from sqlalchemy import delete, select
@@ -33,7 +34,7 @@ from backend.db import models as m
 from backend.services.chain import ChainService
 from backend.services.specs import load_json_doc, summarize_env
 from backend.store import ContentStore
-from workers.mdrl.trainingspec import MAX_SPEC_BYTES, TRAINING_SPEC_FORMAT
+from workers.mdrl.trainingspec import MAX_SPEC_BYTES, TRAINING_SPEC_FORMAT, TrainingSpec
 
 log = logging.getLogger(__name__)
 
@@ -335,7 +336,7 @@ class Indexer:
                 min_rating=a["minRating"],
                 min_cpu_cores=a["minCpuCores"],
                 min_ram_gb=a["minRamGb"],
-                description=str(a["description"])[:512],
+                description=_text(a["description"], 512),
                 spec=self._task_spec(str(a["description"])),
                 status=TaskStatus.OPEN.name.lower(),
                 offered=0,
@@ -345,11 +346,15 @@ class Indexer:
         )
 
     def _task_spec(self, cid: str) -> dict[str, Any] | None:
-        """The task spec document behind a description CID, when the store has it."""
+        """The task spec document behind a description CID, when the store has it and it is a
+        valid spec (``TrainingSpec``: anyone can addTask with any document, and the listing and
+        task pages read what is indexed)."""
         if self.store is None or not cid:
             return None
         try:
-            return load_json_doc(self.store, cid, max_size=MAX_SPEC_BYTES, fmt=TRAINING_SPEC_FORMAT)
+            doc = load_json_doc(self.store, cid, max_size=MAX_SPEC_BYTES, fmt=TRAINING_SPEC_FORMAT)
+            TrainingSpec.from_dict(doc)
+            return cast(dict[str, Any], _json_safe(doc))
         except Exception as exc:  # not a CID, not stored here, not a spec: keep the raw text
             log.info("indexer: task description %r is not a readable task spec: %s", cid, exc)
             return None
@@ -399,7 +404,7 @@ class Indexer:
             m.OutcomeRow(
                 task_id=int(a["taskId"]),
                 worker=a["worker"],
-                cid=str(a["cid"])[:512],
+                cid=_text(a["cid"], 512),
                 block_number=block,
             )
         )
@@ -431,8 +436,8 @@ class Indexer:
                 id=int(a["modelId"]),
                 owner=a["owner"],
                 domain=int(a["domain"]),
-                cid=str(a["cid"])[:512],
-                description=str(a["description"])[:2048],
+                cid=_text(a["cid"], 512),
+                description=_text(a["description"], 2048),
                 env=env,
                 agents=summary.agents,
                 walls_min=summary.walls_min,
@@ -516,3 +521,23 @@ class IndexerThread:
     def stop(self, timeout: float = 10.0) -> None:
         self._stop.set()
         self._thread.join(timeout)
+
+
+def _text(value: Any, limit: int) -> str:
+    """A string of a chain event as every database holds it: NUL, which PostgreSQL text
+    refuses (one such event would stop the indexer at its block for good), becomes U+FFFD."""
+    return str(value).replace("\x00", "\ufffd")[:limit]
+
+
+def _json_safe(doc: Any) -> Any:
+    """A JSON document as every database holds it: NUL in strings replaced (``_text``),
+    non-finite numbers as null (SQLite's JSON and PostgreSQL's jsonb refuse NaN)."""
+    if isinstance(doc, dict):
+        return {_text(k, 10_000): _json_safe(v) for k, v in doc.items()}
+    if isinstance(doc, list):
+        return [_json_safe(v) for v in doc]
+    if isinstance(doc, str):
+        return doc.replace("\x00", "\ufffd")
+    if isinstance(doc, float) and not math.isfinite(doc):
+        return None
+    return doc

@@ -145,3 +145,17 @@ class TxPublic(BaseModel):
     block_number: int
     status: int
     events: list[dict[str, Any]]
+
+
+def _printable(v: str) -> str:
+    """Free text as every index and page can hold it: no control characters but newline and
+    tab (PostgreSQL text cannot hold NUL at all; the others garble logs and pages)."""
+    bad = sorted({f"U+{ord(c):04X}" for c in v if (ord(c) < 32 and c not in "\n\t")
+                  or 0x7F <= ord(c) < 0xA0})
+    if bad:
+        raise ValueError(f"control characters are not allowed: {', '.join(bad[:5])}")
+    return v
+
+
+PlainText = Annotated[str, AfterValidator(_printable)]
+"""Free text of an API request (a model's description): control characters refused."""

@@ -13,7 +13,7 @@ from .cards import (
     HeldoutPublic,
     TrainedPublic,
 )
-from .common import MAX_ID, CidStr, Domain, Fraction, ListPublic, Review, Wei
+from .common import MAX_ID, CidStr, Domain, Fraction, ListPublic, PlainText, Review, Wei
 
 EnvDocument = Annotated[
     dict[str, Any], WithJsonSchema(trainingspec_json_schema()["properties"]["env"])
@@ -31,7 +31,7 @@ class ModelCreate(BaseModel):
     """Share a model the caller owns (MMC.addModel); ``cid`` is its bundle manifest."""
 
     cid: CidStr
-    description: str = Field(default="", max_length=1024)
+    description: PlainText = Field(default="", max_length=1024)
     domain: Domain = 0
     env: EnvDocument = Field(description="EnvSpec the model was trained on (its card's env)")
 
@@ -94,8 +94,15 @@ class ModelDetailPublic(ModelPublic):
     description: str
     card: dict[str, Any] | None
     metrics: Any | None
-    owner_reputation: float
-    owner_rating: float
+    owner_reputation: float = Field(
+        description="the owner's model-sharing reputation (Eq. 19, the UMC's sharing counters: "
+        "the Eq. 22-23 allocations filter on it)"
+    )
+    owner_rating: float = Field(description="the owner's model-sharing rating (Eq. 19's rating)")
+    owner_model_reputation: float = Field(
+        description="the owner's Eq. 10 reputation: reviews over allocations of all its models "
+        "(the MMC's OwnerRecord; Eq. 10-13 allocations filter on it; 0.5 before any)"
+    )
     name: str | None = Field(default=None, description="the card's name (zoo models)")
     kind: str | None = Field(default=None, description="ODMTL, DMTL or CMTL (the card's)")
     env_spec: dict[str, Any] | None = Field(

@@ -18,6 +18,11 @@ from .errors import InvalidCID, InvalidContent
 BUNDLE_FORMAT = "drlaas-bundle/1"
 MODEL_FILES = ("model.safetensors", "model.json")
 MAX_MANIFEST_BYTES = 64 * 1024
+MAX_MODEL_FILE_BYTES = {"model.safetensors": 64 * 2**20, "model.json": 1 << 20}
+"""Largest model files a reader writes to disk (the worker's bounds on an expert,
+``weightsfile.MAX_WEIGHTS_BYTES`` and ``experts.MAX_CARD_BYTES``): a manifest may declare any
+size, and a store that keeps identical blocks once holds 256 MiB of zeros in a few hundred kB,
+so a bound on what the store holds bounds nothing on the reader's disk."""
 
 
 def canonical_json(doc: dict[str, Any]) -> bytes:
@@ -71,13 +76,27 @@ def upload_model(store: Any, model_dir: str | os.PathLike[str]) -> str:
     return add_bundle(store, {name: (d / name).read_bytes() for name in MODEL_FILES})
 
 
-def pull_model(store: Any, cid: str, dest: str | os.PathLike[str]) -> Path:
-    """Fetch both model files of bundle ``cid`` into ``dest``, each verified by its CID."""
+def model_files(store: Any, cid: str) -> dict[str, tuple[str, int]]:
+    """{name: (file CID, size)} of model bundle ``cid``: exactly MODEL_FILES, each declared
+    within MAX_MODEL_FILE_BYTES (InvalidContent naming the file otherwise)."""
     files = read_bundle(store, cid)
     if sorted(files) != sorted(MODEL_FILES):
         raise InvalidContent(
             f"bundle {cid} must hold exactly {list(MODEL_FILES)}, has {sorted(files)}"
         )
+    for name, (_, size) in files.items():
+        if size > MAX_MODEL_FILE_BYTES[name]:
+            raise InvalidContent(
+                f"{name} of bundle {cid} declares {size} bytes, more than the "
+                f"{MAX_MODEL_FILE_BYTES[name]} a model's {name} may have"
+            )
+    return files
+
+
+def pull_model(store: Any, cid: str, dest: str | os.PathLike[str]) -> Path:
+    """Fetch both model files of bundle ``cid`` into ``dest``, each verified by its CID and
+    bounded (``model_files``)."""
+    files = model_files(store, cid)
     out = Path(dest)
     out.mkdir(parents=True, exist_ok=True)
     for name in MODEL_FILES:

@@ -31,7 +31,14 @@ from cryptography.hazmat.primitives.kdf.hkdf import HKDF
 from cryptography.hazmat.primitives.serialization import Encoding, PublicFormat
 from eth_utils import keccak, to_checksum_address
 
-from .bundle import BUNDLE_FORMAT, MAX_MANIFEST_BYTES, MODEL_FILES, canonical_json, read_bundle
+from .bundle import (
+    BUNDLE_FORMAT,
+    MAX_MANIFEST_BYTES,
+    MODEL_FILES,
+    canonical_json,
+    model_files,
+    read_bundle,
+)
 from .dag import compute_cid
 from .errors import InvalidContent, NotFound, StoreError
 
@@ -202,11 +209,7 @@ def pull_model_with_key(
     """Both model files of bundle ``cid`` into ``dest``: a sealed file opened from its envelope
     when ``private_key`` is given, every other file from the store (SealedContent for a sealed
     file without a key that its owner has not published)."""
-    files = read_bundle(store, cid)
-    if sorted(files) != sorted(MODEL_FILES):
-        raise InvalidContent(
-            f"bundle {cid} must hold exactly {list(MODEL_FILES)}, has {sorted(files)}"
-        )
+    files = model_files(store, cid)  # exactly the model files, each within its bound
     sealed = sealed_envelopes(store, cid)
     out = Path(dest)
     out.mkdir(parents=True, exist_ok=True)

@@ -188,6 +188,7 @@ def initial_models() -> list[dict]:
                 "card": c,
                 "metrics": c["metrics"],
                 "owner_reputation": round(rep * 0.9, 3),
+                "owner_model_reputation": round(rep * 0.8, 3),
                 "owner_rating": rating,
                 # what the gateway reads from the card: the real parser (backend/schemas/cards.py)
                 **CardView.from_card(c).model_dump(exclude={"expert_refs", "expert_usage"}),

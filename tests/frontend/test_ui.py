@@ -99,6 +99,8 @@ def test_model_page_shows_card_cid_curve(page: Any, server: LiveServer, state: F
     m = state.models[0]
     expect(page.locator("#model-cid")).to_have_text(CID_A)
     expect(page.locator("#owner-reputation")).to_have_text(str(m["owner_reputation"]))
+    expect(page.locator("#owner-model-reputation")).to_have_text(
+        str(m["owner_model_reputation"]))
     expect(page.locator("#model-description")).to_have_text(m["description"])
     card = page.locator("#model-card")
     expect(card).to_contain_text("ODMTL, window 3")

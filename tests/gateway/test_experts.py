@@ -86,6 +86,13 @@ def test_experts_from_an_allocation_named_checked_and_reviewed(
     assert shown[b["cid"]]["review"] is None
     listed = {x["id"]: x for x in client.get(f"{P}/models").json()["data"]}
     assert listed[a["id"]]["reputation"] == 1.0 and listed[b["id"]]["reputation"] < 1.0
+    # the owners' Eq. 10 reputations, as the MMC's OwnerRecords hold them: a page shows the
+    # reputation Model-metric requests filter on, next to the sharing one (Eq. 19)
+    for model, owner, rep in ((a, "user3", 1.0), (b, "user4", 0.0)):
+        page = client.get(f"{P}/models/{model['id']}").json()
+        allocs, reviews = service.platform.mmc.call("ownerRep", addr(service, owner))[:2]
+        assert (allocs, reviews) == (1, 5 if rep else 0)
+        assert page["owner_model_reputation"] == rep
 
 
 def test_named_experts_must_be_model_cids_in_the_store(client: TestClient, login: Login) -> None:
@@ -172,3 +179,31 @@ def test_a_named_walls_cae_must_be_a_cae_bundle_in_the_store(
     assert r.status_code == 201, r.text
     spec = client.get(f"{P}/tasks/{r.json()['task_id']}").json()["spec"]
     assert spec["observation"]["walls_embedding"] == cae
+
+
+def test_an_allocation_of_more_models_than_a_task_can_use_is_named(
+    client: TestClient, login: Login
+) -> None:
+    """A task trains with at most 8 experts (trainingspec.MAX_EXPERTS): an allocation of 9 is
+    refused naming expert_allocation and the rule, not with an error on a field never sent;
+    a model description with control characters (PostgreSQL text cannot hold NUL) is a 422."""
+    register(client, login, ["user1"], {"user3": {}, "user4": {}, "user5": {}})
+    for i in range(9):
+        _share(client, login, f"user{3 + i % 3}", ENV2, 0, f"expert {i}")
+    r = client.post(f"{P}/models/requests", json={"domain": 0, "env": ENV2, "num_models": 9},
+                    headers=login("user1"))
+    assert r.status_code == 201, r.text
+    body = task_body(expert_allocation=r.json()["alloc_id"])
+    r = client.post(f"{P}/tasks", json=body, headers=login("user1"))
+    assert r.status_code == 422, r.text
+    err = r.json()["detail"][0]
+    assert err["type"] == "allocation_too_many_experts"
+    assert err["loc"] == ["body", "expert_allocation"]
+    assert "at most 8 experts" in err["msg"]
+    store = client.app.state.store  # type: ignore[attr-defined]
+    cid = add_bundle(store, {"model.safetensors": weights_of("nul"),
+                             "model.json": card_of(ENV2, "nul")})
+    r = client.post(f"{P}/models", json={"cid": cid, "description": "evil\u0000desc",
+                                         "domain": 0, "env": ENV2}, headers=login("user3"))
+    assert r.status_code == 422 and r.json()["detail"][0]["loc"] == ["body", "description"]
+    assert "U+0000" in r.json()["detail"][0]["msg"]

@@ -166,3 +166,55 @@ def test_another_chain_rebuilds_the_index(
     assert _indexed(sessions) == []
     idx.poll()
     assert _indexed(sessions) == _chain_events(service)
+
+
+@pytest.fixture(params=["sqlite", "postgresql"])
+def any_sessions(request: pytest.FixtureRequest, tmp_path: Path) -> sessionmaker[Session]:
+    """Index sessions on SQLite and on the loopback PostgreSQL (skipped when it is not up)."""
+    if request.param == "sqlite":
+        url = f"sqlite:///{tmp_path / 'idx.sqlite'}"
+    else:
+        from tests.backend.conftest import pg_url
+
+        gen = pg_url.__wrapped__()  # the fixture's generator: a fresh schema, dropped after
+        url = next(gen)
+        request.addfinalizer(lambda: next(gen, None))
+    engine = make_engine(url)
+    upgrade(engine)
+    request.addfinalizer(engine.dispose)
+    return make_sessionmaker(engine)
+
+
+def test_events_no_database_can_hold_as_written_never_stop_the_indexer(
+    service: ChainService, any_sessions: sessionmaker[Session], tmp_path: Path
+) -> None:
+    """Anyone can addTask with any description and any document behind it: a NUL byte (which
+    PostgreSQL text refuses) or a spec with NaN (which SQLite's JSON and jsonb refuse) or of
+    the wrong shape is indexed as U+FFFD / no spec, and the events after it are indexed too
+    (one such event stopped the indexer at its block for good)."""
+    import json
+
+    from backend.store import EmbeddedStore
+
+    store = EmbeddedStore(tmp_path / "ipfs")
+    base = {"format": "drlaas-task/1", "env": {"rows": 6, "cols": 6}, "budget": {"steps": 100}}
+    nan_spec = store.add(json.dumps({**base, "experts": [{"model": "m", "qos": float("nan")}]})
+                         .encode())
+    bad_shape = store.add(json.dumps({**base, "experts": {"a": 1}}).encode())
+    good = store.add(json.dumps(base).encode())
+    p, keys = service.platform, service.demo_keys
+    req = keys.address("user1")
+    ids = []
+    with service.lock:
+        p.umc.add_requester(req)
+        for description in ("evil\x00desc", nan_spec, bad_shape, good):
+            task_id, _ = p.tmc.add_task(req, domain=0, num_workers=1, reward=10**12,
+                                        duration=3_600, description=description)
+            ids.append(task_id)
+    Indexer(service, any_sessions, store=store).poll()
+    assert _indexed(any_sessions) == _chain_events(service)
+    with any_sessions() as s:
+        rows = {t.id: t for t in s.scalars(select(m.TaskRow)).all()}
+    assert rows[ids[0]].description == "evil\ufffddesc"
+    assert rows[ids[1]].spec is None and rows[ids[2]].spec is None
+    assert rows[ids[3]].spec == base

@@ -188,6 +188,33 @@ def test_an_expert_failing_verification_fails_the_job_on_chain(env, store, tmp_p
     assert again["status"] == "offer failed"
 
 
+def test_an_expert_whose_card_no_worker_can_use_is_declined_not_failed(
+    env, store, tmp_path
+) -> None:
+    """The worker reads each expert's manifest and card before it accepts: a card it cannot
+    rebuild a model from (here one with no observation, which the gateway's bundle check lets
+    through) or weights beyond its bound get the offer declined naming the CID, instead of a
+    job failed on chain after acceptance (the worker's reputation would pay for the
+    requester's choice). Nothing of the weights is fetched."""
+    p, actors = env
+    card = json.loads((EXPERT / "model.json").read_text())
+    no_observation = bundle(store, **{"model.json": json.dumps(
+        {"format": card["format"], "env": card["env"]}).encode()})
+    h = OfferHandler(account=p.chain._keys[p.chain.accounts[2]], platform=p, store=store,
+                     data_dir=tmp_path / "w")
+    for cid, bound, why in ((no_observation, h.max_expert_bytes, "model.json: "),
+                            (upload_model(store, EXPERT), 1000, "more than the bound of 1000")):
+        h.max_expert_bytes = bound
+        task_id, offered, _ = post_task(p, store, actors.requester, spec={
+            **TINY_SPEC, "experts": [cid]})
+        assert offered == [h.address]
+        out = h.handle(task_id, offered[0])
+        assert out["status"] == "declined" and f"expert {cid}" in out["reason"], out
+        assert why in out["reason"]
+        assert p.tmc.offer(task_id, offered[0])["state"] == OfferState.DECLINED
+        assert not (h.job_dir(task_id) / "experts").exists()
+
+
 def test_an_offer_naming_a_path_as_expert_is_declined(env, store, tmp_path) -> None:
     p, actors = env
     spec = {**TINY_SPEC, "experts": ["runs/my-model"]}  # the core's form, not the platform's

@@ -179,6 +179,12 @@ def test_a_sealed_outcome_goes_to_the_requester_only(env, tmp_path: Path) -> Non
         pull_model(store, out["cid"], tmp_path / "anyone")
     mine = pull_model_with_key(store, out["cid"], tmp_path / "mine", bytes(requester.key))
     assert load_model(mine).card["env"]["rows"] == 6
+    # sharing it before the requester accepted it publishes nothing (pending, or rejected)
+    with pytest.raises(LookupError, match="has not accepted this outcome"):
+        h.publish_outcome(task_id)
+    with pytest.raises(NotFound):
+        pull_model(store, out["cid"], tmp_path / "still-sealed")
+    p.tmc.transact("reviewOutcome", task_id, offered[0], 4, True, sender=actors.requester)
     published = h.publish_outcome(task_id)
     assert published["cid"] == out["cid"] and published["env"]["rows"] == 6
     assert (pull_model(store, out["cid"], tmp_path / "now") / "model.safetensors").read_bytes() == (
@@ -224,6 +230,8 @@ def test_selection_keep_best_delivers_the_best_evaluated_policy(env, tmp_path: P
     assert delivered == (run / "best" / "model.safetensors").read_bytes()
     if int(best["update"]) != updates:  # the last policy differs: it is not what was sent
         assert delivered != (run / "model" / "model.safetensors").read_bytes()
+    p, actors, _ = env
+    p.tmc.transact("reviewOutcome", task_id, h.address, 4, True, sender=actors.requester)
     assert h.publish_outcome(task_id)["cid"] == out["cid"]
 
 
@@ -541,6 +549,7 @@ def test_a_node_answering_5xx_or_mining_late_is_retried_never_a_failed_job(
     assert p.tmc.offer(task_id, worker)["state"] == OfferState.SUBMITTED
     out = h.handle(task_id, worker)
     assert out["status"] == "submitted" and h._state(task_id)["phase"] == "submitted"
+    p.tmc.transact("reviewOutcome", task_id, worker, 4, True, sender=actors.requester)
     assert h.publish_outcome(task_id)["cid"] == out["cid"]
     assert not p.tmc.contract.events.OfferFailed().get_logs(from_block=0)
     bad_request = requests.Response()

@@ -124,3 +124,26 @@ def test_publishing_makes_the_weights_public(
     assert (out / "model.safetensors").read_bytes() == (
         model_dir / "model.safetensors"
     ).read_bytes()
+
+
+def test_pulling_a_model_refuses_files_beyond_a_models_bounds(
+    store: EmbeddedStore, model_dir: Path, tmp_path: Path
+) -> None:
+    """A manifest may declare any size, and a store that keeps identical blocks once holds
+    256 MiB of zeros in a few hundred kB: `drlaas model pull` and `task pull` (plain or sealed)
+    write no model file beyond the worker's bounds on an expert, and nothing at all then."""
+    from backend.store.bundle import MAX_MODEL_FILE_BYTES, MODEL_FILES
+    from workers.daemon.experts import MAX_CARD_BYTES
+    from workers.mdrl.weightsfile import MAX_WEIGHTS_BYTES
+
+    assert MAX_MODEL_FILE_BYTES == {"model.safetensors": MAX_WEIGHTS_BYTES,
+                                    "model.json": MAX_CARD_BYTES}
+    good = read_bundle(store, upload_model(store, model_dir))
+    for name in MODEL_FILES:
+        entries = {n: {"cid": c, "size": size} for n, (c, size) in good.items()}
+        entries[name]["size"] = MAX_MODEL_FILE_BYTES[name] + 1
+        cid = store.add(canonical_json({"format": "drlaas-bundle/1", "files": entries}))
+        for pull in (pull_model, lambda s, c, d: pull_model_with_key(s, c, d, None)):
+            with pytest.raises(InvalidContent, match=f"{name} of bundle {cid} declares"):
+                pull(store, cid, tmp_path / "out")
+            assert not list((tmp_path / "out").glob("*"))

@@ -107,7 +107,25 @@ def _fetch_verified(
     return final
 
 
-def _download(store: ContentStore, ref: str, dest: Path, max_weights: int) -> None:
+def check_expert_card(
+    store: ContentStore, ref: str, *, max_weights: int = MAX_WEIGHTS_BYTES
+) -> dict[str, Any]:
+    """The checks of an expert that need only its manifest and card (at most MAX_CARD_BYTES),
+    run before a worker accepts an offer: a requester naming a model no worker can use (the
+    gateway's bundle check is looser than this) gets its offers declined, not a worker's job
+    failed on chain after acceptance. The weights are fetched and checked after acceptance."""
+    with tempfile.TemporaryDirectory(prefix="drlaas-card-") as tmp:
+        _download(store, ref, Path(tmp), max_weights, only=("model.json",))
+        return check_card(Path(tmp) / "model.json", ref)
+
+
+def _download(
+    store: ContentStore,
+    ref: str,
+    dest: Path,
+    max_weights: int,
+    only: tuple[str, ...] = MODEL_FILES,
+) -> None:
     bounds = {"model.safetensors": max_weights, "model.json": MAX_CARD_BYTES}
     try:
         files = read_bundle(store, ref)
@@ -127,6 +145,8 @@ def _download(store: ContentStore, ref: str, dest: Path, max_weights: int) -> No
             raise ExpertFetchError(
                 ref, f"{name} is {size} bytes, more than the bound of {bounds[name]} bytes"
             )
+    for name in only:
+        file_cid, size = files[name]
         try:
             got = store.get_to_file(file_cid, dest / name, max_size=max(size, 1))
         except StoreUnavailable:

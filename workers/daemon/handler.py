@@ -43,7 +43,7 @@ from web3.exceptions import TimeExhausted
 
 from backend.chain.addresses import checksum
 from backend.chain.errors import ContractError
-from backend.chain.platform import OfferState, Platform, TaskStatus
+from backend.chain.platform import OfferState, Platform, TaskStatus, Verdict
 from backend.store import ContentStore, StoreError, StoreUnavailable
 from backend.store.bundle import read_bundle, upload_model
 from backend.store.sealed import address_of, parse_public_key, publish_model, seal_model
@@ -52,6 +52,7 @@ from workers.daemon.capabilities import ram_bytes
 from workers.daemon.experts import (
     MAX_WEIGHTS_BYTES,
     ExpertFetchError,
+    check_expert_card,
     expert_key,
     fetch_experts,
     fetch_walls_cae,
@@ -321,13 +322,18 @@ class OfferHandler:
             if owner.lower() != requester.lower():
                 return f"outcome_key belongs to {owner}, not to the task's requester {requester}"
         try:  # experts (and a walls CAE) are fetched after acceptance; a reference no worker
-            # can fetch is known now
+            # can fetch, and an expert whose card no worker can use, are known now
             for ref in spec.experts:
                 expert_key(ref)
             if spec.observation.walls_embedding is not None:
                 expert_key(spec.observation.walls_embedding)
+            demo = spec.demonstration()
+            for ref in demo.experts if demo is not None else ():
+                check_expert_card(self.store, ref, max_weights=self.max_expert_bytes)
         except ExpertFetchError as exc:
             return str(exc)
+        except StoreUnavailable as exc:
+            raise Transient(f"cannot read the task's expert models: {exc}") from exc
         busy = self.active_jobs(exclude=task_id)
         if len(busy) >= self.max_jobs:
             return "at capacity"
@@ -437,6 +443,15 @@ class OfferHandler:
             raise LookupError(
                 f"task {task_id}: this worker submitted no outcome on this chain "
                 f"(job state: {st.get('phase', 'none')}, {self.job_dir(task_id)})"
+            )
+        # nothing goes public before the MMC would list it: a sealed outcome stays sealed while
+        # its review is pending, and for good once rejected ("A listed model is no outcome")
+        with chain_call(f"reading the verdict on the outcome of task {task_id}"):
+            _, _, verdict = self.platform.tmc.outcome_of(st["cid"])
+        if verdict != Verdict.ACCEPTED:
+            raise LookupError(
+                f"task {task_id}: the requester has not accepted this outcome (verdict "
+                f"{verdict.name.lower()}): only an accepted outcome can be shared as a model"
             )
         model_dir = jobs.run_dir(self.job_dir(task_id)) / st.get("model", "model")
         try:

@@ -28,6 +28,7 @@ from backend.api.pagecache import cached_page
 from backend.api.schemas import Address
 from backend.api.writes import catch_up, field_error, receipt_public
 from backend.chain.platform import Metric, cid_hash
+from backend.chain.qos import mmc_reputation_fixed
 from backend.db import models as m
 from backend.schemas.cards import MAX_EXPERTS, CardView, ExpertUsagePublic, is_cid
 from backend.schemas.common import (
@@ -388,6 +389,7 @@ def get_model(model_id: ModelId, session: SessionDep, store: StoreDep) -> ModelD
         metrics=card.get("metrics") if card else None,
         owner_reputation=from_fixed(owner.sharing_reputation if owner else HALF),
         owner_rating=from_fixed(owner.sharing_rating if owner else HALF),
+        owner_model_reputation=_owner_model_reputation(session, row.owner),
         **view.model_dump(exclude={"expert_refs", "expert_usage"}),
         env_spec=_card_env(card),
         produced_by=ProducedByPublic(
@@ -734,3 +736,14 @@ def review_model(
 
 
 __all__ = ["router"]
+
+
+def _owner_model_reputation(session: Any, owner: str) -> float:
+    """Eq. 10 of ``owner``: total review over allocation count of all its listed models, as
+    the MMC keeps it (``OwnerRecord``, qos.owner_totals)."""
+    allocs, reviews = session.execute(
+        select(func.coalesce(func.sum(m.ModelRow.alloc_count), 0),
+               func.coalesce(func.sum(m.ModelRow.total_review), 0))
+        .where(m.ModelRow.owner == owner)
+    ).one()
+    return from_fixed(mmc_reputation_fixed(int(reviews), int(allocs)))

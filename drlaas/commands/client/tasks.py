@@ -174,9 +174,10 @@ def task_submit(
         int | None,
         typer.Option(
             min=1,
-            max=16,
+            max=8,  # trainingspec.MAX_EXPERTS: a task uses at most 8 experts
             help="buy K expert models from the MMC first (allocateModel: the closest models "
-            "by QoS, each paid its price) and train with them and their QoS",
+            "by QoS, each paid its price) and train with them and their QoS (K <= 8, the "
+            "experts a task can use)",
         ),
     ] = None,
     expert_allocation: Annotated[

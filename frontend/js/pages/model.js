@@ -164,8 +164,9 @@ export async function render(main, [id], ctx) {
     h("div", { class: "grid2" },
       h("div", { class: "panel", id: "model-chain" }, h("h2", {}, "On chain"), defList([
         ["Model reputation", h("span", { id: "model-reputation" }, num(m.reputation, 3))],
-        ["Owner reputation", h("span", { id: "owner-reputation" }, num(m.owner_reputation, 3))],
-        ["Owner rating", num(m.owner_rating, 3)],
+        ["Owner reputation (sharing, Eq. 19)", h("span", { id: "owner-reputation" }, num(m.owner_reputation, 3))],
+        ["Owner rating (sharing)", num(m.owner_rating, 3)],
+        ["Owner reputation (models, Eq. 10)", h("span", { id: "owner-model-reputation" }, num(m.owner_model_reputation, 3))],
         ["Requests", num(m.allocations)],
         ["Environment", Array.isArray(m.env) ? envSummary(m.env) : undefined],
       ])),
