@@ -33,7 +33,7 @@ from pathlib import Path
 from typing import Any
 
 from backend.store import ContentStore, ContentTooLarge, InvalidContent, NotFound
-from backend.store.bundle import MODEL_FILES, read_bundle
+from backend.store.bundle import MAX_CARD_BYTES, MODEL_FILES, read_bundle
 from workers.mdrl.modelio import CARD, CARD_FORMAT, ENCODER_PREFIX, WEIGHTS
 from workers.mdrl.weightsfile import (
     MAX_WEIGHTS_BYTES,
@@ -42,9 +42,6 @@ from workers.mdrl.weightsfile import (
     check_head,
     check_weights_file,
 )
-
-MAX_CARD_BYTES = 1 << 20
-"""Bound on a card (``model.json``), as the gateway reads cards everywhere."""
 
 
 class BundleRefused(ValueError):

@@ -157,5 +157,11 @@ def _printable(v: str) -> str:
     return v
 
 
-PlainText = Annotated[str, AfterValidator(_printable)]
+PLAIN_TEXT_PATTERN = r"^[^\u0000-\u0008\u000B-\u001F\u007F-\u009F]*$"
+"""`_printable` as a JSON Schema pattern, so the OpenAPI document states the rule (the
+validator, not this pattern, refuses, with the characters named)."""
+
+PlainText = Annotated[
+    str, AfterValidator(_printable), Field(json_schema_extra={"pattern": PLAIN_TEXT_PATTERN})
+]
 """Free text of an API request (a model's description): control characters refused."""

@@ -12,17 +12,20 @@ import os
 from pathlib import Path
 from typing import Any
 
+from workers.mdrl.weightsfile import MAX_WEIGHTS_BYTES
+
 from .cid import CID
 from .errors import InvalidCID, InvalidContent
 
 BUNDLE_FORMAT = "drlaas-bundle/1"
 MODEL_FILES = ("model.safetensors", "model.json")
 MAX_MANIFEST_BYTES = 64 * 1024
-MAX_MODEL_FILE_BYTES = {"model.safetensors": 64 * 2**20, "model.json": 1 << 20}
-"""Largest model files a reader writes to disk (the worker's bounds on an expert,
-``weightsfile.MAX_WEIGHTS_BYTES`` and ``experts.MAX_CARD_BYTES``): a manifest may declare any
-size, and a store that keeps identical blocks once holds 256 MiB of zeros in a few hundred kB,
-so a bound on what the store holds bounds nothing on the reader's disk."""
+MAX_CARD_BYTES = 1 << 20
+"""Bound on a model card (``model.json``) wherever one is read: gateway, indexer, worker."""
+MAX_MODEL_FILE_BYTES = {"model.safetensors": MAX_WEIGHTS_BYTES, "model.json": MAX_CARD_BYTES}
+"""Largest model files a reader writes to disk: a manifest may declare any size, and a store
+that keeps identical blocks once holds 256 MiB of zeros in a few hundred kB, so a bound on what
+the store holds bounds nothing on the reader's disk."""
 
 
 def canonical_json(doc: dict[str, Any]) -> bytes:

@@ -419,18 +419,7 @@ contract UsersManager {
         view
         returns (uint256[] memory workers, uint256[] memory stats)
     {
-        uint256 q = _queues[domain];
-        uint256 n = q >> 64;
-        uint256 size = poolSize;
-        if (n > size) n = size;
-        workers = new uint256[](n);
-        stats = new uint256[](n);
-        uint256 id = q & ID_MASK;
-        for (uint256 i; i < n; ++i) {
-            workers[i] = (_rawWorker(uint32(id)) & WORKER_FIELDS) | (id << ID_SHIFT) | MEMBER_BIT;
-            stats[i] = _rawCounters(_key(uint32(id), domain, taskType));
-            id = _links[(uint256(domain) << 32) | id] >> 32;
-        }
+        return _walkPool(domain, poolSize, taskType, true, true);
     }
 
     /**
@@ -444,18 +433,7 @@ contract UsersManager {
         view
         returns (uint256[] memory ids, uint256[] memory stats)
     {
-        uint256 q = _queues[domain];
-        uint256 n = q >> 64;
-        uint256 size = poolSize;
-        if (n > size) n = size;
-        ids = new uint256[](n);
-        stats = new uint256[](withCounters ? n : 0);
-        uint256 id = q & ID_MASK;
-        for (uint256 i; i < n; ++i) {
-            ids[i] = id;
-            if (withCounters) stats[i] = _rawCounters(_key(uint32(id), domain, taskType));
-            id = _links[(uint256(domain) << 32) | id] >> 32;
-        }
+        return _walkPool(domain, poolSize, taskType, false, withCounters);
     }
 
     /// @dev Addresses of `domain`'s candidate pool (the first {poolSize} of its queue).
@@ -561,13 +539,33 @@ contract UsersManager {
     }
 
     function _queue(uint32 domain, uint256 limit) internal view returns (address[] memory out) {
+        (uint256[] memory ids,) = _walkPool(domain, limit, 0, false, false);
+        uint256 n = ids.length;
+        out = new address[](n);
+        for (uint256 i; i < n; ++i) {
+            out[i] = _workers[uint32(ids[i])].addr;
+        }
+    }
+
+    /// @dev The one walk of `domain`'s Active queue links that every pool and queue view
+    /// shares: for its first `limit` workers in queue order, their ids, or with `words` their
+    /// candidate words ({candidates}' packing), and with `counters` their packed counters of
+    /// (`domain`, `taskType`) (`stats` is empty otherwise). One pass, no second array walk:
+    /// the allocations call it with a pool of up to MAX_POOL_SIZE.
+    function _walkPool(uint32 domain, uint256 limit, uint8 taskType, bool words, bool counters)
+        internal
+        view
+        returns (uint256[] memory out, uint256[] memory stats)
+    {
         uint256 q = _queues[domain];
         uint256 n = q >> 64;
         if (n > limit) n = limit;
-        out = new address[](n);
+        out = new uint256[](n);
+        stats = new uint256[](counters ? n : 0);
         uint256 id = q & ID_MASK;
         for (uint256 i; i < n; ++i) {
-            out[i] = _workers[uint32(id)].addr;
+            out[i] = words ? (_rawWorker(uint32(id)) & WORKER_FIELDS) | (id << ID_SHIFT) | MEMBER_BIT : id;
+            if (counters) stats[i] = _rawCounters(_key(uint32(id), domain, taskType));
             id = _links[(uint256(domain) << 32) | id] >> 32;
         }
     }

@@ -462,6 +462,39 @@ def test_a_job_killed_often_but_moving_on_each_time_is_finished(env, tmp_path: P
     assert not (h.job_dir(task_id) / "run" / "checkpoint").exists()
 
 
+def test_a_job_killed_after_training_before_its_record_is_not_trained_again(
+    env, tmp_path: Path, monkeypatch
+) -> None:
+    """Training that ran to the end is not redone when the process dies before the handler
+    records it: the next start uploads and submits the model it finished, with its curve."""
+    from workers.daemon import job as jobs
+
+    p, actors, store = env
+    task_id, offered, _ = post_task(p, store, actors.requester)
+    h = handler_for(p, offered[0], store, tmp_path)
+    save = h._save
+
+    def killed_at_the_record(tid: int, **changes):
+        if changes.get("phase") == "trained":
+            raise Killed()
+        return save(tid, **changes)
+
+    h._save = killed_at_the_record  # type: ignore[method-assign]
+    with pytest.raises(Killed):
+        h.handle(task_id, offered[0])
+    h._save = save  # type: ignore[method-assign]
+    model = h.job_dir(task_id) / "run" / "model"
+    card = (model / "model.json").read_text()
+    assert json.loads(card).get("curve")
+    runs = []
+    real = jobs.run_job
+    monkeypatch.setattr(jobs, "run_job", lambda *a, **kw: runs.append(a) or real(*a, **kw))
+    out = h.handle(task_id, offered[0])
+    assert out["status"] == "submitted" and runs == []
+    assert (model / "model.json").read_text() == card
+    assert read_bundle(store, out["cid"])["model.json"][0] == store.add(card.encode())
+
+
 def test_recover_at_start_reconciles_job_directories_with_the_chain(env, tmp_path: Path) -> None:
     p, actors, store = env
     # three tasks offered to every worker; one worker's daemon left them in different states
@@ -482,7 +515,7 @@ def test_recover_at_start_reconciles_job_directories_with_the_chain(env, tmp_pat
     queued: list[tuple[int, str]] = []
     done = h.recover(lambda tid, w: queued.append((tid, w)))
     assert done == {"reported": [t_failed], "queued": [t_in_hand], "submitted": [],
-                    "closed": [t_gone], "pruned": [t_failed]}
+                    "closed": [t_gone], "pruned": [t_failed], "deferred": []}
     assert queued == [(t_in_hand, worker)]
     assert p.tmc.offer(t_failed, worker)["state"] == OfferState.FAILED
     assert p.tmc.offer(t_in_hand, worker)["state"] == OfferState.ACCEPTED
@@ -492,8 +525,53 @@ def test_recover_at_start_reconciles_job_directories_with_the_chain(env, tmp_pat
     # a second start finds nothing left to do but the job in hand
     block = p.chain.w3.eth.block_number
     assert h.recover(None) == {"reported": [], "queued": [t_in_hand], "submitted": [],
-                               "closed": [], "pruned": []}
+                               "closed": [], "pruned": [], "deferred": []}
     assert p.chain.w3.eth.block_number == block
+
+
+def test_recover_defers_what_needs_a_node_that_is_down_and_goes_on_with_the_rest(
+    env, tmp_path: Path
+) -> None:
+    """Recovery at start is per job: once the node fails a call, the other jobs that need the
+    chain are deferred without waiting on it again, while finished jobs are still pruned; a
+    job whose own reconciliation fails is deferred and the next one is still reconciled; a
+    retry with ``only`` then queues exactly the deferred jobs."""
+    p, actors, store = env
+    tasks = [post_task(p, store, actors.requester, num_workers=3) for _ in range(2)]
+    worker = tasks[0][1][0]
+    t_a, t_b = (t for t, _, _ in tasks)
+    h = handler_for(p, worker, store, tmp_path)
+    for tid in (t_a, t_b):
+        p.tmc.transact("acceptOffer", tid, sender=worker)
+        h._save(tid, phase="trained", model="model")
+    t_done = t_b + 1  # a finished job of an earlier task with its checkpoint still on disk
+    h._save(t_done, phase="submitted", cid="bafy")
+    (h.job_dir(t_done) / "run" / "checkpoint").mkdir(parents=True)
+    settle, tried = h._settle, []
+
+    def node_down(tid: int, st: dict) -> None:
+        tried.append(tid)
+        raise Transient("chain node unreachable during reading the offer: refused")
+
+    h._settle = node_down  # type: ignore[method-assign]
+    queued: list[int] = []
+    done = h.recover(lambda tid, w: queued.append(tid))
+    assert done["deferred"] == [t_a, t_b] and tried == [t_a]  # not asked again for t_b
+    assert done["pruned"] == [t_done] and queued == []
+    assert not (h.job_dir(t_done) / "run" / "checkpoint").exists()
+
+    def damaged(tid: int, st: dict) -> str | None:
+        if tid == t_a:
+            raise KeyError("deadline")
+        return settle(tid, st)
+
+    h._settle = damaged  # type: ignore[method-assign]
+    done = h.recover(lambda tid, w: queued.append(tid), only={t_a, t_b})
+    assert done["deferred"] == [t_a] and done["queued"] == [t_b] and queued == [t_b]
+    h._settle = settle  # type: ignore[method-assign]
+    done = h.recover(lambda tid, w: queued.append(tid), only={t_a})
+    assert done["queued"] == [t_a] and done["deferred"] == [] and queued == [t_b, t_a]
+    assert h._state(t_a)["phase"] == "trained"  # nothing lost while deferred
 
 
 def test_walls_that_leave_the_team_no_room_are_declined_not_accepted(env, tmp_path: Path) -> None:
@@ -507,7 +585,7 @@ def test_walls_that_leave_the_team_no_room_are_declined_not_accepted(env, tmp_pa
 
 
 def test_a_node_answering_5xx_or_mining_late_is_retried_never_a_failed_job(
-    env, tmp_path: Path
+    env, tmp_path: Path, monkeypatch
 ) -> None:
     """A 503 from the node (or a proxy before it) and a receipt wait that times out are the
     node's trouble, not the job's: Transient (the Celery job retries), never a trained model
@@ -537,15 +615,13 @@ def test_a_node_answering_5xx_or_mining_late_is_retried_never_a_failed_job(
             raise TimeExhausted("not in the chain after 120 seconds")
         return real(fn, *args, **kw)
 
-    p.tmc.transact = flaky  # type: ignore[method-assign]
-    try:
-        with pytest.raises(Transient, match="submitOutcome"):
-            h.handle(task_id, worker)
-        assert h._state(task_id)["phase"] == "uploaded"
-        with pytest.raises(Transient, match="submitOutcome"):
-            h.handle(task_id, worker)
-    finally:
-        p.tmc.transact = real  # type: ignore[method-assign]
+    monkeypatch.setattr(p.tmc, "transact", flaky)
+    with pytest.raises(Transient, match="submitOutcome"):
+        h.handle(task_id, worker)
+    assert h._state(task_id)["phase"] == "uploaded"
+    with pytest.raises(Transient, match="submitOutcome"):
+        h.handle(task_id, worker)
+    monkeypatch.undo()
     assert p.tmc.offer(task_id, worker)["state"] == OfferState.SUBMITTED
     out = h.handle(task_id, worker)
     assert out["status"] == "submitted" and h._state(task_id)["phase"] == "submitted"
@@ -557,7 +633,9 @@ def test_a_node_answering_5xx_or_mining_late_is_retried_never_a_failed_job(
     assert not node_unreachable(requests.HTTPError("400", response=bad_request))
 
 
-def test_a_submit_mined_by_an_earlier_try_is_recorded_not_failed(env, tmp_path: Path) -> None:
+def test_a_submit_mined_by_an_earlier_try_is_recorded_not_failed(
+    env, tmp_path: Path, monkeypatch
+) -> None:
     """The retry of a submitOutcome whose first try was mined meanwhile reverts; the job reads
     the chain and records the outcome as submitted instead of failing it."""
     p, actors, store = env
@@ -572,11 +650,9 @@ def test_a_submit_mined_by_an_earlier_try_is_recorded_not_failed(env, tmp_path: 
             real(fn, *args, **kw)  # the earlier try, mined late
         return real(fn, *args, **kw)
 
-    p.tmc.transact = twice  # type: ignore[method-assign]
-    try:
-        out = h.handle(task_id, worker)
-    finally:
-        p.tmc.transact = real  # type: ignore[method-assign]
+    monkeypatch.setattr(p.tmc, "transact", twice)
+    out = h.handle(task_id, worker)
+    monkeypatch.undo()
     assert out["status"] == "submitted" and h._state(task_id)["phase"] == "submitted"
     assert p.tmc.offer(task_id, worker)["state"] == OfferState.SUBMITTED
 
@@ -637,7 +713,7 @@ def test_recover_survives_damaged_job_directories_and_records_late_submits(
     queued: list[int] = []
     done = h.recover(lambda tid, w: queued.append(tid))
     assert done == {"reported": [], "queued": [t_corrupt, t_accepting], "submitted": [t_submitted],
-                    "closed": [], "pruned": []}
+                    "closed": [], "pruned": [], "deferred": []}
     assert queued == [t_corrupt, t_accepting]
     assert list(h.job_dir(t_corrupt).glob("state.json.unreadable-*"))
     assert h._state(t_corrupt)["phase"] == "accepted"

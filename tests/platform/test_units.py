@@ -172,25 +172,39 @@ def test_give_up_abandons_only_a_job_in_hand(tmp_path: Path) -> None:
 def test_recovery_at_start_never_stops_the_daemon_when_the_node_is_down(capsys) -> None:
     """``drlaas worker run`` reconciles its jobs before it consumes offers and says what it did
     on stderr; a node still down (or any other failure of the scan) is reported, and the daemon
-    starts anyway (the next start tries again)."""
+    starts anyway; deferred jobs are retried in the background, only those, until none is
+    left."""
     from workers.daemon.command import recover_jobs
     from workers.daemon.handler import Transient
 
     class Handler:
-        def __init__(self, result: dict | Exception) -> None:
-            self.result, self.enqueue = result, None
+        def __init__(self, *results: dict | Exception) -> None:
+            self.results, self.calls = list(results), []
 
-        def recover(self, enqueue):
-            self.enqueue = enqueue
-            if isinstance(self.result, Exception):
-                raise self.result
-            return self.result
+        def recover(self, enqueue, only=None):
+            self.calls.append((enqueue, only))
+            result = self.results.pop(0)
+            if isinstance(result, Exception):
+                raise result
+            return result
 
     down = Handler(Transient("chain node unreachable: refused"))
-    recover_jobs(down, enqueue=print)
-    assert down.enqueue is print
+    assert recover_jobs(down, enqueue=print) is None
+    assert down.calls == [(print, None)]
     assert "recovery at start skipped: Transient: chain node unreachable" in capsys.readouterr().err
     recover_jobs(Handler(PermissionError("jobs/7/state.json")), print)
     assert "skipped: PermissionError" in capsys.readouterr().err
     recover_jobs(Handler({"reported": [4], "queued": [], "closed": [], "pruned": [2, 3]}), print)
     assert "reported [4], pruned [2, 3]" in capsys.readouterr().err
+    # two jobs deferred at start: retried (a failed pass keeps both), then one, then none left
+    later = Handler({"queued": [1], "deferred": [5, 8]}, Transient("still down"),
+                    {"queued": [5], "deferred": [8]}, {"closed": [8], "deferred": []})
+    thread = recover_jobs(later, print, retry_s=0.01)
+    assert thread is not None
+    thread.join(timeout=10)
+    assert not thread.is_alive() and later.results == []
+    assert [only for _, only in later.calls] == [None, {5, 8}, {5, 8}, {8}]
+    err = capsys.readouterr().err
+    assert "jobs recovered at start: queued [1], deferred [5, 8]" in err
+    assert "job recovery retried skipped: Transient: still down" in err
+    assert "jobs recovered retried: queued [5], deferred [8]" in err and "closed [8]" in err

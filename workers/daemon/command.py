@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import logging
 import os
+import threading
+import time
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -175,19 +177,49 @@ def worker_command(
     )
 
 
-def recover_jobs(handler: Any, enqueue: Any) -> None:
+#: Seconds between background retries of jobs whose recovery at start was deferred (doubling
+#: up to RECOVERY_RETRY_MAX_S).
+RECOVERY_RETRY_S = 30.0
+RECOVERY_RETRY_MAX_S = 600.0
+
+
+def recover_jobs(
+    handler: Any, enqueue: Any, *, retry_s: float = RECOVERY_RETRY_S, background: bool = True
+) -> threading.Thread | None:
     """Reconcile the job directories with the chain before consuming offers
     (``OfferHandler.recover``), and say what was done on stderr (Celery's logging is not set up
-    yet). Best effort: a node still down, or anything else that stops the scan, is reported and
-    the daemon starts anyway; the next start scans again."""
+    yet). Never fatal: jobs whose recovery failed (the node still down, a damaged job) are
+    named, and a daemon thread retries them (``recover(only=...)``) every ``retry_s`` seconds,
+    doubling, until none is left, so a job in hand whose message the broker lost is queued
+    again once the node is back, without another restart. Returns that thread, if any."""
+    pending = _recover_once(handler, enqueue, None, "at start")
+    if not pending or not background:
+        return None
+
+    def retry() -> None:
+        left, wait = pending, retry_s
+        while left:
+            time.sleep(wait)
+            left = _recover_once(handler, enqueue, left, "retried")
+            wait = min(wait * 2, RECOVERY_RETRY_MAX_S)
+
+    thread = threading.Thread(target=retry, name="job-recovery", daemon=True)
+    thread.start()
+    return thread
+
+
+def _recover_once(handler: Any, enqueue: Any, only: set[int] | None, when: str) -> set[int]:
+    """One ``recover`` pass, reported on stderr; the task ids left to retry (all of ``only``
+    when the pass itself failed; an empty set when a whole scan failed before any job)."""
     try:
-        done = handler.recover(enqueue)
+        done = handler.recover(enqueue, only=only)
     except Exception as exc:  # noqa: BLE001 - recovery never keeps a worker from serving
-        typer.echo(f"job recovery at start skipped: {type(exc).__name__}: {exc}", err=True)
-        return
+        typer.echo(f"job recovery {when} skipped: {type(exc).__name__}: {exc}", err=True)
+        return set(only or ())
     summary = ", ".join(f"{what} {ids}" for what, ids in done.items() if ids)
     if summary:
-        typer.echo(f"jobs recovered at start: {summary}", err=True)
+        typer.echo(f"jobs recovered {when}: {summary}", err=True)
+    return set(done.get("deferred", ()))
 
 
 def open_worker(key: Path, gateway: str | None, data: Path | None) -> Any:

@@ -30,13 +30,11 @@ from pathlib import Path
 from typing import Any
 
 from backend.store import CID, ContentStore, InvalidCID, StoreError, StoreUnavailable
-from backend.store.bundle import MODEL_FILES, read_bundle
+from backend.store.bundle import MAX_CARD_BYTES, MODEL_FILES, read_bundle
 from workers.mdrl.weightsfile import MAX_WEIGHTS_BYTES, WeightsFileError, check_weights_file
 
 EXPERTS_DIR = "experts"
 CAE_DIR = "cae"
-MAX_CARD_BYTES = 1 << 20
-"""Bound on an expert's card (the gateway's bound on cards it reads)."""
 
 class ExpertFetchError(ValueError):
     """An expert CID that cannot be used: the message names the CID and what is wrong."""

@@ -280,7 +280,9 @@ class OfferHandler:
             st.get("phase") not in ("trained", "uploaded")
             or not (model_dir / "model.json").is_file()
         ):
-            model_dir = self._train(task_id, spec, deadline=int(task["deadline"]))
+            # killed after training, before this record: the finished model, not more updates
+            finished = jobs.finished_training(self.job_dir(task_id), spec)
+            model_dir = finished or self._train(task_id, spec, deadline=int(task["deadline"]))
             st = self._save(  # model | best
                 task_id, phase="trained", model=model_dir.name, starts_without_progress=0
             )
@@ -375,9 +377,11 @@ class OfferHandler:
         for part in PRUNED:
             shutil.rmtree(self.job_dir(task_id) / part, ignore_errors=True)
 
-    def recover(self, enqueue: Callable[[int, str], None] | None = None) -> dict[str, list[int]]:
-        """Reconcile this chain's job directories with the chain at daemon start; returns the
-        task ids by what was done.
+    def recover(
+        self, enqueue: Callable[[int, str], None] | None = None, only: set[int] | None = None
+    ) -> dict[str, list[int]]:
+        """Reconcile this chain's job directories (or the tasks in ``only``) with the chain at
+        daemon start; returns the task ids by what was done.
 
         * ``reported``: failed jobs whose ``abandonOffer`` never reached the chain (the node was
           down when the job gave up) are given back now;
@@ -390,32 +394,64 @@ class OfferHandler:
           before its record) are recorded as submitted (``drlaas worker share`` needs that);
         * ``closed``: jobs in hand that the chain no longer holds (cancelled, closed, past the
           deadline) are closed;
-        * ``pruned``: finished jobs lose their checkpoint and fetched models (``_prune``).
-
-        The first chain call that fails for the node raises :class:`Transient` for the caller
-        to log; nothing is lost, the next start tries again."""
+        * ``pruned``: finished jobs lose their checkpoint and fetched models (``_prune``);
+        * ``deferred``: jobs whose reconciliation failed (the node down: after the first
+          :class:`Transient` the other jobs that need the chain are not tried; or an error of
+          that one job, logged). The rest of the scan goes on; the caller retries these with
+          ``only`` (``recover_jobs`` does, in the background)."""
         done: dict[str, list[int]] = {
-            "reported": [], "queued": [], "submitted": [], "closed": [], "pruned": []
+            "reported": [], "queued": [], "submitted": [], "closed": [], "pruned": [],
+            "deferred": [],
         }
+        node_down = False
         for tid, st in self._jobs():
+            if only is not None and tid not in only:
+                continue
             phase = st.get("phase")
-            if phase == "failed" and "offer" not in st:  # abandonOffer not confirmed
-                self._report_failure(tid)
-                done["reported"].append(tid)
-            elif phase in IN_HAND or phase is None:
-                settled = self._settle(tid, st)
-                if settled is not None:
-                    done[settled].append(tid)
+            needs_chain = (phase == "failed" and "offer" not in st) or phase in IN_HAND or (
+                phase is None
+            )
+            if needs_chain and node_down:
+                done["deferred"].append(tid)
+                continue
+            try:
+                what = self._recover_one(tid, st, enqueue)
+            except Transient as exc:
+                log.warning("task %s: recovery deferred: %s", tid, exc)
+                node_down = True
+                done["deferred"].append(tid)
+                continue
+            except Exception:  # one damaged job does not stop the others' recovery
+                log.exception("task %s: recovery deferred", tid)
+                done["deferred"].append(tid)
+                continue
+            if what is not None:
+                done[what].append(tid)
+                if what in ("submitted", "closed"):
                     continue  # _close pruned it
-                if phase is None:
-                    self._save(tid, phase="accepted", reason="job state rebuilt from the chain")
-                if enqueue is not None:
-                    enqueue(tid, self.address)
-                done["queued"].append(tid)
             if phase in FINISHED and any((self.job_dir(tid) / p).exists() for p in PRUNED):
                 self._prune(tid)
                 done["pruned"].append(tid)
         return done
+
+    def _recover_one(
+        self, tid: int, st: dict[str, Any], enqueue: Callable[[int, str], None] | None
+    ) -> str | None:
+        """What ``recover`` did with one job (None: nothing on chain to reconcile)."""
+        phase = st.get("phase")
+        if phase == "failed" and "offer" not in st:  # abandonOffer not confirmed
+            self._report_failure(tid)
+            return "reported"
+        if phase not in IN_HAND and phase is not None:
+            return None
+        settled = self._settle(tid, st)
+        if settled is not None:
+            return settled
+        if phase is None:
+            self._save(tid, phase="accepted", reason="job state rebuilt from the chain")
+        if enqueue is not None:
+            enqueue(tid, self.address)
+        return "queued"
 
     def _report_failure(self, task_id: int) -> dict[str, Any]:
         """Give the task back on chain (TMC ``abandonOffer``: the offer becomes Failed and the

@@ -17,6 +17,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import os
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -109,6 +110,22 @@ def delivered_model(job_dir: str | Path, spec: TrainingSpec) -> Path:
     """The model directory a job delivers: the run's final policy, or with the spec's
     ``selection.keep_best`` the best evaluated one (``Trainer.keep_if_best``)."""
     return run_dir(job_dir) / ("best" if spec.selection.keep_best else "model")
+
+
+#: Written by ``run_job`` once the delivered model is complete (weights, card with its curve):
+#: a job killed after that, before its handler recorded it, is not trained again.
+FINISHED_MARK = "delivered.json"
+
+
+def finished_training(job_dir: str | Path, spec: TrainingSpec) -> Path | None:
+    """The delivered model of a job whose training ran to the end (``FINISHED_MARK`` names
+    it and its card is there), else None."""
+    try:
+        name = json.loads((Path(job_dir) / FINISHED_MARK).read_text())["model"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    model = delivered_model(job_dir, spec)
+    return model if name == model.name and (model / "model.json").is_file() else None
 
 
 def has_checkpoint(job_dir: str | Path) -> bool:
@@ -204,6 +221,7 @@ def run_job(
     Each update appends a progress point to ``progress.jsonl`` and calls ``on_progress``."""
     job = Path(job_dir)
     job.mkdir(parents=True, exist_ok=True)
+    (job / FINISHED_MARK).unlink(missing_ok=True)  # this run delivers anew
     trainer = make_trainer(
         spec,
         job,
@@ -228,6 +246,9 @@ def run_job(
     metrics = trainer.train()
     model = delivered_model(job, spec)
     attach_curve(model, run_dir(job) / "metrics.csv")  # the card's training curve
+    mark = job / (FINISHED_MARK + ".tmp")
+    mark.write_text(json.dumps({"model": model.name, "global_step": trainer.global_step}))
+    os.replace(mark, job / FINISHED_MARK)
     chosen = trainer.best or {}  # set only when the spec keeps the best evaluated policy
     return model, {
         **metrics,

@@ -57,7 +57,7 @@ from backend.schemas.models import (
 )
 from backend.services.specs import SpecError, env_attributes, validate_env
 from backend.store import CIDMismatch, ContentTooLarge, NotFound, StoreError, StoreUnavailable
-from backend.store.bundle import bundle_entry, read_bundle
+from backend.store.bundle import MAX_CARD_BYTES, bundle_entry, read_bundle
 from backend.store.sealed import sealed_envelopes
 
 router = APIRouter(prefix="/models", tags=["models"])
@@ -66,7 +66,6 @@ ModelId = Annotated[int, Path(ge=1, le=MAX_ID)]
 AllocId = Annotated[int, Path(ge=1, le=MAX_ID)]
 TaskId = Annotated[int, Path(ge=1, le=MAX_ID)]
 BundleFile = Literal["model.safetensors", "model.json"]
-MAX_CARD_BYTES = 1 << 20
 MAX_CARD_DEPTH = 32
 HALF = 500_000
 MAX_REQUESTS_SHOWN = 20
