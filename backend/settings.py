@@ -136,6 +136,9 @@ class Settings(BaseSettings):
     task creation is a 422 ``spec_exceeds_worker_hours_limit``."""
     max_request_bytes: int = Field(default=2**20, ge=1024, le=2**30)
     """Largest request body the gateway reads (every route, before parsing: 413 above it)."""
+    body_timeout_s: float = Field(default=10.0, gt=0, le=3600)
+    """Seconds a client may take to send a request body; past it 408 ``body_timeout`` and the
+    connection is closed (a body trickled byte by byte holds nothing for longer)."""
     max_json_depth: int = Field(default=64, ge=2, le=1000)
     """Deepest bracket nesting a request body may have (checked before parsing: 422)."""
     faucet_interval_s: int = Field(default=60, ge=0, le=86_400)

@@ -83,6 +83,7 @@ def rule_responses(*codes: int) -> dict[int | str, dict[str, Any]]:
 
 
 SHARED_RESPONSES: dict[int, type[BaseModel]] = {
+    408: RuleErrorBody,  # BodyLimits: body not sent within body_timeout_s
     413: RuleErrorBody,  # BodyLimits: body over max_request_bytes
     422: UnprocessableBody,  # BodyLimits json_too_deep (rule) or field validation (list)
     503: RuleErrorBody,  # LoadShedder: overloaded, with Retry-After

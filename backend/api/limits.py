@@ -13,6 +13,7 @@ Accepted bodies are handed on unchanged. Refusals use the gateway's rule shape
 
 from __future__ import annotations
 
+import asyncio
 import re
 from typing import Any
 
@@ -58,12 +59,16 @@ def json_number_too_long(body: bytes) -> bool:
 
 
 class BodyLimits:
-    """ASGI middleware: refuse bodies over ``max_bytes`` or nested deeper than ``max_depth``."""
+    """ASGI middleware: refuse bodies over ``max_bytes``, nested deeper than ``max_depth``, or
+    not sent in full within ``timeout_s`` (408, connection closed)."""
 
-    def __init__(self, app: ASGIApp, *, max_bytes: int, max_depth: int) -> None:
+    def __init__(
+        self, app: ASGIApp, *, max_bytes: int, max_depth: int, timeout_s: float = 10.0
+    ) -> None:
         self.app = app
         self.max_bytes = max_bytes
         self.max_depth = max_depth
+        self.timeout_s = timeout_s
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] != "http":
@@ -75,8 +80,23 @@ class BodyLimits:
             return
         chunks: list[bytes] = []
         size = 0
+        deadline = asyncio.get_running_loop().time() + self.timeout_s
         while True:
-            message = await receive()
+            try:
+                message = await asyncio.wait_for(
+                    receive(), timeout=max(deadline - asyncio.get_running_loop().time(), 0)
+                )
+            except TimeoutError:
+                await _refuse(
+                    scope,
+                    receive,
+                    send,
+                    408,
+                    "body_timeout",
+                    f"request bodies must arrive within {self.timeout_s:g} s",
+                    close=True,
+                )
+                return
             if message["type"] == "http.disconnect":
                 return  # the client left; nothing to answer
             chunk = message.get("body", b"")

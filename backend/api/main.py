@@ -128,12 +128,17 @@ def create_app(
     app.state.page_cache = PageCache()  # list pages while the index stands still
     app.state.nonce_budget = GasBudget(settings.auth_nonces_per_minute)  # one per sign-in msg
     install_error_handlers(app)
-    app.add_middleware(
-        BodyLimits, max_bytes=settings.max_request_bytes, max_depth=settings.max_json_depth
-    )
-    # added later = further out: shedding answers before a body is read; metrics see the 503s
+    # added later = further out. A request counts as in flight once its body is read: bodies
+    # sent slowly (each bounded in size and time by BodyLimits) never hold the shedder's
+    # slots, so a few idle connections cannot answer everyone else 503; metrics see the 503s
     app.add_middleware(
         LoadShedder, limit=settings.max_in_flight, retry_after=settings.retry_after_s
+    )
+    app.add_middleware(
+        BodyLimits,
+        max_bytes=settings.max_request_bytes,
+        max_depth=settings.max_json_depth,
+        timeout_s=settings.body_timeout_s,
     )
     install_metrics(app, settings)  # GET /metrics, HTTP latency and errors (Prometheus)
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import threading
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any
@@ -177,6 +178,9 @@ class Chain:
         # an event signature (PaymentCredited in TMC and MMC).
         self._topics: dict[tuple[str, bytes], tuple[str, dict[str, Any]]] = {}
         self.fees_paid = 0  # native currency spent on gas by transactions sent through us
+        # nonce read -> send is one step per process: a second thread sending for the same key
+        # (the worker daemon's recovery retries beside its job) would otherwise reuse a nonce
+        self._send_lock = threading.Lock()
 
     # -- construction -------------------------------------------------------------------
     @classmethod
@@ -260,24 +264,8 @@ class Chain:
     def _send(self, fn: Any, sender: str, value: int) -> Receipt:
         if sender not in self._keys:
             raise KeyError(f"no signing key for sender {sender}; known: {self.accounts}")
-        base = self.w3.eth.get_block("latest").get("baseFeePerGas")
-        params: dict[str, Any] = {
-            "from": sender,
-            "value": value,
-            "nonce": self.w3.eth.get_transaction_count(sender, "pending"),
-            "chainId": self.chain_id,
-        }
-        if base is None:  # pre-London PoA chains (e.g. some Quorum/Besu setups): legacy tx
-            params["gasPrice"] = self.w3.eth.gas_price
-        else:
-            params["maxPriorityFeePerGas"] = 0  # consortium chain: no tips
-            params["maxFeePerGas"] = 2 * base
-        with _typed_reverts():
-            gas = fn.estimate_gas({k: params[k] for k in ("from", "value")})
-        params["gas"] = min(int(gas * GAS_MARGIN) + 10_000, 30_000_000)
-        tx = fn.build_transaction(params)
-        signed = self._keys[sender].sign_transaction(tx)
-        tx_hash = self.w3.eth.send_raw_transaction(signed.raw_transaction)
+        with self._send_lock:
+            tx, tx_hash = self._sign_and_send(fn, sender, value)
         raw = self.w3.eth.wait_for_transaction_receipt(tx_hash, timeout=120)
         receipt = Receipt(
             tx_hash="0x" + bytes(tx_hash).hex(),
@@ -296,6 +284,29 @@ class Chain:
                 fn.call({"from": sender, "value": value}, block_identifier=raw["blockNumber"] - 1)
             raise errors.UnknownRevert({"tx": receipt.tx_hash})
         return receipt
+
+    def _sign_and_send(self, fn: Any, sender: str, value: int) -> tuple[dict[str, Any], Any]:
+        """Build ``fn``'s transaction at the sender's next nonce, sign it and send it raw;
+        (the transaction, its hash). Called under ``_send_lock``."""
+        base = self.w3.eth.get_block("latest").get("baseFeePerGas")
+        params: dict[str, Any] = {
+            "from": sender,
+            "value": value,
+            "nonce": self.w3.eth.get_transaction_count(sender, "pending"),
+            "chainId": self.chain_id,
+        }
+        if base is None:  # pre-London PoA chains (e.g. some Quorum/Besu setups): legacy tx
+            params["gasPrice"] = self.w3.eth.gas_price
+        else:
+            params["maxPriorityFeePerGas"] = 0  # consortium chain: no tips
+            params["maxFeePerGas"] = 2 * base
+        with _typed_reverts():
+            gas = fn.estimate_gas({k: params[k] for k in ("from", "value")})
+        params["gas"] = min(int(gas * GAS_MARGIN) + 10_000, 30_000_000)
+        tx = fn.build_transaction(params)
+        signed = self._keys[sender].sign_transaction(tx)
+        tx_hash = self.w3.eth.send_raw_transaction(signed.raw_transaction)
+        return tx, tx_hash
 
     def _decode_logs(self, logs: list[Any]) -> list[Event]:
         out = []

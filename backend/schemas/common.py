@@ -45,18 +45,25 @@ T = TypeVar("T")
 def _not_bool(v: Any) -> Any:
     if isinstance(v, bool):
         raise ValueError("a count is a number, not true/false")
+    if isinstance(v, str):
+        raise ValueError("a count is a JSON number, not a string")
     return v
 
 
-Count = Annotated[int, BeforeValidator(_not_bool)]
-"""An integer as JSON Schema has it (``3`` or ``3.0``), but never ``true``: pydantic's lax int
-takes a boolean as 0 or 1."""
+JSON_NUMBER_ONLY = BeforeValidator(_not_bool)
+"""Put after a ``Field`` with bounds (before it, pydantic writes ge/le into the schema, not
+minimum/maximum)."""
+Count = Annotated[int, JSON_NUMBER_ONLY]
+"""An integer as JSON Schema has it (``3`` or ``3.0``), but never ``true`` or ``"3"``:
+pydantic's lax int takes a boolean as 0 or 1 and a numeric string as its number."""
 Domain = Annotated[
     int,
     Field(ge=0, le=MAX_DOMAIN, description=f"domain code 0-{MAX_DOMAIN}"),
-    BeforeValidator(_not_bool),  # after Field: before it, pydantic writes ge/le, not minimum
+    JSON_NUMBER_ONLY,
 ]
-Review = Annotated[int, Field(ge=0, le=5, description="review score 0-5")]
+Review = Annotated[
+    int, Field(ge=0, le=5, description="review score 0-5"), JSON_NUMBER_ONLY
+]
 Fraction = Annotated[float, Field(ge=0.0, le=1.0, description="QoS value in [0, 1]")]
 
 
@@ -104,8 +111,9 @@ def Wei(upper_bits: int) -> Any:  # noqa: N802 - a type factory
 
 
 def to_fixed(x: float) -> int:
-    """[0, 1] -> contract fixed point (ONE = 1e6), rounded down."""
-    return int(x * ONE)
+    """[0, 1] -> contract fixed point (ONE = 1e6), to the nearest unit: 0.0642 is 64200, not
+    the 64199 that truncating 0.0642 * 1e6 (64199.99...) gives."""
+    return round(x * ONE)
 
 
 def from_fixed(v: int) -> float:

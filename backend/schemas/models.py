@@ -13,7 +13,18 @@ from .cards import (
     HeldoutPublic,
     TrainedPublic,
 )
-from .common import MAX_ID, CidStr, Domain, Fraction, ListPublic, PlainText, Review, Wei
+from .common import (
+    JSON_NUMBER_ONLY,
+    MAX_ID,
+    CidStr,
+    Count,
+    Domain,
+    Fraction,
+    ListPublic,
+    PlainText,
+    Review,
+    Wei,
+)
 
 EnvDocument = Annotated[
     dict[str, Any], WithJsonSchema(trainingspec_json_schema()["properties"]["env"])
@@ -127,7 +138,7 @@ class ModelRequestCreate(BaseModel):
 
     domain: Domain = 0
     env: EnvDocument = Field(description="EnvSpec the models should fit")
-    num_models: int = Field(default=1, ge=1, le=16)
+    num_models: Count = Field(default=1, ge=1, le=16)
     metric: Literal["model", "sharing"] = "sharing"
     min_reputation: Fraction = 0.0
     min_rating: Fraction = 0.0
@@ -137,7 +148,7 @@ class ModelRequestCreate(BaseModel):
         description="wei paid per model to its owner; none = the MMC's minimum price "
         "(minModelPrice, set by the consortium; a lower price is a 422 price_below_minimum)",
     )
-    weights: list[Annotated[int, Field(ge=0, le=WEIGHT_ONE)]] = Field(
+    weights: list[Annotated[int, Field(ge=0, le=WEIGHT_ONE), JSON_NUMBER_ONLY]] = Field(
         default_factory=list,
         max_length=ENV_ATTRIBUTE_COUNT,
         description=f"none (equal weights) or one per env attribute, in fixed point summing to "
@@ -179,7 +190,7 @@ class AllocationDetailPublic(BaseModel):
 
 
 class ModelReviewCreate(BaseModel):
-    model_id: int = Field(ge=1, le=MAX_ID)
+    model_id: Count = Field(ge=1, le=MAX_ID)
     review: Review
 
 

@@ -1,5 +1,6 @@
 from __future__ import annotations
 
+import math
 from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, WithJsonSchema, model_validator
@@ -154,7 +155,7 @@ class ProgressCreate(BaseModel):
     model_config = ConfigDict(
         extra="allow",
         json_schema_extra={
-            "additionalProperties": {"type": "number"},
+            "additionalProperties": {"type": "number", "minimum": -1e300, "maximum": 1e300},
             "propertyNames": {"maxLength": 64},
             "maxProperties": 4 + MAX_EXTRA_METRICS,
         },
@@ -174,6 +175,9 @@ class ProgressCreate(BaseModel):
         for k, v in extra.items():
             if len(k) > 64 or isinstance(v, bool) or not isinstance(v, int | float):
                 raise ValueError(f"extra metric {k[:64]!r} must be a number with a short name")
+            if abs(v) > 1e300 or not math.isfinite(v):  # NaN, Infinity, 1e400; huge integers
+                raise ValueError(f"extra metric {k[:64]!r} must be a finite number in "
+                                 "[-1e300, 1e300]")
         return self
 
 

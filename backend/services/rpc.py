@@ -144,14 +144,18 @@ class EmbeddedRpc:
 
     def handle(self, payload: Any, client: str = "local") -> Any:
         """One JSON-RPC request object or a batch (list) from ``client`` (its address: the
-        gas budget is per client); returns the response(s)."""
+        gas budget is per client). A remote client's ``eth_getLogs`` calls of one batch span
+        MAX_LOG_BLOCKS blocks together, as one call may: a batch is one request."""
+        log_blocks = [MAX_LOG_BLOCKS]  # what this request's eth_getLogs may still span
         if isinstance(payload, list):
             if not payload or len(payload) > MAX_BATCH:
                 return _error(None, INVALID_REQUEST, f"batch must hold 1..{MAX_BATCH} requests")
-            return [self._one(p, client) for p in payload]
-        return self._one(payload, client)
+            return [self._one(p, client, log_blocks) for p in payload]
+        return self._one(payload, client, log_blocks)
 
-    def _one(self, req: Any, client: str = "local") -> dict[str, Any]:
+    def _one(
+        self, req: Any, client: str = "local", log_blocks: list[int] | None = None
+    ) -> dict[str, Any]:
         if not isinstance(req, dict) or not isinstance(req.get("method"), str):
             return _error(None, INVALID_REQUEST, "a request is an object with a string 'method'")
         rid = req.get("id")
@@ -168,7 +172,7 @@ class EmbeddedRpc:
             )
         try:
             with self.lock:
-                result = self._dispatch(method, params, client)
+                result = self._dispatch(method, params, client, log_blocks)
         except _RpcFailure as exc:
             return _error(rid, exc.code, exc.message, exc.data)
         except (InvalidParams, TesterValidationError) as exc:
@@ -188,7 +192,10 @@ class EmbeddedRpc:
             return _error(rid, INTERNAL_ERROR, f"{type(exc).__name__}: {exc}")
         return {"jsonrpc": "2.0", "id": rid, "result": _quantities(result)}
 
-    def _dispatch(self, method: str, params: list[Any], client: str = "local") -> Any:
+    def _dispatch(
+        self, method: str, params: list[Any], client: str = "local",
+        log_blocks: list[int] | None = None,
+    ) -> Any:
         if method == "eth_accounts":
             return []  # the node holds no keys for anyone
         params = normalize(method, params, self.chain.chain_id, self._block_number_of)
@@ -205,7 +212,7 @@ class EmbeddedRpc:
             if params[0] is None:
                 return []
             if client not in UNMETERED:
-                self._check_log_span(params[0])
+                self._check_log_span(params[0], log_blocks or [MAX_LOG_BLOCKS])
         response = self._request(method, params)
         if "error" in response:
             err = response["error"]
@@ -287,19 +294,24 @@ class EmbeddedRpc:
             if wait:
                 raise _gas_used_up(self.budget, wait)
 
-    def _check_log_span(self, flt: dict[str, Any]) -> None:
+    def _check_log_span(self, flt: dict[str, Any], left: list[int]) -> None:
+        """Refuse a filter spanning more blocks than ``left[0]`` (the request's remaining span
+        of MAX_LOG_BLOCKS); take its span off otherwise."""
         head = int(self.tester.get_block_by_number("latest")["number"])
 
         def number(at: Any) -> int:
             return 0 if at == "earliest" else at if isinstance(at, int) else head
 
         start, end = number(flt.get("fromBlock", "latest")), number(flt.get("toBlock", "latest"))
-        if end - start + 1 > MAX_LOG_BLOCKS:
+        span = max(end - start + 1, 1)
+        if span > left[0]:
             raise _RpcFailure(
                 LIMIT_EXCEEDED,
-                f"eth_getLogs spans {end - start + 1} blocks; at most {MAX_LOG_BLOCKS} from "
-                "remote clients (read history from the REST API's index)",
+                f"eth_getLogs spans {span} blocks; at most {MAX_LOG_BLOCKS} per request "
+                f"(a batch's calls together; {left[0]} left) from remote clients (read history "
+                "from the REST API's index)",
             )
+        left[0] -= span
 
     def _up_to_head(self, flt: dict[str, Any]) -> dict[str, Any] | None:
         """A log filter with block numbers past the head clamped to it (geth's rule); None if

@@ -44,7 +44,7 @@ def read_bundle(store: Any, cid: str) -> dict[str, tuple[str, int]]:
     raw = store.get(cid, max_size=MAX_MANIFEST_BYTES)
     try:
         doc = json.loads(raw)
-    except ValueError:
+    except (ValueError, RecursionError):  # RecursionError: nested past the parser's depth
         raise InvalidContent(f"{cid} is not a JSON bundle manifest") from None
     if not isinstance(doc, dict) or doc.get("format") != BUNDLE_FORMAT:
         raise InvalidContent(f"{cid} is not a {BUNDLE_FORMAT} manifest")

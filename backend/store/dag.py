@@ -31,6 +31,18 @@ MAX_LINKS = 174
 """Default maximum number of links per node of the balanced layout."""
 MAX_BLOCK_SIZE = 2 * 2**20
 """Largest block accepted when reading (IPFS nodes refuse blocks above ~2 MiB as well)."""
+MIN_MEAN_LEAF = 16 * 1024
+"""Reading ``max_size`` bytes visits at most ``max_blocks(max_size)`` blocks: leaves of 16 KiB
+on average or more (IPFS chunkers cut 256 KiB, buzhash and rabin at least 128 KiB), so blocks
+that carry no bytes (links of size 0, chains of one-link nodes) cannot make a few kB of DAG
+cost millions of reads."""
+
+
+def max_blocks(max_size: int, min_mean_leaf: int = MIN_MEAN_LEAF) -> int:
+    """Blocks ``read_file`` visits at most for a file of at most ``max_size`` bytes: the
+    leaves of ``min_mean_leaf`` bytes, as many inner nodes, and some slack for a small file's
+    tree."""
+    return 16 + 2 * -(-max(max_size, 0) // min_mean_leaf)
 
 ADD_PARAMS = {
     "cid-version": "1",
@@ -291,19 +303,32 @@ BlockSource = Callable[[CID, int], bytes]
 (a source may raise :class:`ContentTooLarge` itself once the limit is passed)."""
 
 
-def read_file(root: CID, get_block: BlockSource, *, max_size: int) -> Iterator[bytes]:
+def read_file(
+    root: CID, get_block: BlockSource, *, max_size: int, min_mean_leaf: int = MIN_MEAN_LEAF
+) -> Iterator[bytes]:
     """Yield the bytes of the UnixFS file ``root``, depth first, verifying every block against
     the CID it was fetched by (:class:`CIDMismatch` otherwise).
 
     Sizes are bounded: the root's declared filesize is checked before any child is fetched, a
     raw root is fetched with ``max_size`` as its limit, and the running total is checked again as
     bytes arrive, so a node lying about sizes cannot make us read more than ``max_size``.
+    Nor more blocks than ``max_blocks(max_size, min_mean_leaf)``, and a link below the root must carry bytes:
+    :class:`InvalidContent` otherwise (a DAG of empty links would be read without end).
     """
     total = 0
     first = True
     stack: list[tuple[CID, int | None]] = [(root, None)]
+    budget = limit_blocks = max_blocks(max_size, min_mean_leaf)
     while stack:
         cid, expected_size = stack.pop()
+        budget -= 1
+        if budget < 0:
+            raise InvalidContent(
+                f"{root} needs more than {limit_blocks} blocks for at most {max_size} "
+                f"bytes (leaves under {min_mean_leaf} bytes on average are not read)"
+            )
+        if expected_size == 0:
+            raise InvalidContent(f"{root} links {cid} with a size of 0: no file has such a link")
         limit = MAX_BLOCK_SIZE if cid.codec == DAG_PB else min(MAX_BLOCK_SIZE, max_size - total)
         if first and cid.codec == RAW:
             limit = max_size

@@ -124,6 +124,14 @@ def test_remote_log_queries_span_a_bounded_number_of_blocks(
     head = service.chain.w3.eth.block_number
     recent = {"fromBlock": hex(head - MAX_LOG_BLOCKS + 1)}
     assert call(rpc, "eth_getLogs", [recent], "198.51.100.7")["result"] == []
+    # a batch is one request: its calls share the span (50 calls of 500 blocks: one answered)
+    half = {"fromBlock": hex(head - MAX_LOG_BLOCKS // 2 + 1)}
+    batch = [{"jsonrpc": "2.0", "id": i, "method": "eth_getLogs", "params": [f]}
+             for i, f in enumerate([half, half, half, recent])]
+    out = rpc.handle(batch, "198.51.100.7")
+    assert [("result" in r) for r in out] == [True, True, False, False]
+    assert out[2]["error"]["code"] == LIMIT_EXCEEDED and "0 left" in out[2]["error"]["message"]
+    assert all("result" in r for r in rpc.handle(batch, "local"))  # the gateway's own reads
 
 
 def test_fee_rewards_are_read_over_at_most_128_blocks(rpc: EmbeddedRpc) -> None:

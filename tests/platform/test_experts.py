@@ -202,8 +202,10 @@ def test_an_expert_whose_card_no_worker_can_use_is_declined_not_failed(
         {"format": card["format"], "env": card["env"]}).encode()})
     h = OfferHandler(account=p.chain._keys[p.chain.accounts[2]], platform=p, store=store,
                      data_dir=tmp_path / "w")
+    full_maps = upload_model(store, EXPERT.parent / "dmtl-3a")  # reads 10x10 maps only
     for cid, bound, why in ((no_observation, h.max_expert_bytes, "model.json: "),
-                            (upload_model(store, EXPERT), 1000, "more than the bound of 1000")):
+                            (upload_model(store, EXPERT), 1000, "more than the bound of 1000"),
+                            (full_maps, h.max_expert_bytes, "cannot serve the task: DMTL")):
         h.max_expert_bytes = bound
         task_id, offered, _ = post_task(p, store, actors.requester, spec={
             **TINY_SPEC, "experts": [cid]})
@@ -322,7 +324,12 @@ def test_a_task_naming_a_walls_cae_trains_with_it_and_the_card_names_its_cid(
     assert not (h.job_dir(task_id) / "cae").exists()  # removed once submitted (_prune)
 
 
-def test_a_walls_cae_that_is_not_one_fails_the_job_naming_its_cid(env, store, tmp_path) -> None:
+def test_a_walls_cae_that_is_not_one_or_misses_the_grid_is_declined_naming_its_cid(
+    env, store, tmp_path
+) -> None:
+    """Checked before accepting (the card alone tells): a policy where the CAE belongs, a CAE
+    for another grid and a CID the store does not hold are declined, not accepted and then
+    failed on chain."""
     p, actors = env
     policy = upload_model(store, EXPERT)  # a policy's bundle where a CAE belongs
     with pytest.raises(ExpertFetchError) as err:
@@ -330,20 +337,20 @@ def test_a_walls_cae_that_is_not_one_fails_the_job_naming_its_cid(env, store, tm
     reason = err.value.reason
     assert "not a walls CAE card" in reason
     assert not list((tmp_path / "job" / "cae").glob("*/model.json"))  # nothing kept
-    task_id, offered, _ = post_task(p, store, actors.requester, spec=cae_spec(policy))
-    h = OfferHandler(
-        account=p.chain._keys[offered[0]], platform=p, store=store, data_dir=tmp_path / "w"
-    )
-    out = h.handle(task_id, offered[0])
-    assert out["status"] == "failed" and f"expert {policy}" in out["reason"]
-    assert "walls CAE" in out["reason"]
     wrong_grid = upload_model(store, walls_cae(tmp_path / "big", grid=(8, 8)))
-    task_id, offered, _ = post_task(p, store, actors.requester, spec=cae_spec(wrong_grid))
-    h2 = OfferHandler(
-        account=p.chain._keys[offered[0]], platform=p, store=store, data_dir=tmp_path / "w2"
-    )
-    out = h2.handle(task_id, offered[0])  # a CAE for another grid: the mismatch is named
-    assert out["status"] == "failed" and "8x8" in out["reason"], out
+    missing = "bafkreigh2akiscaildcqabsyg3dfr6chu3fgpregiymsck7e7aqa4s52zy"
+    for n, (ref, named) in enumerate(
+        [(policy, "walls CAE"), (wrong_grid, "8x8"), (missing, missing)]
+    ):
+        task_id, offered, _ = post_task(p, store, actors.requester, spec=cae_spec(ref))
+        h = OfferHandler(
+            account=p.chain._keys[offered[0]], platform=p, store=store,
+            data_dir=tmp_path / f"w{n}",
+        )
+        out = h.handle(task_id, offered[0])
+        assert out["status"] == "declined" and f"expert {ref}" in out["reason"], out
+        assert named in out["reason"], out
+        assert p.tmc.offer(task_id, offered[0])["state"] == OfferState.DECLINED
 
 
 def test_the_expert_credit_rule_and_rate_schedule_of_a_spec_reach_the_selector(

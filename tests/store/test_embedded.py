@@ -155,3 +155,51 @@ def test_make_store_specs(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match="ftp://x"):
         make_store("ftp://x")
     assert not os.path.exists("embedded")
+
+
+def _file_node(links: list[tuple[CID, int]]) -> tuple[CID, bytes]:
+    from backend.store.cid import DAG_PB
+    from backend.store.dag import UNIXFS_FILE, UnixFSData, encode_pbnode
+
+    sizes = [size for _, size in links]
+    data = UnixFSData(UNIXFS_FILE, None, sum(sizes), sizes).encode()
+    block = encode_pbnode(links, data)
+    return CID.for_block(block, DAG_PB), block
+
+
+def test_dags_that_cost_blocks_without_bytes_are_refused(store: EmbeddedStore) -> None:
+    """A few kB of DAG must not cost millions of reads: links of size 0 (N x N visits of one
+    empty leaf) and chains of one-link nodes (a block each, no byte) are refused, naming the
+    root, after a bounded number of block reads; real files of any size still read."""
+    from backend.store import InvalidContent
+    from backend.store.dag import max_blocks
+
+    reads = {"n": 0}
+    real = store._read_block
+
+    def counted(cid: CID, max_bytes: int) -> bytes:
+        reads["n"] += 1
+        return real(cid, max_bytes)
+
+    store._read_block = counted  # type: ignore[method-assign]
+    empty = CID.for_block(b"", RAW)
+    store._put_block(empty, b"")
+    mid, mid_block = _file_node([(empty, 0)] * 300)
+    store._put_block(mid, mid_block)
+    root, root_block = _file_node([(mid, 0)] * 300)
+    store._put_block(root, root_block)
+    with pytest.raises(InvalidContent, match=f"{root} links .* size of 0"):
+        store.get(str(root), max_size=MiB)
+    assert reads["n"] <= 3
+    leaf = CID.for_block(b"x", RAW)  # 1 byte under 5,000 one-link nodes
+    store._put_block(leaf, b"x")
+    top = leaf
+    for _ in range(5_000):
+        top, block = _file_node([(top, 1)])
+        store._put_block(top, block)
+    reads["n"] = 0
+    with pytest.raises(InvalidContent, match=f"more than {max_blocks(MiB)} blocks"):
+        store.get(str(top), max_size=MiB)
+    assert reads["n"] == max_blocks(MiB) < 200
+    data = random.Random(3).randbytes(3 * MiB + 5)
+    assert store.get(store.add(data), max_size=len(data)) == data

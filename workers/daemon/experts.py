@@ -106,15 +106,49 @@ def _fetch_verified(
 
 
 def check_expert_card(
-    store: ContentStore, ref: str, *, max_weights: int = MAX_WEIGHTS_BYTES
+    store: ContentStore, ref: str, *, max_weights: int = MAX_WEIGHTS_BYTES, task: Any = None
 ) -> dict[str, Any]:
     """The checks of an expert that need only its manifest and card (at most MAX_CARD_BYTES),
     run before a worker accepts an offer: a requester naming a model no worker can use (the
-    gateway's bundle check is looser than this) gets its offers declined, not a worker's job
-    failed on chain after acceptance. The weights are fetched and checked after acceptance."""
+    gateway's bundle check is looser than this), or one that cannot serve the task's EnvSpec
+    ``task`` (``experts.expert_misfit``), gets its offers declined, not a worker's job failed
+    on chain after acceptance. The weights are fetched and checked after acceptance."""
+    from workers.mdrl.experts import expert_misfit
+    from workers.mdrl.modelio import card_observation
+    from workers.mdrl.trainingspec import parse_env
+
     with tempfile.TemporaryDirectory(prefix="drlaas-card-") as tmp:
         _download(store, ref, Path(tmp), max_weights, only=("model.json",))
-        return check_card(Path(tmp) / "model.json", ref)
+        card = check_card(Path(tmp) / "model.json", ref)
+    if task is not None:
+        obs = card_observation(card)
+        why = expert_misfit(parse_env(card["env"], "env"), str(obs.get("kind", "")),
+                            bool(obs.get("walls_embedding")), task)
+        if why is not None:
+            raise ExpertFetchError(ref, f"this expert cannot serve the task: {why}")
+    return card
+
+
+def check_walls_cae_card(
+    store: ContentStore,
+    ref: str,
+    *,
+    max_weights: int = MAX_WEIGHTS_BYTES,
+    grid: tuple[int, int] | None = None,
+) -> dict[str, Any]:
+    """``check_expert_card`` for a task's walls CAE (``observation.walls_embedding``): its
+    manifest and card, and that it reads the task's ``grid`` (rows, cols), before a worker
+    accepts the offer."""
+    with tempfile.TemporaryDirectory(prefix="drlaas-card-") as tmp:
+        _download(store, ref, Path(tmp), max_weights, only=("model.json",))
+        card = check_cae_card(Path(tmp) / "model.json", ref)
+    if grid is not None and tuple(card["grid"]) != tuple(grid):
+        rows, cols = card["grid"]
+        raise ExpertFetchError(
+            ref, f"this walls CAE reads {rows}x{cols} maps; the task's grid is "
+            f"{grid[0]}x{grid[1]}"
+        )
+    return card
 
 
 def _download(
@@ -193,7 +227,7 @@ def check_card(path: Path, ref: str) -> dict[str, Any]:
             raise TypeError("actor_shape must be a list")
     except SpecError as exc:
         raise ExpertFetchError(ref, f"model.json: {exc} (bounds of a task spec)") from None
-    except (KeyError, TypeError, ValueError, AttributeError) as exc:
+    except (KeyError, TypeError, ValueError, AttributeError, ArithmeticError) as exc:
         raise ExpertFetchError(
             ref,
             f"model.json: its env/observation cannot be rebuilt here ({type(exc).__name__}: {exc})",

@@ -53,6 +53,7 @@ from workers.daemon.experts import (
     MAX_WEIGHTS_BYTES,
     ExpertFetchError,
     check_expert_card,
+    check_walls_cae_card,
     expert_key,
     fetch_experts,
     fetch_walls_cae,
@@ -60,7 +61,7 @@ from workers.daemon.experts import (
 from workers.daemon.gateway import Gateway, GatewayError
 from workers.daemon.links import task_spec_cid
 from workers.mdrl.env import TargetLocalizationEnv
-from workers.mdrl.resources import estimate
+from workers.mdrl.resources import estimate, update_seconds
 from workers.mdrl.trainingspec import MAX_SPEC_BYTES, SpecError, TrainingSpec
 
 log = logging.getLogger(__name__)
@@ -150,8 +151,9 @@ class OfferHandler:
     # -- job state -------------------------------------------------------------------------
     def _state(self, task_id: int) -> dict[str, Any]:
         """The job's state.json; {} when there is none. An unreadable one (a disk fault: the
-        writes are atomic) is set aside as ``state.json.unreadable-<time>`` and logged, and the
-        job goes on from what the chain says (its checkpoint, if any, resumes it)."""
+        writes are atomic) is set aside as ``state.json.unreadable-<time>`` and logged, an empty
+        one takes its place (the directory stays a job that recovery sees), and the job goes on
+        from what the chain says (its checkpoint, if any, resumes it)."""
         f = self.job_dir(task_id) / "state.json"
         if not f.is_file():
             return {}
@@ -160,11 +162,12 @@ class OfferHandler:
             if not isinstance(state, dict):
                 raise ValueError("not a JSON object")
             return state
-        except (OSError, ValueError) as exc:
+        except (OSError, ValueError, RecursionError) as exc:
             kept = f.with_name(f"state.json.unreadable-{int(self.clock())}")
             os.replace(f, kept)
+            f.write_text("{}")  # still a job directory: recovery rebuilds it from the chain
             log.error("task %s: job state %s unreadable (%s), set aside as %s", task_id, f,
-                      exc, kept.name)
+                      type(exc).__name__, kept.name)
             return {}
 
     def _save(self, task_id: int, **changes: Any) -> dict[str, Any]:
@@ -197,7 +200,7 @@ class OfferHandler:
         held by work nobody can submit."""
         out = []
         for tid, st in self._jobs():
-            if tid == exclude or st.get("phase") not in IN_HAND:
+            if tid == exclude or st.get("phase") in FINISHED:
                 continue
             if self._settle(tid, st) is None:
                 out.append(tid)
@@ -253,7 +256,9 @@ class OfferHandler:
             return self._report_failure(task_id)
         spec = self._fetch_spec(task_id)
         if state == OfferState.OFFERED:
-            reason = self._cannot_take(task_id, spec, str(task["requester"]))
+            reason = self._cannot_take(
+                task_id, spec, str(task["requester"]), deadline=int(task["deadline"])
+            )
             if reason is not None:
                 self._transact("declineOffer", task_id)
                 self._save(task_id, phase="declined", reason=reason)
@@ -314,7 +319,7 @@ class OfferHandler:
 
     # -- capacity and failure --------------------------------------------------------------
     def _cannot_take(
-        self, task_id: int, spec: TrainingSpec | SpecError, requester: str
+        self, task_id: int, spec: TrainingSpec | SpecError, requester: str, *, deadline: int
     ) -> str | None:
         """Why this worker must decline the offer (None: it can take it)."""
         if isinstance(spec, SpecError):
@@ -328,10 +333,17 @@ class OfferHandler:
             for ref in spec.experts:
                 expert_key(ref)
             if spec.observation.walls_embedding is not None:
-                expert_key(spec.observation.walls_embedding)
+                check_walls_cae_card(
+                    self.store,
+                    spec.observation.walls_embedding,
+                    max_weights=self.max_expert_bytes,
+                    grid=(spec.env.rows, spec.env.cols),
+                )
             demo = spec.demonstration()
             for ref in demo.experts if demo is not None else ():
-                check_expert_card(self.store, ref, max_weights=self.max_expert_bytes)
+                check_expert_card(
+                    self.store, ref, max_weights=self.max_expert_bytes, task=spec.env
+                )
         except ExpertFetchError as exc:
             return str(exc)
         except StoreUnavailable as exc:
@@ -345,6 +357,13 @@ class OfferHandler:
             return (
                 f"spec_exceeds_worker_memory: needs about {need / 2**30:.3g} GiB, this worker "
                 f"has {share / 2**30:.3g} GiB per job"
+            )
+        left_s = deadline - self.clock() - DEADLINE_MARGIN_S
+        one_update_s = update_seconds(spec)  # the time budget is checked between updates only
+        if one_update_s > left_s:
+            return (
+                f"deadline: one PPO update of this spec takes about {one_update_s:.0f} s "
+                f"(resource model), the task's deadline leaves {max(left_s, 0):.0f} s"
             )
         try:  # walls the spec's bounds allow can still leave the team no room (env.LayoutError)
             TargetLocalizationEnv(spec.env, 1, seed=spec.seed)
@@ -408,9 +427,7 @@ class OfferHandler:
             if only is not None and tid not in only:
                 continue
             phase = st.get("phase")
-            needs_chain = (phase == "failed" and "offer" not in st) or phase in IN_HAND or (
-                phase is None
-            )
+            needs_chain = phase not in FINISHED or (phase == "failed" and "offer" not in st)
             if needs_chain and node_down:
                 done["deferred"].append(tid)
                 continue
@@ -442,12 +459,12 @@ class OfferHandler:
         if phase == "failed" and "offer" not in st:  # abandonOffer not confirmed
             self._report_failure(tid)
             return "reported"
-        if phase not in IN_HAND and phase is not None:
+        if phase in FINISHED:
             return None
         settled = self._settle(tid, st)
         if settled is not None:
             return settled
-        if phase is None:
+        if phase not in IN_HAND:  # none (rebuilt) or not a phase this daemon writes
             self._save(tid, phase="accepted", reason="job state rebuilt from the chain")
         if enqueue is not None:
             enqueue(tid, self.address)
@@ -464,6 +481,13 @@ class OfferHandler:
         except Transient:
             raise
         except ContractError as exc:  # e.g. the task was closed meanwhile: nothing to give back
+            with chain_call(f"reading the offer of task {task_id}"):
+                now = OfferState(self.platform.tmc.offer(task_id, self.address)["state"])
+            cid = self._state(task_id).get("cid")
+            if now in (OfferState.SUBMITTED, OfferState.REVIEWED) and cid:
+                # a submitOutcome whose receipt wait gave up was mined after all
+                self._close(task_id, phase="submitted", offer=now.name.lower())
+                return {"task_id": task_id, "status": "submitted", "cid": cid}
             log.warning("task %s: giving the failed job back refused: %s", task_id, exc)
             self._save(task_id, offer=f"not abandoned: {exc.name}")  # recover: nothing to redo
             return out | {"offer": f"not abandoned: {exc.name}"}
@@ -522,7 +546,7 @@ class OfferHandler:
         time, not off the margin). A start counts against MAX_STARTS_WITHOUT_PROGRESS only
         once the fetches are done: a store outage is not a process dying."""
         st = self._state(task_id)
-        starts = int(st.get("starts_without_progress", 0))
+        starts = _count(st, "starts_without_progress")
         if starts >= MAX_STARTS_WITHOUT_PROGRESS:
             raise JobKeepsDying(
                 f"training was started {starts} times and its process died each time before "
@@ -536,7 +560,8 @@ class OfferHandler:
         self._save(task_id, starts_without_progress=starts + 1)
 
         def first(step: int) -> None:
-            before = self._state(task_id).get("resumed_from_step")
+            st = self._state(task_id)
+            before = _count(st, "resumed_from_step") if "resumed_from_step" in st else None
             moved = {"starts_without_progress": 1} if before is not None and step > before else {}
             self._save(task_id, first_step_at=self.clock(), resumed_from_step=step, **moved)
             if self.on_first_step is not None:
@@ -624,6 +649,13 @@ class OfferHandler:
         self.progress_errors += 1
         if self.progress_errors <= 3:
             log.warning("progress point of task %s not posted: %s", task_id, exc)
+
+
+def _count(state: dict[str, Any], key: str) -> int:
+    """A counter of ``state.json``; 0 when it is not a count (a damaged or hand-edited file
+    must not fail the job)."""
+    v = state.get(key, 0)
+    return v if isinstance(v, int) and not isinstance(v, bool) and v >= 0 else 0
 
 
 def _task_dir_name(name: str) -> bool:

@@ -255,6 +255,26 @@ def action_map(expert_moves: int, task_moves: int) -> np.ndarray:
     return np.array([task.get(tuple(m), -1) for m in MOVES[expert_moves].tolist()], np.int64)
 
 
+def expert_misfit(exp: Any, kind: str, walls_encoder: bool, task: Any) -> str | None:
+    """Why an expert trained on EnvSpec ``exp`` with inputs of ``kind`` (and a walls encoder)
+    cannot serve a task on EnvSpec ``task``; None when the adapter can serve it. Needs only
+    the expert's card, so a worker checks it before accepting an offer."""
+    grid, task_grid = (exp.rows, exp.cols), (task.rows, task.cols)
+    if kind in ("dmtl", "cmtl") and grid != task_grid:
+        return (f"{kind.upper()} reads full {grid[0]}x{grid[1]} maps, so it cannot serve a "
+                f"{task_grid[0]}x{task_grid[1]} task (an ODMTL expert can: its inputs do not "
+                "depend on the grid size)")
+    if kind == "cmtl" and exp.agents != task.agents:
+        return (f"a CMTL actor picks joint actions of exactly {exp.agents} agent(s); the task "
+                f"has {task.agents}")
+    if kind == "cmtl" and exp.moves != task.moves:
+        return f"a CMTL expert needs the task's move set ({exp.moves} moves vs {task.moves})"
+    if walls_encoder and grid != task_grid:
+        return (f"its walls encoder reads {grid[0]}x{grid[1]} maps, so it cannot serve a "
+                f"{task_grid[0]}x{task_grid[1]} task")
+    return None
+
+
 class ModelExpert:
     """A saved model ranking actions by its policy's log-probabilities, through the adapter of
     the module docstring. ``policy`` is what ``modelio.load_model`` returns (it carries
@@ -272,21 +292,10 @@ class ModelExpert:
         kind = obs.kind
         # resolve "walls = iff the env can have walls" against the EXPERT's env: its input set
         obs = dataclasses.replace(obs, walls=channel_layout(exp, obs).walls)
-        grid, task_grid = (exp.rows, exp.cols), (task.rows, task.cols)
         what = f"expert {name!r} ({kind.upper()}, {exp.agents} agent(s), {exp.rows}x{exp.cols})"
-        if kind in ("dmtl", "cmtl") and grid != task_grid:
-            raise ExpertError(f"{what}: {kind.upper()} reads full {grid[0]}x{grid[1]} maps, so "
-                              f"it cannot serve a {task_grid[0]}x{task_grid[1]} task (an ODMTL "
-                              "expert can: its inputs do not depend on the grid size)")
-        if kind == "cmtl" and exp.agents != task.agents:
-            raise ExpertError(f"{what}: a CMTL actor picks joint actions of exactly "
-                              f"{exp.agents} agent(s); the task has {task.agents}")
-        if kind == "cmtl" and exp.moves != task.moves:
-            raise ExpertError(f"{what}: a CMTL expert needs the task's move set "
-                              f"({exp.moves} moves vs {task.moves})")
-        if obs.walls_embedding and grid != task_grid:
-            raise ExpertError(f"{what}: its walls encoder reads {grid[0]}x{grid[1]} maps, so "
-                              f"it cannot serve a {task_grid[0]}x{task_grid[1]} task")
+        why = expert_misfit(exp, kind, bool(obs.walls_embedding), task)
+        if why is not None:
+            raise ExpertError(f"{what}: {why}")
         self.joint = kind == "cmtl"
         on_task = dataclasses.replace(exp, rows=task.rows, cols=task.cols, agents=task.agents,
                                       walls=task.walls, wall_length=task.wall_length,

@@ -155,6 +155,13 @@ def estimate(spec: TrainingSpec) -> ResourceEstimate:
     return ResourceEstimate(sum(parts.values()), parts, per_step, steps, hours)
 
 
+def update_seconds(spec: TrainingSpec) -> float:
+    """Estimated seconds of one PPO update (its rollout of ``batch_steps`` env steps and its
+    epochs) on one reference thread: a time budget is checked between updates, so a worker
+    whose deadline leaves less than this cannot stop in time."""
+    return flops_per_step(spec) * spec.ppo.batch_steps / reference_flops_per_s()
+
+
 def worker_hours(spec: TrainingSpec) -> float:
     """Estimated hours one worker spends on ``spec`` (what a minimum payment per
     worker-hour is charged on)."""

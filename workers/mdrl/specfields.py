@@ -68,7 +68,11 @@ class Real:
     def check(self, v: Any, field: str) -> float:
         if not _is_number(v):
             raise SpecError(field, f"expected a number, got {v!r}")
-        v = float(v)
+        try:
+            v = float(v)
+        except OverflowError:  # an integer of hundreds of digits: JSON allows it
+            raise SpecError(field, f"must be a number in [{self.lo:g}, {self.hi:g}], got an "
+                            f"integer of {v.bit_length()} bits") from None
         if not math.isfinite(v) or not self.lo <= v <= self.hi:
             raise SpecError(field, f"must be a number in [{self.lo:g}, {self.hi:g}], got {v!r}")
         return v

@@ -540,13 +540,14 @@ def _stream_bundle_file(
     """Stream ``file`` of bundle ``cid``; 404/413/502 naming the rule before any byte."""
     try:
         file_cid, size = bundle_entry(store, cid, file)
+        sealed = file in sealed_envelopes(store, cid)
     except KeyError:
         raise RuleError(404, "bundle_file_missing", f"{what}'s bundle has no {file}") from None
     except NotFound:
         raise RuleError(404, "content_not_found", f"the store does not hold {cid}") from None
     except (ValueError, StoreError) as exc:
         raise RuleError(502, "bundle_invalid", f"{what}'s bundle is unusable: {exc}") from None
-    if file in sealed_envelopes(store, cid) and not store.has(file_cid):
+    if sealed and not store.has(file_cid):
         raise RuleError(
             404,
             "content_sealed",

@@ -11,7 +11,7 @@ from backend.api.deps import SessionDep
 from backend.api.errors import RuleError, rule_responses
 from backend.api.schemas import Address
 from backend.db import models as m
-from backend.schemas.common import MAX_DOMAIN, from_fixed
+from backend.schemas.common import MAX_DOMAIN, from_fixed, to_fixed
 from backend.schemas.workers import (
     CountersPublic,
     DomainCountersPublic,
@@ -86,7 +86,7 @@ def list_workers(
     if status is not None:
         q = q.where(m.WorkerRow.status == status)
     if min_reputation is not None:
-        q = q.where(m.WorkerRow.reputation >= int(min_reputation * 1_000_000))
+        q = q.where(m.WorkerRow.reputation >= to_fixed(min_reputation))
     count = session.scalar(select(func.count()).select_from(q.subquery())) or 0
     rows = session.scalars(q.order_by(*_SORT[sort]).limit(limit).offset(offset)).all()
     doms = _domains(session, [w.address for w in rows])
