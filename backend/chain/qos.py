@@ -108,7 +108,7 @@ W1_DEFAULT = 100_000
 MAX_COUNTER = 2**64 - 1
 MAX_ATTR = 2**32 - 1
 MAX_W1 = 10**12
-MAX_ENV_DIMS = 64
+MAX_ENV_DIMS = 12  # ModelsManager.MAX_ENV_DIMS: at most two storage words of a model
 POOL_SIZE = 64
 """UMC.DEFAULT_POOL_SIZE: candidates per domain (decision 12)."""
 ATAN_MAX_ERR = 1.2e-5

@@ -201,7 +201,7 @@ def train_run(task: str, method: str, seed: int, steps: int, experts: list[str],
             selector = DemonstrationSelector(load_experts(experts[:1], env, seed), seed=seed,
                                              threshold=THRESHOLD)
         elif method in ("medc", "medc-credit", "medc-anneal"):
-            rate, rate_end = ANNEAL if method == "medc-anneal" else (None, None)
+            rate, rate_end = ANNEAL if method == "medc-anneal" else (MEDC_RATE, None)
             selector = DemonstrationSelector(load_experts(experts, env, seed), qos or None,
                                              rate, seed=seed, credit=method.endswith("-credit"),
                                              threshold=THRESHOLD, rate_end=rate_end)
@@ -263,6 +263,8 @@ def heldout(policy: Any, env: Any, episodes: int | None = None) -> dict[str, Any
 
 HELDOUT_EPISODES = 1000
 THRESHOLD = PAPER_THRESHOLD
+MEDC_RATE: float | None = None
+"""R_E of medc / medc-credit (--rate); None: the selector's default, Table 5.3's 0.1."""
 """l of the DC / MEDC runs (``--threshold``)."""
 
 
@@ -479,7 +481,7 @@ def plot(results: list[dict], path: Path) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    global HELDOUT_EPISODES, THRESHOLD, BELIEF, ROUTE, CAE, BONUS
+    global HELDOUT_EPISODES, THRESHOLD, BELIEF, ROUTE, CAE, BONUS, MEDC_RATE
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--steps", type=int, default=1_000_000)
     p.add_argument("--seeds", default="0,1,2")
@@ -502,6 +504,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--threshold", type=float, default=PAPER_THRESHOLD,
                    help="l of DC / MEDC (default 0.05, Tables 4.1 / 5.3); runs are cached "
                    "under --out, so give another --out for another l")
+    p.add_argument("--rate", type=float, default=None,
+                   help="R_E of medc and medc-credit (default 0.1, Table 5.3); runs are cached "
+                   "under --out, so give another --out for another R_E")
     p.add_argument("--belief", action="store_true",
                    help="with --grid 10: the product presets ch4-a{N}w{K}-{r}-10x10 (belief "
                    "map, 5 x 5 windows) for every user; give another --out (runs are cached)")
@@ -524,6 +529,9 @@ def main(argv: list[str] | None = None) -> int:
     BONUS = args.bonus
     HELDOUT_EPISODES = args.episodes
     THRESHOLD = args.threshold
+    if args.rate is not None and not 0.0 < args.rate <= 1.0:
+        p.error(f"--rate must be in (0, 1], got {args.rate}")
+    MEDC_RATE = args.rate
     methods = [m for m in args.methods.split(",") if m]
     bad = [m for m in methods if m not in METHODS]
     if bad:

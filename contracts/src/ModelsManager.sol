@@ -68,7 +68,10 @@ contract ModelsManager is ReentrancyGuardTransient {
     uint8 internal constant SHARED = 1 | 2 | 4; // ASSIGNED | ACCEPTED | COMPLETED
     uint8 internal constant REVIEWED = 8;
     uint256 public constant MAX_MODELS = 16;
-    uint256 public constant MAX_ENV_DIMS = 64;
+    /// Attributes of a model's environment: 4 in the model word and 8 in one more word, so an
+    /// allocation reads at most two words per model (64 attributes made it 9: at the largest
+    /// pool and owner limits an allocation then needed ~95M gas; the platform's EnvSpec has 6).
+    uint256 public constant MAX_ENV_DIMS = 12;
     /// Upper bound of {maxModelsPerOwner}.
     uint256 public constant MAX_MODELS_PER_OWNER = 16;
     uint32 public constant DEFAULT_MODELS_PER_OWNER = 8;
@@ -698,7 +701,7 @@ contract ModelsManager is ReentrancyGuardTransient {
         uint256 d = env.length;
         // Attributes 0-3 from the model word (no SLOAD); no bounds checks: j < d = both lengths.
         // No overflow: each weight is <= 1e6 (they sum to ONE) and |a - b| < 2^32, so a term is
-        // < 2^52 and the sum of at most MAX_ENV_DIMS = 64 terms is < 2^58.
+        // < 2^52 and the sum of at most MAX_ENV_DIMS = 12 terms is < 2^56.
         assembly ("memory-safe") {
             let n := d
             if gt(n, 4) { n := 4 }

@@ -447,7 +447,8 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
      * @dev Task status changes (thesis updateTaskStatus):
      * - Cancelled: by the requester while open, before any worker accepted and with no offer
      *   inside its acceptance window (an offered worker keeps its chance to accept: its
-     *   offer already counts in A of Eq. 17); refunds all. With workers holding slots, use
+     *   offer already counts in A of Eq. 17); offers past their window expire with it
+     *   ({OfferExpired} each, as at close); refunds all. With workers holding slots, use
      *   {cancelOpenSlots} to refund the rest.
      * - Closed: after the deadline, by the requester, an admin or any worker offered the
      *   task. Outcomes submitted but not reviewed are paid (if the review window is over;
@@ -462,7 +463,12 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
             _checkRequester(t, taskId);
             _checkOpen(t, taskId);
             if (t.filled != 0) revert TasksHasAcceptedWorkers(taskId);
-            if (t.liveOffers != 0 && _hasLiveOffer(taskId)) revert TasksHasLiveOffers(taskId);
+            if (t.liveOffers != 0) {
+                // offers past their acceptance window expire with the task (OfferExpired each)
+                (uint256 live,) = _expireOffers(taskId, t.requester);
+                if (live != 0) revert TasksHasLiveOffers(taskId);
+                t.liveOffers = 0;
+            }
         } else if (status == TaskStatus.Closed) {
             if (
                 t.requester != msg.sender && _offers[taskId][msg.sender].state == OfferState.None
@@ -721,16 +727,6 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
                 ++live;
             }
         }
-    }
-
-    /// @dev Whether an offer of the task is still inside its acceptance window.
-    function _hasLiveOffer(uint256 taskId) internal view returns (bool) {
-        address[] storage list = _offerees[taskId];
-        for (uint256 j; j < list.length; ++j) {
-            Offer storage o = _offers[taskId][list[j]];
-            if (o.state == OfferState.Offered && block.timestamp <= o.expiry) return true;
-        }
-        return false;
     }
 
     /// @dev At close: pay unreviewed outcomes (after the review window), fail or expire the

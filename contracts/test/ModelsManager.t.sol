@@ -72,7 +72,7 @@ contract ModelsManagerFuzzTest is Fixture {
     // ------------------------------------------------------------------ addModel
 
     function testFuzz_addModel(string calldata cid, uint32[] calldata env) public {
-        vm.assume(bytes(cid).length != 0 && env.length <= 64);
+        vm.assume(bytes(cid).length != 0 && env.length <= mmc.MAX_ENV_DIMS());
         vm.expectEmit(address(mmc));
         emit ModelsManager.ModelAdded(1, owner, DOMAIN, cid, "d", env);
         vm.prank(owner);
@@ -110,7 +110,7 @@ contract ModelsManagerFuzzTest is Fixture {
         mmc.addModel("c", "d", other, _env(1, 1));
         vm.expectRevert(ModelsManager.ModelsEmptyCid.selector);
         mmc.addModel("", "d", DOMAIN, _env(1, 1));
-        uint256 len = _bound(extra, 65, 200);
+        uint256 len = _bound(extra, mmc.MAX_ENV_DIMS() + 1, 200);
         vm.expectRevert(abi.encodeWithSelector(ModelsManager.ModelsBadEnv.selector, len));
         mmc.addModel("c", "d", DOMAIN, new uint32[](len));
         for (uint256 i; i < mmc.maxModelsPerOwner(); ++i) {

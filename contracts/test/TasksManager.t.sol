@@ -433,6 +433,27 @@ contract TasksManagerFuzzTest is Fixture {
         tmc.updateTaskStatus(id, TasksManager.TaskStatus(s));
     }
 
+    function testFuzz_cancel_expiresStaleOffers(uint8 n, uint32 late) public {
+        uint8 nw = uint8(_bound(n, 1, 3));
+        (uint256 id, address[] memory offered) = _allocated(nw, 1e9);
+        vm.warp(block.timestamp + ACCEPT_WINDOW + _bound(late, 1, 30)); // before the deadline
+        for (uint256 i; i < offered.length; ++i) {
+            vm.expectEmit(address(tmc));
+            emit TasksManager.OfferExpired(id, offered[i]);
+        }
+        vm.expectEmit(address(tmc));
+        emit TasksManager.TaskStatusUpdated(id, TasksManager.TaskStatus.Cancelled);
+        vm.prank(requester);
+        tmc.updateTaskStatus(id, TasksManager.TaskStatus.Cancelled);
+        (TasksManager.Task memory t,) = tmc.getTask(id);
+        vm.assertEq(t.liveOffers, 0, "no live offer on a cancelled task");
+        for (uint256 i; i < offered.length; ++i) {
+            vm.assertEq(
+                uint256(tmc.getOffer(id, offered[i]).state), uint256(TasksManager.OfferState.Expired), "expired"
+            );
+        }
+    }
+
     function testFuzz_close_settles(uint32 late, address stranger_) public {
         uint256 reward = 1e9;
         (uint256 id, address[] memory offered) = _allocated(3, reward);

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import pytest
 
+from backend.chain import qos
 from backend.chain.platform import Metric
 
 from .conftest import DOMAIN
@@ -44,7 +45,7 @@ def test_add_model_stores_and_validates(setup, actors) -> None:
     reverts("ModelsNotWorker", p.mmc.add_model, actors.requester, CID, DOMAIN, [1])
     reverts("ModelsBadDomain", p.mmc.add_model, ws[0], CID, 256, [1])
     reverts("ModelsEmptyCid", p.mmc.add_model, ws[0], "", DOMAIN, [1])
-    reverts("ModelsBadEnv", p.mmc.add_model, ws[0], CID, DOMAIN, [1] * 65)
+    reverts("ModelsBadEnv", p.mmc.add_model, ws[0], CID, DOMAIN, [1] * (qos.MAX_ENV_DIMS + 1))
 
 
 def test_allocate_pays_owners_refunds_rest(setup) -> None:
@@ -87,7 +88,7 @@ def test_allocate_reverts(setup, actors) -> None:
     reverts("ModelsBadThreshold", alloc, min_model_reputation=10**6 + 1)
     reverts("ModelsBadWeights", alloc, weights=[10**6])
     reverts("ModelsBadWeights", alloc, weights=[10**6, 1])
-    reverts("ModelsBadEnv", alloc, env=[0] * 65)
+    reverts("ModelsBadEnv", alloc, env=[0] * (qos.MAX_ENV_DIMS + 1))
     reverts("ModelsNoEligibleModel", alloc, env=[1])
     reverts("ModelsNoEligibleModel", alloc, min_reputation=600_000)  # new owner: 0.5
     reverts(
