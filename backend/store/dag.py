@@ -312,8 +312,9 @@ def read_file(
     Sizes are bounded: the root's declared filesize is checked before any child is fetched, a
     raw root is fetched with ``max_size`` as its limit, and the running total is checked again as
     bytes arrive, so a node lying about sizes cannot make us read more than ``max_size``.
-    Nor more blocks than ``max_blocks(max_size, min_mean_leaf)``, and a link below the root must carry bytes:
-    :class:`InvalidContent` otherwise (a DAG of empty links would be read without end).
+    Nor more blocks than ``max_blocks(max_size, min_mean_leaf)``, and a link below the root
+    must carry bytes: :class:`InvalidContent` otherwise (a DAG of empty links would be read
+    without end).
     """
     total = 0
     first = True

@@ -549,10 +549,10 @@ contract UsersManager {
 
     /// @dev The one walk of `domain`'s Active queue links that every pool and queue view
     /// shares: for its first `limit` workers in queue order, their ids, or with `words` their
-    /// candidate words ({candidates}' packing), and with `counters` their packed counters of
+    /// candidate words ({candidates}' packing), and with `withCounters` their packed counters of
     /// (`domain`, `taskType`) (`stats` is empty otherwise). One pass, no second array walk:
     /// the allocations call it with a pool of up to MAX_POOL_SIZE.
-    function _walkPool(uint32 domain, uint256 limit, uint8 taskType, bool words, bool counters)
+    function _walkPool(uint32 domain, uint256 limit, uint8 taskType, bool words, bool withCounters)
         internal
         view
         returns (uint256[] memory out, uint256[] memory stats)
@@ -561,11 +561,11 @@ contract UsersManager {
         uint256 n = q >> 64;
         if (n > limit) n = limit;
         out = new uint256[](n);
-        stats = new uint256[](counters ? n : 0);
+        stats = new uint256[](withCounters ? n : 0);
         uint256 id = q & ID_MASK;
         for (uint256 i; i < n; ++i) {
             out[i] = words ? (_rawWorker(uint32(id)) & WORKER_FIELDS) | (id << ID_SHIFT) | MEMBER_BIT : id;
-            if (counters) stats[i] = _rawCounters(_key(uint32(id), domain, taskType));
+            if (withCounters) stats[i] = _rawCounters(_key(uint32(id), domain, taskType));
             id = _links[(uint256(domain) << 32) | id] >> 32;
         }
     }
