@@ -18,6 +18,8 @@ method trains for the same env-step budget of the task user:
                MEDC (plain, with the credit rule) and IL with the experts plus as many faulty
                ones (random, biased, malicious; Fig. 5.8: 3 of the 6 shared models are faulty)
   frl          sparse + FedAvg across the eight users A1W0 ... A3W3 (frl.py), seen from the task
+  frl-mixed    frl where 3 of the 8 users (not the task user; drawn by the seed) are faulty:
+               they send FedAvg random, biased and malicious weights (Fig. 5.8; frl.py)
   sparse-cae, sr-cae
                sparse / SR with the walls CAE's embedding (``--cae DIR``, Fig. 4.2) in place of
                the downsized wall maps: does the embedding beat the maps?
@@ -66,11 +68,12 @@ from workers.mdrl.zoo import HELDOUT_SEED
 
 METHODS = ("sparse", "sr", "dc", "medc", "medc-anneal", "medc-faulty", "medc-credit",
            "medc-faulty-credit", "medc-mixed", "medc-mixed-credit",
-           "il", "il-mixed", "frl", "sparse-cae", "sr-cae")
+           "il", "il-mixed", "frl", "frl-mixed", "sparse-cae", "sr-cae")
 EXPERT_USERS = ("A1W0", "A1W3", "A2W2")
 GUIDED = ("medc", "medc-anneal", "medc-credit")
 """The methods with proper experts whose speed and rivals the targets report."""
 MIXED = ("medc-mixed", "medc-mixed-credit")
+FRL = ("frl", "frl-mixed")
 """The MEDC methods with proper and faulty experts, compared with IL on the same ones."""
 ANNEAL = (0.2, 0.0)
 """medc-anneal's R_E at the start and at the end of the budget."""
@@ -153,6 +156,17 @@ def mixed_refs(good: list[str], actions: int) -> list[str]:
     return [*good, *(kinds[i % 3] for i in range(len(good)))]
 
 
+def faulty_users(task: str, seed: int, actions: int) -> dict[str, str]:
+    """frl-mixed's 3 faulty users: random, biased (the last action, as ``mixed_refs``) and
+    malicious, drawn among the users other than the task user by the run's seed."""
+    from workers.mdrl.frl import THESIS_USERS
+
+    others = [u for u in THESIS_USERS if u != task]
+    picked = np.random.default_rng(seed).choice(len(others), size=3, replace=False)
+    kinds = ("random", f"biased:{actions - 1}", "malicious")
+    return {others[int(i)]: kind for i, kind in zip(picked, kinds, strict=True)}
+
+
 def train_run(task: str, method: str, seed: int, steps: int, experts: list[str],
               qos: list[float], eval_every: int, out: Path, grid: int) -> dict[str, Any]:
     """Train one (task, method, seed) and return its curve and held-out figures."""
@@ -175,14 +189,16 @@ def train_run(task: str, method: str, seed: int, steps: int, experts: list[str],
         for f in sorted(run_dir.rglob("*"), reverse=True):
             f.unlink() if f.is_file() else f.rmdir()
     start = time.perf_counter()
-    if method == "frl":
+    if method in FRL:
         from workers.mdrl.frl import THESIS_USERS, FederatedTrainer
 
         if resume:
             trainer: Any = FederatedTrainer.resume(run_dir, run_overrides=run.to_dict())
         else:
             users = [(u, user_preset(u, "sparse", grid).env) for u in THESIS_USERS]
-            trainer = FederatedTrainer(users, obs, ppo, run, target=task, out=run_dir)
+            faulty = faulty_users(task, seed, env.num_actions) if method == "frl-mixed" else {}
+            trainer = FederatedTrainer(users, obs, ppo, run, target=task, out=run_dir,
+                                       faulty=faulty)
     elif method in ("il", "il-mixed"):
         from workers.mdrl.il import ImitationTrainer
 
@@ -219,7 +235,7 @@ def train_run(task: str, method: str, seed: int, steps: int, experts: list[str],
         else:
             trainer = Trainer(env, obs, ppo, run, out=run_dir, selector=selector)
     before = trainer.elapsed  # training time of the killed run we resumed (0 if fresh)
-    learner = trainer.trainer if method == "frl" else trainer
+    learner = trainer.trainer if method in FRL else trainer
     # a run resumed from a checkpoint written without the selection saw only part of its curve
     selected = not resume or learner.best is not None
     trainer.train()
@@ -393,7 +409,8 @@ def targets(by: dict[str, list[dict]], sr_level: float) -> list[str]:
             b, b_ci = final(by[plain], "time")
             out.append(f"- {plain} with the walls CAE {a:.2f} [{a_ci[0]:.2f}, {a_ci[1]:.2f}] vs "
                        f"with the wall maps {b:.2f} [{b_ci[0]:.2f}, {b_ci[1]:.2f}]")
-    rivals = [(m, o) for m in GUIDED for o in ("frl", "il")] + [(m, "il-mixed") for m in MIXED]
+    rivals = ([(m, o) for m in GUIDED for o in ("frl", "il")]
+              + [(m, o) for m in MIXED for o in ("il-mixed", "frl-mixed")])
     for medc, other in rivals:
         if {medc, other} <= set(by):
             steps, m = mean_curve(by[medc])
@@ -550,7 +567,7 @@ def main(argv: list[str] | None = None) -> int:
         for method in methods:
             for seed in seeds:
                 g = args.grid
-                steps = args.frl_steps if method == "frl" and args.frl_steps else args.steps
+                steps = args.frl_steps if method in FRL and args.frl_steps else args.steps
                 cached = args.out / f"{task}-{g}x{g}-{method}-s{seed}-{steps}.json"
                 if cached.is_file():
                     r = json.loads(cached.read_text())

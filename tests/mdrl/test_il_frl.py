@@ -11,7 +11,7 @@ import pytest
 import torch
 
 from workers.mdrl.experts import OracleExpert, RandomExpert, load_expert
-from workers.mdrl.frl import FederatedTrainer
+from workers.mdrl.frl import HEAD, FederatedTrainer, poisoned_model
 from workers.mdrl.il import ImitationTrainer, _expert_diff, expert_identity
 from workers.mdrl.observations import ObservationSpec
 from workers.mdrl.ppo import PPOConfig
@@ -142,6 +142,79 @@ def test_frl_refuses_users_it_cannot_average():
         FederatedTrainer(USERS, obs, SMALL_PPO, _run(100), target="A9W9")
     with pytest.raises(ValueError, match="distinct"):
         FederatedTrainer([USERS[0], USERS[0]], obs, SMALL_PPO, _run(100), target="A1W0")
+
+
+def test_faulty_frl_users_send_poison_and_train_nothing():
+    """Fig. 5.8 for FRL: a faulty user has no trainer; its share in the average is random
+    weights, an actor that always picks one action, or the global actor's ranking reversed."""
+    obs = ObservationSpec(kind="odmtl", window=3)
+    for kind in ("random", "biased:4", "malicious"):
+        frl = FederatedTrainer(USERS, obs, SMALL_PPO, _run(1000), target="A3W1",
+                               faulty={"A1W0": kind})
+        assert list(frl.trainers) == ["A2W1", "A3W1"]  # the faulty user trains nothing
+        g = {k: v.clone() for k, v in frl.global_model.items()}
+        poison = poisoned_model(kind, g, torch.Generator().manual_seed(0))
+        w, b = poison[f"{HEAD}.weight"], poison[f"{HEAD}.bias"]
+        x = torch.randn(5, w.shape[1])
+        good = x @ g[f"{HEAD}.weight"].T + g[f"{HEAD}.bias"]
+        if kind == "malicious":  # the good head's ranking, reversed
+            assert torch.equal((x @ w.T + b).argsort(-1), good.argsort(-1).flip(-1))
+        elif kind == "biased:4":
+            assert ((x @ w.T + b).argmax(-1) == 4).all()
+            assert torch.equal(poison["critic.net.10.bias"], g["critic.net.10.bias"])
+        else:  # random: every float tensor replaced, at the global tensor's scale
+            for k, v in g.items():
+                assert not torch.equal(poison[k], v), k
+            std = g["actor.net.0.weight"].std()
+            assert 0.5 < float(poison["actor.net.0.weight"].std() / std) < 2.0
+        frl.average()  # the honest users get the mean of their 2 models and the poison
+        honest = [t.agent.state_dict() for t in frl.trainers.values()]
+        head = honest[0][f"{HEAD}.weight"]
+        if kind == "malicious":  # (g + g - g) / 3
+            assert torch.allclose(head, g[f"{HEAD}.weight"] / 3, atol=1e-6)
+        elif kind == "biased:4":  # (g + g + 0) / 3, and a third of the biased logit
+            assert torch.allclose(head, 2 * g[f"{HEAD}.weight"] / 3, atol=1e-6)
+            assert abs(float(honest[0][f"{HEAD}.bias"][4]) - 10 / 3) < 1e-5
+        else:
+            assert not torch.allclose(head, g[f"{HEAD}.weight"], atol=1e-4)
+        assert all(torch.equal(honest[0][k], honest[1][k]) for k in honest[0])
+
+
+def test_faulty_frl_users_are_checked():
+    obs = ObservationSpec(kind="odmtl", window=3)
+    with pytest.raises(ValueError, match="other than the target"):
+        FederatedTrainer(USERS, obs, SMALL_PPO, _run(100), target="A3W1",
+                         faulty={"A3W1": "random"})
+    with pytest.raises(ValueError, match="other than the target"):
+        FederatedTrainer(USERS, obs, SMALL_PPO, _run(100), target="A3W1",
+                         faulty={"A9W9": "random"})
+    for bad, match in (("lazy", "unknown faulty"), ("random:3", "unknown faulty"),
+                       ("biased:x", "integer"), ("biased:9", "not one of 0..8")):
+        with pytest.raises(ValueError, match=match):
+            FederatedTrainer(USERS, obs, SMALL_PPO, _run(100), target="A3W1",
+                             faulty={"A1W0": bad})
+
+
+def test_frl_run_with_a_faulty_user_resumes_as_the_uninterrupted_run(tmp_path):
+    """The poison's random stream is in the checkpoint: a killed run with a random user ends
+    with the weights of a run never interrupted."""
+    def run(out, crash_at=None):
+        obs = ObservationSpec(kind="odmtl", window=3)
+        frl = FederatedTrainer(USERS, obs, TINY_PPO,
+                               _run(4 * TINY_PPO.batch_steps, checkpoint_every=2),
+                               target="A2W1", out=out, faulty={"A3W1": "random"})
+        _train(frl, frl.trainer, crash_at)
+        return frl
+
+    straight = run(tmp_path / "straight")
+    run(tmp_path / "split", crash_at=3)
+    resumed = FederatedTrainer.resume(tmp_path / "split")
+    assert resumed.faulty == {"A3W1": "random"} and list(resumed.trainers) == ["A1W0", "A2W1"]
+    resumed.train()
+    for k, v in straight.global_model.items():
+        assert torch.equal(v, resumed.global_model[k]), k
+    card = json.loads((tmp_path / "split" / "model" / "model.json").read_text())
+    assert card["training"]["method"]["faulty_users"] == {"A3W1": "random"}
 
 
 def test_frl_budget_is_required():

@@ -8,7 +8,8 @@ import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
-METHODS = ("sparse", "medc", "medc-anneal", "medc-credit", "il", "medc-mixed-credit", "il-mixed")
+METHODS = ("sparse", "medc", "medc-anneal", "medc-credit", "il", "medc-mixed-credit", "il-mixed",
+           "frl-mixed")
 
 
 def bench(out: Path, *extra: str) -> subprocess.CompletedProcess:
@@ -26,7 +27,9 @@ def test_the_benchmark_runs_every_guided_method_and_reuses_its_cache(tmp_path):
     for m in METHODS:
         assert f"| {m} | 1 |" in table, (m, table)
         run = json.loads((tmp_path / f"A3W3-10x10-{m}-s0-4096.json").read_text())
-        assert run["steps"] == 4096 and run["heldout"]["episodes"] == 10
+        # FRL stops at the end of a round of every user's update: at or past the budget
+        assert run["steps"] == 4096 or m.startswith("frl") and run["steps"] >= 4096
+        assert run["heldout"]["episodes"] == 10
         assert run["bonus"] == 50.0  # S of Eq. 9 (Table 4.1) unless --bonus
         # the kept policy is the curve's shortest time, judged on the held-out episodes
         assert run["best"]["curve_time"] == min(p["time"] for p in run["curve"])
@@ -43,6 +46,12 @@ def test_the_benchmark_runs_every_guided_method_and_reuses_its_cache(tmp_path):
                                                              "biased:8"]
     assert refs("medc") == refs("il") == ["oracle", "random"]
     assert "medc-mixed-credit vs IL-MIXED: shorter mean episodes at" in table
+    assert "medc-mixed-credit vs FRL-MIXED: shorter mean episodes at" in table
+    # FRL in Fig. 5.8: 3 of the other 7 users send random, biased and malicious weights
+    frl = json.loads((tmp_path / "A3W3-10x10-frl-mixed-s0-4096" / "model" / "model.json")
+                     .read_text())["training"]["method"]
+    assert sorted(frl["faulty_users"].values()) == ["biased:8", "malicious", "random"]
+    assert "A3W3" not in frl["faulty_users"] and set(frl["faulty_users"]) < set(frl["users"])
     again = bench(tmp_path)  # every run is cached: nothing trains, the same table prints
     assert again.returncode == 0, again.stderr[-3000:]
     assert again.stdout == first.stdout

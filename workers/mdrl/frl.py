@@ -12,6 +12,13 @@ maps even where there are no walls and the others map even for a lone agent
 (``ObservationSpec(walls=True, others=True)``); all users must share the move set. This is
 the constraint the thesis holds against FRL (Sec. 5.1): MEDC's experts need not share anything.
 
+Faulty users (the thesis' Fig. 5.8: 3 of the 8 users share faulty models) train nothing and
+send a poisoned copy of the global model to every average (``poisoned_model``): ``random``
+draws every weight at random at the scale of the global model's tensor, ``biased`` makes the
+actor always pick one action, ``malicious`` negates the actor's head so the global model's
+ranking is reversed (its best action last), the weight-averaging analogues of the random,
+biased and malicious experts of Sec. 5.4.1 (experts.py).
+
 Checkpoints (every ``run.checkpoint_every`` rounds and at the end, under ``out/checkpoint``)
 hold every user's ``Trainer`` checkpoint in ``users/NAME``, the global model in
 ``global.safetensors`` and the federation's counters in ``frl.json``, written to a temp dir
@@ -22,6 +29,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -40,6 +48,62 @@ from workers.mdrl.train import RunConfig, Trainer
 FORMAT = "drlaas-frl-checkpoint/1"
 THESIS_USERS = ("A1W0", "A3W0", "A2W1", "A2W2", "A2W3", "A3W1", "A3W2", "A3W3")
 """The eight FRL users of Sec. 5.4.2: A = agents, W = walls."""
+FAULTY_KINDS = ("random", "biased", "malicious")
+"""What a faulty FRL user shares (module docstring); ``biased:K`` names the action."""
+HEAD = "actor.net.10"
+"""The actor's output layer in ``ActorCritic`` (LeNet's last Linear)."""
+BIASED_LOGIT = 10.0
+"""The biased head's logit of its one action (the others 0): e^10 ~ 2.2e4 to 1 per action."""
+
+
+def faulty_kind(kind: str) -> tuple[str, int | None]:
+    """``random`` / ``biased[:K]`` / ``malicious`` -> (name, K or None); ValueError otherwise."""
+    name, sep, arg = str(kind).partition(":")
+    if name not in FAULTY_KINDS or (sep and name != "biased"):
+        raise ValueError(f"unknown faulty FRL user kind {kind!r}; known: random, biased[:K], "
+                         f"malicious")
+    if not sep:
+        return name, None
+    if not arg.isdigit():
+        raise ValueError(f"biased FRL user: the action must be an integer, got {arg!r}")
+    return name, int(arg)
+
+
+def _scale(model: dict[str, torch.Tensor], key: str) -> float:
+    """The spread of a tensor's values; a constant one (fresh zero biases) takes its layer's
+    weights' spread, so a random user's biases are random too."""
+    for k in (key, key.rsplit(".", 1)[0] + ".weight"):
+        v = model.get(k)
+        if v is not None and v.numel() > 1:
+            std = float(v.float().std())
+            if math.isfinite(std) and std > 0:
+                return std
+    return 1.0
+
+
+def poisoned_model(kind: str, global_model: dict[str, torch.Tensor],
+                   generator: torch.Generator) -> dict[str, torch.Tensor]:
+    """What a faulty user of kind ``random``, ``biased[:K]`` or ``malicious`` sends to FedAvg."""
+    name, action = faulty_kind(kind)
+    out = {k: v.clone() for k, v in global_model.items()}
+    if name == "random":
+        for k in sorted(out):  # one order whatever the dict's (a loaded checkpoint's is sorted)
+            v = out[k]
+            if v.is_floating_point():
+                noise = torch.randn(v.shape, generator=generator)
+                out[k] = (noise * _scale(global_model, k)).to(v.dtype)
+        return out
+    weight, bias = out[f"{HEAD}.weight"], out[f"{HEAD}.bias"]
+    if name == "malicious":
+        out[f"{HEAD}.weight"], out[f"{HEAD}.bias"] = -weight, -bias
+        return out
+    action = len(bias) - 1 if action is None else action
+    if not 0 <= action < len(bias):
+        raise ValueError(f"biased FRL user: action {action} is not one of 0..{len(bias) - 1}")
+    out[f"{HEAD}.weight"] = torch.zeros_like(weight)
+    out[f"{HEAD}.bias"] = torch.zeros_like(bias)
+    out[f"{HEAD}.bias"][action] = BIASED_LOGIT
+    return out
 
 
 def federated_input(obs_spec: ObservationSpec) -> ObservationSpec:
@@ -54,8 +118,14 @@ class FederatedTrainer:
 
     def __init__(self, users: Sequence[tuple[str, EnvSpec]], obs_spec: ObservationSpec,
                  ppo: PPOConfig, run: RunConfig, target: str, local_updates: int = 1,
-                 out: str | Path | None = None):
+                 out: str | Path | None = None, faulty: dict[str, str] | None = None):
         names = [name for name, _ in users]
+        faulty = dict(faulty or {})
+        if set(faulty) - set(names) or target in faulty:
+            raise ValueError(f"faulty FRL users must be users other than the target "
+                             f"{target!r}, got {sorted(faulty)} of {names}")
+        for kind in faulty.values():
+            faulty_kind(kind)
         if len(set(names)) != len(names):
             raise ValueError(f"FRL users must have distinct names, got {names}")
         bad = [n for n in names if not n or Path(n).name != n or n.startswith(".")]
@@ -72,8 +142,12 @@ class FederatedTrainer:
         obs = federated_input(obs_spec)
         self.run, self.target, self.local_updates = run, target, local_updates
         self.out = Path(out) if out is not None else None
+        self.users, self.faulty = list(users), faulty
+        self.poison_rng = torch.Generator().manual_seed(run.seed * 7919 + 1)
         self.trainers: dict[str, Trainer] = {}
         for i, (name, spec) in enumerate(users):
+            if name in faulty:  # trains nothing: it only sends poison (module docstring)
+                continue
             user_run = dataclasses.replace(
                 run, seed=run.seed * 1009 + i, eval_every=0, checkpoint_every=0,
                 progress=False, tensorboard=False, total_steps=None, minutes=None)
@@ -85,6 +159,8 @@ class FederatedTrainer:
             raise ValueError("FRL users ended up with different network shapes; give every "
                              "user the same observation kind, window and move set")
         self.global_model = {k: v.clone() for k, v in self.trainer.agent.state_dict().items()}
+        for kind in faulty.values():  # a biased action beyond the head fails now, not later
+            poisoned_model(kind, self.global_model, torch.Generator())
         self._broadcast()
         self.rounds = 0
         self.elapsed = 0.0
@@ -104,8 +180,11 @@ class FederatedTrainer:
 
     @torch.no_grad()
     def average(self) -> None:
-        """FedAvg: the global model is the mean of the users' weights; everyone gets it back."""
+        """FedAvg: the global model is the mean of the users' weights (the faulty users' poison
+        included); every honest user gets it back."""
         states = [t.agent.state_dict() for t in self.trainers.values()]
+        states += [poisoned_model(kind, self.global_model, self.poison_rng)
+                   for kind in self.faulty.values()]
         self.global_model = {k: torch.stack([s[k].float() for s in states]).mean(0).to(v.dtype)
                              for k, v in states[0].items()}
         self._broadcast()
@@ -156,9 +235,10 @@ class FederatedTrainer:
 
             steps = sum(t.global_step for t in self.trainers.values())
             _add_training_note(self.out / "model", {
-                "method": "FRL (FedAvg across users)", "users": list(self.trainers),
+                "method": "FRL (FedAvg across users)", "users": [n for n, _ in self.users],
                 "target": self.target, "local_updates": self.local_updates,
-                "rounds": self.rounds, "env_steps_all_users": steps})
+                "rounds": self.rounds, "env_steps_all_users": steps,
+                **({"faulty_users": self.faulty} if self.faulty else {})})
         return target.last_metrics
 
     # ------------------------------------------------------------------ checkpoints
@@ -173,7 +253,8 @@ class FederatedTrainer:
             target = self.trainer
             meta = {"format": FORMAT, "rounds": self.rounds, "elapsed": self.elapsed,
                     "target": self.target, "local_updates": self.local_updates,
-                    "users": [[name, t.env_spec.to_dict()] for name, t in self.trainers.items()],
+                    "users": [[name, spec.to_dict()] for name, spec in self.users],
+                    "faulty": self.faulty, "poison_rng": self.poison_rng.get_state().tolist(),
                     "observation": target.obs_spec.to_dict(), "ppo": target.ppo.to_dict(),
                     "run": self.run.to_dict()}
             (tmp / "frl.json").write_text(json.dumps(meta, indent=1))
@@ -194,10 +275,13 @@ class FederatedTrainer:
         if meta.get("format") != FORMAT:
             raise ValueError(f"{path}: unknown FRL checkpoint format {meta.get('format')!r}")
         users = [(name, EnvSpec.from_dict(d)) for name, d in meta["users"]]  # seeds by order
+        faulty = meta.get("faulty") or {}
         run = RunConfig.from_dict({**meta["run"], **(run_overrides or {})})
         frl = cls(users, ObservationSpec.from_dict(meta["observation"]),
                   PPOConfig.from_dict(meta["ppo"]), run, meta["target"], meta["local_updates"],
-                  out=out if out is not None else path.parent)
+                  out=out if out is not None else path.parent, faulty=faulty)
+        if "poison_rng" in meta:
+            frl.poison_rng.set_state(torch.tensor(meta["poison_rng"], dtype=torch.uint8))
         updates = meta["rounds"] * meta["local_updates"]
         for name, t in frl.trainers.items():
             user = path / "users" / name
