@@ -39,6 +39,7 @@ FIRST_ADDRESS = 0x10_0000  # synthetic worker addresses 0x..100000, 0x..100001, 
 NUM_WORKERS = 5
 MAX_POOL_SIZE = 128  # UMC.MAX_POOL_SIZE
 MAX_MODELS_PER_OWNER = 16  # MMC.MAX_MODELS_PER_OWNER
+MAX_ENV_DIMS = 12  # MMC.MAX_ENV_DIMS
 
 
 def seeded_platform(chain: Chain, pool_size: int | None = None) -> Platform:
@@ -66,7 +67,7 @@ def seeded_platform(chain: Chain, pool_size: int | None = None) -> Platform:
     return p
 
 
-def seed(p: Platform, workers: int, models_per_owner: int = 1) -> None:
+def seed(p: Platform, workers: int, models_per_owner: int = 1, dims: int = 2) -> None:
     """Register workers (and their models in DOMAIN) until the UMC holds ``workers``."""
     admin = p.admin
     have = p.umc.call("workerCount")
@@ -76,11 +77,13 @@ def seed(p: Platform, workers: int, models_per_owner: int = 1) -> None:
         owners_per_tx = max(1, SEED_MODELS_PER_TX // models_per_owner)
         for start in range(have, have + n, owners_per_tx):
             k = min(owners_per_tx, have + n - start)
-            p.mmc.transact("seedModels", start + 1, k, models_per_owner, DOMAIN, sender=admin)
+            p.mmc.transact(
+                "seedModelsDims", start + 1, k, models_per_owner, DOMAIN, dims, sender=admin
+            )
         have += n
 
 
-def measure(p: Platform) -> dict[str, int]:
+def measure(p: Platform, env: Sequence[int] = (3, 2)) -> dict[str, int]:
     """Gas used by allocateTask and allocateModel (both metrics); state rolled back after."""
     requester = p.chain.accounts[1]
     snap = p.chain.snapshot()
@@ -99,7 +102,7 @@ def measure(p: Platform) -> dict[str, int]:
                 requester,
                 domain=DOMAIN,
                 num_models=NUM_WORKERS,
-                env=[3, 2],
+                env=list(env),
                 price=10**9,
                 metric=metric,
             )
@@ -123,12 +126,14 @@ def scaling(sizes: Sequence[int], pool_size: int | None = None) -> dict[int, dic
     return figures
 
 
-def worst_case() -> dict[str, int]:
-    """Largest pool (128) with every owner at the model limit (16): the settings' bound."""
+def worst_case(dims: int = 2) -> dict[str, int]:
+    """Largest pool (128) with every owner at the model limit (16): the settings' bound; with
+    ``dims`` = MAX_ENV_DIMS (12) every model and the request have the most attributes (one
+    more cold word per model)."""
     chain = Chain.embedded(accounts=2)
     p = seeded_platform(chain, pool_size=MAX_POOL_SIZE)
-    seed(p, MAX_POOL_SIZE, models_per_owner=MAX_MODELS_PER_OWNER)
-    return measure(p)
+    seed(p, MAX_POOL_SIZE, models_per_owner=MAX_MODELS_PER_OWNER, dims=dims)
+    return measure(p, env=[(3 + j) % 7 for j in range(dims)])
 
 
 def main() -> None:
@@ -144,6 +149,9 @@ def main() -> None:
         worst = worst_case()
         print(f"worst case (pool 128, 16 models per owner = 2,048 models): {worst}")
         report["worst_case_pool128_models16"] = worst
+        worst12 = worst_case(dims=MAX_ENV_DIMS)
+        print(f"worst case with {MAX_ENV_DIMS} attributes per model and request: {worst12}")
+        report[f"worst_case_pool128_models16_dims{MAX_ENV_DIMS}"] = worst12
     top = max(v for r in report["gas_used"].values() for v in r.values())
     print(
         f"largest figure {top:,} gas = {top / BLOCK_GAS:.1%} of a 30M block "

@@ -102,7 +102,20 @@ class UsersManager(ContractHandle):
         )
 
     def add_requester(self, sender: str) -> Receipt:
+        """Register ``sender`` as a requester: Active, or Pending where approval is required."""
         return self.transact("addRequester", sender=sender)
+
+    def requester_status(self, requester: str) -> WorkerStatus:
+        """NONE, ACTIVE, PENDING (waiting for an admin's approval) or REMOVED."""
+        return WorkerStatus(self.call("requesterStatus", requester))
+
+    def approve_requester(self, sender: str, requester: str) -> Receipt:
+        """An admin approves a Pending requester (it may post tasks and request models)."""
+        return self.transact("approveRequester", requester, sender=sender)
+
+    def remove_requester(self, sender: str, requester: str) -> Receipt:
+        """The requester itself or an admin removes ``requester`` for good."""
+        return self.transact("removeRequester", requester, sender=sender)
 
     def update_status(self, sender: str, status: WorkerStatus) -> Receipt:
         return self.transact("updateStatus", int(status), sender=sender)

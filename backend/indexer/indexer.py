@@ -275,6 +275,13 @@ class Indexer:
     def _on_RequesterAdded(self, s: Session, a: dict[str, Any], block: int) -> None:
         s.merge(m.Requester(address=a["requester"], block_number=block))
 
+    def _on_RequesterStatusUpdated(self, s: Session, a: dict[str, Any], block: int) -> None:
+        """The index lists Active requesters (RequesterAdded); a removed one leaves it."""
+        if int(a["status"]) == WorkerStatus.REMOVED:
+            row = s.get(m.Requester, a["requester"])
+            if row is not None:
+                s.delete(row)
+
     def _on_WorkerStatusUpdated(self, s: Session, a: dict[str, Any], block: int) -> None:
         w = s.get(m.WorkerRow, a["worker"])
         if w is not None:

@@ -33,6 +33,6 @@ class RegistrationPublic(BaseModel):
     created: bool = Field(description="false when only capabilities were updated")
     status: str | None = Field(
         default=None,
-        description="worker status after the call: active, idle, pending (waiting for a "
-        "consortium admin's approval) or removed; null for requesters",
+        description="status after the call: active, idle (workers only), pending (waiting "
+        "for a consortium admin's approval) or removed",
     )

@@ -22,6 +22,14 @@ import {Math} from "@openzeppelin/contracts/utils/math/Math.sol";
  * at most {MAX_WORKER_DOMAINS} domains; the worker itself or an admin removes it for good
  * ({removeWorker}). Pending, Idle and Removed workers are never candidates.
  *
+ * Requesters too (the sybil-requester finding of docs/chain.md): while {approvalRequired} is
+ * on a new requester is Pending until an admin approves it ({approveRequester}), so a worker
+ * cannot open a second identity at will to post tasks only it can take and review itself;
+ * the consortium knows who is behind each approved address. An admin or the requester itself
+ * removes it for good ({removeRequester}); its tasks already posted run to their end. A worker
+ * whose capabilities change after approval is Pending again until re-approved
+ * ({updateCapabilities}): approval covers what it declared, not what it declares later.
+ *
  * Candidate pools (allocation whose gas does not grow with everyone who ever registered):
  * per domain, the approved Active workers form a queue in the order they last became Active
  * (a doubly linked list: joining appends, leaving unlinks, both O(1)); the domain's candidate
@@ -100,6 +108,8 @@ contract UsersManager {
     error UsersTooManyDomains(uint256 domains, uint256 maximum);
     error UsersNotPending(address account, Status status);
     error UsersNotApproved(address account, Status status);
+    error UsersRequesterNotPending(address account, Status status);
+    error UsersNotRequester(address account, Status status);
     error UsersNotSelfOrAdmin(address account, address worker);
     error UsersBadPoolSize(uint256 size);
     error UsersBadDomain(uint256 domain);
@@ -115,6 +125,9 @@ contract UsersManager {
         address indexed worker, uint32 indexed id, uint256 domains, uint16 cpuCores, uint16 ramGb, uint8 gpuSeries
     );
     event RequesterAdded(address indexed requester);
+    event RequesterApproved(address indexed requester, address indexed admin);
+    event RequesterRemoved(address indexed requester, address indexed by);
+    event RequesterStatusUpdated(address indexed requester, Status status);
     event WorkerApproved(address indexed worker, address indexed admin);
     event WorkerRemoved(address indexed worker, address indexed by);
     event ApprovalRequiredUpdated(bool required);
@@ -141,7 +154,9 @@ contract UsersManager {
     mapping(uint256 => mapping(uint256 => uint256)) internal _domainWorkers;
     /// Counters per (worker id, domain, task type): key = id << 16 | domain << 8 | type.
     mapping(uint256 => Counters) internal _counters;
-    mapping(address => bool) public isRequester;
+    /// Requesters: Active (posts tasks and requests models), Pending (waits for an admin's
+    /// approval) or Removed; None = never registered. Idle is not used for requesters.
+    mapping(address => Status) public requesterStatus;
 
     mapping(address => bool) public isAdmin;
     mapping(address => bool) public isPlatform;
@@ -286,13 +301,52 @@ contract UsersManager {
     }
 
     /**
-     * @dev Registers msg.sender as a requester.
-     * Requirements: not yet a requester. Emits a {RequesterAdded} event.
+     * @dev Registers msg.sender as a requester: Active at once when {approvalRequired} is off,
+     * else Pending until an admin approves it ({approveRequester}).
+     * Requirements: never registered as a requester (a removed address cannot come back).
+     * Emits a {RequesterStatusUpdated} event, and a {RequesterAdded} event when Active.
      */
     function addRequester() external {
-        if (isRequester[msg.sender]) revert UsersAlreadyRegistered(msg.sender);
-        isRequester[msg.sender] = true;
-        emit RequesterAdded(msg.sender);
+        Status old = requesterStatus[msg.sender];
+        if (old != Status.None) revert UsersAlreadyRegistered(msg.sender);
+        Status status = approvalRequired ? Status.Pending : Status.Active;
+        requesterStatus[msg.sender] = status;
+        emit RequesterStatusUpdated(msg.sender, status);
+        if (status == Status.Active) emit RequesterAdded(msg.sender);
+    }
+
+    /**
+     * @dev Approves a Pending requester: it may post tasks and request models.
+     * Requirements: caller is an admin; `requester` is Pending.
+     * Emits {RequesterApproved}, {RequesterStatusUpdated} and {RequesterAdded} events.
+     */
+    function approveRequester(address requester) external onlyAdmin {
+        Status old = requesterStatus[requester];
+        if (old != Status.Pending) revert UsersRequesterNotPending(requester, old);
+        requesterStatus[requester] = Status.Active;
+        emit RequesterApproved(requester, msg.sender);
+        emit RequesterStatusUpdated(requester, Status.Active);
+        emit RequesterAdded(requester);
+    }
+
+    /**
+     * @dev Removes a requester for good: no new task or model request from it; its tasks
+     * already posted run to their end (escrow, reviews and closing need no registration).
+     * Requirements: caller is the requester itself or an admin; `requester` is Pending or
+     * Active. Emits {RequesterRemoved} and {RequesterStatusUpdated} events.
+     */
+    function removeRequester(address requester) external {
+        if (msg.sender != requester && !isAdmin[msg.sender]) revert UsersNotSelfOrAdmin(msg.sender, requester);
+        Status old = requesterStatus[requester];
+        if (old != Status.Pending && old != Status.Active) revert UsersNotRequester(requester, old);
+        requesterStatus[requester] = Status.Removed;
+        emit RequesterRemoved(requester, msg.sender);
+        emit RequesterStatusUpdated(requester, Status.Removed);
+    }
+
+    /// @dev True for an Active (registered and, where required, approved) requester.
+    function isRequester(address account) external view returns (bool) {
+        return requesterStatus[account] == Status.Active;
     }
 
     /**
@@ -318,13 +372,25 @@ contract UsersManager {
 
     /**
      * @dev A worker updates its computational capabilities (Comp. Capabilities, Table 7.2).
-     * Requirements: caller is a worker. Emits a {WorkerCapabilitiesUpdated} event.
+     * While {approvalRequired} is on, an approved (Active or Idle) worker whose capabilities
+     * change is Pending again, out of its domains' queues, until an admin re-approves it
+     * ({approveWorker}, which makes it Active): capabilities rank workers (Eq. 20), so an
+     * approval covers the ones declared. Unchanged values change nothing.
+     * Requirements: caller is a worker. Emits a {WorkerCapabilitiesUpdated} event, and a
+     * {WorkerStatusUpdated} event when the worker goes back to Pending.
      */
     function updateCapabilities(uint16 cpuCores, uint16 ramGb, uint8 gpuSeries) external {
         uint32 id = _workerIdOf(msg.sender);
         Worker storage w = _workers[id];
+        Status old = w.status;
+        bool changed = w.cpuCores != cpuCores || w.ramGb != ramGb || w.gpuSeries != gpuSeries;
         (w.cpuCores, w.ramGb, w.gpuSeries) = (cpuCores, ramGb, gpuSeries);
         emit WorkerCapabilitiesUpdated(msg.sender, cpuCores, ramGb, gpuSeries);
+        if (changed && approvalRequired && (old == Status.Active || old == Status.Idle)) {
+            if (old == Status.Active) _leave(id, w.domains);
+            w.status = Status.Pending;
+            emit WorkerStatusUpdated(msg.sender, Status.Pending);
+        }
     }
 
     /**

@@ -3,6 +3,7 @@ pragma solidity ^0.8.24;
 
 import {Fixture} from "./utils/Fixture.sol";
 import {UsersManager} from "../src/UsersManager.sol";
+import {TasksManager} from "../src/TasksManager.sol";
 
 /// @dev Fuzz tests of every external state-changing function of the UMC: the valid path
 /// (state and event) and each wrong-role / bad-input revert with its exact custom error.
@@ -229,16 +230,97 @@ contract UsersManagerFuzzTest is Fixture {
 
     // ------------------------------------------------------------------ addRequester
 
-    function testFuzz_addRequester(address a) public {
+    function testFuzz_addRequester(address a, bool approval) public {
         vm.assume(a != requester);
+        vm.prank(admin);
+        umc.setApprovalRequired(approval);
+        UsersManager.Status s = approval ? UsersManager.Status.Pending : UsersManager.Status.Active;
         vm.expectEmit(address(umc));
-        emit UsersManager.RequesterAdded(a);
+        emit UsersManager.RequesterStatusUpdated(a, s);
+        if (!approval) {
+            vm.expectEmit(address(umc));
+            emit UsersManager.RequesterAdded(a);
+        }
         vm.prank(a);
         umc.addRequester();
-        vm.assertTrue(umc.isRequester(a), "registered");
+        vm.assertEq(uint8(umc.requesterStatus(a)), uint8(s), "status");
+        vm.assertEq(umc.isRequester(a), !approval, "a pending requester is no requester yet");
         vm.expectRevert(abi.encodeWithSelector(UsersManager.UsersAlreadyRegistered.selector, a));
         vm.prank(a);
         umc.addRequester();
+    }
+
+    /// A sybil requester (issue 8 probe): with approval on, a second address of a worker
+    /// cannot post a task until an admin approves it.
+    function testFuzz_pendingRequesterCannotPostTasks(address a) public {
+        vm.assume(a != requester && a != address(0) && a.code.length == 0);
+        vm.prank(a);
+        umc.addRequester();
+        vm.deal(a, 1 ether);
+        vm.expectRevert(abi.encodeWithSelector(TasksManager.TasksNotRequester.selector, a));
+        vm.prank(a);
+        tmc.addTask{value: 1e9}(_params(1));
+        vm.prank(admin);
+        umc.approveRequester(a);
+        vm.prank(a);
+        tmc.addTask{value: 1e9}(_params(1));
+    }
+
+    function testFuzz_approveRequester(address a, address caller) public {
+        vm.assume(a != requester && caller != admin);
+        vm.prank(a);
+        umc.addRequester();
+        vm.expectRevert(abi.encodeWithSelector(UsersManager.UsersNotAdmin.selector, caller));
+        vm.prank(caller);
+        umc.approveRequester(a);
+        vm.expectEmit(address(umc));
+        emit UsersManager.RequesterApproved(a, admin);
+        vm.expectEmit(address(umc));
+        emit UsersManager.RequesterStatusUpdated(a, UsersManager.Status.Active);
+        vm.expectEmit(address(umc));
+        emit UsersManager.RequesterAdded(a);
+        vm.prank(admin);
+        umc.approveRequester(a);
+        vm.assertTrue(umc.isRequester(a), "approved");
+        vm.expectRevert(
+            abi.encodeWithSelector(UsersManager.UsersRequesterNotPending.selector, a, UsersManager.Status.Active)
+        );
+        vm.prank(admin);
+        umc.approveRequester(a);
+    }
+
+    function testFuzz_removeRequester(address caller, bool byAdmin, bool pending) public {
+        address r = byAdmin ? requester : caller;
+        vm.assume(caller != admin && caller != requester && caller != address(0));
+        if (!byAdmin) {
+            vm.prank(admin);
+            umc.setApprovalRequired(pending);
+            vm.prank(r);
+            umc.addRequester();
+            // a stranger removes nobody
+            vm.expectRevert(abi.encodeWithSelector(UsersManager.UsersNotSelfOrAdmin.selector, requester, r));
+            vm.prank(requester);
+            umc.removeRequester(r);
+        }
+        address by = byAdmin ? admin : r;
+        vm.expectEmit(address(umc));
+        emit UsersManager.RequesterRemoved(r, by);
+        vm.expectEmit(address(umc));
+        emit UsersManager.RequesterStatusUpdated(r, UsersManager.Status.Removed);
+        vm.prank(by);
+        umc.removeRequester(r);
+        vm.assertFalse(umc.isRequester(r), "removed");
+        vm.expectRevert(
+            abi.encodeWithSelector(UsersManager.UsersNotRequester.selector, r, UsersManager.Status.Removed)
+        );
+        vm.prank(by);
+        umc.removeRequester(r);
+        vm.expectRevert(abi.encodeWithSelector(UsersManager.UsersAlreadyRegistered.selector, r));
+        vm.prank(r);
+        umc.addRequester(); // a removed address cannot come back
+        vm.expectRevert(abi.encodeWithSelector(UsersManager.UsersRequesterNotPending.selector, r, UsersManager.Status.Removed));
+        vm.prank(admin);
+        umc.approveRequester(r);
     }
 
     // ------------------------------------------------------------------ updateStatus
@@ -281,11 +363,31 @@ contract UsersManagerFuzzTest is Fixture {
 
     // ------------------------------------------------------------------ updateCapabilities
 
-    function testFuzz_updateCapabilities(address w, uint16 cores, uint16 ram, uint8 gpu, address other) public {
+    function testFuzz_updateCapabilities(
+        address w,
+        uint16 cores,
+        uint16 ram,
+        uint8 gpu,
+        address other,
+        bool idle,
+        bool approval
+    ) public {
         vm.assume(w != address(0) && w != admin && other != w);
-        _worker(w, 1 << DOMAIN, 8);
+        _worker(w, 1 << DOMAIN, 8); // 8 cores, 32 GB, GPU 1
+        if (idle) {
+            vm.prank(w);
+            umc.updateStatus(UsersManager.Status.Idle);
+        }
+        vm.prank(admin);
+        umc.setApprovalRequired(approval);
+        bool changed = cores != 8 || ram != 32 || gpu != 1;
+        UsersManager.Status before = idle ? UsersManager.Status.Idle : UsersManager.Status.Active;
         vm.expectEmit(address(umc));
         emit UsersManager.WorkerCapabilitiesUpdated(w, cores, ram, gpu);
+        if (changed && approval) {
+            vm.expectEmit(address(umc));
+            emit UsersManager.WorkerStatusUpdated(w, UsersManager.Status.Pending);
+        }
         vm.prank(w);
         umc.updateCapabilities(cores, ram, gpu);
         UsersManager.Worker memory rec = umc.getWorker(w);
@@ -293,6 +395,15 @@ contract UsersManagerFuzzTest is Fixture {
         vm.assertEq(rec.ramGb, ram, "ram");
         vm.assertEq(rec.gpuSeries, gpu, "gpu");
         vm.assertEq(rec.domains, 1 << DOMAIN, "domains kept");
+        // approval covers the declared capabilities: a change needs re-approval
+        UsersManager.Status want = changed && approval ? UsersManager.Status.Pending : before;
+        vm.assertEq(uint8(rec.status), uint8(want), "status");
+        vm.assertEq(umc.queueLength(DOMAIN), want == UsersManager.Status.Active ? 1 : 0, "queue");
+        if (want == UsersManager.Status.Pending) {
+            vm.prank(admin);
+            umc.approveWorker(w);
+            vm.assertEq(umc.queueLength(DOMAIN), 1, "re-approved: a candidate again");
+        }
         vm.expectRevert(abi.encodeWithSelector(UsersManager.UsersNotWorker.selector, other));
         vm.prank(other);
         umc.updateCapabilities(cores, ram, gpu);

@@ -26,6 +26,7 @@ def test_unapproved_registrations_are_never_candidates(p, actors) -> None:
     admin, r = actors.admin, actors.requester
     p.umc.set_approval_required(admin, True)
     p.umc.add_requester(r)
+    p.umc.approve_requester(admin, r)
     good, strangers = actors.workers[0], actors.workers[1:6]
     p.umc.add_worker(good, [DOMAIN], 1, 32, 1)
     for s in strangers:  # stronger machines than the approved worker: QoS would prefer them
@@ -47,6 +48,66 @@ def test_unapproved_registrations_are_never_candidates(p, actors) -> None:
     assert p.umc.pool(DOMAIN) == [good, strangers[0]]
     offered, _ = p.tmc.allocate(r, _task(p, r, nw=1))
     assert offered == [strangers[0]]
+
+
+def test_sybil_requesters_wait_for_approval(p, actors) -> None:
+    """The sybil-requester probe (docs/chain.md): an approved worker opens a second address
+    as a requester to post tasks only it can take. With approval on, that address is Pending
+    and cannot post a task or request models until an admin approves it; an admin (or the
+    address itself) removes it for good, and a removed address cannot register again."""
+    admin, r = actors.admin, actors.requester
+    p.umc.set_approval_required(admin, True)
+    worker, sybil = actors.workers[0], actors.workers[1]
+    p.umc.add_worker(worker, [DOMAIN], 8, 32, 1)
+    p.umc.approve_worker(admin, worker)
+    rc = p.umc.add_requester(sybil)
+    assert rc.one("RequesterStatusUpdated").args["status"] == WorkerStatus.PENDING
+    assert not rc.named("RequesterAdded")
+    assert p.umc.requester_status(sybil) == WorkerStatus.PENDING
+    assert not p.umc.call("isRequester", sybil)
+    reverts("TasksNotRequester", _task, p, sybil, 1)
+    reverts("ModelsNotRequester", p.mmc.allocate, sybil, domain=DOMAIN, num_models=1, env=[1])
+    reverts("UsersNotAdmin", p.umc.approve_requester, worker, sybil)
+    reverts("UsersNotSelfOrAdmin", p.umc.remove_requester, worker, sybil)
+    rc = p.umc.remove_requester(admin, sybil)
+    assert rc.one("RequesterRemoved").args["by"] == admin
+    assert p.umc.requester_status(sybil) == WorkerStatus.REMOVED
+    reverts("UsersAlreadyRegistered", p.umc.add_requester, sybil)
+    reverts("UsersRequesterNotPending", p.umc.approve_requester, admin, sybil)
+    # an approved requester posts tasks; removed, it posts no more, its task runs on
+    p.umc.add_requester(r)
+    rc = p.umc.approve_requester(admin, r)
+    assert rc.one("RequesterApproved").args["admin"] == admin and rc.one("RequesterAdded")
+    tid = _task(p, r, 1)
+    p.umc.remove_requester(r, r)
+    reverts("TasksNotRequester", _task, p, r, 1)
+    offered, _ = p.tmc.allocate(r, tid)
+    assert offered == [worker]
+
+
+def test_changed_capabilities_need_reapproval(p, actors) -> None:
+    """Approval covers the capabilities a worker declared: declaring more after approval
+    (65,535 cores to win every allocation) makes it Pending, out of the pool, until an admin
+    approves it again; the same values again change nothing."""
+    admin, r = actors.admin, actors.requester
+    p.umc.set_approval_required(admin, True)
+    p.umc.add_requester(r)
+    p.umc.approve_requester(admin, r)
+    honest, boaster = actors.workers[:2]
+    for w in (honest, boaster):
+        p.umc.add_worker(w, [DOMAIN], 8, 32, 1)
+        p.umc.approve_worker(admin, w)
+    rc = p.umc.transact("updateCapabilities", 8, 32, 1, sender=honest)  # unchanged
+    assert not rc.named("WorkerStatusUpdated") and p.umc.status(honest) == WorkerStatus.ACTIVE
+    rc = p.umc.transact("updateCapabilities", 65_535, 32, 1, sender=boaster)
+    assert rc.one("WorkerStatusUpdated").args["status"] == WorkerStatus.PENDING
+    assert p.umc.pool(DOMAIN) == [honest]
+    offered, _ = p.tmc.allocate(r, _task(p, r, 1))
+    assert offered == [honest]
+    p.umc.approve_worker(admin, boaster)
+    assert p.umc.pool(DOMAIN) == [honest, boaster]
+    offered, _ = p.tmc.allocate(r, _task(p, r, 1))
+    assert offered == [boaster]  # re-approved with its new capabilities, it ranks first
 
 
 def test_removed_workers_are_never_offered(p, actors) -> None:

@@ -117,6 +117,32 @@ def test_rows_match_chain_state(service: ChainService, sessions: sessionmaker[Se
         assert t is not None and t.offered == 2 and t.reward_wei == str(10**12)
 
 
+def test_index_lists_only_active_requesters(
+    service: ChainService, sessions: sessionmaker[Session]
+) -> None:
+    """A pending requester is not in the index until approved; a removed one leaves it."""
+    p, keys = service.platform, service.demo_keys
+    assert keys is not None
+    early, late = keys.address("user8"), keys.address("user9")
+    with service.lock:
+        p.umc.add_requester(early)  # approval off: active at once
+        p.umc.set_approval_required(p.admin, True)
+        p.umc.add_requester(late)  # pending
+    indexer = Indexer(service, sessions)
+    indexer.poll()
+
+    def listed() -> set[str]:
+        with sessions() as s:
+            return {r.address for r in s.scalars(select(m.Requester))}
+
+    assert listed() == {early}
+    with service.lock:
+        p.umc.approve_requester(p.admin, late)
+        p.umc.remove_requester(p.admin, early)
+    indexer.poll()
+    assert listed() == {late}
+
+
 def test_confirmations_hold_back_recent_blocks(
     service: ChainService, sessions: sessionmaker[Session]
 ) -> None:

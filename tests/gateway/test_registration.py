@@ -54,3 +54,35 @@ def test_capabilities_are_integers_not_booleans_or_floats(client: TestClient, lo
         body = {"domains": [0], "cpu_cores": 4, "ram_gb": 8} | bad
         r = client.post(f"{P}/users/workers", json=body, headers=login("user7"))
         assert r.status_code == 422 and r.json()["detail"][0]["loc"] == ["body", *bad], r.text
+
+
+def test_requesters_wait_for_approval_on_a_consortium_chain(
+    client: TestClient, login: Login, service: ChainService
+) -> None:
+    """A second identity of a worker (the sybil requester of docs/chain.md) cannot post
+    tasks until an admin approves it; the task route says why; removal is for good."""
+    from .conftest import task_body
+
+    umc = service.platform.umc
+    umc.set_approval_required(service.platform.admin, True)
+    me = addr(service, "user5")
+    r = client.post(f"{P}/users/requesters", headers=login("user5"))
+    assert r.status_code == 201 and r.json()["status"] == "pending", r.text
+    r = client.post(f"{P}/tasks", json=task_body(num_workers=1), headers=login("user5"))
+    assert r.status_code == 403 and "approval" in r.json()["detail"]["msg"], r.text
+
+    r = client.post(f"{P}/users/requesters/{me}/approval", headers=login("user6"))
+    assert r.status_code == 403 and "not_admin" in r.json()["detail"]["rule"], r.text
+    r = client.post(f"{P}/users/requesters/{me}/approval", headers=login("admin"))
+    assert r.status_code == 200 and r.json()["status"] == "active", r.text
+    assert umc.call("isRequester", me)
+    r = client.post(f"{P}/users/requesters/{me}/approval", headers=login("admin"))
+    assert r.status_code == 409 and r.json()["detail"]["rule"] == "users_requester_not_pending"
+
+    r = client.delete(f"{P}/users/requesters/{me}", headers=login("user6"))
+    assert r.status_code == 403 and "not_self_or_admin" in r.json()["detail"]["rule"], r.text
+    r = client.delete(f"{P}/users/requesters/{me}", headers=login("admin"))
+    assert r.status_code == 200 and r.json()["status"] == "removed", r.text
+    assert not umc.call("isRequester", me)
+    r = client.post(f"{P}/users/requesters", headers=login("user5"))
+    assert r.status_code == 409 and r.json()["detail"]["rule"] == "users_already_registered"

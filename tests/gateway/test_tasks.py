@@ -409,7 +409,7 @@ def test_sign_locally_then_relay(client: TestClient, service: ChainService, sett
     raw = "0x" + bytes(me.sign_transaction(unsigned).raw_transaction).hex()
     r = client.post(f"{P}/tx", json={"raw": raw}, headers=headers)
     assert r.status_code == 200, r.text
-    assert [e["name"] for e in r.json()["events"]] == ["RequesterAdded"]
+    assert [e["name"] for e in r.json()["events"]] == ["RequesterStatusUpdated", "RequesterAdded"]
     assert service.platform.umc.call("isRequester", me.address)
     # a relayed transaction that reverts is named by the contract's error, as on own routes
     again = {**unsigned, "nonce": unsigned["nonce"] + 1}

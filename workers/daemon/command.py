@@ -80,6 +80,8 @@ def register_worker(platform: Any, caps: Capabilities, domains: tuple[int, ...])
     current = (int(w[3]), int(w[4]), int(w[2]))  # cpuCores, ramGb, gpuSeries
     if current != (caps.cpu_cores, caps.ram_gb, caps.gpu_series):
         umc.transact("updateCapabilities", caps.cpu_cores, caps.ram_gb, caps.gpu_series, sender=me)
+        if umc.call("getWorker", me)[1] == WorkerStatus.PENDING:  # approval covers capabilities
+            return "updated, pending a consortium admin's re-approval"
         return "updated"
     return "unchanged"
 

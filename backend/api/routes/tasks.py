@@ -20,7 +20,7 @@ from backend.api.experts import (
 from backend.api.pagecache import cached_page
 from backend.api.schemas import Address
 from backend.api.writes import catch_up, field_error, receipt_public
-from backend.chain.platform import TaskStatus
+from backend.chain.platform import TaskStatus, WorkerStatus
 from backend.db import models as m
 from backend.schemas.common import (
     MAX_DOMAIN,
@@ -144,6 +144,13 @@ def check_requester_can_escrow(chain: ChainDep, address: str, escrow_wei: int) -
     ``insufficient_funds`` unless it holds the escrow. Anyone can sign in, so nothing a
     stranger sends may leave blocks in the content store."""
     if not chain.call(chain.platform.umc, "isRequester", address):
+        if int(chain.call(chain.platform.umc, "requesterStatus", address)) == WorkerStatus.PENDING:
+            raise RuleError(
+                403,
+                "tasks_not_requester",
+                f"{address} is a requester waiting for a consortium admin's approval "
+                "(POST /users/requesters/{address}/approval, by an admin)",
+            )
         raise RuleError(
             403,
             "tasks_not_requester",

@@ -29,12 +29,47 @@ router = APIRouter(prefix="/users", tags=["users"])
 def register_requester(
     user: CurrentUser, chain: ChainDep, indexer: IndexerDep
 ) -> RegistrationPublic:
-    """UMC.addRequester for the caller (409 ``users_already_registered`` the second time)."""
+    """UMC.addRequester for the caller (409 ``users_already_registered`` the second time). On
+    a consortium chain the new requester is ``pending`` until an admin approves it (``POST
+    /users/requesters/{address}/approval``): a worker cannot open second identities at will
+    to post tasks only it can take (docs/chain.md)."""
     rc = chain.send(user.address, chain.platform.umc, "addRequester")
     catch_up(indexer)
     return RegistrationPublic(
-        address=user.address, role="requester", tx_hash=rc.tx_hash, created=True
+        address=user.address,
+        role="requester",
+        tx_hash=rc.tx_hash,
+        created=True,
+        status=_requester_status(chain, user.address),
     )
+
+
+@router.post(
+    "/requesters/{address}/approval",
+    response_model=RegistrationPublic,
+    responses=rule_responses(401, 403, 409, 503),
+)
+def approve_requester(
+    address: Annotated[Address, Path()], user: CurrentUser, chain: ChainDep, indexer: IndexerDep
+) -> RegistrationPublic:
+    """UMC.approveRequester by a consortium admin: the pending requester may post tasks (403
+    ``users_not_admin`` for anyone else, 409 ``users_requester_not_pending`` if it is not
+    pending)."""
+    return _act_on(chain, indexer, user.address, "approveRequester", address, "requester", "active")
+
+
+@router.delete(
+    "/requesters/{address}",
+    response_model=RegistrationPublic,
+    responses=rule_responses(401, 403, 409, 503),
+)
+def remove_requester(
+    address: Annotated[Address, Path()], user: CurrentUser, chain: ChainDep, indexer: IndexerDep
+) -> RegistrationPublic:
+    """UMC.removeRequester by the requester itself or an admin: no new task or model request
+    from it; its tasks already posted run to their end (403 ``users_not_self_or_admin`` for
+    anyone else, ``users_not_requester`` if it is not pending or active)."""
+    return _act_on(chain, indexer, user.address, "removeRequester", address, "requester", "removed")
 
 
 @router.post(
@@ -95,11 +130,7 @@ def approve_worker(
 ) -> RegistrationPublic:
     """UMC.approveWorker by a consortium admin: the pending worker becomes a candidate (403
     ``users_not_admin`` for anyone else, 409 ``users_not_pending`` if it is not pending)."""
-    rc = chain.send(user.address, chain.platform.umc, "approveWorker", address)
-    catch_up(indexer)
-    return RegistrationPublic(
-        address=address, role="worker", tx_hash=rc.tx_hash, created=False, status="active"
-    )
+    return _act_on(chain, indexer, user.address, "approveWorker", address, "worker", "active")
 
 
 @router.delete(
@@ -112,11 +143,23 @@ def remove_worker(
 ) -> RegistrationPublic:
     """UMC.removeWorker by the worker itself or an admin: it is never offered a task or a
     model again (403 ``users_not_self_or_admin`` for anyone else)."""
-    rc = chain.send(user.address, chain.platform.umc, "removeWorker", address)
+    return _act_on(chain, indexer, user.address, "removeWorker", address, "worker", "removed")
+
+
+def _act_on(
+    chain: ChainDep, indexer: IndexerDep, sender: str, fn: str, address: str, role: str, status: str
+) -> RegistrationPublic:
+    """One UMC call by ``sender`` about another account (approval, removal) and its answer."""
+    rc = chain.send(sender, chain.platform.umc, fn, address)
     catch_up(indexer)
     return RegistrationPublic(
-        address=address, role="worker", tx_hash=rc.tx_hash, created=False, status="removed"
+        address=address, role=role, tx_hash=rc.tx_hash, created=False, status=status
     )
+
+
+def _requester_status(chain: ChainDep, address: str) -> str:
+    status = int(chain.call(chain.platform.umc, "requesterStatus", address))
+    return WorkerStatus(status).name.lower()
 
 
 def _status(chain: ChainDep, address: str) -> str:

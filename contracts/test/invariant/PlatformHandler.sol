@@ -62,6 +62,8 @@ contract PlatformHandler {
         for (uint256 i; i < requesters.length; ++i) {
             vm.prank(requesters[i]);
             umc.addRequester();
+            vm.prank(admin);
+            umc.approveRequester(requesters[i]);
             vm.deal(requesters[i], 1e30);
         }
         for (uint256 i; i < workers.length; ++i) {
@@ -584,9 +586,18 @@ contract PlatformHandler {
             target = address(umc);
             data = abi.encodeCall(UsersManager.updateInfo, (actor, DOMAIN, 0, 4, 0));
         } else if (a == 2) {
-            actor = _pick(requesters, actorSeed);
             target = address(umc);
-            data = abi.encodeCall(UsersManager.removeWorker, (_pick(workers, targetSeed)));
+            if (targetSeed % 2 == 0) {
+                actor = _pick(requesters, actorSeed);
+                data = abi.encodeCall(UsersManager.removeWorker, (_pick(workers, targetSeed)));
+            } else {
+                // a worker removing a requester, or approving one (admins only)
+                actor = _pick(workers, actorSeed);
+                address r = _pick(requesters, targetSeed / 2);
+                data = actorSeed % 2 == 0
+                    ? abi.encodeCall(UsersManager.removeRequester, (r))
+                    : abi.encodeCall(UsersManager.approveRequester, (r));
+            }
         } else if (a == 3) {
             actor = _pick(strangers, actorSeed);
             data = abi.encodeCall(TasksManager.setConfig, (1, 1, 1));

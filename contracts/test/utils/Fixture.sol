@@ -41,6 +41,8 @@ abstract contract Fixture is TestBase {
         vm.stopPrank();
         vm.prank(requester);
         umc.addRequester();
+        vm.prank(admin);
+        umc.approveRequester(requester); // approval is on by default: requesters wait for it too
         vm.deal(requester, 1e30);
     }
 

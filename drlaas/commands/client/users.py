@@ -30,4 +30,11 @@ def requester_register(
             out = write(gw, "POST", "/users/requesters")
         except GatewayError as exc:
             fail(exc)
-        emit(out, as_json, lambda d: typer.echo(f"requester {gw.address} registered"))
+        emit(out, as_json, lambda d: typer.echo(_registered(gw.address, d.get("status"))))
+
+
+def _registered(address: str, status: str | None) -> str:
+    if status == "pending":
+        return (f"requester {address} registered, pending a consortium admin's approval "
+                "(until then it cannot post tasks)")
+    return f"requester {address} registered"
