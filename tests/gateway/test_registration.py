@@ -69,7 +69,8 @@ def test_requesters_wait_for_approval_on_a_consortium_chain(
     r = client.post(f"{P}/users/requesters", headers=login("user5"))
     assert r.status_code == 201 and r.json()["status"] == "pending", r.text
     r = client.post(f"{P}/tasks", json=task_body(num_workers=1), headers=login("user5"))
-    assert r.status_code == 403 and "approval" in r.json()["detail"]["msg"], r.text
+    assert r.status_code == 403 and r.json()["detail"]["rule"] == "requester_pending", r.text
+    assert "approval" in r.json()["detail"]["msg"]
 
     r = client.post(f"{P}/users/requesters/{me}/approval", headers=login("user6"))
     assert r.status_code == 403 and "not_admin" in r.json()["detail"]["rule"], r.text

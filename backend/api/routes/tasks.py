@@ -140,14 +140,15 @@ def check_min_reward(chain: ChainDep, payment_wei: int, deadline_s: int) -> None
 
 def check_requester_can_escrow(chain: ChainDep, address: str, escrow_wei: int) -> None:
     """Before the spec is stored: 403 ``tasks_not_requester`` unless ``address`` is a
-    registered requester (the TMC's own rule, read from the chain), 402
+    registered requester (the TMC's own rule, read from the chain; ``requester_pending`` while
+    it waits for a consortium admin's approval), 402
     ``insufficient_funds`` unless it holds the escrow. Anyone can sign in, so nothing a
     stranger sends may leave blocks in the content store."""
     if not chain.call(chain.platform.umc, "isRequester", address):
         if int(chain.call(chain.platform.umc, "requesterStatus", address)) == WorkerStatus.PENDING:
             raise RuleError(
                 403,
-                "tasks_not_requester",
+                "requester_pending",
                 f"{address} is a requester waiting for a consortium admin's approval "
                 "(POST /users/requesters/{address}/approval, by an admin)",
             )

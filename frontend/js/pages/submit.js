@@ -384,9 +384,14 @@ export async function render(main, params, ctx) {
           extra.push(" This gateway holds no key for you: sign the transaction below with your own key and POST it to /api/tx, or use the drlaas CLI.");
         }
         formError.appendChild(h("p", { class: "warn", "data-rule": err.rule || "" }, err.message, extra.join("")));
-        if (err.rule && /requester/.test(err.rule)) {
+        if (err.rule === "tasks_not_requester") {
           formError.appendChild(h("button", { type: "button", class: "small", id: "register-requester", onclick: async (ev) => {
-            try { await api("/users/requesters", { method: "POST", body: {} }); ev.target.replaceWith(h("span", { class: "ok" }, "Registered: submit again.")); }
+            try {
+              const reg = await api("/users/requesters", { method: "POST", body: {} });
+              ev.target.replaceWith(reg && reg.status === "pending"
+                ? h("span", { class: "warn" }, "Registered: a consortium admin must approve you before you can submit.")
+                : h("span", { class: "ok" }, "Registered: submit again."));
+            }
             catch (err2) { ev.target.replaceWith(h("span", { class: "warn" }, err2.message)); }
           } }, "Register as requester"));
         }
