@@ -45,3 +45,28 @@ def test_pages_load_from_the_real_gateway(page: Any, tmp_path: Path) -> None:
             ("#f-observation-window", body["observation"]["properties"]["window"]),
         ):
             assert float(page.locator(selector).get_attribute("max")) == schema["maximum"]
+
+
+def test_a_pending_requester_is_told_to_wait_for_approval(page: Any, tmp_path: Path) -> None:
+    """On a chain that approves requesters (a consortium), the submit page registers the user
+    and says an admin must approve it; submitting again names the wait, not registration."""
+    app = create_app(Settings(data_dir=tmp_path / "data"))
+    if not any(getattr(r, "name", "") == "frontend" for r in app.routes):
+        mount_frontend(app)
+    with LiveServer(app) as server:
+        service = app.state.chain
+        with service.lock:
+            service.platform.umc.set_approval_required(service.platform.admin, True)
+        page.goto(server.url + "/submit")
+        page.select_option("#demo-user", label="user3")
+        page.click("#demo-sign-in")
+        page.fill("#f-env-agents", "2")
+        page.fill("#f-env-rows", "6")
+        page.fill("#f-env-cols", "6")
+        page.click("#submit-task")
+        expect(page.locator('[data-rule="tasks_not_requester"]')).to_be_visible()
+        page.click("#register-requester")
+        expect(page.get_by_text("a consortium admin must approve you")).to_be_visible()
+        page.click("#submit-task")
+        expect(page.locator('[data-rule="requester_pending"]')).to_be_visible()
+        expect(page.locator("#register-requester")).to_have_count(0)
