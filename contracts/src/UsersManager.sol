@@ -109,7 +109,7 @@ contract UsersManager {
     error UsersNotPending(address account, Status status);
     error UsersNotApproved(address account, Status status);
     error UsersRequesterNotPending(address account, Status status);
-    error UsersNotRequester(address account, Status status);
+    error UsersRequesterNotRegistered(address account, Status status);
     error UsersNotSelfOrAdmin(address account, address worker);
     error UsersBadPoolSize(uint256 size);
     error UsersBadDomain(uint256 domain);
@@ -338,7 +338,7 @@ contract UsersManager {
     function removeRequester(address requester) external {
         if (msg.sender != requester && !isAdmin[msg.sender]) revert UsersNotSelfOrAdmin(msg.sender, requester);
         Status old = requesterStatus[requester];
-        if (old != Status.Pending && old != Status.Active) revert UsersNotRequester(requester, old);
+        if (old != Status.Pending && old != Status.Active) revert UsersRequesterNotRegistered(requester, old);
         requesterStatus[requester] = Status.Removed;
         emit RequesterRemoved(requester, msg.sender);
         emit RequesterStatusUpdated(requester, Status.Removed);

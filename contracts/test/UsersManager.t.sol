@@ -311,7 +311,7 @@ contract UsersManagerFuzzTest is Fixture {
         umc.removeRequester(r);
         vm.assertFalse(umc.isRequester(r), "removed");
         vm.expectRevert(
-            abi.encodeWithSelector(UsersManager.UsersNotRequester.selector, r, UsersManager.Status.Removed)
+            abi.encodeWithSelector(UsersManager.UsersRequesterNotRegistered.selector, r, UsersManager.Status.Removed)
         );
         vm.prank(by);
         umc.removeRequester(r);

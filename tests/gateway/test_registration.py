@@ -87,3 +87,6 @@ def test_requesters_wait_for_approval_on_a_consortium_chain(
     assert not umc.call("isRequester", me)
     r = client.post(f"{P}/users/requesters", headers=login("user5"))
     assert r.status_code == 409 and r.json()["detail"]["rule"] == "users_already_registered"
+    r = client.delete(f"{P}/users/requesters/{me}", headers=login("admin"))
+    assert r.status_code == 409, r.text
+    assert r.json()["detail"]["rule"] == "users_requester_not_registered"

@@ -68,7 +68,7 @@ def remove_requester(
 ) -> RegistrationPublic:
     """UMC.removeRequester by the requester itself or an admin: no new task or model request
     from it; its tasks already posted run to their end (403 ``users_not_self_or_admin`` for
-    anyone else, ``users_not_requester`` if it is not pending or active)."""
+    anyone else, 409 ``users_requester_not_registered`` if it is not pending or active)."""
     return _act_on(chain, indexer, user.address, "removeRequester", address, "requester", "removed")
 
 
