@@ -48,6 +48,18 @@ MUTANTS: dict[str, tuple[str, str, str, str]] = {
         "        if (bytes(cid).length == 0)",
         "if (bytes(cid).length == 0)",
         "submitOutcome no longer checks that the caller accepted the task"),
+    "tmc-reveal-uncommitted": (
+        "TasksManager.sol",
+        "if (!_committedBefore(commitment)) revert TasksCidNotCommitted(commitment);", "",
+        "submitOutcome takes a CID nobody committed (commit-reveal off: front-running works)"),
+    "tmc-reveal-same-block": (
+        "TasksManager.sol", "return committedAt != 0 && committedAt < block.number;",
+        "return committedAt != 0 && committedAt <= block.number;",
+        "a commitment is revealable in its own block (a copier races it into one block)"),
+    "mmc-list-uncommitted": (
+        "ModelsManager.sol",
+        "if (!tmc.committedBefore(commitment)) revert ModelsCidNotCommitted(commitment);", "",
+        "addModel lists an own upload nobody committed"),
     "qos-first-k-not-top-k": (
         "QoSMath.sol", "} else if (k != 0 && q > qs[k - 1]) {", "} else if (false) {",
         "the greedy selection keeps the first k candidates, not the k best"),

@@ -150,8 +150,10 @@ def create_app(
                 "detail": {
                     "rule": "sign_locally",
                     "msg": f"the gateway holds no key for {exc.sender}: sign 'tx' "
-                    f"({exc.description}) locally and POST it as {{'raw': '0x..'}} to /api/tx",
+                    f"({exc.description}) locally and POST it as {{'raw': '0x..'}} to /api/tx"
+                    + (", then send this request again" if exc.then == "repeat" else ""),
                     "tx": exc.tx,
+                    **({"then": exc.then} if exc.then else {}),
                 }
             },
         )

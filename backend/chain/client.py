@@ -11,6 +11,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import threading
+import time
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any
@@ -88,6 +89,13 @@ class Receipt:
         return found[0]
 
 
+ESTIMATE_AT = "pending"
+"""Block a transaction's gas is estimated at on a JSON-RPC node: the pending block, where a
+transaction sent now runs (``block.number`` one past the head on anvil, geth and the gateway's
+``/rpc``; the head on Besu), so a reveal sent right after its commitment's receipt estimates as
+it will execute. The in-process eth-tester estimates there by default (and takes no block)."""
+
+
 class ContractHandle:
     """A deployed contract: ``call`` for views, ``transact`` for state changes."""
 
@@ -109,7 +117,10 @@ class ContractHandle:
         """eth_estimateGas of ``fn`` (used for view functions in the gas report)."""
         f = self.contract.functions[fn](*args)
         with _typed_reverts():
-            return f.estimate_gas({"from": sender or self.chain.accounts[0], "value": value})
+            return f.estimate_gas(
+                {"from": sender or self.chain.accounts[0], "value": value},
+                block_identifier=self.chain.estimate_at,
+            )
 
     def __repr__(self) -> str:
         return f"<{self.name} at {self.address}>"
@@ -181,6 +192,7 @@ class Chain:
         # nonce read -> send is one step per process: a second thread sending for the same key
         # (the worker daemon's recovery retries beside its job) would otherwise reuse a nonce
         self._send_lock = threading.Lock()
+        self.estimate_at: str | None = None if tester is not None else ESTIMATE_AT
 
     # -- construction -------------------------------------------------------------------
     @classmethod
@@ -301,7 +313,9 @@ class Chain:
             params["maxPriorityFeePerGas"] = 0  # consortium chain: no tips
             params["maxFeePerGas"] = 2 * base
         with _typed_reverts():
-            gas = fn.estimate_gas({k: params[k] for k in ("from", "value")})
+            gas = fn.estimate_gas(
+                {k: params[k] for k in ("from", "value")}, block_identifier=self.estimate_at
+            )
         params["gas"] = min(int(gas * GAS_MARGIN) + 10_000, 30_000_000)
         tx = fn.build_transaction(params)
         signed = self._keys[sender].sign_transaction(tx)
@@ -367,6 +381,22 @@ class Chain:
             self.w3.provider.make_request("evm_increaseTime", [seconds])
             self.w3.provider.make_request("evm_mine", [])
         return self.now()
+
+    def await_block_after(self, number: int, timeout: float = 60.0) -> int:
+        """Return once a transaction sent now runs in a block after ``number``; the number of
+        the block it would run in. What a reveal waits for after its commitment was mined in
+        ``number`` (TMC.commitCid takes it only in a later block). A node that builds a
+        pending block on its head (eth-tester, anvil, geth) answers at once, and transactions
+        are estimated there (:data:`ESTIMATE_AT`); one whose pending block is its head (Besu)
+        is polled until its next block (a QBFT block period)."""
+        deadline = time.monotonic() + timeout
+        while True:
+            pending = self.w3.eth.get_block("pending").get("number")
+            if pending is not None and int(pending) > number:
+                return int(pending)
+            if time.monotonic() > deadline:
+                raise TimeoutError(f"no block after {number} within {timeout:.0f} s")
+            time.sleep(0.2)
 
     def snapshot(self) -> Any:
         """A snapshot id for :meth:`revert` (test isolation)."""

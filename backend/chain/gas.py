@@ -163,8 +163,11 @@ def gas_report(workers: int = 50, scaling: Sequence[int] = (50, 200, 600), seed:
     f["TMC.declineOffer"] = _entry(
         "TMC.declineOffer", p.tmc.transact("declineOffer", tid, sender=offered[1])
     )
+    f["TMC.commitCid"] = _entry("TMC.commitCid", p.tmc.commit_cid(offered[0], OUTCOME_CID))
     f["TMC.submitOutcome"] = _entry(
-        "TMC.submitOutcome", p.tmc.transact("submitOutcome", tid, OUTCOME_CID, sender=offered[0])
+        "TMC.submitOutcome",
+        p.tmc.transact("submitOutcome", tid, OUTCOME_CID, sender=offered[0]),
+        note="the reveal of commit-reveal (TMC.commitCid before, in an earlier block)",
     )
     f["TMC.reviewOutcome"] = _entry(
         "TMC.reviewOutcome",

@@ -8,6 +8,7 @@ Fixed-point conventions are those of :mod:`backend.chain.qos` (ONE = 1e6, review
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import enum
 from collections.abc import Iterable, Mapping, Sequence
@@ -15,6 +16,7 @@ from typing import Any
 
 from eth_utils import keccak
 
+from . import errors
 from .client import Chain, ContractHandle, Receipt
 
 W1_DEFAULT = 100_000  # Eq. 20 weight 0.1 scaled by 1e6 (= qos.W1_DEFAULT)
@@ -64,6 +66,14 @@ class Verdict(enum.IntEnum):
 def cid_hash(cid: str) -> bytes:
     """The contracts' key of a CID: keccak256 of its UTF-8 bytes."""
     return keccak(cid.encode())
+
+
+def cid_commitment(cid: str, worker: str) -> bytes:
+    """TMC.cidCommitment: keccak256(cid ++ worker), what ``commitCid`` takes before ``worker``
+    reveals ``cid`` (submitOutcome, addModel) in a later block. It hides the CID until the
+    reveal and binds it to the worker, so whoever sees a CID first in a reveal cannot hand it
+    in ahead of its producer (docs/chain.md, "Commit-reveal of CIDs")."""
+    return keccak(cid.encode() + bytes.fromhex(worker.removeprefix("0x")))
 
 
 class Metric(enum.IntEnum):
@@ -204,6 +214,19 @@ class TasksManager(ContractHandle):
         state, expiry, worker_id, paid = self.call("getOffer", task_id, worker)
         return {"state": OfferState(state), "expiry": expiry, "worker_id": worker_id, "paid": paid}
 
+    def commit_cid(self, sender: str, cid: str) -> Receipt:
+        """commitCid of ``cid`` for ``sender``; returns once a later block exists, where the
+        CID may be revealed. Idempotent: a repeated commitment keeps its first block."""
+        rc = self.transact("commitCid", cid_commitment(cid, sender), sender=sender)
+        self.chain.await_block_after(rc.block_number)
+        return rc
+
+    def submit_outcome(self, sender: str, task_id: int, cid: str) -> Receipt:
+        """Commit ``cid``, then submitOutcome with it (the two transactions of commit-reveal);
+        the receipt of the reveal."""
+        self.commit_cid(sender, cid)
+        return self.transact("submitOutcome", task_id, cid, sender=sender)
+
     def outcome_of(self, cid: str) -> tuple[str, int, Verdict]:
         """(worker, task id, verdict) of the outcome ``cid``; (0x0.., 0, NONE) if none."""
         worker, task_id, verdict = self.call("outcomeOf", cid_hash(cid))
@@ -254,6 +277,13 @@ class ModelsManager(ContractHandle):
     def add_model(
         self, sender: str, cid: str, domain: int, env: Sequence[int], description: str = ""
     ) -> tuple[int, Receipt]:
+        """addModel, after committing ``cid`` on the TMC unless it is already an outcome
+        (whose record stands for the commitment); returns (model id, receipt)."""
+        tmc = _typed(self.chain.register("TasksManager", self.call("tmc")), TasksManager)
+        if tmc.outcome_of(cid)[2] == Verdict.NONE:
+            # not a worker: addModel says so itself (ModelsNotWorker)
+            with contextlib.suppress(errors.get("TasksNotWorker")):
+                tmc.commit_cid(sender, cid)
         rc = self.transact("addModel", cid, description, domain, list(env), sender=sender)
         return rc.one("ModelAdded").args["modelId"], rc
 

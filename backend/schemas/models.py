@@ -47,6 +47,21 @@ class ModelCreate(BaseModel):
     env: EnvDocument = Field(description="EnvSpec the model was trained on (its card's env)")
 
 
+class CommitmentCreate(BaseModel):
+    """TMC.commitCid by the caller: keccak256(cid ++ caller), made before the CID is uploaded
+    anywhere others read (commit-reveal of CIDs); the CID itself is not sent."""
+
+    commitment: str = Field(
+        pattern=r"^0x[0-9a-fA-F]{64}$",
+        description="keccak256 of the CID's UTF-8 bytes followed by the caller's 20-byte address",
+    )
+
+
+class CommitmentPublic(BaseModel):
+    commitment: str
+    block: int = Field(description="block of the commitment; a reveal needs a later one")
+
+
 class ModelPublic(BaseModel):
     id: int
     cid: str

@@ -126,11 +126,14 @@ class SignLocally(Exception):
     """The gateway holds no key for ``sender``: the client must sign ``tx`` and POST it to
     ``/api/tx``. Answered as 409 ``{"detail": {"rule": "sign_locally", "msg", "tx"}}``."""
 
-    def __init__(self, sender: str, tx: dict[str, Any], description: str) -> None:
+    def __init__(self, sender: str, tx: dict[str, Any], description: str, then: str = "") -> None:
         super().__init__(f"sign_locally: {description} for {sender}")
         self.sender = sender
         self.tx = tx
         self.description = description
+        self.then = then
+        """``"repeat"``: once ``tx`` is mined, send the same request again (it was a first
+        step, e.g. the commitment before ``POST /models``); empty: ``tx`` is the request."""
 
 
 def _snake(name: str) -> str:
@@ -294,6 +297,7 @@ class ChainService:
         *args: Any,
         value: int = 0,
         description: str = "",
+        then: str = "",
     ) -> Receipt:
         """``handle.fn(*args)`` sent by ``sender``: signed here with its demo key, or
         :class:`SignLocally` with the unsigned transaction. Reverts -> domain errors."""
@@ -305,6 +309,7 @@ class ChainService:
                         sender,
                         self._unsigned(sender, handle, fn, args, value),
                         description or f"{handle.name}.{fn}",
+                        then,
                     )
                 self._ensure_key(account)
                 return handle.transact(fn, *args, sender=sender, value=value)
@@ -416,6 +421,16 @@ class ChainService:
         return Conflict("tx_reverted", f"transaction {receipt.tx_hash} reverted")
 
     # -- views ----------------------------------------------------------------------------------
+    def await_block_after(self, number: int) -> None:
+        """Return once a block after ``number`` exists (a commitment mined there may be
+        revealed now). The embedded chain mines one, under the lock as every write; a node
+        is only polled, so the lock is not held for its block period."""
+        if self.chain.kind == "embedded":
+            with self.lock:
+                self.chain.await_block_after(number)
+        else:
+            self.chain.await_block_after(number)
+
     def call(self, handle: ContractHandle, fn: str, *args: Any) -> Any:
         with self.lock:
             try:

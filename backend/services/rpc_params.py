@@ -194,7 +194,8 @@ def log_filter(flt: Any, by_hash: BlockByHash) -> dict[str, Any]:
 
 
 def _executed(block: int | str) -> int | str:
-    """The embedded chain mines every transaction at once: "pending" state is "latest"."""
+    """A log filter's "pending" is "latest": the embedded chain mines every transaction at
+    once, so no pending block holds logs."""
     return "latest" if block == "pending" else block
 
 
@@ -224,7 +225,10 @@ def normalize(method: str, params: list[Any], chain_id: int, by_hash: BlockByHas
         params.append("latest")  # the spec's default; web3's formatters want it spelled out
     if at is not None and at < len(params):
         block = block_id(params[at], by_hash)
-        params[at] = _executed(block) if method in ("eth_call", "eth_estimateGas") else block
+        # eth_call / eth_estimateGas at "pending" run on the latest state in the block that a
+        # transaction sent now will be mined in (block.number one past the head), as geth's
+        # pending block: what a reveal right after its commitment needs (TMC.commitCid)
+        params[at] = block
     return params
 
 

@@ -14,4 +14,8 @@ interface ITasksOutcomes {
     /// @dev The worker and task of the outcome whose CID hashes to `cidHash`
     /// (keccak256 of the CID's UTF-8 bytes) and its verdict; (0, 0, None) if none.
     function outcomeOf(bytes32 cidHash) external view returns (address worker, uint256 taskId, Verdict verdict);
+
+    /// @dev Whether `commitment` (keccak256(cid ++ worker)) was committed in an earlier block
+    /// than this one (commit-reveal of CIDs: the TMC's commitCid).
+    function committedBefore(bytes32 commitment) external view returns (bool);
 }

@@ -175,6 +175,7 @@ contract ModelsManager is ReentrancyGuardTransient {
     error ModelsNotOutcomeOwner(uint256 taskId, address worker);
     error ModelsOutcomeNotAccepted(uint256 taskId, ITasksOutcomes.Verdict verdict);
     error ModelsDuplicateModel(uint256 modelId);
+    error ModelsCidNotCommitted(bytes32 commitment);
     error ModelsBadConfig();
     error ModelsPriceBelowMinimum(uint256 price, uint256 minimum);
 
@@ -279,8 +280,10 @@ contract ModelsManager is ReentrancyGuardTransient {
      * environment attributes `env` (Table 5.2).
      * Requirements: caller is an approved worker (Active or Idle: not Pending, not removed)
      * covering `domain` (<= 47) and listing fewer than {maxModelsPerOwner} models; non-empty
-     * CID not listed before; at most 64 attributes; if the CID is a TMC outcome, the caller
-     * submitted it and its verdict is Accepted (see the contract's provenance rule).
+     * CID not listed before; at most 12 attributes; if the CID is a TMC outcome, the caller
+     * submitted it and its verdict is Accepted (see the contract's provenance rule), else the
+     * caller committed keccak256(cid ++ caller) on the TMC in an earlier block (commitCid:
+     * commit-reveal, so nobody who saw the CID pending can list it first).
      * Emits a {ModelAdded} event.
      */
     function addModel(string calldata cid, string calldata description, uint32 domain, uint32[] calldata env)
@@ -305,6 +308,9 @@ contract ModelsManager is ReentrancyGuardTransient {
         if (worker != address(0)) {
             if (worker != msg.sender) revert ModelsNotOutcomeOwner(taskId, worker);
             if (verdict != ITasksOutcomes.Verdict.Accepted) revert ModelsOutcomeNotAccepted(taskId, verdict);
+        } else {
+            bytes32 commitment = keccak256(abi.encodePacked(cid, msg.sender));
+            if (!tmc.committedBefore(commitment)) revert ModelsCidNotCommitted(commitment);
         }
         modelId = ++_g.modelCount;
         modelOfCid[cidHash] = modelId;

@@ -62,6 +62,14 @@ import {QoSMath} from "./QoSMath.sol";
  * Provenance: every outcome CID is recorded once, with its worker and task ({outcomeOf},
  * keyed by keccak256 of the CID); the MMC lets only that worker share it, once accepted.
  *
+ * Commit-reveal of CIDs: a CID is public from the moment its transaction is pending, so
+ * whoever saw it could hand it in first (as an outcome of a task it posted from a second
+ * address, or as its own model), and the duplicate rules would then refuse its producer. A
+ * worker therefore commits {cidCommitment}(cid, itself) with {commitCid} before the CID is
+ * published (before the upload) and reveals it with {submitOutcome} (or the MMC's addModel)
+ * in a later block. A copier sees the CID only in the reveal; its own commitment would be
+ * mined in that block or later, so its reveal comes after the producer's.
+ *
  * Text (description, outcome CIDs) lives only in events: the indexer keeps it, the chain
  * keeps what the rules need (~20k gas saved per 32 bytes not stored).
  */
@@ -169,6 +177,8 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
     error TasksEmptyCid();
     error TasksDuplicateOutcome(uint256 taskId, address worker);
     error TasksOutcomeIsListedModel(uint256 modelId);
+    error TasksNotWorker(address account);
+    error TasksCidNotCommitted(bytes32 commitment);
     error TasksModelsAlreadySet(address models);
     error TasksRewardBelowMinimum(uint256 reward, uint256 minimum);
     error TasksBadReview(uint8 review);
@@ -210,6 +220,7 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
     event TaskLimitsUpdated(uint32 minWorkTime, uint40 maxDuration);
     event SlotsCancelled(uint256 indexed taskId, uint8 cancelled, uint8 numWorkers);
     event ModelsListingSet(address models);
+    event CidCommitted(address indexed worker, bytes32 indexed commitment);
 
     IUsersManager public immutable umc;
     /// The MMC, set once by an admin after both are deployed (each names the other).
@@ -240,6 +251,8 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
     mapping(address => uint256) public credits;
     /// Outcome provenance: keccak256(cid) -> submitting worker and task.
     mapping(bytes32 => OutcomeRecord) internal _outcomes;
+    /// @dev Block in which each {cidCommitment} was committed ({commitCid}); 0 if never.
+    mapping(bytes32 commitment => uint256 blockNumber) public cidCommits;
 
     constructor(IUsersManager umc_, uint64 w1_, uint32 acceptWindow_, uint32 reviewWindow_, uint256 gpus) {
         umc = umc_;
@@ -580,8 +593,9 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
      * handed in as an outcome would be someone else's work, and its outcome record would
      * name the wrong producer of a listed model.
      * Requirements: task open; caller accepted the task and has not submitted; before the
-     * deadline; non-empty CID never submitted before nor listed as a model. Emits an
-     * {OutcomeSubmitted} event.
+     * deadline; non-empty CID never submitted before nor listed as a model; the caller
+     * committed {cidCommitment}(cid, caller) in an earlier block ({commitCid}; the commitment
+     * is spent). Emits an {OutcomeSubmitted} event.
      */
     function submitOutcome(uint256 taskId, string calldata cid) external {
         Task storage t = _tasks[taskId];
@@ -595,10 +609,43 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
             uint256 listed = models.modelOfCid(keccak256(bytes(cid)));
             if (listed != 0) revert TasksOutcomeIsListedModel(listed);
         }
+        bytes32 commitment = cidCommitment(cid, msg.sender);
+        if (!_committedBefore(commitment)) revert TasksCidNotCommitted(commitment);
+        delete cidCommits[commitment];
         (rec.worker, rec.taskId) = (msg.sender, uint64(taskId));
         o.state = OfferState.Submitted;
         umc.updateInfo(msg.sender, _reqs[taskId].domain, TRAINING, COMPLETED, 0);
         emit OutcomeSubmitted(taskId, msg.sender, cid);
+    }
+
+    /**
+     * @dev A worker commits to a CID it will reveal later ({submitOutcome}, MMC addModel),
+     * before anyone can read the CID; `commitment` is {cidCommitment}(cid, caller), which
+     * hides the CID and binds it to the caller (a copied commitment reveals nothing for the
+     * copier). Committing the same commitment again keeps the first block and emits nothing,
+     * so a worker that retries after a crash loses no priority.
+     * Requirements: caller is a registered worker. Emits a {CidCommitted} event.
+     */
+    function commitCid(bytes32 commitment) external {
+        if (umc.workerId(msg.sender) == 0) revert TasksNotWorker(msg.sender);
+        if (cidCommits[commitment] != 0) return;
+        cidCommits[commitment] = block.number;
+        emit CidCommitted(msg.sender, commitment);
+    }
+
+    /// @dev What {commitCid} takes for `cid` revealed by `worker`: keccak256(cid ++ worker).
+    function cidCommitment(string calldata cid, address worker) public pure returns (bytes32) {
+        return keccak256(abi.encodePacked(cid, worker));
+    }
+
+    /// @inheritdoc ITasksOutcomes
+    function committedBefore(bytes32 commitment) external view returns (bool) {
+        return _committedBefore(commitment);
+    }
+
+    function _committedBefore(bytes32 commitment) internal view returns (bool) {
+        uint256 committedAt = cidCommits[commitment];
+        return committedAt != 0 && committedAt < block.number;
     }
 
     // ---------------------------------------------------------------------------- payments

@@ -73,9 +73,13 @@ contract GasTest is Fixture {
             umc.addWorker(1 << DOMAIN, uint16(1 + (i * 37) % 64), uint16(4 + (i * 11) % 252), uint8(1 + i % 8));
             if (i == 0) vm.snapshotGasLastCall("UMC.addWorker");
             if (i == POOL - 1) vm.snapshotGasLastCall("UMC.addWorker(nth)");
+            string memory cid = string(abi.encodePacked("bafkreidot3j5vvbthwtydmn3ny2pq2ckibhbuj5sech6wpzsxokrkqntsy", i));
             vm.prank(ws[i]);
-            mmc.addModel(string(abi.encodePacked("bafkreidot3j5vvbthwtydmn3ny2pq2ckibhbuj5sech6wpzsxokrkqntsy", i)),
-                "target localization, 3 agents 3 walls", DOMAIN, _env(uint32(1 + i % 10), uint32(i % 11)));
+            tmc.commitCid(keccak256(abi.encodePacked(cid, ws[i])));
+            if (i == 0) vm.snapshotGasLastCall("TMC.commitCid");
+            vm.roll(vm.getBlockNumber() + 1);
+            vm.prank(ws[i]);
+            mmc.addModel(cid, "target localization, 3 agents 3 walls", DOMAIN, _env(uint32(1 + i % 10), uint32(i % 11)));
             if (i == 0) _atMost("MMC.addModel", 634_341);
         }
         vm.prank(ws[POOL - 1]);
@@ -114,8 +118,12 @@ contract GasTest is Fixture {
         vm.prank(offered[1]);
         tmc.declineOffer(id);
         vm.snapshotGasLastCall("TMC.declineOffer");
+        string memory outcome = "bafkreidot3j5vvbthwtydmn3ny2pq2ckibhbuj5sech6wpzsxokrkqntsy";
         vm.prank(offered[0]);
-        tmc.submitOutcome(id, "bafkreidot3j5vvbthwtydmn3ny2pq2ckibhbuj5sech6wpzsxokrkqntsy");
+        tmc.commitCid(keccak256(abi.encodePacked(outcome, offered[0])));
+        vm.roll(vm.getBlockNumber() + 1);
+        vm.prank(offered[0]);
+        tmc.submitOutcome(id, outcome);
         vm.snapshotGasLastCall("TMC.submitOutcome");
         vm.prank(requester);
         tmc.reviewOutcome(id, offered[0], 4, true);

@@ -37,6 +37,7 @@ contract TasksManagerFuzzTest is Fixture {
 
     function _submitted(uint256 reward, string memory cid) internal returns (uint256 id, address w) {
         (id, w) = _accepted(reward);
+        _commit(w, cid);
         vm.prank(w);
         tmc.submitOutcome(id, cid);
     }
@@ -311,6 +312,7 @@ contract TasksManagerFuzzTest is Fixture {
         vm.expectRevert(TasksManager.TasksEmptyCid.selector);
         vm.prank(w);
         tmc.submitOutcome(id, "");
+        _commit(w, cid);
         vm.expectEmit(address(tmc));
         emit TasksManager.OutcomeSubmitted(id, w, cid);
         vm.prank(w);
@@ -321,6 +323,7 @@ contract TasksManagerFuzzTest is Fixture {
         vm.assertEq(umc.counters(w, DOMAIN, 0).completed, 1, "completed counted");
         // the same CID for another slot is refused
         (uint256 id2, address w2) = _accepted(1e9);
+        _commit(w2, cid);
         vm.expectRevert(abi.encodeWithSelector(TasksManager.TasksDuplicateOutcome.selector, id, w));
         vm.prank(w2);
         tmc.submitOutcome(id2, cid);
@@ -332,14 +335,98 @@ contract TasksManagerFuzzTest is Fixture {
         address owner_ = workers[5];
         uint32[] memory env = new uint32[](2);
         (env[0], env[1]) = (3, 3);
+        _commit(owner_, cid);
         vm.prank(owner_);
         uint256 modelId = mmc.addModel(cid, "mine", DOMAIN, env);
         (uint256 id, address w) = _accepted(1e9);
+        _commit(w, cid);
         vm.expectRevert(abi.encodeWithSelector(TasksManager.TasksOutcomeIsListedModel.selector, modelId));
         vm.prank(w);
         tmc.submitOutcome(id, cid);
         (address who,,) = tmc.outcomeOf(keccak256(bytes(cid)));
         vm.assertEq(who, address(0), "no outcome recorded");
+    }
+
+    // ------------------------------------------------------------------ commit-reveal of CIDs
+
+    function testFuzz_commitCid(bytes32 commitment, address stranger_) public {
+        address w = workers[0];
+        vm.assume(umc.workerId(stranger_) == 0);
+        vm.expectRevert(abi.encodeWithSelector(TasksManager.TasksNotWorker.selector, stranger_));
+        vm.prank(stranger_);
+        tmc.commitCid(commitment);
+        vm.expectEmit(address(tmc));
+        emit TasksManager.CidCommitted(w, commitment);
+        vm.prank(w);
+        tmc.commitCid(commitment);
+        uint256 first = vm.getBlockNumber(); // block.number is constant to the optimizer
+        vm.assertEq(tmc.cidCommits(commitment), first, "block recorded");
+        vm.assertFalse(tmc.committedBefore(commitment), "not before its own block");
+        vm.roll(first + 5);
+        vm.recordLogs();
+        vm.prank(w);
+        tmc.commitCid(commitment); // a retry keeps the first block and says nothing
+        vm.assertEq(vm.getRecordedLogs().length, 0, "no event for a repeated commitment");
+        vm.assertEq(tmc.cidCommits(commitment), first, "first block kept");
+        vm.assertTrue(tmc.committedBefore(commitment), "committed before this block");
+    }
+
+    function testFuzz_submitOutcome_needsEarlierCommit(string calldata cid) public {
+        vm.assume(bytes(cid).length != 0);
+        (uint256 id, address w) = _accepted(1e9);
+        bytes32 commitment = keccak256(abi.encodePacked(cid, w));
+        vm.assertEq(tmc.cidCommitment(cid, w), commitment, "commitment formula");
+        vm.expectRevert(abi.encodeWithSelector(TasksManager.TasksCidNotCommitted.selector, commitment));
+        vm.prank(w);
+        tmc.submitOutcome(id, cid); // never committed
+        address other = workers[1] == w ? workers[2] : workers[1];
+        _commit(other, cid);
+        vm.expectRevert(abi.encodeWithSelector(TasksManager.TasksCidNotCommitted.selector, commitment));
+        vm.prank(w);
+        tmc.submitOutcome(id, cid); // another's commitment of the same CID is not w's
+        vm.prank(w);
+        tmc.commitCid(commitment);
+        vm.expectRevert(abi.encodeWithSelector(TasksManager.TasksCidNotCommitted.selector, commitment));
+        vm.prank(w);
+        tmc.submitOutcome(id, cid); // committed in this very block: not yet
+        vm.roll(vm.getBlockNumber() + 1);
+        vm.prank(w);
+        tmc.submitOutcome(id, cid);
+        vm.assertEq(tmc.cidCommits(commitment), 0, "commitment spent");
+    }
+
+    /// @dev The attack commit-reveal closes: a worker's CID shows in its pending submitOutcome;
+    /// a copier with an accepted offer of its own commits it at once and tries to hand it in
+    /// first. Its reveal cannot come before the next block, by which the producer's is in.
+    function testFuzz_frontRunningOutcomeFails(string calldata cid) public {
+        vm.assume(bytes(cid).length != 0);
+        (uint256 id, address[] memory ws) = _twoAccepted();
+        _commit(ws[0], cid); // the producer commits before it uploads
+        // the copier sees cid in the producer's pending reveal and races it in this block
+        vm.prank(ws[1]);
+        tmc.commitCid(keccak256(abi.encodePacked(cid, ws[1])));
+        vm.expectRevert(
+            abi.encodeWithSelector(TasksManager.TasksCidNotCommitted.selector, keccak256(abi.encodePacked(cid, ws[1])))
+        );
+        vm.prank(ws[1]);
+        tmc.submitOutcome(id, cid);
+        vm.prank(ws[0]);
+        tmc.submitOutcome(id, cid);
+        vm.roll(vm.getBlockNumber() + 1); // next block: the copier is refused by the outcome record
+        vm.expectRevert(abi.encodeWithSelector(TasksManager.TasksDuplicateOutcome.selector, id, ws[0]));
+        vm.prank(ws[1]);
+        tmc.submitOutcome(id, cid);
+        (address who,,) = tmc.outcomeOf(keccak256(bytes(cid)));
+        vm.assertEq(who, ws[0], "the producer's outcome");
+    }
+
+    /// @dev One task, two workers who accepted it.
+    function _twoAccepted() internal returns (uint256 id, address[] memory ws) {
+        (id, ws) = _allocated(2, 1e9);
+        for (uint256 i; i < 2; ++i) {
+            vm.prank(ws[i]);
+            tmc.acceptOffer(id);
+        }
     }
 
     function testFuzz_setModels(address caller, address other) public {
@@ -459,6 +546,7 @@ contract TasksManagerFuzzTest is Fixture {
         (uint256 id, address[] memory offered) = _allocated(3, reward);
         vm.prank(offered[0]);
         tmc.acceptOffer(id);
+        _commit(offered[0], "bafy-close");
         vm.prank(offered[0]);
         tmc.submitOutcome(id, "bafy-close");
         vm.prank(offered[1]);

@@ -42,7 +42,7 @@ def world(request: pytest.FixtureRequest) -> dict[str, Any]:
     offered, _ = p.tmc.allocate(r, tid)
     assert offered == [w1, w2]
     p.tmc.transact("acceptOffer", tid, sender=w1)
-    p.tmc.transact("submitOutcome", tid, CID, sender=w1)
+    p.tmc.submit_outcome(w1, tid, CID)
     mid, _ = p.mmc.add_model(w1, CID + "own", DOMAIN, [1, 2])  # an own upload, no outcome
     alloc, ids, _ = p.mmc.allocate(r, domain=DOMAIN, num_models=1, env=[1, 2], price=REWARD)
     assert ids == [mid]

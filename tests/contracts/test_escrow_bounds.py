@@ -79,7 +79,7 @@ def test_unfilled_slots_are_refunded_while_accepted_workers_keep_theirs(setup, a
     assert p.tmc.call("credits", r) == 2 * REWARD
     _escrow_held(p, everyone)
     # the accepted worker still delivers and is paid; the task completes on its review
-    p.tmc.transact("submitOutcome", tid, CID, sender=ws[0])
+    p.tmc.submit_outcome(ws[0], tid, CID)
     rc = p.tmc.transact("reviewOutcome", tid, ws[0], 5, True, sender=r)
     assert rc.one("TaskStatusUpdated").args["status"] == TaskStatus.COMPLETED
     assert p.tmc.call("credits", ws[0]) == REWARD
@@ -104,7 +104,7 @@ def test_cancelling_the_rest_after_the_reviews_completes_the_task(setup) -> None
     p.tmc.allocate(r, tid)
     p.tmc.transact("acceptOffer", tid, sender=ws[0])
     p.tmc.transact("declineOffer", tid, sender=ws[1])
-    p.tmc.transact("submitOutcome", tid, CID, sender=ws[0])
+    p.tmc.submit_outcome(ws[0], tid, CID)
     p.tmc.transact("reviewOutcome", tid, ws[0], 4, True, sender=r)
     _, rc = p.tmc.cancel_open_slots(r, tid)
     assert rc.one("TaskStatusUpdated").args["status"] == TaskStatus.COMPLETED

@@ -57,8 +57,8 @@ def test_training_and_sharing_flows_conserve_payments(any_chain: Chain) -> None:
     assert [e.args["worker"] for e in rc.named("OfferExpired")] == [w[2]]
     assert offered == [w[1]]
     p.tmc.transact("acceptOffer", tid, sender=w[1])
-    p.tmc.transact("submitOutcome", tid, CID, sender=w[4])
-    rc = p.tmc.transact("submitOutcome", tid, CID + "x", sender=w[1])
+    p.tmc.submit_outcome(w[4], tid, CID)
+    rc = p.tmc.submit_outcome(w[1], tid, CID + "x")
     assert rc.one("OutcomeSubmitted").args["cid"] == CID + "x"
     p.tmc.transact("reviewOutcome", tid, w[4], 5, True, sender=act.requester)
     rc = p.tmc.transact("reviewOutcome", tid, w[1], 1, False, sender=act.requester)
@@ -94,7 +94,7 @@ def test_training_and_sharing_flows_conserve_payments(any_chain: Chain) -> None:
     assert offered == [w[4], w[3], w[2]]
     p.tmc.transact("acceptOffer", close_id, sender=w[4])
     p.tmc.transact("acceptOffer", close_id, sender=w[3])
-    p.tmc.transact("submitOutcome", close_id, CID + "c", sender=w[4])  # never reviewed
+    p.tmc.submit_outcome(w[4], close_id, CID + "c")  # never reviewed
     chain.advance_time(2 * ACCEPT_WINDOW + 1)
     try:
         p.tmc.transact("updateTaskStatus", close_id, int(TaskStatus.CLOSED), sender=w[4])

@@ -79,7 +79,7 @@ def test_an_offer_made_in_time_can_be_accepted_late_and_completed(setup) -> None
     assert p.tmc.task(tid)["deadline"] - expiry >= MIN_WORK
     p.chain.advance_time(ACCEPT_WINDOW - MARGIN)  # near the end of the window
     p.tmc.transact("acceptOffer", tid, sender=w)
-    p.tmc.transact("submitOutcome", tid, CID, sender=w)
+    p.tmc.submit_outcome(w, tid, CID)
     c = p.umc.counters(w, DOMAIN, 0)
     assert (c["assigned"], c["accepted"], c["completed"]) == (1, 1, 1)
 

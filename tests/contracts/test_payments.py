@@ -7,6 +7,8 @@ from __future__ import annotations
 import pytest
 from eth_utils import keccak
 
+from backend.chain.platform import cid_commitment
+
 from .conftest import DOMAIN
 from .helpers import CID, reverts
 
@@ -31,6 +33,7 @@ def paid_probe(p, actors):
     )
     assert p.tmc.allocate(actors.requester, tid)[0] == [probe.address]
     as_probe(p.tmc, "acceptOffer", tid)
+    as_probe(p.tmc, "commitCid", cid_commitment(CID, probe.address))  # mined in its own block
     as_probe(p.tmc, "submitOutcome", tid, CID)
     p.tmc.transact("reviewOutcome", tid, probe.address, 5, True, sender=actors.requester)
     as_probe(p.mmc, "addModel", CID, "", DOMAIN, [1])

@@ -28,7 +28,7 @@ def submitted(p, actors):
     offered, _ = p.tmc.allocate(actors.requester, tid)
     for w in offered:
         p.tmc.transact("acceptOffer", tid, sender=w)
-    p.tmc.transact("submitOutcome", tid, CID, sender=offered[0])
+    p.tmc.submit_outcome(offered[0], tid, CID)
     return p, tid, offered, [w for w in ws if w not in offered]
 
 
@@ -36,7 +36,7 @@ def test_outcome_is_recorded_with_worker_task_and_verdict(submitted, actors) -> 
     p, tid, (w0, w1), _ = submitted
     assert p.tmc.outcome_of(CID) == (w0, tid, Verdict.PENDING)
     assert p.tmc.outcome_of(CID + "never") == (ZERO, 0, Verdict.NONE)
-    p.tmc.transact("submitOutcome", tid, CID + "b", sender=w1)
+    p.tmc.submit_outcome(w1, tid, CID + "b")
     p.tmc.transact("reviewOutcome", tid, w0, 4, True, sender=actors.requester)
     p.tmc.transact("reviewOutcome", tid, w1, 1, False, sender=actors.requester)
     assert p.tmc.outcome_of(CID)[2] == Verdict.ACCEPTED
@@ -67,7 +67,7 @@ def test_pending_and_rejected_outcomes_are_not_shared(submitted, actors) -> None
     p, tid, (w0, w1), _ = submitted
     err = reverts("ModelsOutcomeNotAccepted", p.mmc.add_model, w0, CID, DOMAIN, [1])
     assert err.args_dict == {"taskId": tid, "verdict": Verdict.PENDING}
-    p.tmc.transact("submitOutcome", tid, CID + "b", sender=w1)
+    p.tmc.submit_outcome(w1, tid, CID + "b")
     p.tmc.transact("reviewOutcome", tid, w1, 0, False, sender=actors.requester)
     err = reverts("ModelsOutcomeNotAccepted", p.mmc.add_model, w1, CID + "b", DOMAIN, [1])
     assert err.args_dict["verdict"] == Verdict.REJECTED

@@ -27,7 +27,7 @@ def submitted(p, actors):
     tid, _ = p.tmc.add_task(r, domain=DOMAIN, num_workers=1, reward=REWARD, duration=DAY)
     p.tmc.allocate(r, tid)
     p.tmc.transact("acceptOffer", tid, sender=w)
-    p.tmc.transact("submitOutcome", tid, CID, sender=w)
+    p.tmc.submit_outcome(w, tid, CID)
     return p, r, w, tid
 
 

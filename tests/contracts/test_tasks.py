@@ -118,7 +118,7 @@ def test_accept_decline_submit_reverts(setup, actors) -> None:
     reverts("TasksNotOfferedWorker", p.tmc.transact, "acceptOffer", tid, sender=ws[0])
     reverts("TasksNotOfferedWorker", p.tmc.transact, "declineOffer", tid, sender=ws[0])
     reverts("TasksEmptyCid", p.tmc.transact, "submitOutcome", tid, "", sender=ws[0])
-    p.tmc.transact("submitOutcome", tid, CID, sender=ws[0])
+    p.tmc.submit_outcome(ws[0], tid, CID)
     reverts("TasksNotAssignedWorker", p.tmc.transact, "submitOutcome", tid, CID, sender=ws[0])
     assert p.umc.counters(ws[0], DOMAIN, 0)["completed"] == 1
     p.chain.advance_time(ACCEPT_WINDOW + 1)
@@ -135,7 +135,7 @@ def test_review_pays_once(setup, actors) -> None:
     p.tmc.allocate(r, tid)
     p.tmc.transact("acceptOffer", tid, sender=ws[0])
     reverts("TasksNotSubmitted", p.tmc.transact, "reviewOutcome", tid, ws[0], 3, True, sender=r)
-    p.tmc.transact("submitOutcome", tid, CID, sender=ws[0])
+    p.tmc.submit_outcome(ws[0], tid, CID)
     reverts("TasksBadReview", p.tmc.transact, "reviewOutcome", tid, ws[0], 6, True, sender=r)
     rc = p.tmc.transact("reviewOutcome", tid, ws[0], 3, True, sender=r)
     assert rc.one("PaymentCredited").args == {"account": ws[0], "taskId": tid, "amount": REWARD}

@@ -76,7 +76,7 @@ def test_an_unreadable_outcome_manifest_is_a_502_naming_it(client, login, servic
             with service.lock:
                 service.platform.tmc.transact("acceptOffer", tid, sender=worker)
         with service.lock:
-            service.platform.tmc.transact("submitOutcome", tid, cid, sender=worker)
+            service.platform.tmc.submit_outcome(worker, tid, cid)
         client.app.state.indexer.poll()
         with TestClient(client.app, raise_server_exceptions=False) as c:
             r = c.get(f"{P}/models/outcomes/{tid}/{worker}/download", headers=login("user1"))

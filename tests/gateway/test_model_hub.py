@@ -96,7 +96,7 @@ def test_model_page_links_task_experts_and_reads_the_card(
     cid = add_bundle(store, {"model.safetensors": weights_of("o", 1000), "model.json": card})
     with service.lock:
         service.platform.tmc.transact("acceptOffer", task_id, sender=owner)
-        service.platform.tmc.transact("submitOutcome", task_id, cid, sender=owner)
+        service.platform.tmc.submit_outcome(owner, task_id, cid)
     client.app.state.indexer.poll()  # type: ignore[attr-defined]
     review = {"worker": owner, "review": 4}
     r = client.post(f"{P}/tasks/{task_id}/reviews", json=review, headers=login("user1"))

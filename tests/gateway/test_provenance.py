@@ -4,12 +4,17 @@ one on the model's card, and a CID is listed once."""
 
 from __future__ import annotations
 
+from typing import Any
+
 import pytest
+from eth_account import Account
 from fastapi.testclient import TestClient
 
 from backend.chain.errors import ContractError
+from backend.chain.platform import cid_commitment
 from backend.services.chain import ChainService
 from backend.store.bundle import add_bundle
+from backend.store.staged import StagedUpload
 
 from .conftest import ENV, Login, P, addr, register, task_body
 from .test_models import card_of, weights_of
@@ -32,7 +37,7 @@ def test_outcome_download_and_sharing_follow_provenance(
     with service.lock:
         for w in offered:
             service.platform.tmc.transact("acceptOffer", task_id, sender=w)
-        service.platform.tmc.transact("submitOutcome", task_id, cid, sender=owner)
+        service.platform.tmc.submit_outcome(owner, task_id, cid)
     client.app.state.indexer.poll()  # type: ignore[attr-defined]
 
     # the requester (and the worker itself) download the outcome before it is shared
@@ -109,9 +114,90 @@ def test_a_listed_model_cannot_be_handed_in_as_an_outcome(
     with service.lock:
         service.platform.tmc.transact("acceptOffer", task_id, sender=thief)
         with pytest.raises(ContractError) as refused:
-            service.platform.tmc.transact("submitOutcome", task_id, cid, sender=thief)
+            service.platform.tmc.submit_outcome(thief, task_id, cid)
     assert refused.value.name == "TasksOutcomeIsListedModel"
     assert refused.value.args_dict["modelId"] == model_id
     client.app.state.indexer.poll()  # type: ignore[attr-defined]
     page = client.get(f"{P}/models/{model_id}").json()
     assert page["produced_by"] is None and page["owner"] == addr(service, "user3")
+
+
+def test_sharing_an_own_upload_commits_its_cid_first(
+    client: TestClient, service: ChainService, settings: Any
+) -> None:
+    """Commit-reveal over REST for a key the gateway does not hold: ``POST /models`` first
+    answers the commitment to sign (``then: repeat``); relayed, the same request answers the
+    listing itself, mined a block after the commitment; the model is the caller's."""
+    from backend.auth import DemoKeys, bearer_headers
+
+    me = Account.create()
+    with service.lock:  # gas for the new account
+        w3 = service.chain.w3
+        admin = service.chain._keys[service.platform.admin]
+        w3.eth.send_raw_transaction(admin.sign_transaction({
+            "to": me.address, "value": 10**18, "gas": 21_000, "chainId": service.chain.chain_id,
+            "nonce": w3.eth.get_transaction_count(admin.address),
+            "maxFeePerGas": 2 * w3.eth.get_block("latest")["baseFeePerGas"],
+            "maxPriorityFeePerGas": 0,
+        }).raw_transaction)
+    own = DemoKeys(settings)  # the client's keys, not the gateway's
+    own.add("me", me)
+    headers = dict(bearer_headers(own.sign_in(client, "me")))
+
+    def relayed(r: Any) -> dict[str, Any]:
+        assert r.status_code == 409 and r.json()["detail"]["rule"] == "sign_locally", r.text
+        tx = dict(r.json()["detail"]["tx"])
+        tx.pop("from")
+        raw = "0x" + bytes(me.sign_transaction(tx).raw_transaction).hex()
+        out = client.post(f"{P}/tx", json={"raw": raw}, headers=headers)
+        assert out.status_code == 200, out.text
+        return out.json()
+
+    body = {"domains": [0], "cpu_cores": 4, "ram_gb": 8, "gpu_series": 0}
+    relayed(client.post(f"{P}/users/workers", json=body, headers=headers))
+    store = client.app.state.store  # type: ignore[attr-defined]
+    files = {"model.safetensors": weights_of("mine"), "model.json": card_of(ENV, "m")}
+    cid = add_bundle(store, files)
+    first = client.post(f"{P}/models", json={"cid": cid, "env": ENV}, headers=headers)
+    detail = first.json()["detail"]
+    assert detail.get("then") == "repeat" and "send this request again" in detail["msg"]
+    assert detail["tx"]["to"] == service.platform.tmc.address
+    commit = relayed(first)
+    commitment = cid_commitment(cid, me.address)
+    assert service.platform.tmc.call("cidCommits", commitment) == commit["block_number"]
+    second = client.post(f"{P}/models", json={"cid": cid, "env": ENV}, headers=headers)
+    assert "then" not in second.json()["detail"]  # the listing itself
+    assert second.json()["detail"]["tx"]["to"] == service.platform.mmc.address
+    listing = relayed(second)
+    assert listing["block_number"] > commit["block_number"]
+    model_id = service.platform.mmc.model_of_cid(cid)
+    assert service.platform.mmc.call("getModel", model_id)[0][0] == me.address
+
+
+def test_a_commitment_made_before_the_upload_is_what_listing_reveals(
+    client: TestClient, login: Login, service: ChainService
+) -> None:
+    """``POST /models/commitments`` (what ``drlaas model push --key`` sends before it uploads):
+    workers only; a repeat keeps the first block; the listing then sends no new commitment."""
+    register(client, login, ["user1"], {"user3": {}})
+    files = {"model.safetensors": weights_of("early"), "model.json": card_of(ENV, "e")}
+    cid = StagedUpload()
+    manifest = add_bundle(cid, files)  # the CID, computed without storing anything
+    commitment = "0x" + cid_commitment(manifest, addr(service, "user3")).hex()
+    body = {"commitment": commitment}
+    r = client.post(f"{P}/models/commitments", json=body, headers=login("user1"))
+    assert r.status_code == 403 and r.json()["detail"]["rule"] == "tasks_not_worker", r.text
+    bad = client.post(
+        f"{P}/models/commitments", json={"commitment": "0x12"}, headers=login("user3")
+    )
+    assert bad.status_code == 422
+    r = client.post(f"{P}/models/commitments", json=body, headers=login("user3"))
+    assert r.status_code == 201, r.text
+    block = r.json()["block"]
+    again = client.post(f"{P}/models/commitments", json=body, headers=login("user3"))
+    assert again.json()["block"] == block
+    cid.publish(client.app.state.store)  # type: ignore[attr-defined]
+    r = client.post(f"{P}/models", json={"cid": manifest, "env": ENV}, headers=login("user3"))
+    assert r.status_code == 201, r.text
+    commits = service.platform.tmc.contract.events.CidCommitted().get_logs(from_block=block)
+    assert [e["args"]["commitment"].hex() for e in commits] == [commitment[2:]]

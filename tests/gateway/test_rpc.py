@@ -12,7 +12,7 @@ import pytest
 from backend.api.main import create_app
 from backend.chain.client import Chain
 from backend.chain.errors import ContractError
-from backend.chain.platform import TasksManager, UsersManager
+from backend.chain.platform import TasksManager, UsersManager, cid_commitment
 from backend.services.chain import ChainService
 from backend.settings import Settings
 
@@ -60,6 +60,36 @@ def test_chain_rpc_through_the_gateway(gateway: str, service: ChainService) -> N
         assert time.monotonic() < deadline, r.text
         time.sleep(0.1)
     assert r.json()["offers"][0]["worker"] == worker.address
+
+
+def test_commit_then_reveal_through_the_gateway(gateway: str, service: ChainService) -> None:
+    """A worker daemon's commit-reveal over ``/rpc``: the chain mines only on transactions and
+    serves no ``evm_mine``, so the reveal sent right after its commitment's receipt must be
+    estimated in the pending block (the next one), where it is then mined."""
+    keys = service.demo_keys
+    assert keys is not None
+    requester, worker = keys.account("user10"), keys.account("user11")
+    remote = Chain.rpc(f"{gateway}/rpc", private_keys=[requester.key.hex(), worker.key.hex()])
+    umc_h = remote.register("UsersManager", service.platform.umc.address)
+    tmc_h = remote.register("TasksManager", service.platform.tmc.address)
+    umc = UsersManager(remote, umc_h.name, umc_h.contract)
+    tmc = TasksManager(remote, tmc_h.name, tmc_h.contract)
+    umc.add_requester(requester.address)
+    umc.add_worker(worker.address, [1], 8, 16, 0)
+    task_id, _ = tmc.add_task(
+        requester.address, domain=1, num_workers=1, reward=10**14, duration=86_400
+    )
+    assert tmc.allocate(requester.address, task_id)[0] == [worker.address]
+    tmc.transact("acceptOffer", task_id, sender=worker.address)
+    commit = tmc.transact("commitCid", cid_commitment("bafyreveal", worker.address),
+                          sender=worker.address)
+    assert remote.w3.eth.block_number == commit.block_number  # nothing mined since
+    assert tmc.contract.functions.committedBefore(
+        cid_commitment("bafyreveal", worker.address)
+    ).call(block_identifier="pending") is True  # the next block's view
+    reveal = tmc.transact("submitOutcome", task_id, "bafyreveal", sender=worker.address)
+    assert reveal.block_number == commit.block_number + 1
+    assert tmc.outcome_of("bafyreveal")[0] == worker.address
 
 
 def test_rpc_refuses_node_signing_and_bad_requests(gateway: str) -> None:

@@ -135,7 +135,7 @@ def test_progress_review_and_cancel_act_only_for_the_right_address(
 
     # submit, then the requester reviews (accept -> credited), status completes
     with service.lock:
-        service.platform.tmc.transact("submitOutcome", task_id, "bafyoutcome", sender=worker)
+        service.platform.tmc.submit_outcome(worker, task_id, "bafyoutcome")
     r = client.post(
         f"{P}/tasks/{task_id}/reviews", json={"worker": worker, "review": 4}, headers=login("user1")
     )

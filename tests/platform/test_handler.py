@@ -12,7 +12,7 @@ import pytest
 import torch
 
 from backend.chain.client import Chain
-from backend.chain.platform import OfferState
+from backend.chain.platform import OfferState, cid_commitment
 from backend.store import EmbeddedStore, IpfsRpcStore, NotFound, StoreUnavailable
 from backend.store.bundle import MODEL_FILES, pull_model, read_bundle
 from backend.store.sealed import public_key_hex, pull_model_with_key
@@ -73,6 +73,37 @@ def test_offer_is_trained_uploaded_as_manifest_and_submitted(env, tmp_path: Path
     again = h.handle(task_id, offered[0])
     assert again["status"] == "submitted" and again["cid"] == out["cid"]
     assert p.chain.w3.eth.block_number == block
+
+
+def test_the_outcome_cid_is_committed_before_anyone_can_read_it(
+    env, tmp_path: Path, monkeypatch
+) -> None:
+    """Commit-reveal: the daemon commits the bundle's CID on chain while the store does not
+    hold it yet (so nobody can copy it first), publishes, then reveals it in a later block."""
+    p, actors, store = env
+    task_id, offered, _ = post_task(p, store, actors.requester)
+    h = handler_for(p, offered[0], store, tmp_path)
+    h._post_progress = lambda tid, point: None  # type: ignore[method-assign]
+    seen: list[tuple[str, bool]] = []
+    real = p.tmc.commit_cid
+
+    def commit(sender: str, cid: str):
+        try:
+            store.get(cid)
+            readable = True
+        except NotFound:
+            readable = False
+        seen.append((cid, readable))
+        return real(sender, cid)
+
+    monkeypatch.setattr(p.tmc, "commit_cid", commit)
+    out = h.handle(task_id, offered[0])
+    assert out["status"] == "submitted"
+    assert seen == [(out["cid"], False)], "committed once, before the store held the manifest"
+    committed = p.tmc.contract.events.CidCommitted().get_logs(from_block=0)
+    submitted = p.tmc.contract.events.OutcomeSubmitted().get_logs(from_block=0)
+    assert committed[-1]["blockNumber"] < submitted[-1]["blockNumber"]
+    assert committed[-1]["args"]["commitment"] == cid_commitment(out["cid"], offered[0])
 
 
 def test_a_crashed_job_resumes_from_its_checkpoint(env, tmp_path: Path) -> None:
@@ -703,7 +734,7 @@ def test_recover_survives_damaged_job_directories_and_records_late_submits(
     # killed after submitOutcome, before the record: the disk says uploaded
     cid = "bafkreigh2akiscaildcqabsyg3dfr6chu3fgpregiymsck7e7aqa4s52zy"
     h._save(t_submitted, phase="uploaded", cid=cid)
-    p.tmc.transact("submitOutcome", t_submitted, cid, sender=worker)
+    p.tmc.submit_outcome(worker, t_submitted, cid)
     # never accepted on chain: abandonOffer is refused; the refusal is recorded once
     h._save(t_refused, phase="failed", reason="broken")
     assert h._report_failure(t_refused)["offer"].startswith("not abandoned")

@@ -15,12 +15,13 @@ import torch
 from safetensors.torch import load_file
 from typer.testing import CliRunner
 
-from backend.chain.platform import cid_hash
-from backend.store import make_store
+from backend.chain.platform import cid_commitment, cid_hash
 from backend.store.bundle import upload_model
+from backend.store.staged import StagedUpload
 from drlaas.cli import app
 from drlaas.commands.up import running_platform
 from workers.daemon.gateway import Gateway
+from workers.daemon.keys import load_or_create_key
 from workers.mdrl.trainingspec import TrainingSpec
 
 from .conftest import worker_logs
@@ -40,7 +41,14 @@ def test_medc_task_with_an_mmc_expert_end_to_end(data_dir: Path, tmp_path: Path)
         p.wait_registered()
         # the worker shares a model of its own (an upload, not an outcome)
         owner_key = next((p.data_dir / "keys").glob("*.key"))
-        cid = upload_model(make_store(p.data_dir / "ipfs"), EXPERT)
+        pushed = run("model", "push", str(EXPERT), "--key", str(owner_key))  # commit, upload
+        cid = pushed["cid"]
+        assert cid == upload_model(StagedUpload(), EXPERT)  # the CID an IPFS node gives
+        owner = load_or_create_key(owner_key).address
+        committed_at = p.chain.platform.tmc.call(
+            "cidCommits", cid_commitment(cid, owner)
+        )
+        assert committed_at and "0x" + cid_commitment(cid, owner).hex() == pushed["commitment"]
         env = json.loads((EXPERT / "model.json").read_text())["env"]
         shared = run(
             "model", "share", "--key", str(owner_key), "--cid", cid, "--env", json.dumps(env)

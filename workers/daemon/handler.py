@@ -47,6 +47,7 @@ from backend.chain.platform import OfferState, Platform, TaskStatus, Verdict
 from backend.store import ContentStore, StoreError, StoreUnavailable
 from backend.store.bundle import read_bundle, upload_model
 from backend.store.sealed import address_of, parse_public_key, publish_model, seal_model
+from backend.store.staged import StagedUpload
 from workers.daemon import job as jobs
 from workers.daemon.capabilities import ram_bytes
 from workers.daemon.experts import (
@@ -92,7 +93,7 @@ def node_unreachable(exc: BaseException) -> bool:
     slow, not because of the call itself: worth retrying (a 5xx or 429 answer, a connection or
     read timeout, a transaction not mined within the receipt wait)."""
     if isinstance(exc, (requests.ConnectionError, requests.Timeout, httpx.TransportError,
-                        TimeExhausted)):
+                        TimeExhausted, TimeoutError)):  # TimeoutError: no block after a commit
         return True
     if isinstance(exc, (requests.HTTPError, httpx.HTTPStatusError)):
         response = exc.response
@@ -292,12 +293,18 @@ class OfferHandler:
                 task_id, phase="trained", model=model_dir.name, starts_without_progress=0
             )
         if st.get("phase") != "uploaded" or not st.get("cid"):
+            # commit-reveal: the CID is committed on chain before anyone can read it in the
+            # store, so nobody can hand it in ahead of us (TMC.commitCid, docs/chain.md)
+            staged = StagedUpload()
+            cid = (
+                seal_model(staged, model_dir, parse_public_key(spec.outcome_key))
+                if spec.outcome_key is not None
+                else upload_model(staged, model_dir)
+            )
+            with chain_call(f"committing the outcome CID of task {task_id}"):
+                self.platform.tmc.commit_cid(self.address, cid)
             try:
-                cid = (
-                    seal_model(self.store, model_dir, parse_public_key(spec.outcome_key))
-                    if spec.outcome_key is not None
-                    else upload_model(self.store, model_dir)
-                )
+                staged.publish(self.store)
                 files = {name: entry[0] for name, entry in read_bundle(self.store, cid).items()}
             except StoreUnavailable as exc:
                 raise Transient(str(exc)) from exc

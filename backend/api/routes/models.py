@@ -27,7 +27,7 @@ from backend.api.limits import json_depth_exceeds
 from backend.api.pagecache import cached_page
 from backend.api.schemas import Address
 from backend.api.writes import catch_up, field_error, receipt_public
-from backend.chain.platform import Metric, cid_hash
+from backend.chain.platform import Metric, cid_commitment, cid_hash
 from backend.chain.qos import mmc_reputation_fixed
 from backend.db import models as m
 from backend.schemas.cards import MAX_EXPERTS, CardView, ExpertUsagePublic, is_cid
@@ -44,6 +44,8 @@ from backend.schemas.models import (
     AllocationDetailPublic,
     AllocationModelPublic,
     AllocationsPublic,
+    CommitmentCreate,
+    CommitmentPublic,
     ExpertPublic,
     ModelAllocationPublic,
     ModelCreate,
@@ -55,6 +57,7 @@ from backend.schemas.models import (
     ModelsPublic,
     ProducedByPublic,
 )
+from backend.services.chain import ChainService
 from backend.services.specs import SpecError, env_attributes, validate_env
 from backend.store import CIDMismatch, ContentTooLarge, NotFound, StoreError, StoreUnavailable
 from backend.store.bundle import MAX_CARD_BYTES, bundle_entry, read_bundle
@@ -591,6 +594,51 @@ def _stream_bundle_file(
 
 
 @router.post(
+    "/commitments",
+    status_code=status.HTTP_201_CREATED,
+    response_model=CommitmentPublic,
+    responses=rule_responses(401, 403, 409, 503),
+)
+def commit_cid(body: CommitmentCreate, user: CurrentUser, chain: ChainDep) -> CommitmentPublic:
+    """TMC.commitCid by the caller (a registered worker; 403 ``tasks_not_worker``): what an
+    own upload needs before ``POST /models`` lists it, made before the upload so nobody who
+    reads the store can list the CID first (``drlaas model push --key`` does it). Committing
+    again keeps the first block."""
+    commitment = bytes.fromhex(body.commitment[2:])
+    committed_at = int(chain.call(chain.platform.tmc, "cidCommits", commitment))
+    if not committed_at:
+        rc = chain.send(user.address, chain.platform.tmc, "commitCid", commitment)
+        committed_at = rc.block_number
+    return CommitmentPublic(commitment=body.commitment.lower(), block=committed_at)
+
+
+def _ensure_committed(chain: ChainService, owner: str, cid: str) -> None:
+    """Commit-reveal (TMC.commitCid): an own upload (no task outcome) is listed only after
+    ``owner`` committed keccak256(cid ++ owner) in an earlier block. Commits for ``owner``
+    when it has not (409 ``sign_locally`` with ``then: repeat`` for a key the gateway does not
+    hold: relay the commitment, then send the same request again), and waits for a block after
+    the commitment. An outcome's record stands for the commitment (the MMC checks its owner)."""
+    tmc = chain.platform.tmc
+    if not int(chain.call(chain.platform.umc, "workerId", owner)):
+        return  # addModel answers models_not_worker
+    if int(chain.call(tmc, "outcomeOf", cid_hash(cid))[0], 16) != 0:
+        return
+    commitment = cid_commitment(cid, owner)
+    committed_at = int(chain.call(tmc, "cidCommits", commitment))
+    if not committed_at:
+        rc = chain.send(
+            owner,
+            tmc,
+            "commitCid",
+            commitment,
+            description="TMC.commitCid, the commitment to this CID that listing it needs",
+            then="repeat",
+        )
+        committed_at = rc.block_number
+    chain.await_block_after(committed_at)
+
+
+@router.post(
     "",
     status_code=status.HTTP_201_CREATED,
     response_model=ModelPublic,
@@ -617,6 +665,7 @@ def share_model(
     if listed:
         raise RuleError(409, "model_already_listed", f"{body.cid} is listed as model {listed}")
     attrs = env_attributes(declared)
+    _ensure_committed(chain, user.address, body.cid)
     rc = chain.send(
         user.address, chain.platform.mmc, "addModel", body.cid, body.description, body.domain, attrs
     )

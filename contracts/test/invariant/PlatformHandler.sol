@@ -204,6 +204,15 @@ contract PlatformHandler {
         (ok,) = target.call{value: value}(data);
     }
 
+    /// @dev `who` commits `cid` (TMC.commitCid, commit-reveal) and the chain moves a block on,
+    /// so that the call after may reveal it; a refused commit (not a worker) is left to the
+    /// reveal's own revert. Returns the CID for the reveal.
+    function _committed(address who, string memory cid) internal returns (string memory) {
+        _try(who, address(tmc), abi.encodeCall(TasksManager.commitCid, (keccak256(abi.encodePacked(cid, who)))), 0);
+        vm.roll(vm.getBlockNumber() + 1);
+        return cid;
+    }
+
     // =========================================================== time
 
     function warp(uint256 secs) external {
@@ -355,7 +364,7 @@ contract PlatformHandler {
         if (a == 0) data = abi.encodeCall(TasksManager.acceptOffer, (id));
         else if (a == 1) data = abi.encodeCall(TasksManager.declineOffer, (id));
         else if (a == 2) data = abi.encodeCall(TasksManager.abandonOffer, (id));
-        else data = abi.encodeCall(TasksManager.submitOutcome, (id, string(abi.encodePacked("bafy", ++_cidNonce))));
+        else data = abi.encodeCall(TasksManager.submitOutcome, (id, _committed(w, string(abi.encodePacked("bafy", ++_cidNonce)))));
         Snap memory s = _begin();
         _try(w, address(tmc), data, 0);
         _end(s);
@@ -376,7 +385,7 @@ contract PlatformHandler {
         if (st == TasksManager.OfferState.Offered) {
             data = abi.encodeCall(TasksManager.acceptOffer, (id));
         } else if (st == TasksManager.OfferState.Accepted) {
-            data = abi.encodeCall(TasksManager.submitOutcome, (id, string(abi.encodePacked("bafy", ++_cidNonce))));
+            data = abi.encodeCall(TasksManager.submitOutcome, (id, _committed(w, string(abi.encodePacked("bafy", ++_cidNonce)))));
         } else if (st == TasksManager.OfferState.Submitted) {
             (TasksManager.Task memory t,) = tmc.getTask(id);
             who = t.requester;
@@ -425,6 +434,7 @@ contract PlatformHandler {
         if (outcome && _cidNonce > 1) cid = string(abi.encodePacked("bafy", (a % _cidNonce) + 1)); // an outcome CID
         uint32[] memory env = new uint32[](2);
         (env[0], env[1]) = (a % 8, b % 8);
+        _committed(w, cid); // an outcome CID's record outweighs any commitment
         Snap memory s = _begin();
         _try(w, address(mmc), abi.encodeCall(ModelsManager.addModel, (cid, "d", DOMAIN, env)), 0);
         _end(s);
@@ -646,7 +656,9 @@ contract PlatformHandler {
                     ? abi.encodeCall(TasksManager.acceptOffer, (id))
                     : call_ == 1
                         ? abi.encodeCall(TasksManager.declineOffer, (id))
-                        : abi.encodeCall(TasksManager.submitOutcome, (id, string(abi.encodePacked("x", ++_cidNonce))));
+                        : abi.encodeCall(
+                            TasksManager.submitOutcome, (id, _committed(actor, string(abi.encodePacked("x", ++_cidNonce))))
+                        );
             } else {
                 uint256 n = mmc.allocCount();
                 if (n == 0) return;

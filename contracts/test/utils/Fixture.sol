@@ -54,6 +54,14 @@ abstract contract Fixture is TestBase {
         umc.approveWorker(w);
     }
 
+    /// @dev `who` commits `cid` (TMC.commitCid) and the chain moves one block on, so the CID
+    /// may be revealed (submitOutcome, addModel) next.
+    function _commit(address who, string memory cid) internal {
+        vm.prank(who);
+        tmc.commitCid(keccak256(abi.encodePacked(cid, who)));
+        vm.roll(vm.getBlockNumber() + 1);
+    }
+
     function _params(uint8 numWorkers) internal pure returns (TasksManager.TaskParams memory p) {
         p = TasksManager.TaskParams(DOMAIN, numWorkers, 0, 0, 0, 0, DURATION, "task");
     }

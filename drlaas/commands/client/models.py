@@ -207,6 +207,15 @@ def model_pull(
 @model_app.command("push")
 def model_push(
     directory: Annotated[Path, typer.Argument(help="a model or walls CAE directory")],
+    key: Annotated[
+        Path | None,
+        typer.Option(
+            "--key",
+            envvar="DRLAAS_KEY",
+            help="your worker key: commit the CID on chain before the upload, so that "
+            "`model share` can list it and nobody who reads the store can list it first",
+        ),
+    ] = None,
     gateway: GatewayOpt = DEFAULT_GATEWAY,
     as_json: JsonOpt = False,
 ) -> None:
@@ -214,21 +223,31 @@ def model_push(
     store and print its bundle CID: what a task spec names in ``experts`` or
     ``observation.walls_embedding``. Checked here first (safetensors + a card that rebuilds);
     the store is the platform's (DRLAAS_IPFS, or the embedded one of a gateway on this
-    machine), as for the worker daemon."""
+    machine), as for the worker daemon. With ``--key`` the CID is computed first and committed
+    (``POST /models/commitments``, commit-reveal) before anything is uploaded."""
+    from backend.chain.platform import cid_commitment
     from backend.store.bundle import upload_model
+    from backend.store.staged import StagedUpload
     from workers.daemon.links import open_store, worker_settings
 
     kind = _check_local_model(directory)
+    staged = StagedUpload()
+    cid = upload_model(staged, directory)
+    out: dict[str, Any] = {"cid": cid, "kind": kind, "path": str(directory)}
+    if key is not None:
+        with connect_funded(gateway, key) as gw:
+            commitment = "0x" + cid_commitment(cid, gw.account.address).hex()
+            try:
+                write(gw, "POST", "/models/commitments", {"commitment": commitment})
+            except GatewayError as exc:
+                fail(exc)
+        out["commitment"] = commitment
     try:
         settings, _ = worker_settings(gateway)
-        cid = upload_model(open_store(settings), directory)
+        staged.publish(open_store(settings))
     except Exception as exc:  # noqa: BLE001 - shown to the user with its type
         fail(RuntimeError(f"cannot push {directory}: {type(exc).__name__}: {exc}"))
-    emit(
-        {"cid": cid, "kind": kind, "path": str(directory)},
-        as_json,
-        lambda d: typer.echo(f"{kind} {directory} -> {cid}"),
-    )
+    emit(out, as_json, lambda d: typer.echo(f"{kind} {directory} -> {cid}"))
 
 
 def _check_local_model(directory: Path) -> str:

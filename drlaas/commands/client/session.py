@@ -52,17 +52,32 @@ def connect_funded(gateway: str, key: Path) -> Gateway:
     return gw
 
 
+MAX_WRITE_STEPS = 3
+"""Transactions one write may take: a first step (``then: repeat``, e.g. the CID commitment
+before ``POST /models``) and the request's own, with room for one retry of the first."""
+
+
 def write(gw: Gateway, method: str, path: str, body: Any = None) -> Any:
     """A write acting as the key's address: relay the transaction ourselves if the gateway
-    answers ``sign_locally`` (it holds no key for us). Returns the endpoint's answer, or the
-    relayed transaction's receipt (``{tx_hash, block_number, status, events}``)."""
-    try:
-        return gw.request(method, path, json=body, auth=True)
-    except GatewayError as exc:
-        detail = exc.detail if isinstance(exc.detail, dict) else {}
-        if exc.status != 409 or detail.get("rule") != "sign_locally" or "tx" not in detail:
-            raise
-        raw = sign(gw, detail["tx"])
+    answers ``sign_locally`` (it holds no key for us), and send the request again when that
+    transaction was only a first step (``then: repeat``). Returns the endpoint's answer, or
+    the relayed transaction's receipt (``{tx_hash, block_number, status, events}``)."""
+    for _ in range(MAX_WRITE_STEPS):
+        try:
+            return gw.request(method, path, json=body, auth=True)
+        except GatewayError as exc:
+            detail = exc.detail if isinstance(exc.detail, dict) else {}
+            if exc.status != 409 or detail.get("rule") != "sign_locally" or "tx" not in detail:
+                raise
+            receipt = _relay(gw, sign(gw, detail["tx"]))
+            if detail.get("then") != "repeat":
+                return receipt
+    raise RuntimeError(f"{method} {path}: still asks for a first step after {MAX_WRITE_STEPS}")
+
+
+def _relay(gw: Gateway, raw: str) -> Any:
+    """POST the signed ``raw`` transaction to ``/api/tx`` (or the chain's JSON-RPC endpoint
+    when the relay cannot decode it); its receipt."""
     try:
         return gw.post("/tx", {"raw": raw}, auth=True)
     except GatewayError as relay_exc:
