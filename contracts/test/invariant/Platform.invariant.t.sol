@@ -78,7 +78,7 @@ contract PlatformHandlerPathsTest is Fixture {
         h.allocateModel(1, 2, 9, true, 4, 2);
         vm.assertEq(h.modelAllocationsChecked(), 2, "model allocations compared");
         h.updateModelRep(0, 0, 5);
-        for (uint8 a; a < 10; ++a) h.intrude(a, a, 0);
+        for (uint8 a; a < 11; ++a) h.intrude(a, a, 0);
         vm.assertGe(h.intrusionAttempts(), 9, "intrusions attempted");
         h.warp(2 days - 1);
         h.updateTaskStatus(0, true, 0);

@@ -409,6 +409,19 @@ contract PlatformHandler {
         }
     }
 
+    /// @dev An accepted (not yet submitted) offer among the 8 tasks from the one that seed picks
+    /// on (0 if none; bounded so that a long campaign's call stays cheap).
+    function _anyAccepted(uint256 seed) internal view returns (uint256 id, address worker) {
+        uint256 n = tmc.taskCount();
+        for (uint256 i; i < n && i < 8; ++i) {
+            uint256 cand = 1 + ((seed % n + i) % n); // seed may be near 2^256
+            address[] memory list = tmc.offerees(cand);
+            for (uint256 j; j < list.length; ++j) {
+                if (tmc.getOffer(cand, list[j]).state == TasksManager.OfferState.Accepted) return (cand, list[j]);
+            }
+        }
+    }
+
     function _submitted(uint256 id, address[] memory list, address fallback_) internal view returns (address) {
         for (uint256 i; i < list.length; ++i) {
             if (tmc.getOffer(id, list[i]).state == TasksManager.OfferState.Submitted) return list[i];
@@ -583,7 +596,7 @@ contract PlatformHandler {
      */
     function intrude(uint256 actorSeed, uint8 action, uint256 targetSeed) external {
         uint256 id = _task(targetSeed);
-        uint8 a = action % 10;
+        uint8 a = action % 11;
         address actor;
         bytes memory data;
         address target = address(tmc);
@@ -659,6 +672,17 @@ contract PlatformHandler {
                         : abi.encodeCall(
                             TasksManager.submitOutcome, (id, _committed(actor, string(abi.encodePacked("x", ++_cidNonce))))
                         );
+            } else if (a == 10) {
+                // front-running: a worker holding an accepted offer sees another worker's CID
+                // (committed a block ago, its reveal pending) and commits and reveals it in
+                // this one block, ahead of the producer: commit-reveal must refuse it
+                (uint256 aid, address thief) = _anyAccepted(targetSeed);
+                if (aid == 0) return;
+                (id, actor) = (aid, thief);
+                string memory cid = string(abi.encodePacked("fr", ++_cidNonce));
+                _committed(_other(workers, thief, actorSeed), cid); // the producer, a block ago
+                _try(thief, address(tmc), abi.encodeCall(TasksManager.commitCid, (keccak256(abi.encodePacked(cid, thief)))), 0);
+                data = abi.encodeCall(TasksManager.submitOutcome, (id, cid));
             } else {
                 uint256 n = mmc.allocCount();
                 if (n == 0) return;
