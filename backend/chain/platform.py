@@ -72,7 +72,7 @@ def cid_commitment(cid: str, worker: str) -> bytes:
     """TMC.cidCommitment: keccak256(cid ++ worker), what ``commitCid`` takes before ``worker``
     reveals ``cid`` (submitOutcome, addModel) in a later block. It hides the CID until the
     reveal and binds it to the worker, so whoever sees a CID first in a reveal cannot hand it
-    in ahead of its producer (docs/chain.md, "Commit-reveal of CIDs")."""
+    in ahead of its producer (docs/chain.md, "front-running a CID, by commit-reveal")."""
     return keccak(cid.encode() + bytes.fromhex(worker.removeprefix("0x")))
 
 
