@@ -106,6 +106,34 @@ def test_the_outcome_cid_is_committed_before_anyone_can_read_it(
     assert committed[-1]["args"]["commitment"] == cid_commitment(out["cid"], offered[0])
 
 
+def test_a_store_outage_after_the_commitment_keeps_its_priority(
+    env, tmp_path: Path, monkeypatch
+) -> None:
+    """The store fails between the commitment and the upload: the job is retried (Transient),
+    commits the same CID again (no second commitment: the first block stands) and submits."""
+    from backend.store.staged import StagedUpload
+
+    p, actors, store = env
+    task_id, offered, _ = post_task(p, store, actors.requester)
+    h = handler_for(p, offered[0], store, tmp_path)
+    h._post_progress = lambda tid, point: None  # type: ignore[method-assign]
+    real = StagedUpload.publish
+
+    def down(self, store):  # noqa: ANN001 - the store the daemon passes
+        raise StoreUnavailable("http://127.0.0.1:5001", "ipfs node down")
+
+    monkeypatch.setattr(StagedUpload, "publish", down)
+    with pytest.raises(Transient, match="ipfs node down"):
+        h.handle(task_id, offered[0])
+    first = p.tmc.contract.events.CidCommitted().get_logs(from_block=0)
+    assert len(first) == 1
+    monkeypatch.setattr(StagedUpload, "publish", real)
+    out = h.handle(task_id, offered[0])
+    assert out["status"] == "submitted"
+    assert p.tmc.contract.events.CidCommitted().get_logs(from_block=0) == first
+    assert first[0]["args"]["commitment"] == cid_commitment(out["cid"], offered[0])
+
+
 def test_a_crashed_job_resumes_from_its_checkpoint(env, tmp_path: Path) -> None:
     p, actors, store = env
     task_id, offered, _ = post_task(p, store, actors.requester)
