@@ -392,7 +392,9 @@ class Chain:
         deadline = time.monotonic() + timeout
         while True:
             pending = self.w3.eth.get_block("pending").get("number")
-            if pending is not None and int(pending) > number:
+            if pending is None:  # a node without a pending block: its head, executed there
+                pending = self.w3.eth.block_number
+            if int(pending) > number:
                 return int(pending)
             if time.monotonic() > deadline:
                 raise TimeoutError(f"no block after {number} within {timeout:.0f} s")

@@ -149,3 +149,38 @@ def test_a_reveal_needs_its_own_earlier_commitment(p, two_accepted) -> None:
 
 def test_only_workers_commit(p, actors) -> None:
     reverts("TasksNotWorker", p.tmc.transact, "commitCid", b"\x01" * 32, sender=actors.outsider)
+
+
+class _HeadOnlyNode:
+    """A node like Besu: no pending block of its own (``number`` null) and a new head only
+    every block period (here: every ``every`` polls; 0: never)."""
+
+    def __init__(self, head: int, every: int) -> None:
+        self.head, self.every, self.polls = head, every, 0
+
+    @property
+    def block_number(self) -> int:
+        self.polls += 1
+        if self.every and self.polls % self.every == 0:
+            self.head += 1
+        return self.head
+
+    def get_block(self, tag: str) -> dict[str, Any]:
+        assert tag == "pending"
+        return {"number": None}
+
+
+def test_a_reveal_waits_for_the_next_block_where_pending_is_the_head(monkeypatch) -> None:
+    """``Chain.await_block_after`` on a node whose pending block is its head: it returns only
+    once the head is past the commitment's block (the reveal then runs in a later block), and
+    gives up with a TimeoutError when no block comes."""
+    monkeypatch.setattr("backend.chain.client.time.sleep", lambda s: None)
+    node = _HeadOnlyNode(head=7, every=3)
+    chain = Chain.__new__(Chain)
+    chain._tester = None
+    chain.w3 = type("W3", (), {"eth": node})()
+    assert chain.await_block_after(7) == 8 and node.polls >= 3
+    stuck = _HeadOnlyNode(head=9, every=0)
+    chain.w3 = type("W3", (), {"eth": stuck})()
+    with pytest.raises(TimeoutError, match="no block after 9"):
+        chain.await_block_after(9, timeout=0.05)
