@@ -126,6 +126,26 @@ contract ModelsManagerFuzzTest is Fixture {
         vm.stopPrank();
     }
 
+    /// @dev Commit-reveal for own uploads: no listing without the caller's commitment from an
+    /// earlier block; a copier that commits a seen CID and lists it in one block is refused.
+    function testFuzz_addModel_needsEarlierCommit(string calldata cid) public {
+        vm.assume(bytes(cid).length != 0);
+        bytes32 mine = keccak256(abi.encodePacked(cid, owner));
+        vm.expectRevert(abi.encodeWithSelector(ModelsManager.ModelsCidNotCommitted.selector, mine));
+        vm.prank(owner);
+        mmc.addModel(cid, "d", DOMAIN, _env(1, 1)); // never committed
+        _commit(owner, cid); // the producer, a block ago
+        bytes32 theirs = keccak256(abi.encodePacked(cid, owner2));
+        vm.prank(owner2);
+        tmc.commitCid(theirs); // the copier, in this block
+        vm.expectRevert(abi.encodeWithSelector(ModelsManager.ModelsCidNotCommitted.selector, theirs));
+        vm.prank(owner2);
+        mmc.addModel(cid, "d", DOMAIN, _env(1, 1));
+        vm.prank(owner);
+        uint256 id = mmc.addModel(cid, "d", DOMAIN, _env(1, 1));
+        vm.assertEq(mmc.modelOfCid(keccak256(bytes(cid))), id, "the producer's listing");
+    }
+
     function testFuzz_addModel_provenance(uint8 review, bool accept) public {
         // owner2 submits an outcome; nobody else may list it, owner2 only once accepted
         vm.prank(requester);

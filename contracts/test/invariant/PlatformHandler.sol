@@ -673,16 +673,26 @@ contract PlatformHandler {
                             TasksManager.submitOutcome, (id, _committed(actor, string(abi.encodePacked("x", ++_cidNonce))))
                         );
             } else if (a == 10) {
-                // front-running: a worker holding an accepted offer sees another worker's CID
-                // (committed a block ago, its reveal pending) and commits and reveals it in
-                // this one block, ahead of the producer: commit-reveal must refuse it
-                (uint256 aid, address thief) = _anyAccepted(targetSeed);
-                if (aid == 0) return;
-                (id, actor) = (aid, thief);
+                // front-running: a worker sees another worker's CID (committed a block ago, its
+                // reveal pending) and commits and reveals it in this one block, ahead of the
+                // producer, as its outcome (holding an accepted offer) or as its own listing:
+                // commit-reveal must refuse it
+                bool listing = actorSeed % 2 == 1;
+                if (listing) {
+                    actor = _pick(workers, actorSeed / 2);
+                    target = address(mmc);
+                } else {
+                    (uint256 aid, address thief) = _anyAccepted(targetSeed);
+                    if (aid == 0) return;
+                    (id, actor) = (aid, thief);
+                }
                 string memory cid = string(abi.encodePacked("fr", ++_cidNonce));
-                _committed(_other(workers, thief, actorSeed), cid); // the producer, a block ago
-                _try(thief, address(tmc), abi.encodeCall(TasksManager.commitCid, (keccak256(abi.encodePacked(cid, thief)))), 0);
-                data = abi.encodeCall(TasksManager.submitOutcome, (id, cid));
+                _committed(_other(workers, actor, actorSeed / 2 + 1), cid); // the producer
+                _try(actor, address(tmc), abi.encodeCall(TasksManager.commitCid, (keccak256(abi.encodePacked(cid, actor)))), 0);
+                uint32[] memory env = new uint32[](2);
+                data = listing
+                    ? abi.encodeCall(ModelsManager.addModel, (cid, "d", DOMAIN, env))
+                    : abi.encodeCall(TasksManager.submitOutcome, (id, cid));
             } else {
                 uint256 n = mmc.allocCount();
                 if (n == 0) return;
