@@ -17,3 +17,20 @@ def reverts(name: str, fn: Callable[..., Any], *args: Any, **kwargs: Any) -> err
     with pytest.raises(errors.get(name)) as info:
         fn(*args, **kwargs)
     return info.value
+
+
+def two_accepted(
+    p: Any, actors: Any, domain: int, duration: int, reward: int
+) -> tuple[int, list[str]]:
+    """A requester and three workers of ``domain`` registered, one task of two slots posted
+    and allocated, both offerees accepted: (task id, [offeree 0, offeree 1])."""
+    p.umc.add_requester(actors.requester)
+    for w in actors.workers[:3]:
+        p.umc.add_worker(w, [domain], 4, 16, 1)
+    tid, _ = p.tmc.add_task(
+        actors.requester, domain=domain, num_workers=2, reward=reward, duration=duration
+    )
+    offered, _ = p.tmc.allocate(actors.requester, tid)
+    for w in offered:
+        p.tmc.transact("acceptOffer", tid, sender=w)
+    return tid, offered

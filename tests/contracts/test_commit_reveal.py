@@ -17,27 +17,15 @@ from backend.chain.platform import Platform, Verdict, cid_commitment
 
 from .conftest import ACCEPT_WINDOW, DOMAIN, Actors, actors_of, make_platform
 from .helpers import CID, reverts
+from .helpers import two_accepted as two_accepted_offers
 
 REWARD = 10**15
-
-
-def _two_accepted(p: Platform, actors: Actors) -> tuple[int, list[str]]:
-    p.umc.add_requester(actors.requester)
-    for w in actors.workers[:3]:
-        p.umc.add_worker(w, [DOMAIN], 4, 16, 1)
-    tid, _ = p.tmc.add_task(
-        actors.requester, domain=DOMAIN, num_workers=2, reward=REWARD, duration=2 * ACCEPT_WINDOW
-    )
-    offered, _ = p.tmc.allocate(actors.requester, tid)
-    for w in offered:
-        p.tmc.transact("acceptOffer", tid, sender=w)
-    return tid, offered
 
 
 @pytest.fixture
 def two_accepted(p: Platform, actors: Actors) -> tuple[int, list[str]]:
     """One task, two workers who accepted it."""
-    return _two_accepted(p, actors)
+    return two_accepted_offers(p, actors, DOMAIN, 2 * ACCEPT_WINDOW, REWARD)
 
 
 class OneBlock:
@@ -91,7 +79,8 @@ def ap(anvil_platform: Platform) -> Iterator[Platform]:
 @pytest.fixture
 def race(ap: Platform) -> tuple[Platform, int, list[str], OneBlock]:
     """One task on anvil, two workers who accepted it, and a block to race in."""
-    return (ap, *_two_accepted(ap, actors_of(ap.chain)), OneBlock(ap))
+    tid, offered = two_accepted_offers(ap, actors_of(ap.chain), DOMAIN, 2 * ACCEPT_WINDOW, REWARD)
+    return ap, tid, offered, OneBlock(ap)
 
 
 def test_a_copied_outcome_cid_loses_the_race(race) -> None:

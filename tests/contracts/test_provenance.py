@@ -9,7 +9,7 @@ import pytest
 from backend.chain.platform import TaskStatus, Verdict, cid_hash
 
 from .conftest import ACCEPT_WINDOW, DOMAIN, REVIEW_WINDOW
-from .helpers import CID, reverts
+from .helpers import CID, reverts, two_accepted
 
 REWARD = 10**15
 ZERO = "0x" + "00" * 20
@@ -18,18 +18,9 @@ ZERO = "0x" + "00" * 20
 @pytest.fixture
 def submitted(p, actors):
     """Task with two workers who accepted; W0 submitted CID (pending review)."""
-    p.umc.add_requester(actors.requester)
-    ws = actors.workers[:3]
-    for w in ws:
-        p.umc.add_worker(w, [DOMAIN], 4, 16, 1)
-    tid, _ = p.tmc.add_task(
-        actors.requester, domain=DOMAIN, num_workers=2, reward=REWARD, duration=2 * ACCEPT_WINDOW
-    )
-    offered, _ = p.tmc.allocate(actors.requester, tid)
-    for w in offered:
-        p.tmc.transact("acceptOffer", tid, sender=w)
+    tid, offered = two_accepted(p, actors, DOMAIN, 2 * ACCEPT_WINDOW, REWARD)
     p.tmc.submit_outcome(offered[0], tid, CID)
-    return p, tid, offered, [w for w in ws if w not in offered]
+    return p, tid, offered, [w for w in actors.workers[:3] if w not in offered]
 
 
 def test_outcome_is_recorded_with_worker_task_and_verdict(submitted, actors) -> None:

@@ -109,6 +109,23 @@ def login(client: TestClient, service: ChainService) -> Login:
     return _login
 
 
+def fund(service: ChainService, address: str, wei: int = 10**18) -> None:
+    """Send ``wei`` from the deployer to ``address`` (gas for a key the gateway does not hold)."""
+    with service.lock:
+        admin = service.chain._keys[service.platform.admin]
+        w3 = service.chain.w3
+        tx = {
+            "to": address,
+            "value": wei,
+            "gas": 21_000,
+            "chainId": service.chain.chain_id,
+            "nonce": w3.eth.get_transaction_count(admin.address),
+            "maxFeePerGas": 2 * w3.eth.get_block("latest")["baseFeePerGas"],
+            "maxPriorityFeePerGas": 0,
+        }
+        w3.eth.send_raw_transaction(admin.sign_transaction(tx).raw_transaction)
+
+
 def addr(service: ChainService, name: str) -> str:
     assert service.demo_keys is not None
     return service.demo_keys.address(name)

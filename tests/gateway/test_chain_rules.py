@@ -15,7 +15,7 @@ from backend.auth import DemoKeys, bearer_headers
 from backend.chain import errors
 from backend.services.chain import ChainService, node_rule_error
 
-from .conftest import Login, P, addr, register, task_body
+from .conftest import Login, P, addr, fund, register, task_body
 
 
 def test_reward_below_minimum_is_422_before_sending(
@@ -62,19 +62,7 @@ def test_unfunded_key_and_replayed_tx(
     assert r.json()["detail"]["rule"] == "insufficient_funds"
     assert "b'" not in r.json()["detail"]["msg"]  # the node's bytes reprs shown as hex
 
-    with service.lock:  # fund it, then relay its registration twice
-        admin = service.chain._keys[service.platform.admin]
-        w3 = service.chain.w3
-        tx = {
-            "to": poor.address,
-            "value": 10**18,
-            "gas": 21_000,
-            "chainId": service.chain.chain_id,
-            "nonce": w3.eth.get_transaction_count(admin.address),
-            "maxFeePerGas": 2 * w3.eth.get_block("latest")["baseFeePerGas"],
-            "maxPriorityFeePerGas": 0,
-        }
-        w3.eth.send_raw_transaction(admin.sign_transaction(tx).raw_transaction)
+    fund(service, poor.address)  # then relay its registration twice
     r = client.post(f"{P}/users/requesters", headers=headers)
     assert r.status_code == 409 and r.json()["detail"]["rule"] == "sign_locally"
     unsigned = r.json()["detail"]["tx"]

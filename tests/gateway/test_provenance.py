@@ -16,7 +16,7 @@ from backend.services.chain import ChainService
 from backend.store.bundle import add_bundle
 from backend.store.staged import StagedUpload
 
-from .conftest import ENV, Login, P, addr, register, task_body
+from .conftest import ENV, Login, P, addr, fund, register, task_body
 from .test_models import card_of, weights_of
 
 WORKERS = {"user3": {"cpu_cores": 16}, "user4": {"cpu_cores": 8}}
@@ -131,15 +131,7 @@ def test_sharing_an_own_upload_commits_its_cid_first(
     from backend.auth import DemoKeys, bearer_headers
 
     me = Account.create()
-    with service.lock:  # gas for the new account
-        w3 = service.chain.w3
-        admin = service.chain._keys[service.platform.admin]
-        w3.eth.send_raw_transaction(admin.sign_transaction({
-            "to": me.address, "value": 10**18, "gas": 21_000, "chainId": service.chain.chain_id,
-            "nonce": w3.eth.get_transaction_count(admin.address),
-            "maxFeePerGas": 2 * w3.eth.get_block("latest")["baseFeePerGas"],
-            "maxPriorityFeePerGas": 0,
-        }).raw_transaction)
+    fund(service, me.address)  # gas for the new account
     own = DemoKeys(settings)  # the client's keys, not the gateway's
     own.add("me", me)
     headers = dict(bearer_headers(own.sign_in(client, "me")))

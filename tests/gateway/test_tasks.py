@@ -17,7 +17,7 @@ from backend.settings import Settings
 from backend.store.sealed import public_key_hex
 from workers.mdrl.trainingspec import TrainingSpec
 
-from .conftest import ENV, Login, P, addr, register, task_body
+from .conftest import ENV, Login, P, addr, fund, register, task_body
 
 WORKERS = {"user3": {"cpu_cores": 16}, "user4": {"cpu_cores": 8}, "user5": {"cpu_cores": 2}}
 
@@ -355,19 +355,7 @@ def test_sign_locally_then_relay(client: TestClient, service: ChainService, sett
     from backend.auth import DemoKeys, bearer_headers
 
     me, stranger = Account.create(), Account.create()
-    with service.lock:  # fund the new account for gas
-        w3 = service.chain.w3
-        admin = service.chain._keys[service.platform.admin]
-        tx = {
-            "to": me.address,
-            "value": 10**18,
-            "gas": 21_000,
-            "chainId": service.chain.chain_id,
-            "nonce": w3.eth.get_transaction_count(admin.address),
-            "maxFeePerGas": 2 * w3.eth.get_block("latest")["baseFeePerGas"],
-            "maxPriorityFeePerGas": 0,
-        }
-        w3.eth.send_raw_transaction(admin.sign_transaction(tx).raw_transaction)
+    fund(service, me.address)  # gas for the new account
     own = DemoKeys(settings)  # the client's keys, not the gateway's
     own.add("me", me)
     headers = dict(bearer_headers(own.sign_in(client, "me")))

@@ -604,11 +604,7 @@ def commit_cid(body: CommitmentCreate, user: CurrentUser, chain: ChainDep) -> Co
     own upload needs before ``POST /models`` lists it, made before the upload so nobody who
     reads the store can list the CID first (``drlaas model push --key`` does it). Committing
     again keeps the first block."""
-    commitment = bytes.fromhex(body.commitment[2:])
-    committed_at = int(chain.call(chain.platform.tmc, "cidCommits", commitment))
-    if not committed_at:
-        rc = chain.send(user.address, chain.platform.tmc, "commitCid", commitment)
-        committed_at = rc.block_number
+    committed_at = _commit(chain, user.address, bytes.fromhex(body.commitment[2:]))
     return CommitmentPublic(commitment=body.commitment.lower(), block=committed_at)
 
 
@@ -623,19 +619,24 @@ def _ensure_committed(chain: ChainService, owner: str, cid: str) -> None:
         return  # addModel answers models_not_worker
     if int(chain.call(tmc, "outcomeOf", cid_hash(cid))[0], 16) != 0:
         return
-    commitment = cid_commitment(cid, owner)
-    committed_at = int(chain.call(tmc, "cidCommits", commitment))
+    chain.await_block_after(_commit(chain, owner, cid_commitment(cid, owner), then="repeat"))
+
+
+def _commit(chain: ChainService, owner: str, commitment: bytes, then: str = "") -> int:
+    """The block of ``owner``'s ``commitment`` (TMC.commitCid), committing it first if it is
+    not on chain (``then``: what a ``sign_locally`` client does after relaying it)."""
+    committed_at = int(chain.call(chain.platform.tmc, "cidCommits", commitment))
     if not committed_at:
         rc = chain.send(
             owner,
-            tmc,
+            chain.platform.tmc,
             "commitCid",
             commitment,
             description="TMC.commitCid, the commitment to this CID that listing it needs",
-            then="repeat",
+            then=then,
         )
         committed_at = rc.block_number
-    chain.await_block_after(committed_at)
+    return committed_at
 
 
 @router.post(
