@@ -24,6 +24,7 @@ from backend.api.frontend import mount_docs_redirects, mount_frontend
 from backend.api.limits import BodyLimits
 from backend.api.pagecache import PageCache
 from backend.api.routes import api_router, blocks, local, models, rpc, tasks, tx, users, workers
+from backend.api.security_headers import SecurityHeaders
 from backend.api.shedding import LoadShedder
 from backend.api.version import VERSION
 from backend.db import make_engine, make_sessionmaker, upgrade, utcnow
@@ -141,6 +142,7 @@ def create_app(
         timeout_s=settings.body_timeout_s,
     )
     install_metrics(app, settings)  # GET /metrics, HTTP latency and errors (Prometheus)
+    app.add_middleware(SecurityHeaders)  # outermost: the shedder's and limits' answers too
 
     @app.exception_handler(SignLocally)
     async def _sign_locally(_: Request, exc: SignLocally) -> JSONResponse:

@@ -20,6 +20,9 @@ method trains for the same env-step budget of the task user:
   frl          sparse + FedAvg across the eight users A1W0 ... A3W3 (frl.py), seen from the task
   frl-mixed    frl where 3 of the 8 users (not the task user; drawn by the seed) are faulty:
                they send FedAvg random, biased and malicious weights (Fig. 5.8; frl.py)
+  frl-random, frl-biased, frl-malicious
+               frl with one faulty user of that kind alone (the user frl-mixed draws for it
+               with the same seed): which of the three kinds does frl-mixed's damage?
   sparse-cae, sr-cae
                sparse / SR with the walls CAE's embedding (``--cae DIR``, Fig. 4.2) in place of
                the downsized wall maps: does the embedding beat the maps?
@@ -68,13 +71,15 @@ from workers.mdrl.zoo import HELDOUT_SEED
 
 METHODS = ("sparse", "sr", "dc", "medc", "medc-anneal", "medc-faulty", "medc-credit",
            "medc-faulty-credit", "medc-mixed", "medc-mixed-credit",
-           "il", "il-mixed", "frl", "frl-mixed", "sparse-cae", "sr-cae")
+           "il", "il-mixed", "frl", "frl-mixed", "frl-random", "frl-biased", "frl-malicious",
+           "sparse-cae", "sr-cae")
 EXPERT_USERS = ("A1W0", "A1W3", "A2W2")
 GUIDED = ("medc", "medc-anneal", "medc-credit")
 """The methods with proper experts whose speed and rivals the targets report."""
 MIXED = ("medc-mixed", "medc-mixed-credit")
-FRL = ("frl", "frl-mixed")
 """The MEDC methods with proper and faulty experts, compared with IL on the same ones."""
+FRL_ONE_FAULTY = ("frl-random", "frl-biased", "frl-malicious")
+FRL = ("frl", "frl-mixed", *FRL_ONE_FAULTY)
 ANNEAL = (0.2, 0.0)
 """medc-anneal's R_E at the start and at the end of the budget."""
 CURVE_EPISODES = 100
@@ -156,15 +161,20 @@ def mixed_refs(good: list[str], actions: int) -> list[str]:
     return [*good, *(kinds[i % 3] for i in range(len(good)))]
 
 
-def faulty_users(task: str, seed: int, actions: int) -> dict[str, str]:
+def faulty_users(task: str, seed: int, actions: int, method: str = "frl-mixed"
+                 ) -> dict[str, str]:
     """frl-mixed's 3 faulty users: random, biased (the last action, as ``mixed_refs``) and
-    malicious, drawn among the users other than the task user by the run's seed."""
+    malicious, drawn among the users other than the task user by the run's seed; for
+    ``frl-KIND`` only the one of that kind (the same user as in frl-mixed), plain frl none."""
     from workers.mdrl.frl import THESIS_USERS
 
     others = [u for u in THESIS_USERS if u != task]
     picked = np.random.default_rng(seed).choice(len(others), size=3, replace=False)
     kinds = ("random", f"biased:{actions - 1}", "malicious")
-    return {others[int(i)]: kind for i, kind in zip(picked, kinds, strict=True)}
+    mixed = {others[int(i)]: kind for i, kind in zip(picked, kinds, strict=True)}
+    if method == "frl-mixed":
+        return mixed
+    return {u: k for u, k in mixed.items() if f"frl-{k.split(':')[0]}" == method}
 
 
 def train_run(task: str, method: str, seed: int, steps: int, experts: list[str],
@@ -196,7 +206,7 @@ def train_run(task: str, method: str, seed: int, steps: int, experts: list[str],
             trainer: Any = FederatedTrainer.resume(run_dir, run_overrides=run.to_dict())
         else:
             users = [(u, user_preset(u, "sparse", grid).env) for u in THESIS_USERS]
-            faulty = faulty_users(task, seed, env.num_actions) if method == "frl-mixed" else {}
+            faulty = faulty_users(task, seed, env.num_actions, method)
             trainer = FederatedTrainer(users, obs, ppo, run, target=task, out=run_dir,
                                        faulty=faulty)
     elif method in ("il", "il-mixed"):
@@ -410,7 +420,7 @@ def targets(by: dict[str, list[dict]], sr_level: float) -> list[str]:
             out.append(f"- {plain} with the walls CAE {a:.2f} [{a_ci[0]:.2f}, {a_ci[1]:.2f}] vs "
                        f"with the wall maps {b:.2f} [{b_ci[0]:.2f}, {b_ci[1]:.2f}]")
     rivals = ([(m, o) for m in GUIDED for o in ("frl", "il")]
-              + [(m, o) for m in MIXED for o in ("il-mixed", "frl-mixed")])
+              + [(m, o) for m in MIXED for o in ("il-mixed", "frl-mixed", *FRL_ONE_FAULTY)])
     for medc, other in rivals:
         if {medc, other} <= set(by):
             steps, m = mean_curve(by[medc])

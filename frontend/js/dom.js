@@ -12,6 +12,8 @@ export function h(tag, attrs = {}, ...children) {
       el.addEventListener(key.slice(2), value);
     } else if (key === "dataset") {
       Object.assign(el.dataset, value);
+    } else if (key === "style") {
+      el.style.cssText = String(value); // the CSSOM: the gateway's policy refuses style attributes
     } else if ((key === "value" || key === "checked") && key in el) {
       (late ||= {})[key] = value;
     } else {

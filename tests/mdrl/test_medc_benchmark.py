@@ -9,7 +9,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
 METHODS = ("sparse", "medc", "medc-anneal", "medc-credit", "il", "medc-mixed-credit", "il-mixed",
-           "frl-mixed")
+           "frl-mixed", "frl-biased")
 
 
 def bench(out: Path, *extra: str) -> subprocess.CompletedProcess:
@@ -52,6 +52,12 @@ def test_the_benchmark_runs_every_guided_method_and_reuses_its_cache(tmp_path):
                      .read_text())["training"]["method"]
     assert sorted(frl["faulty_users"].values()) == ["biased:8", "malicious", "random"]
     assert "A3W3" not in frl["faulty_users"] and set(frl["faulty_users"]) < set(frl["users"])
+    # frl-biased: frl-mixed's biased user alone, the same user, nobody else faulty
+    one = json.loads((tmp_path / "A3W3-10x10-frl-biased-s0-4096" / "model" / "model.json")
+                     .read_text())["training"]["method"]
+    assert one["faulty_users"] == {u: k for u, k in frl["faulty_users"].items()
+                                   if k.startswith("biased:")} and len(one["faulty_users"]) == 1
+    assert "medc-mixed-credit vs FRL-BIASED: shorter mean episodes at" in table
     again = bench(tmp_path)  # every run is cached: nothing trains, the same table prints
     assert again.returncode == 0, again.stderr[-3000:]
     assert again.stdout == first.stdout

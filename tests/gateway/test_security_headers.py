@@ -1,0 +1,51 @@
+"""Browser security headers on every kind of gateway answer: the UI's pages and scripts, API
+JSON, errors raised by the layers in front of the routes, and the API docs (which get every
+header but the policy: Swagger UI runs an inline script from a CDN). The UI itself runs under
+this policy in every browser test (``tests/frontend/fake_api.py``), which fails on any script,
+style or frame the policy blocks."""
+
+from __future__ import annotations
+
+import pytest
+from fastapi.testclient import TestClient
+
+from backend.api.security_headers import CONTENT_SECURITY_POLICY
+
+COMMON = {
+    "x-content-type-options": "nosniff",
+    "referrer-policy": "no-referrer",
+    "x-frame-options": "DENY",
+}
+
+
+def _common(r) -> None:
+    for name, value in COMMON.items():
+        assert r.headers.get(name) == value, (r.request.url, name, dict(r.headers))
+
+
+@pytest.mark.parametrize("path", ["/", "/models", "/js/app.js", "/style.css", "/api/health",
+                                  "/api/models", "/api/no-such-route"])
+def test_pages_api_and_errors_carry_the_policy(client: TestClient, path: str) -> None:
+    r = client.get(path)
+    _common(r)
+    policy = r.headers["content-security-policy"]
+    assert policy == CONTENT_SECURITY_POLICY
+    directives = dict(d.split(" ", 1) for d in policy.split("; "))
+    assert directives["script-src"] == "'self'"  # no inline or foreign script
+    assert directives["frame-ancestors"] == "'none'"  # no other site frames the UI
+    assert directives["object-src"] == "'none'"
+
+
+def test_answers_of_the_layers_in_front_of_the_routes_carry_them(client: TestClient) -> None:
+    deep = b"[" * 10_000 + b"]" * 10_000
+    r = client.post("/api/auth/nonce", content=deep, headers={"Content-Type": "application/json"})
+    assert r.status_code == 422 and r.json()["detail"]["rule"] == "json_too_deep"
+    _common(r)
+    assert "content-security-policy" in r.headers
+
+
+def test_the_api_docs_get_every_header_but_the_policy(client: TestClient) -> None:
+    r = client.get("/api/docs")
+    assert r.status_code == 200 and "swagger" in r.text.lower()
+    _common(r)
+    assert "content-security-policy" not in r.headers
