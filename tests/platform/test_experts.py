@@ -447,7 +447,11 @@ def test_model_push_adds_a_cae_or_a_model_to_the_platform_store(
     platform_store = EmbeddedStore(tmp_path / "platform" / "ipfs")
     assert fetch_walls_cae(platform_store, out["cid"], tmp_path / "job").is_dir()
     res = CliRunner().invoke(app, ["model", "push", str(EXPERT), "--json"])
-    assert res.exit_code == 0 and json.loads(res.output)["kind"] == "model", res.output
+    assert res.exit_code == 0 and json.loads(res.stdout)["kind"] == "model", res.output
+    # a policy pushed with no key could be listed by whoever reads the store first: said
+    assert "readable in the store before any commitment" in res.stderr
+    assert "before any commitment" not in CliRunner().invoke(app, ["model", "push", str(cae)]
+                                                             ).stderr  # a CAE is not listed
     bad = tmp_path / "bad"
     bad.mkdir()
     (bad / "model.json").write_text('{"format": "drlaas-model/1", "kind": "cae"}')

@@ -242,6 +242,13 @@ def model_push(
             except GatewayError as exc:
                 fail(exc)
         out["commitment"] = commitment
+    elif kind == "model":
+        typer.echo(
+            f"note: {cid} is readable in the store before any commitment to it; to list it "
+            "with `model share` and be sure nobody who reads the store lists it first, push "
+            "it with --key (commit-reveal, docs/chain.md)",
+            err=True,
+        )
     try:
         settings, _ = worker_settings(gateway)
         staged.publish(open_store(settings))
