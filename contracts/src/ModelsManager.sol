@@ -115,13 +115,17 @@ contract ModelsManager is ReentrancyGuardTransient {
         uint40 totalReview;
     }
 
-    /// Per owner (UMC worker id), one slot: the Eq. 10 totals and the number of models it
-    /// listed (all domains), so the owner's first allocation rewrites the slot its first
-    /// listing created instead of creating one.
+    /// Per owner (UMC worker id), one slot: the Eq. 10 totals, the number of models it
+    /// listed (all domains) and what its allocated models earned and it has not withdrawn
+    /// (wei; < 2^40 allocations x 2^80 wei per model < 2^144). The owner's first allocation
+    /// rewrites the slot its first listing created instead of creating one, and paying the
+    /// owner is part of that rewrite: no credit slot of its own (docs/chain.md, "Gas against
+    /// Table 7.5").
     struct OwnerRecord {
         uint40 allocCount;
         uint40 totalReview;
         uint32 modelCount;
+        uint144 credit;
     }
 
     struct Allocation {
@@ -232,7 +236,9 @@ contract ModelsManager is ReentrancyGuardTransient {
     /// entry e's model id at bits 32e, its reviewed flag at bit REVIEWED_SHIFT + e; an
     /// allocation of up to 7 models is one storage slot instead of one per model.
     mapping(uint256 => mapping(uint256 => uint256)) internal _allocModels;
-    mapping(address => uint256) public credits;
+    /// Withdrawable balances other than model earnings (refunds of unfilled slots), by
+    /// address; an owner's earnings are in its {OwnerRecord}. {credits} sums the two.
+    mapping(address => uint256) internal _credits;
     /// keccak256(cid) -> the model listing it (0 = not listed).
     mapping(bytes32 => uint256) public modelOfCid;
     /// Models of an owner in a domain (key = owner id << 8 | domain), MODELS_PER_WORD per
@@ -397,7 +403,7 @@ contract ModelsManager is ReentrancyGuardTransient {
                 word = 0;
             }
             _models[modelId].allocCount += 1;
-            _owners[ownerId].allocCount += 1;
+            _payOwner(ownerId, price);
         }
         // The owners' model-sharing counters (A, Ac, E of Eq. 17-18) in one UMC call for all
         // the models, in allocation order (one WorkerInfoUpdated per model, as one updateInfo
@@ -408,7 +414,7 @@ contract ModelsManager is ReentrancyGuardTransient {
         address[] memory addrs = umc.updateInfoBatch(owners, r.domain, SHARING, SHARED, 0);
         for (uint256 i; i < count; ++i) {
             emit ModelAllocated(allocId, idx[i] & ID_MASK, addrs[i], qs[i] >> 32);
-            _credit(addrs[i], allocId, price);
+            emit PaymentCredited(addrs[i], allocId, price); // credited by _payOwner above
         }
         _credit(msg.sender, allocId, (r.numModels - count) * price);
     }
@@ -444,9 +450,12 @@ contract ModelsManager is ReentrancyGuardTransient {
      * Requirements: a positive credit. Emits a {Withdrawn} event.
      */
     function withdraw() external nonReentrant {
-        uint256 amount = credits[msg.sender];
+        OwnerRecord storage o = _owners[umc.workerId(msg.sender)];
+        uint256 earned = o.credit;
+        uint256 amount = _credits[msg.sender] + earned;
         if (amount == 0) revert ModelsNothingToWithdraw(msg.sender);
-        credits[msg.sender] = 0;
+        _credits[msg.sender] = 0;
+        if (earned != 0) o.credit = 0;
         emit Withdrawn(msg.sender, amount);
         (bool ok,) = msg.sender.call{value: amount}("");
         if (!ok) revert ModelsTransferFailed(msg.sender, amount);
@@ -498,6 +507,12 @@ contract ModelsManager is ReentrancyGuardTransient {
             env[j] = uint32(_attr(modelId, m.envHead, j));
         }
         cid = _cids[modelId];
+    }
+
+    /// @dev What `account` can withdraw: refunds of unfilled slots plus, for a model owner,
+    /// the prices of its allocated models.
+    function credits(address account) external view returns (uint256) {
+        return _credits[account] + _owners[umc.workerId(account)].credit;
     }
 
     /// @dev Eq. 10 totals of the owner `owner` (allocations of all its models, review sum).
@@ -643,7 +658,7 @@ contract ModelsManager is ReentrancyGuardTransient {
     }
 
     /// @dev The storage word of owner `ownerId`'s {OwnerRecord}: allocCount 0-39, totalReview
-    /// 40-79, modelCount 80-111.
+    /// 40-79, modelCount 80-111, credit 112-255.
     function _rawOwner(uint256 ownerId) internal view returns (uint256 w) {
         OwnerRecord storage o = _owners[uint32(ownerId)];
         assembly ("memory-safe") {
@@ -767,7 +782,16 @@ contract ModelsManager is ReentrancyGuardTransient {
 
     function _credit(address account, uint256 allocId, uint256 amount) internal {
         if (amount == 0) return;
-        credits[account] += amount;
+        _credits[account] += amount;
         emit PaymentCredited(account, allocId, amount);
+    }
+
+    /// @dev One allocation of a model of owner `ownerId` at `price`: Eq. 10's count and the
+    /// owner's credit, in one word of its {OwnerRecord}. The credit cannot overflow: it is at
+    /// most allocCount (< 2^40, checked) x price (< 2^80) < 2^144.
+    function _payOwner(uint32 ownerId, uint256 price) internal {
+        OwnerRecord storage o = _owners[ownerId];
+        o.allocCount += 1;
+        o.credit += uint144(price);
     }
 }

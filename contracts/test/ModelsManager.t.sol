@@ -334,4 +334,48 @@ contract ModelsManagerFuzzTest is Fixture {
         vm.prank(owner);
         mmc.withdraw();
     }
+
+    /// An owner's earnings live in its Eq. 10 record: they must not move its counts, and a
+    /// worker that also requests models withdraws earnings and refunds in one call, even
+    /// after it was removed.
+    function testFuzz_withdraw_earningsAndRefunds(uint80 price, uint8 n) public {
+        _model(owner, "m-a", 3, 3);
+        uint256 p = _bound(price, 1, 1e24);
+        uint8 k = uint8(_bound(n, 2, 16)); // owner2's request: only owner's one model fits
+        vm.prank(requester);
+        mmc.allocateModel{value: p}(_request(1, ModelsManager.Metric.Sharing));
+        vm.prank(owner2);
+        umc.addRequester();
+        vm.prank(admin);
+        umc.approveRequester(owner2);
+        vm.deal(owner2, p * k);
+        vm.prank(owner2);
+        mmc.allocateModel{value: p * k}(_request(k, ModelsManager.Metric.Model));
+        _model(owner2, "m-b", 3, 3);
+        vm.prank(owner);
+        umc.addRequester();
+        vm.prank(admin);
+        umc.approveRequester(owner);
+        vm.deal(owner, p * 3);
+        vm.prank(owner); // owner's own model is skipped: one slot filled by owner2's, two refunded
+        mmc.allocateModel{value: p * 3}(_request(3, ModelsManager.Metric.Model));
+        ModelsManager.OwnerRep memory rep = mmc.ownerRep(owner);
+        vm.assertEq(rep.allocCount, 2, "Eq. 10 count of owner: two allocations");
+        vm.assertEq(rep.totalReview, 0, "no review");
+        vm.assertEq(mmc.ownerRep(owner2).allocCount, 1, "Eq. 10 count of owner2");
+        vm.assertEq(mmc.credits(owner), 2 * p + 2 * p, "earnings of two allocations + two refunded slots");
+        vm.assertEq(mmc.credits(owner2), (k - 1) * p + p, "k - 1 refunded slots + one earning");
+        vm.prank(owner);
+        umc.removeWorker(owner);
+        vm.expectEmit(address(mmc));
+        emit ModelsManager.Withdrawn(owner, 4 * p);
+        vm.prank(owner);
+        mmc.withdraw();
+        vm.assertEq(owner.balance, 4 * p, "earnings and refunds paid in one call");
+        vm.assertEq(mmc.credits(owner), 0, "nothing left");
+        vm.assertEq(mmc.ownerRep(owner).allocCount, 2, "withdrawing leaves Eq. 10 alone");
+        vm.prank(owner2);
+        mmc.withdraw();
+        vm.assertEq(address(mmc).balance, 0, "drained exactly");
+    }
 }
