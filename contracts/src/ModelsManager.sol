@@ -55,9 +55,10 @@ import {QoSMath} from "./QoSMath.sol";
  * review is the only quality evidence the chain holds for it. A CID that is no outcome is
  * an owner's own upload; the gateway checks that its card matches the declared environment.
  *
- * Gas: a model is one slot: owner id, domain, attribute count, both Eq. 11 totals and its
- * first four environment attributes (uint32 each), so a candidate with d <= 4 attributes
- * costs one cold SLOAD (plus its owner's list word); attributes 5-64 go eight per slot. The
+ * Gas: a model is one slot in its owner's list of the domain: model id, attribute count,
+ * both Eq. 11 totals and its first four environment attributes (uint32 each), the list's
+ * length in the first one, so a candidate with d <= 4 attributes costs one cold SLOAD and
+ * an owner nothing more; attributes 5-12 go eight per slot. The
  * CID is stored (requesters read it after allocation); the description lives only in the
  * {ModelAdded} event.
  */
@@ -79,7 +80,6 @@ contract ModelsManager is ReentrancyGuardTransient {
     uint256 internal constant ONE = QoSMath.ONE;
     uint256 internal constant MODELS_PER_WORD = 7;
     uint256 internal constant REVIEWED_SHIFT = 224;
-    uint256 internal constant COUNT_SHIFT = 248;
 
     enum Metric {
         Model, // Eq. 10-13
@@ -92,9 +92,13 @@ contract ModelsManager is ReentrancyGuardTransient {
         Reviewed
     }
 
+    /// A model, stored in its owner's list of the domain (position j of key ownerId << 8 |
+    /// domain): the owner and the domain are the key, so the word holds the model id and, in
+    /// the list's first record, how many models the list has. An allocation scan reads one
+    /// cold slot per model and nothing else per owner (docs/chain.md, "Gas against Table 7.5").
     struct Model {
-        uint32 ownerId; // UMC worker id
-        uint8 domain;
+        uint32 modelId;
+        uint8 listLength; // record 0 only: models of this owner in this domain (<= 16)
         uint8 envLen;
         uint40 allocCount; // Eq. 11 denominator
         uint40 totalReview; // Eq. 11 numerator (reviews in [0, 5])
@@ -224,7 +228,11 @@ contract ModelsManager is ReentrancyGuardTransient {
 
     Globals internal _g;
 
-    mapping(uint256 => Model) internal _models;
+    /// Models by owner list (key = owner id << 8 | domain) and position in it, in listing
+    /// order: one slot per model, record 0 also holding the list's length.
+    mapping(uint256 => mapping(uint256 => Model)) internal _models;
+    /// Where model `id` is: its owner list key << 8 | its position in that list (0 = none).
+    mapping(uint256 => uint256) internal _modelAt;
     /// Attributes 4.. of a model, eight uint32 per word: word k holds attributes 4+8k..11+8k.
     mapping(uint256 => mapping(uint256 => uint256)) internal _envTail;
     mapping(uint256 => string) internal _cids;
@@ -241,11 +249,6 @@ contract ModelsManager is ReentrancyGuardTransient {
     mapping(address => uint256) internal _credits;
     /// keccak256(cid) -> the model listing it (0 = not listed).
     mapping(bytes32 => uint256) public modelOfCid;
-    /// Models of an owner in a domain (key = owner id << 8 | domain), MODELS_PER_WORD per
-    /// word: word k holds entries 7k..7k+6 (model id at bits 32e); word 0 also holds the
-    /// count at bits COUNT_SHIFT.. . An owner's list of up to 7 models in a domain is one
-    /// storage slot (an allocation scan reads one cold slot per owner, not two).
-    mapping(uint256 => mapping(uint256 => uint256)) internal _ownerModels;
 
     constructor(IUsersManager umc_, ITasksOutcomes tmc_) {
         umc = umc_;
@@ -321,7 +324,6 @@ contract ModelsManager is ReentrancyGuardTransient {
         modelId = ++_g.modelCount;
         modelOfCid[cidHash] = modelId;
         _owners[ownerId].modelCount = uint32(owned + 1); // owned < maxModelsPerOwner <= 16
-        _pushOwnerModel((uint256(ownerId) << 8) | domain, modelId);
         uint256 head = 0;
         uint256 word = 0;
         for (uint256 j; j < env.length; ++j) {
@@ -335,7 +337,7 @@ contract ModelsManager is ReentrancyGuardTransient {
                 word = 0;
             }
         }
-        _models[modelId] = Model(ownerId, uint8(domain), uint8(env.length), 0, 0, uint128(head));
+        _listModel(ownerId, domain, modelId, env.length, head);
         _cids[modelId] = cid;
         _domainModels[domain].push(uint32(modelId));
         emit ModelAdded(modelId, msg.sender, domain, cid, description, env);
@@ -391,10 +393,10 @@ contract ModelsManager is ReentrancyGuardTransient {
         uint32[] memory owners = new uint32[](count);
         uint256 word = 0;
         for (uint256 i; i < count; ++i) {
-            // idx[i] = pool position << 32 | model id: the model was read from the list of the
-            // owner at that position, so ids[position] is its owner (= _models[id].ownerId).
+            // idx[i] = list position << 64 | pool position << 32 | model id: the model was read
+            // from the list of the owner at that pool position, so ids[pool position] is its owner.
             uint256 modelId = idx[i] & ID_MASK;
-            uint32 ownerId = uint32(ids[idx[i] >> 32]);
+            uint32 ownerId = uint32(ids[uint32(idx[i] >> 32)]);
             owners[i] = ownerId;
             // modelId < 2^32 (ids are listed as uint32), so the entry never spills over.
             word |= modelId << (32 * (i % MODELS_PER_WORD));
@@ -402,7 +404,7 @@ contract ModelsManager is ReentrancyGuardTransient {
                 _allocModels[allocId][i / MODELS_PER_WORD] = word;
                 word = 0;
             }
-            _models[modelId].allocCount += 1;
+            _models[(uint256(ownerId) << 8) | r.domain][idx[i] >> 64].allocCount += 1;
             _payOwner(ownerId, price);
         }
         // The owners' model-sharing counters (A, Ac, E of Eq. 17-18) in one UMC call for all
@@ -432,9 +434,9 @@ contract ModelsManager is ReentrancyGuardTransient {
         if (bit == 0 || word & bit != 0) revert ModelsNotAllocated(allocId, modelId);
         if (review > QoSMath.REVIEW_MAX) revert ModelsBadReview(review);
         _allocModels[allocId][k] = word | bit;
-        Model storage m = _models[modelId];
-        m.totalReview += review;
-        uint32 ownerId = m.ownerId;
+        uint256 loc = _modelAt[modelId];
+        _models[loc >> 8][loc & 0xff].totalReview += review;
+        uint32 ownerId = uint32(loc >> 16);
         _owners[ownerId].totalReview += review;
         uint32[] memory one = new uint32[](1);
         one[0] = ownerId;
@@ -495,13 +497,15 @@ contract ModelsManager is ReentrancyGuardTransient {
         view
         returns (ModelView memory model, string memory cid, uint32[] memory env)
     {
-        Model memory m = _models[modelId];
+        uint256 loc = _modelAt[modelId]; // 0 for no model: owner id 0, an empty record
+        Model memory m = _models[loc >> 8][loc & 0xff];
+        uint8 domain = uint8(loc >> 8);
         uint32[] memory one = new uint32[](1);
-        one[0] = m.ownerId;
+        one[0] = uint32(loc >> 16);
         // Only the owner's address is needed here, not its counters.
         // slither-disable-next-line unused-return
-        (uint256[] memory words,) = umc.profiles(one, m.domain, SHARING);
-        model = ModelView(words[0].addr(), m.domain, m.envLen, m.allocCount, m.totalReview);
+        (uint256[] memory words,) = umc.profiles(one, domain, SHARING);
+        model = ModelView(words[0].addr(), domain, m.envLen, m.allocCount, m.totalReview);
         env = new uint32[](m.envLen);
         for (uint256 j; j < m.envLen; ++j) {
             env[j] = uint32(_attr(modelId, m.envHead, j));
@@ -560,7 +564,7 @@ contract ModelsManager is ReentrancyGuardTransient {
             // Rep_m from the model's totals: entry bits 128-167 allocCount, 168-207 totalReview.
             uint256 repM = QoSMath.rating(uint40(f >> 168), uint40(f >> 128));
             if (repM < minB) continue;
-            count = _rank(idx, qs, count, f, (repI[uint32(f >> 32)] * repM) / (ONE + uint64(f >> 64)));
+            count = _rank(idx, qs, count, f, (repI[uint32(f >> 32)] * repM) / (ONE + uint56(f >> 72)));
         }
     }
 
@@ -598,14 +602,15 @@ contract ModelsManager is ReentrancyGuardTransient {
             uint256 f = found[t];
             uint256 p = part[uint32(f >> 32)];
             uint256 top = QoSMath.expertise(p >> 64, nMax) * uint64(p);
-            count = _rank(idx, qs, count, f, top / ((ONE + uint64(f >> 64)) * ONE));
+            count = _rank(idx, qs, count, f, top / ((ONE + uint56(f >> 72)) * ONE));
         }
     }
 
     /// @dev Appends to `found` (its first `used` entries taken; grown when full) the models of
     /// owner list `key` (the owner at pool position `pos`) with env.length attributes, in
-    /// listing order, as: model totals (allocCount | totalReview << 40) << 128 | distance << 64
-    /// | pos << 32 | model id. Each list word and model is one SLOAD.
+    /// listing order, as: model totals (allocCount | totalReview << 40) << 128 | distance << 72
+    /// | list position << 64 | pos << 32 | model id. Each model is one SLOAD, the list's length
+    /// comes with its first model.
     function _collect(
         uint256[] memory found,
         uint256 used,
@@ -615,28 +620,27 @@ contract ModelsManager is ReentrancyGuardTransient {
         uint256[] memory weights
     ) internal view returns (uint256[] memory, uint256) {
         uint256 d = env.length;
-        mapping(uint256 => uint256) storage list = _ownerModels[key];
-        uint256 word = list[0];
-        uint256 len = word >> COUNT_SHIFT; // < 256
+        mapping(uint256 => Model) storage list = _models[key];
+        uint256 m = _rawModel(list, 0);
+        uint256 len = uint8(m >> 32); // listLength, <= MAX_MODELS_PER_OWNER
         unchecked {
-            // j < len < 256 and used < found.length (grown before it is reached): no overflow.
+            // j < len <= 16 and used < found.length (grown before it is reached): no overflow.
             for (uint256 j; j < len; ++j) {
-                uint256 e = j % MODELS_PER_WORD;
-                if (e == 0 && j != 0) word = list[j / MODELS_PER_WORD];
-                uint256 mid = (word >> (32 * e)) & ID_MASK;
-                uint256 m = _rawModel(mid);
+                if (j != 0) m = _rawModel(list, j);
                 if (uint8(m >> 40) != d) continue; // envLen
                 if (used == found.length) found = _grow(found);
-                // distance < 2^58 (_distance), pos < 2^32, mid < 2^32: the fields never overlap.
-                found[used++] = (uint256(uint80(m >> 48)) << 128) | (_distance(mid, m >> 128, env, weights) << 64)
-                    | (pos << 32) | mid;
+                uint256 mid = m & ID_MASK;
+                // distance < 2^56 (_distance), j < 2^8, pos < 2^32, mid < 2^32: no overlap.
+                found[used++] = (uint256(uint80(m >> 48)) << 128) | (_distance(mid, m >> 128, env, weights) << 72)
+                    | (j << 64) | (pos << 32) | mid;
             }
         }
         return (found, used);
     }
 
-    /// @dev Ranks entry `f` (pool position << 32 | model id in its low 64 bits) with QoS `q`
-    /// (< 2^64) into the top-k arrays: key q << 32 | ~id, so equal QoS goes to the lower id.
+    /// @dev Ranks entry `f` (list position << 64 | pool position << 32 | model id in its low
+    /// 72 bits) with QoS `q` (< 2^64) into the top-k arrays: key q << 32 | ~id, so equal QoS
+    /// goes to the lower id.
     function _rank(uint256[] memory idx, uint256[] memory qs, uint256 count, uint256 f, uint256 q)
         internal
         pure
@@ -644,14 +648,14 @@ contract ModelsManager is ReentrancyGuardTransient {
     {
         uint256 mid = f & ID_MASK;
         // q < 2^64 and mid < 2^32: the key fits, ID_MASK - mid >= 0.
-        return QoSMath.insertTop(idx, qs, count, uint64(f), (q << 32) | (ID_MASK - mid));
+        return QoSMath.insertTop(idx, qs, count, uint72(f), (q << 32) | (ID_MASK - mid));
     }
 
-    /// @dev The storage word of model `modelId`, the {Model} fields from the low bits: ownerId
-    /// 0-31, domain 32-39, envLen 40-47, allocCount 48-87, totalReview 88-127, envHead 128-255
-    /// (one SLOAD, no memory copy of the struct).
-    function _rawModel(uint256 modelId) internal view returns (uint256 w) {
-        Model storage m = _models[modelId];
+    /// @dev The storage word of record `j` of owner list `list`, the {Model} fields from the
+    /// low bits: modelId 0-31, listLength 32-39, envLen 40-47, allocCount 48-87, totalReview
+    /// 88-127, envHead 128-255 (one SLOAD, no memory copy of the struct).
+    function _rawModel(mapping(uint256 => Model) storage list, uint256 j) internal view returns (uint256 w) {
+        Model storage m = list[j];
         assembly ("memory-safe") {
             w := sload(m.slot)
         }
@@ -686,18 +690,17 @@ contract ModelsManager is ReentrancyGuardTransient {
         return (0, 0, 0);
     }
 
-    /// @dev Appends model `modelId` (< 2^32) to the owner list `key` (fewer than 256 entries:
-    /// at most MAX_MODELS_PER_OWNER are listed).
-    function _pushOwnerModel(uint256 key, uint256 modelId) internal {
-        uint256 head = _ownerModels[key][0];
-        uint256 n = head >> COUNT_SHIFT;
-        uint256 entry = modelId << (32 * (n % MODELS_PER_WORD));
-        if (n < MODELS_PER_WORD) {
-            _ownerModels[key][0] = (head + (1 << COUNT_SHIFT)) | entry;
-        } else {
-            _ownerModels[key][0] = head + (1 << COUNT_SHIFT);
-            _ownerModels[key][n / MODELS_PER_WORD] |= entry;
-        }
+    /// @dev Stores model `modelId` (< 2^32) of owner `ownerId` in `domain` with `envLen`
+    /// attributes (the first four packed in `head`) at the end of the owner's list of the
+    /// domain: one new slot, plus the list's length in its first record (fewer than 256
+    /// entries: at most MAX_MODELS_PER_OWNER are listed), and where it is for lookups by id.
+    function _listModel(uint32 ownerId, uint256 domain, uint256 modelId, uint256 envLen, uint256 head) internal {
+        uint256 key = (uint256(ownerId) << 8) | domain;
+        mapping(uint256 => Model) storage list = _models[key];
+        uint256 n = list[0].listLength;
+        list[n] = Model(uint32(modelId), n == 0 ? 1 : 0, uint8(envLen), 0, 0, uint128(head));
+        if (n != 0) list[0].listLength = uint8(n + 1);
+        _modelAt[modelId] = (key << 8) | n;
     }
 
     /// @dev A copy of `a` with twice its length (plus one), for a buffer that fills up.

@@ -313,6 +313,61 @@ contract ModelsManagerFuzzTest is Fixture {
         vm.assertEq(m.totalReview, 4, "Eq. 11 total of the reviewed model");
     }
 
+    /// @dev Models are stored in their owner's list of each domain (one record per model, the
+    /// list's length in its first): interleaved listings by two owners in two domains keep
+    /// every model's owner, domain, attributes and totals, an allocation counts against the
+    /// models it picked wherever they sit in their lists, and a review lands on that model.
+    function testFuzz_modelRecords_ownerDomainLists(uint8 pattern, uint8 n, bool sharing) public {
+        uint32 other = DOMAIN + 1;
+        address[2] memory who = [_actor("lister-a"), _actor("lister-b")];
+        _worker(who[0], (1 << DOMAIN) | (1 << other), 4);
+        _worker(who[1], (1 << DOMAIN) | (1 << other), 4);
+        vm.prank(admin);
+        mmc.setMaxModelsPerOwner(16);
+        uint256 count = _bound(n, 2, 12);
+        uint256[] memory ids = new uint256[](count);
+        uint256[] memory rankInDomain = new uint256[](count); // 1-based among DOMAIN's models
+        uint256 inDomain = 0;
+        for (uint256 i; i < count; ++i) {
+            address w = who[(pattern >> (i % 8)) & 1];
+            // the first model is in DOMAIN, so the allocation below has a candidate
+            uint32 d = i == 0 || (pattern >> ((i + 3) % 8)) & 1 == 0 ? DOMAIN : other;
+            string memory cid = string(abi.encodePacked("rec-", i));
+            _commit(w, cid);
+            vm.prank(w);
+            // distance to the request (3, 3) grows with i: DOMAIN's top k are its first k listed
+            ids[i] = mmc.addModel(cid, "desc", d, _env(uint32(3 + i), uint32(3 + i % 2)));
+            if (d == DOMAIN) rankInDomain[i] = ++inDomain;
+        }
+        uint8 k = 3;
+        vm.prank(requester);
+        uint256 allocId = mmc.allocateModel{value: k}(
+            _request(k, sharing ? ModelsManager.Metric.Sharing : ModelsManager.Metric.Model)
+        );
+        uint256 last = 0; // the last model of DOMAIN that was allocated
+        for (uint256 i; i < count; ++i) {
+            (ModelsManager.ModelView memory m, string memory cid, uint32[] memory env) = mmc.getModel(ids[i]);
+            bool allocated = rankInDomain[i] != 0 && rankInDomain[i] <= k;
+            if (allocated) last = i;
+            vm.assertEq(m.owner, who[(pattern >> (i % 8)) & 1], "owner");
+            vm.assertEq(m.domain, rankInDomain[i] != 0 ? DOMAIN : other, "domain");
+            vm.assertEq(m.envLen, 2, "attribute count");
+            vm.assertEq(env[0], 3 + i, "attribute 0");
+            vm.assertEq(env[1], 3 + i % 2, "attribute 1");
+            vm.assertEq(keccak256(bytes(cid)), keccak256(abi.encodePacked("rec-", i)), "cid");
+            vm.assertEq(m.allocCount, allocated ? 1 : 0, "Eq. 11 count of this model only");
+            vm.assertEq(uint256(mmc.allocState(allocId, ids[i])), allocated ? 1 : 0, "allocation entry");
+            vm.assertEq(m.totalReview, 0, "no review yet");
+        }
+        vm.prank(requester);
+        mmc.updateModelRep(allocId, ids[last], 5);
+        (ModelsManager.ModelView memory reviewed,,) = mmc.getModel(ids[last]);
+        vm.assertEq(reviewed.totalReview, 5, "the review lands on the reviewed model");
+        vm.assertEq(mmc.ownerRep(reviewed.owner).totalReview, 5, "and on its owner's Eq. 10 totals");
+        (ModelsManager.ModelView memory none,,) = mmc.getModel(count + 1);
+        vm.assertEq(none.owner, address(0), "an unknown id is no model");
+    }
+
     // ------------------------------------------------------------------ withdraw
 
     function testFuzz_withdraw(uint80 price, address stranger_) public {

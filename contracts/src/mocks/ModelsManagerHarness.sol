@@ -8,7 +8,8 @@ import {ITasksOutcomes} from "../ITasksOutcomes.sol";
 /**
  * @title ModelsManagerHarness (test only, never deployed by the platform)
  * @dev The MMC plus a bulk listing for the allocation scaling tests and benchmark: the
- * storage {addModel} leaves (model slot, domain and owner lists, owner count), without the
+ * storage {addModel} leaves (model record in its owner list, its locator, the domain list,
+ * owner count), without the
  * CID text and the event.
  */
 contract ModelsManagerHarness is ModelsManager {
@@ -45,9 +46,8 @@ contract ModelsManagerHarness is ModelsManager {
                     else tail |= v << (32 * (j - 4));
                 }
                 if (dims > 4) _envTail[modelId][0] = tail;
-                _models[modelId] = Model(ownerId, uint8(domain), uint8(dims), 0, 0, uint128(head));
+                _listModel(ownerId, domain, modelId, dims, head);
                 _domainModels[domain].push(uint32(modelId));
-                _pushOwnerModel((uint256(ownerId) << 8) | domain, modelId);
             }
             _owners[ownerId].modelCount += uint32(perOwner);
         }
