@@ -434,9 +434,8 @@ contract ModelsManager is ReentrancyGuardTransient {
         if (bit == 0 || word & bit != 0) revert ModelsNotAllocated(allocId, modelId);
         if (review > QoSMath.REVIEW_MAX) revert ModelsBadReview(review);
         _allocModels[allocId][k] = word | bit;
-        uint256 loc = _modelAt[modelId];
-        _models[loc >> 8][loc & 0xff].totalReview += review;
-        uint32 ownerId = uint32(loc >> 16);
+        (Model storage m, uint32 ownerId,) = _locate(modelId);
+        m.totalReview += review;
         _owners[ownerId].totalReview += review;
         uint32[] memory one = new uint32[](1);
         one[0] = ownerId;
@@ -497,18 +496,17 @@ contract ModelsManager is ReentrancyGuardTransient {
         view
         returns (ModelView memory model, string memory cid, uint32[] memory env)
     {
-        uint256 loc = _modelAt[modelId]; // 0 for no model: owner id 0, an empty record
-        Model memory m = _models[loc >> 8][loc & 0xff];
-        uint8 domain = uint8(loc >> 8);
+        (Model storage m, uint32 ownerId, uint8 domain) = _locate(modelId);
         uint32[] memory one = new uint32[](1);
-        one[0] = uint32(loc >> 16);
+        one[0] = ownerId;
         // Only the owner's address is needed here, not its counters.
         // slither-disable-next-line unused-return
         (uint256[] memory words,) = umc.profiles(one, domain, SHARING);
-        model = ModelView(words[0].addr(), domain, m.envLen, m.allocCount, m.totalReview);
-        env = new uint32[](m.envLen);
-        for (uint256 j; j < m.envLen; ++j) {
-            env[j] = uint32(_attr(modelId, m.envHead, j));
+        (uint8 envLen, uint128 head) = (m.envLen, m.envHead);
+        model = ModelView(words[0].addr(), domain, envLen, m.allocCount, m.totalReview);
+        env = new uint32[](envLen);
+        for (uint256 j; j < envLen; ++j) {
+            env[j] = uint32(_attr(modelId, head, j));
         }
         cid = _cids[modelId];
     }
@@ -701,6 +699,16 @@ contract ModelsManager is ReentrancyGuardTransient {
         list[n] = Model(uint32(modelId), n == 0 ? 1 : 0, uint8(envLen), 0, 0, uint128(head));
         if (n != 0) list[0].listLength = uint8(n + 1);
         _modelAt[modelId] = (key << 8) | n;
+    }
+
+    /// @dev Where model `modelId` is (the locator {_listModel} wrote: owner list key << 8 |
+    /// position): its record, its owner's id and its domain; owner id 0 and an empty record
+    /// for an id that names no model.
+    function _locate(uint256 modelId) internal view returns (Model storage m, uint32 ownerId, uint8 domain) {
+        uint256 loc = _modelAt[modelId];
+        m = _models[loc >> 8][loc & 0xff];
+        ownerId = uint32(loc >> 16);
+        domain = uint8(loc >> 8);
     }
 
     /// @dev A copy of `a` with twice its length (plus one), for a buffer that fills up.
