@@ -8,7 +8,8 @@ method trains for the same env-step budget of the task user:
   dc           sparse + Demonstration Cloning with the first expert (Alg. 4.1, E = 0.2)
   medc         sparse + MEDC with all experts, roulette over their QoS (Alg. 5.1, R_E = 0.1)
   medc-anneal  medc with R_E moving linearly from 0.2 (Table 4.1's E) to 0 over the budget
-               (medc.py ``rate_end``; ours): more guidance early, none at the end
+               (medc.py ``rate_end``; ours): more guidance early, none at the end; other
+               ends with ``--anneal START,END``
   medc-faulty  sparse + MEDC with only faulty experts: 5 random, 5 biased, 5 malicious
   medc-credit, medc-faulty-credit
                the same with the expert credit rule (medc.py, ``credit``: experts whose
@@ -42,7 +43,7 @@ Usage: python benchmarks/medc/run.py --steps 1000000 --seeds 0,1,2
        [--grid 30] [--belief] [--experts train | DIR,DIR,...] [--expert-steps 1000000]
        [--frl-steps N]
        [--cae DIR] [--bonus S]
-       [--qos 1,1,1]
+       [--qos 1,1,1] [--rate R_E] [--anneal START,END]
        [--episodes 1000] [--eval-every 5] [--out runs/medc] [--png benchmarks/medc/curves.png]
 """
 
@@ -81,7 +82,7 @@ MIXED = ("medc-mixed", "medc-mixed-credit")
 FRL_ONE_FAULTY = ("frl-random", "frl-biased", "frl-malicious")
 FRL = ("frl", "frl-mixed", *FRL_ONE_FAULTY)
 ANNEAL = (0.2, 0.0)
-"""medc-anneal's R_E at the start and at the end of the budget."""
+"""medc-anneal's R_E at the start and at the end of the budget (``--anneal START,END``)."""
 CURVE_EPISODES = 100
 CURVE_SEED = 1_000_003
 BELIEF = False
@@ -508,7 +509,7 @@ def plot(results: list[dict], path: Path) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    global HELDOUT_EPISODES, THRESHOLD, BELIEF, ROUTE, CAE, BONUS, MEDC_RATE
+    global HELDOUT_EPISODES, THRESHOLD, BELIEF, ROUTE, CAE, BONUS, MEDC_RATE, ANNEAL
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--steps", type=int, default=1_000_000)
     p.add_argument("--seeds", default="0,1,2")
@@ -534,6 +535,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--rate", type=float, default=None,
                    help="R_E of medc and medc-credit (default 0.1, Table 5.3); runs are cached "
                    "under --out, so give another --out for another R_E")
+    p.add_argument("--anneal", default=None, metavar="START,END",
+                   help="R_E of medc-anneal at the start and the end of the budget (default "
+                   "0.2,0: Table 4.1's E down to none); give another --out for another schedule")
     p.add_argument("--belief", action="store_true",
                    help="with --grid 10: the product presets ch4-a{N}w{K}-{r}-10x10 (belief "
                    "map, 5 x 5 windows) for every user; give another --out (runs are cached)")
@@ -559,6 +563,14 @@ def main(argv: list[str] | None = None) -> int:
     if args.rate is not None and not 0.0 < args.rate <= 1.0:
         p.error(f"--rate must be in (0, 1], got {args.rate}")
     MEDC_RATE = args.rate
+    if args.anneal is not None:
+        try:
+            start, end = (float(x) for x in args.anneal.split(","))
+        except ValueError:
+            p.error(f"--anneal: expected START,END (two rates), got {args.anneal!r}")
+        if not (0.0 <= start <= 1.0 and 0.0 <= end <= 1.0):
+            p.error(f"--anneal: rates must be in [0, 1], got {args.anneal!r}")
+        ANNEAL = (start, end)
     methods = [m for m in args.methods.split(",") if m]
     bad = [m for m in methods if m not in METHODS]
     if bad:
