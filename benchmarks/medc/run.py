@@ -24,9 +24,10 @@ method trains for the same env-step budget of the task user:
   frl-random, frl-biased, frl-malicious
                frl with one faulty user of that kind alone (the user frl-mixed draws for it
                with the same seed): which of the three kinds does frl-mixed's damage?
-  sparse-cae, sr-cae
-               sparse / SR with the walls CAE's embedding (``--cae DIR``, Fig. 4.2) in place of
-               the downsized wall maps: does the embedding beat the maps?
+  sparse-cae, sr-cae, medc-cae
+               sparse / SR / MEDC with the walls CAE's embedding (``--cae DIR``, Fig. 4.2) in
+               place of the learner's downsized wall maps (the experts keep their own inputs):
+               does the embedding beat the maps?
 
 Every run evaluates its greedy policy on the same 100 held-out episodes every few updates (the
 curve) and at the end on ``--episodes`` held-out episodes (``zoo.HELDOUT_SEED``) next to the
@@ -73,7 +74,7 @@ from workers.mdrl.zoo import HELDOUT_SEED
 METHODS = ("sparse", "sr", "dc", "medc", "medc-anneal", "medc-faulty", "medc-credit",
            "medc-faulty-credit", "medc-mixed", "medc-mixed-credit",
            "il", "il-mixed", "frl", "frl-mixed", "frl-random", "frl-biased", "frl-malicious",
-           "sparse-cae", "sr-cae")
+           "sparse-cae", "sr-cae", "medc-cae")
 EXPERT_USERS = ("A1W0", "A1W3", "A2W2")
 GUIDED = ("medc", "medc-anneal", "medc-credit")
 """The methods with proper experts whose speed and rivals the targets report."""
@@ -227,7 +228,7 @@ def train_run(task: str, method: str, seed: int, steps: int, experts: list[str],
         if method == "dc":
             selector = DemonstrationSelector(load_experts(experts[:1], env, seed), seed=seed,
                                              threshold=THRESHOLD)
-        elif method in ("medc", "medc-credit", "medc-anneal"):
+        elif method in ("medc", "medc-credit", "medc-anneal", "medc-cae"):
             rate, rate_end = ANNEAL if method == "medc-anneal" else (MEDC_RATE, None)
             selector = DemonstrationSelector(load_experts(experts, env, seed), qos or None,
                                              rate, seed=seed, credit=method.endswith("-credit"),
@@ -414,7 +415,7 @@ def targets(by: dict[str, list[dict]], sr_level: float) -> list[str]:
             out.append(f"- {faulty} {f:.2f} [{f_ci[0]:.2f}, {f_ci[1]:.2f}] vs sparse "
                        f"{s:.2f} [{s_ci[0]:.2f}, {s_ci[1]:.2f}] (target: not worse beyond the "
                        "seed noise)")
-    for plain in ("sparse", "sr"):
+    for plain in ("sparse", "sr", "medc"):
         if {plain, f"{plain}-cae"} <= set(by):
             a, a_ci = final(by[f"{plain}-cae"], "time")
             b, b_ci = final(by[plain], "time")

@@ -9,14 +9,15 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
 METHODS = ("sparse", "medc", "medc-anneal", "medc-credit", "il", "medc-mixed-credit", "il-mixed",
-           "frl-mixed", "frl-biased")
+           "frl-mixed", "frl-biased", "medc-cae")
+CAE = ROOT / "models" / "cae-10x10"
 
 
 def bench(out: Path, *extra: str) -> subprocess.CompletedProcess:
     cmd = [sys.executable, str(ROOT / "benchmarks" / "medc" / "run.py"), "--grid", "10",
            "--steps", "4096", "--seeds", "0", "--tasks", "A3W3", "--methods", ",".join(METHODS),
            "--experts", "oracle,random", "--episodes", "10", "--eval-every", "1",
-           "--out", str(out), *extra]
+           "--cae", str(CAE), "--out", str(out), *extra]
     return subprocess.run(cmd, capture_output=True, text=True, timeout=600, cwd=ROOT)
 
 
@@ -44,7 +45,15 @@ def test_the_benchmark_runs_every_guided_method_and_reuses_its_cache(tmp_path):
 
     assert refs("medc-mixed-credit") == refs("il-mixed") == ["oracle", "random", "random",
                                                              "biased:8"]
-    assert refs("medc") == refs("il") == ["oracle", "random"]
+    assert refs("medc") == refs("il") == refs("medc-cae") == ["oracle", "random"]
+    # medc-cae: the learner sees the walls CAE's embedding, the experts keep their own inputs
+    def observation(method: str) -> dict:
+        return json.loads((tmp_path / f"A3W3-10x10-{method}-s0-4096" / "model" / "model.json")
+                          .read_text())["observation"]
+
+    assert observation("medc-cae")["walls_embedding"] == str(CAE)
+    assert "walls_embedding" not in observation("medc")
+    assert "medc with the walls CAE" in table
     assert "medc-mixed-credit vs IL-MIXED: shorter mean episodes at" in table
     assert "medc-mixed-credit vs FRL-MIXED: shorter mean episodes at" in table
     # FRL in Fig. 5.8: 3 of the other 7 users send random, biased and malicious weights
