@@ -36,34 +36,31 @@ def test_the_benchmark_runs_every_guided_method_and_reuses_its_cache(tmp_path):
         assert run["best"]["curve_time"] == min(p["time"] for p in run["curve"])
         assert 0.0 <= run["best"]["heldout"]["success"] <= 1.0
     assert "Kept policy" in table and "kept policies:" in table
+    def card(method: str) -> dict:
+        return json.loads((tmp_path / f"A3W3-10x10-{method}-s0-4096" / "model" / "model.json")
+                          .read_text())
+
     # Fig. 5.8: MEDC and IL are given the same experts, the proper ones plus as many faulty
     def refs(method: str) -> list[str]:
-        card = json.loads((tmp_path / f"A3W3-10x10-{method}-s0-4096" / "model" / "model.json")
-                          .read_text())["training"]
-        block = card["experts"] if "experts" in card else card["method"]
+        training = card(method)["training"]
+        block = training["experts"] if "experts" in training else training["method"]
         return [e["ref"] for e in block["experts"]]
 
     assert refs("medc-mixed-credit") == refs("il-mixed") == ["oracle", "random", "random",
                                                              "biased:8"]
     assert refs("medc") == refs("il") == refs("medc-cae") == ["oracle", "random"]
     # medc-cae: the learner sees the walls CAE's embedding, the experts keep their own inputs
-    def observation(method: str) -> dict:
-        return json.loads((tmp_path / f"A3W3-10x10-{method}-s0-4096" / "model" / "model.json")
-                          .read_text())["observation"]
-
-    assert observation("medc-cae")["walls_embedding"] == str(CAE)
-    assert "walls_embedding" not in observation("medc")
+    assert card("medc-cae")["observation"]["walls_embedding"] == str(CAE)
+    assert "walls_embedding" not in card("medc")["observation"]
     assert "medc with the walls CAE" in table
     assert "medc-mixed-credit vs IL-MIXED: shorter mean episodes at" in table
     assert "medc-mixed-credit vs FRL-MIXED: shorter mean episodes at" in table
     # FRL in Fig. 5.8: 3 of the other 7 users send random, biased and malicious weights
-    frl = json.loads((tmp_path / "A3W3-10x10-frl-mixed-s0-4096" / "model" / "model.json")
-                     .read_text())["training"]["method"]
+    frl = card("frl-mixed")["training"]["method"]
     assert sorted(frl["faulty_users"].values()) == ["biased:8", "malicious", "random"]
     assert "A3W3" not in frl["faulty_users"] and set(frl["faulty_users"]) < set(frl["users"])
     # frl-biased: frl-mixed's biased user alone, the same user, nobody else faulty
-    one = json.loads((tmp_path / "A3W3-10x10-frl-biased-s0-4096" / "model" / "model.json")
-                     .read_text())["training"]["method"]
+    one = card("frl-biased")["training"]["method"]
     assert one["faulty_users"] == {u: k for u, k in frl["faulty_users"].items()
                                    if k.startswith("biased:")} and len(one["faulty_users"]) == 1
     assert "medc-mixed-credit vs FRL-BIASED: shorter mean episodes at" in table
