@@ -36,6 +36,7 @@ from celery import Celery, shared_task
 from kombu.transport import sqlalchemy as kombu_sqla
 from kombu.utils.encoding import bytes_to_str
 from sqlalchemy import text
+from sqlalchemy.exc import IntegrityError
 
 from backend.settings import Settings, load_settings
 
@@ -74,6 +75,17 @@ class _DurableChannel(kombu_sqla.Channel):
         if self.connection is None:
             return self._engines[self._hostname]
         return super()._open()
+
+    def _get_or_create(self, queue: str) -> Any:
+        """The queue's row, also when another process inserts it between upstream's look-up
+        and its insert: upstream's lock is per process, so a gateway publishing to a new queue
+        while a worker starts on it lost the race with ``UNIQUE constraint failed:
+        kombu_queue.name``, which killed the worker (measured in CI)."""
+        try:
+            return super()._get_or_create(queue)
+        except IntegrityError:
+            self.session.rollback()
+            return self.session.query(self.queue_cls).filter(self.queue_cls.name == queue).one()
 
     def _get(self, queue: str, timeout: Any = None) -> dict[str, Any]:
         q = self._get_or_create(queue)

@@ -262,3 +262,41 @@ def test_a_detached_embedded_channel_still_settles_its_messages(tmp_path: Path) 
         conn.transport.close_channel(late)
         late._restore(again)
         assert fresh.basic_get("q").body == b"second"
+
+
+def test_an_embedded_queue_created_by_another_process_meanwhile_is_used(tmp_path: Path) -> None:
+    """Two processes declaring one new queue at once: the other one's row lands between this
+    channel's look-up and its insert (replayed here with a second connection at the moment of
+    the INSERT). The declare must use that row, not die on the UNIQUE constraint."""
+    import sqlite3
+
+    from kombu import Connection
+    from sqlalchemy import event
+
+    from backend.celery_app import EmbeddedSQLATransport
+
+    db = tmp_path / "broker.sqlite"
+    with Connection(f"sqlite:///{db}", transport=EmbeddedSQLATransport) as conn:
+        channel = conn.channel()
+        channel.queue_declare("warm-up")  # creates the tables
+        raced: list[str] = []
+
+        def other_process_first(_conn, _cursor, statement, params, _context, _many) -> None:
+            if statement.startswith("INSERT INTO kombu_queue") and params[0] == "q":
+                with sqlite3.connect(db) as other:
+                    other.execute("INSERT INTO kombu_queue (name) VALUES ('q')")
+                raced.append(statement)
+
+        engine = channel.session.get_bind()
+        event.listen(engine, "before_cursor_execute", other_process_first)
+        try:
+            channel.queue_declare("q")
+        finally:
+            event.remove(engine, "before_cursor_execute", other_process_first)
+        assert raced, "the race was not replayed"
+        channel.basic_publish(channel.prepare_message("after the race"), "", "q")
+        message = channel.basic_get("q")
+        assert message.body == b"after the race"
+        channel.basic_ack(message.delivery_tag)
+        rows = channel.session.query(channel.queue_cls).filter(channel.queue_cls.name == "q")
+        assert rows.count() == 1
