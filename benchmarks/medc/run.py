@@ -32,8 +32,10 @@ method trains for the same env-step budget of the task user:
 Every run evaluates its greedy policy on the same 100 held-out episodes every few updates (the
 curve) and at the end on ``--episodes`` held-out episodes (``zoo.HELDOUT_SEED``) next to the
 oracle. Output: a table per task (final time / cost / success, mean over seeds with a 95% CI;
-env steps to reach SR's final level), the issue's target ratios, and ``--png`` with the curves
-(episode length against env steps and against wall-clock, mean over seeds, min-max band).
+env steps to reach SR's final level), the experts themselves on the same episodes (the team
+taking each one's first choice: what the guided learners are shown), the issue's target ratios,
+and ``--png`` with the curves (episode length against env steps and against wall-clock, mean
+over seeds, min-max band).
 
 Each finished run is cached as JSON under ``--out`` (``TASK-METHOD-sSEED-STEPS.json``), so an
 interrupted benchmark re-runs only what is missing, and a killed run resumes from its last
@@ -93,9 +95,9 @@ ROUTE = False
 """--route: the ``-route`` presets (belief map and walking-distance maps, observations.py) of
 the Ch. 4 setting, scaled to --grid like the thesis presets."""
 CAE: str | None = None
+"""--cae: the walls CAE directory of the ``-cae`` methods (trained for the benchmark's grid)."""
 BONUS: float | None = None
 """--bonus: S of Eq. 9 for every sparse-reward run (the presets: 50, Table 4.1)."""
-"""--cae: the walls CAE directory of the ``-cae`` methods (trained for the benchmark's grid)."""
 REACH = 1.05
 """A run "reaches" a level when its mean held-out episode length is within 5% of it."""
 CHECKPOINT_EVERY = 10
@@ -291,9 +293,43 @@ def heldout(policy: Any, env: Any, episodes: int | None = None) -> dict[str, Any
 
 HELDOUT_EPISODES = 1000
 THRESHOLD = PAPER_THRESHOLD
+"""l of the DC / MEDC runs (``--threshold``)."""
 MEDC_RATE: float | None = None
 """R_E of medc / medc-credit (--rate); None: the selector's default, Table 5.3's 0.1."""
-"""l of the DC / MEDC runs (``--threshold``)."""
+
+
+class FollowExpert:
+    """The whole team taking an expert's best-ranked valid action at every step, the action
+    Alg. 5.1 offers each agent first, through the expert's adapter. The expert is loaded
+    afresh for every batch of episodes, so a stateful one (a baseline) starts clean."""
+
+    def __init__(self, ref: str, seed: int):
+        self.ref, self.seed, self.name = ref, seed, ref
+
+    def reset(self, env: Any) -> None:
+        self.expert = load_experts([self.ref], env.spec, self.seed)[0]
+
+    def act(self, env: Any) -> np.ndarray:
+        scores = self.expert.scores(env)
+        return np.where(np.asarray(env.action_mask()), scores, -np.inf).argmax(-1)
+
+
+def expert_figures(task: str, grid: int, experts: list[str], out: Path) -> list[dict]:
+    """Each expert followed by the task user's team (:class:`FollowExpert`) on the held-out
+    episodes: what the guided learners are shown, untrained on the task. Cached under
+    ``out`` per task, grid, expert, environment and episode count."""
+    env = user_preset(task, "sparse", grid).env
+    rows = []
+    for i, ref in enumerate(experts):
+        slug = re.sub(r"[^A-Za-z0-9_.-]+", "_", ref).strip("_")[-60:]
+        cached = out / f"{task}-{grid}x{grid}-expert{i}-{slug}-{HELDOUT_EPISODES}.json"
+        key = repr(env)
+        row = json.loads(cached.read_text()) if cached.is_file() else None
+        if row is None or row.get("env") != key or row.get("ref") != ref:
+            row = {"ref": ref, "env": key, "heldout": heldout(FollowExpert(ref, i), env)}
+            cached.write_text(json.dumps(row))
+        rows.append(row)
+    return rows
 
 
 # ---------------------------------------------------------------------------- analysis
@@ -337,8 +373,11 @@ def sparse_return(runs: list[dict], bonus: float) -> tuple[float, tuple[float, f
     return float(v.mean()), (float(ci[0]), float(ci[1]))
 
 
-def report(results: list[dict]) -> str:
+def report(results: list[dict], shown: dict[str, list[dict]] | None = None) -> str:
+    """The tables and target lines per task; ``shown`` maps a task to its
+    :func:`expert_figures`."""
     lines = []
+    shown = shown or {}
     for task in dict.fromkeys(r["task"] for r in results):
         by = {m: [r for r in results if r["task"] == task and r["method"] == m]
               for m in METHODS}
@@ -365,8 +404,44 @@ def report(results: list[dict]) -> str:
                 f"{t:.2f} [{t_ci[0]:.2f}, {t_ci[1]:.2f}] | {c:.2f} [{c_ci[0]:.2f}, {c_ci[1]:.2f}] "
                 f"| {g:.2f}{_ci(g_ci)} | {t / oracle:.2f} | {_steps(reach)} |")
         lines += selected_table(by, bonus, oracle)
+        lines += experts_table(shown.get(task, []), bonus, oracle)
         lines += targets(by, sr_level)
+        lines += against_experts(by, shown.get(task, []), bonus)
     return "\n".join(lines)
+
+
+def experts_table(rows: list[dict], bonus: float, oracle: float) -> list[str]:
+    """The experts followed by the team on the same held-out episodes (not trained here)."""
+    if not rows:
+        return []
+    out = ["", "The experts on the task (the team takes each one's best-ranked valid action; "
+           "not trained on the task):", "| expert | success | time (95% CI) | cost (95% CI) | "
+           f"Eq. 9 return (S = {bonus:g}) | time / oracle |", "|---|---|---|---|---|---|"]
+    for r in rows:
+        h = r["heldout"]
+        out.append(f"| {r['ref']} | {100 * h['success']:.1f}% | {h['time']:.2f}{_ci(h['time_ci'])} "
+                   f"| {h['cost']:.2f}{_ci(h['cost_ci'])} | "
+                   f"{bonus * h['success'] - h['cost']:.2f} | {h['time'] / oracle:.2f} |")
+    return out
+
+
+def against_experts(by: dict[str, list[dict]], rows: list[dict], bonus: float) -> list[str]:
+    """Each guided learner's final time and Eq. 9 return against the best of the experts it
+    was shown (the shortest time, the highest return): does it learn what it is shown? The
+    learners optimise the return, which charges the moves the experts' time costs."""
+    if not rows:
+        return []
+
+    def ret(h: dict) -> float:
+        return bonus * h["success"] - h["cost"]
+
+    fast = min(rows, key=lambda r: r["heldout"]["time"])
+    rich = max(rows, key=lambda r: ret(r["heldout"]))
+    t, g = fast["heldout"]["time"], ret(rich["heldout"])
+    return [f"- {m} ends at {final(by[m], 'time')[0]:.2f} steps, "
+            f"{final(by[m], 'time')[0] / t:.2f}x the fastest expert followed ({fast['ref']}: "
+            f"{t:.2f}), Eq. 9 return {sparse_return(by[m], bonus)[0]:.2f} against the best "
+            f"expert's {g:.2f} ({rich['ref']})" for m in (*GUIDED, "medc-cae", "il") if m in by]
 
 
 def kept(runs: list[dict]) -> list[dict] | None:
@@ -613,7 +688,11 @@ def main(argv: list[str] | None = None) -> int:
           f"{args.steps} env steps of the task user per run"
           f"{f' (frl: {args.frl_steps})' if args.frl_steps else ''}, seeds {args.seeds}, experts "
           f"{experts}; trained and evaluated on Poisson readings")
-    print(report(results))
+    guided = {"il", *GUIDED, "medc-cae"}
+    shown = {t: expert_figures(t, args.grid, experts, args.out)
+             for t in dict.fromkeys(r["task"] for r in results)
+             if guided & {r["method"] for r in results if r["task"] == t}}
+    print(report(results, shown))
     if args.png:
         plot(results, args.png)
         print(f"\ncurves: {args.png}")

@@ -36,6 +36,16 @@ def test_the_benchmark_runs_every_guided_method_and_reuses_its_cache(tmp_path):
         assert run["best"]["curve_time"] == min(p["time"] for p in run["curve"])
         assert 0.0 <= run["best"]["heldout"]["success"] <= 1.0
     assert "Kept policy" in table and "kept policies:" in table
+    # the experts on the task: the oracle expert's first choice is the oracle's action, so the
+    # team following it takes the oracle's time on the same held-out episodes
+    oracle_time = float(table.split("(oracle ")[1].split(" steps")[0])
+    rows = {r.split(" | ")[0].strip("| "): r.split(" | ") for r in table.splitlines()
+            if r.startswith(("| oracle |", "| random |"))}
+    assert set(rows) == {"oracle", "random"}, table
+    assert float(rows["oracle"][2].split()[0]) == oracle_time and rows["oracle"][5] == "1.00 |"
+    assert float(rows["random"][2].split()[0]) > oracle_time
+    assert "- medc ends at " in table and "x the fastest expert followed (oracle: " in table
+
     def card(method: str) -> dict:
         return json.loads((tmp_path / f"A3W3-10x10-{method}-s0-4096" / "model" / "model.json")
                           .read_text())
