@@ -319,11 +319,10 @@ def expert_figures(task: str, grid: int, experts: list[str], out: Path) -> list[
     episodes: what the guided learners are shown, untrained on the task. Cached under
     ``out`` per task, grid, expert, environment and episode count."""
     env = user_preset(task, "sparse", grid).env
-    rows = []
+    rows, key = [], repr(env)
     for i, ref in enumerate(experts):
         slug = re.sub(r"[^A-Za-z0-9_.-]+", "_", ref).strip("_")[-60:]
         cached = out / f"{task}-{grid}x{grid}-expert{i}-{slug}-{HELDOUT_EPISODES}.json"
-        key = repr(env)
         row = json.loads(cached.read_text()) if cached.is_file() else None
         if row is None or row.get("env") != key or row.get("ref") != ref:
             row = {"ref": ref, "env": key, "heldout": heldout(FollowExpert(ref, i), env)}
@@ -364,11 +363,16 @@ def final(runs: list[dict], key: str) -> tuple[float, tuple[float, float]]:
     return float(v.mean()), (float(ci[0]), float(ci[1]))
 
 
+def eq9_return(heldout: dict, bonus: float) -> float:
+    """The held-out undiscounted team return under Eq. 9: S * success - moving cost."""
+    return bonus * heldout["success"] - heldout["cost"]
+
+
 def sparse_return(runs: list[dict], bonus: float) -> tuple[float, tuple[float, float]]:
     """Mean over seeds of the held-out undiscounted team return under Eq. 9, S * success -
     moving cost (Eq. 9 is linear in both), with its t-interval over the seeds: the objective
     the sparse-reward methods optimise, which trades time for fewer moves."""
-    v = np.array([bonus * r["heldout"]["success"] - r["heldout"]["cost"] for r in runs])
+    v = np.array([eq9_return(r["heldout"], bonus) for r in runs])
     ci = t_interval(v) if len(v) > 1 else (math.nan, math.nan)
     return float(v.mean()), (float(ci[0]), float(ci[1]))
 
@@ -421,7 +425,7 @@ def experts_table(rows: list[dict], bonus: float, oracle: float) -> list[str]:
         h = r["heldout"]
         out.append(f"| {r['ref']} | {100 * h['success']:.1f}% | {h['time']:.2f}{_ci(h['time_ci'])} "
                    f"| {h['cost']:.2f}{_ci(h['cost_ci'])} | "
-                   f"{bonus * h['success'] - h['cost']:.2f} | {h['time'] / oracle:.2f} |")
+                   f"{eq9_return(h, bonus):.2f} | {h['time'] / oracle:.2f} |")
     return out
 
 
@@ -432,12 +436,9 @@ def against_experts(by: dict[str, list[dict]], rows: list[dict], bonus: float) -
     if not rows:
         return []
 
-    def ret(h: dict) -> float:
-        return bonus * h["success"] - h["cost"]
-
     fast = min(rows, key=lambda r: r["heldout"]["time"])
-    rich = max(rows, key=lambda r: ret(r["heldout"]))
-    t, g = fast["heldout"]["time"], ret(rich["heldout"])
+    rich = max(rows, key=lambda r: eq9_return(r["heldout"], bonus))
+    t, g = fast["heldout"]["time"], eq9_return(rich["heldout"], bonus)
     return [f"- {m} ends at {final(by[m], 'time')[0]:.2f} steps, "
             f"{final(by[m], 'time')[0] / t:.2f}x the fastest expert followed ({fast['ref']}: "
             f"{t:.2f}), Eq. 9 return {sparse_return(by[m], bonus)[0]:.2f} against the best "
