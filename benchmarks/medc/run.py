@@ -197,6 +197,10 @@ def train_run(task: str, method: str, seed: int, steps: int, experts: list[str],
                     eval_episodes=CURVE_EPISODES, eval_seed=CURVE_SEED,
                     checkpoint_every=CHECKPOINT_EVERY, tensorboard=False, progress=False,
                     keep_best="time")
+    if method in FRL:  # FRL counts evaluations and checkpoints in rounds of K updates
+        k = FRL_LOCAL_UPDATES
+        run = dataclasses.replace(run, eval_every=eval_every // k,
+                                  checkpoint_every=max(1, CHECKPOINT_EVERY // k))
     run_dir = out / f"{task}-{grid}x{grid}-{method}-s{seed}-{steps}"
     resume = (run_dir / "checkpoint").is_dir()  # a killed run: go on from its checkpoint
     if run_dir.exists() and not resume:  # killed before its first checkpoint: start again
@@ -212,7 +216,7 @@ def train_run(task: str, method: str, seed: int, steps: int, experts: list[str],
             users = [(u, user_preset(u, "sparse", grid).env) for u in THESIS_USERS]
             faulty = faulty_users(task, seed, env.num_actions, method)
             trainer = FederatedTrainer(users, obs, ppo, run, target=task, out=run_dir,
-                                       faulty=faulty)
+                                       faulty=faulty, local_updates=FRL_LOCAL_UPDATES)
     elif method in ("il", "il-mixed"):
         from workers.mdrl.il import ImitationTrainer
 
@@ -259,6 +263,8 @@ def train_run(task: str, method: str, seed: int, steps: int, experts: list[str],
               "steps": trainer.global_step,
               "wall_s": wall, "curve": read_curve(run_dir / "metrics.csv"),
               "heldout": heldout(learner.policy(), env)}
+    if method in FRL:
+        result["local_updates"] = trainer.local_updates
     if selected and learner.best is not None:  # the policy of the curve's shortest time
         result["best"] = {"step": learner.best["global_step"],
                           "curve_time": learner.best["eval_time"],
@@ -296,6 +302,8 @@ THRESHOLD = PAPER_THRESHOLD
 """l of the DC / MEDC runs (``--threshold``)."""
 MEDC_RATE: float | None = None
 """R_E of medc / medc-credit (--rate); None: the selector's default, Table 5.3's 0.1."""
+FRL_LOCAL_UPDATES = 1
+"""FedAvg every this many local PPO updates of each FRL user (``--frl-local-updates``)."""
 
 
 class FollowExpert:
@@ -587,6 +595,7 @@ def plot(results: list[dict], path: Path) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     global HELDOUT_EPISODES, THRESHOLD, BELIEF, ROUTE, CAE, BONUS, MEDC_RATE, ANNEAL
+    global FRL_LOCAL_UPDATES
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--steps", type=int, default=1_000_000)
     p.add_argument("--seeds", default="0,1,2")
@@ -601,6 +610,10 @@ def main(argv: list[str] | None = None) -> int:
                    help="budget of the frl runs (default --steps): FRL collects the eight users' "
                    "experience per step of the task user, ~8x the others' wall-clock; the MEDC vs "
                    "FRL comparison is then over the evaluation points both reach")
+    p.add_argument("--frl-local-updates", type=int, default=1, metavar="K",
+                   help="the frl methods average the users' weights every K local PPO updates "
+                   "of each user (default 1: every update, the most communication; K must divide "
+                   "--eval-every); runs are cached under --out: another --out for another K")
     p.add_argument("--qos", default="", help="QoS weight per expert (default equal)")
     p.add_argument("--episodes", type=int, default=HELDOUT_EPISODES)
     p.add_argument("--eval-every", type=int, default=5)
@@ -640,6 +653,12 @@ def main(argv: list[str] | None = None) -> int:
     if args.rate is not None and not 0.0 < args.rate <= 1.0:
         p.error(f"--rate must be in (0, 1], got {args.rate}")
     MEDC_RATE = args.rate
+    if args.frl_local_updates < 1:
+        p.error(f"--frl-local-updates must be >= 1, got {args.frl_local_updates}")
+    FRL_LOCAL_UPDATES = args.frl_local_updates
+    if args.eval_every % FRL_LOCAL_UPDATES:
+        p.error(f"--frl-local-updates {FRL_LOCAL_UPDATES} must divide --eval-every "
+                f"{args.eval_every}, so that FRL is evaluated at the others' env steps")
     if args.anneal is not None:
         try:
             start, end = (float(x) for x in args.anneal.split(","))
@@ -674,6 +693,10 @@ def main(argv: list[str] | None = None) -> int:
                     if method not in ("sr", "sr-cae") and r.get("bonus", 50.0) != bonus:
                         raise SystemExit(f"{cached} was run with S = {r.get('bonus', 50.0):g}, "
                                          f"not {bonus:g}: give another --out")
+                    if method in FRL and r.get("local_updates", 1) != FRL_LOCAL_UPDATES:
+                        raise SystemExit(f"{cached} averaged every {r.get('local_updates', 1)} "
+                                         f"local update(s), not {FRL_LOCAL_UPDATES}: give "
+                                         f"another --out")
                 else:
                     r = train_run(task, method, seed, steps, experts, qos,
                                   args.eval_every, args.out, args.grid)
@@ -683,11 +706,15 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"{task} {method} seed {seed}: time {h['time']:.2f} cost {h['cost']:.2f} "
                       f"success {h['success']:.3f} ({r['wall_s'] / 60:.1f} min)",
                       file=sys.stderr, flush=True)
+    frl_local = (f", frl averaging every {FRL_LOCAL_UPDATES} local updates"
+                 if FRL_LOCAL_UPDATES > 1 else "")
     print(f"MEDC benchmark: Ch. 4 setting on {args.grid}x{args.grid} cells of 50 m"
           f"{' (product presets: belief map, w = 5)' if BELIEF else ''}"
           f"{' (-route presets: belief and walking-distance maps)' if ROUTE else ''}, "
           f"{args.steps} env steps of the task user per run"
-          f"{f' (frl: {args.frl_steps})' if args.frl_steps else ''}, seeds {args.seeds}, experts "
+          f"{f' (frl: {args.frl_steps})' if args.frl_steps else ''}"
+          f"{frl_local}"
+          f", seeds {args.seeds}, experts "
           f"{experts}; trained and evaluated on Poisson readings")
     guided = {"il", *GUIDED, "medc-cae"}
     shown = {t: expert_figures(t, args.grid, experts, args.out)

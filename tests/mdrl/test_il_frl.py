@@ -133,6 +133,27 @@ def test_frl_trains_and_reports_from_the_target(tmp_path):
     assert card["observation"]["walls"] is True and card["observation"]["others"] is True
 
 
+def test_frl_averaging_every_k_updates_ends_its_last_round_at_the_budget(tmp_path):
+    """local_updates = 2 on a 3-update budget: a round of 2 updates, then one cut short after 1
+    (not 4 updates, 1/3 past the budget), averaged; the finished run's checkpoint resumes."""
+    obs = ObservationSpec(kind="odmtl", window=3)
+    frl = FederatedTrainer(USERS, obs, SMALL_PPO, _run(3 * 512, eval_every=1),
+                           target="A2W1", local_updates=2, out=tmp_path)
+    frl.train()
+    assert frl.rounds == 2 and frl.global_step == 3 * 512
+    assert all(t.update_idx == 3 for t in frl.trainers.values())
+    states = [t.agent.state_dict() for t in frl.trainers.values()]
+    for k in states[0]:
+        assert all(torch.equal(states[0][k], s[k]) for s in states[1:])  # averaged last
+    with (tmp_path / "metrics.csv").open() as f:
+        assert [int(r["update"]) for r in csv.DictReader(f)] == [2, 3]  # one row a round
+    method = json.loads((tmp_path / "model" / "model.json").read_text())["training"]["method"]
+    assert method["local_updates"] == 2 and method["rounds"] == 2
+    again = FederatedTrainer.resume(tmp_path)
+    assert (again.rounds, again.trainer.update_idx, again.local_updates) == (2, 3, 2)
+    assert not again.budget_left()
+
+
 def test_frl_refuses_users_it_cannot_average():
     obs = ObservationSpec(kind="odmtl", window=3)
     mixed = [*USERS, ("A1W0-4", EnvSpec(rows=8, cols=8, agents=1, moves=4))]

@@ -13,9 +13,10 @@ METHODS = ("sparse", "medc", "medc-anneal", "medc-credit", "il", "medc-mixed-cre
 CAE = ROOT / "models" / "cae-10x10"
 
 
-def bench(out: Path, *extra: str) -> subprocess.CompletedProcess:
+def bench(out: Path, *extra: str, methods: tuple[str, ...] = METHODS
+          ) -> subprocess.CompletedProcess:
     cmd = [sys.executable, str(ROOT / "benchmarks" / "medc" / "run.py"), "--grid", "10",
-           "--steps", "4096", "--seeds", "0", "--tasks", "A3W3", "--methods", ",".join(METHODS),
+           "--steps", "4096", "--seeds", "0", "--tasks", "A3W3", "--methods", ",".join(methods),
            "--experts", "oracle,random", "--episodes", "10", "--eval-every", "1",
            "--cae", str(CAE), "--out", str(out), *extra]
     return subprocess.run(cmd, capture_output=True, text=True, timeout=600, cwd=ROOT)
@@ -32,6 +33,7 @@ def test_the_benchmark_runs_every_guided_method_and_reuses_its_cache(tmp_path):
         assert run["steps"] == 4096 or m.startswith("frl") and run["steps"] >= 4096
         assert run["heldout"]["episodes"] == 10
         assert run["bonus"] == 50.0  # S of Eq. 9 (Table 4.1) unless --bonus
+        assert run.get("local_updates") == (1 if m.startswith("frl") else None)
         # the kept policy is the curve's shortest time, judged on the held-out episodes
         assert run["best"]["curve_time"] == min(p["time"] for p in run["curve"])
         assert 0.0 <= run["best"]["heldout"]["success"] <= 1.0
@@ -81,3 +83,25 @@ def test_the_benchmark_runs_every_guided_method_and_reuses_its_cache(tmp_path):
     # runs cached with another S of Eq. 9 are refused, not mixed into the table
     other = bench(tmp_path, "--bonus", "200")
     assert other.returncode != 0 and "S = 50" in other.stderr and "another --out" in other.stderr
+    # nor runs of FRL averaging every 1 update when every 2 is asked
+    k2 = bench(tmp_path, "--frl-local-updates", "2", "--eval-every", "2")
+    assert k2.returncode != 0 and "every 1 local update(s), not 2" in k2.stderr, k2.stderr
+
+
+def test_frl_averaging_every_k_updates_is_evaluated_at_the_same_steps(tmp_path):
+    """--frl-local-updates K: FRL averages every K updates of each user, is evaluated every
+    --eval-every updates as the other methods are (K must divide it), and records K."""
+    bad = bench(tmp_path, "--frl-local-updates", "2", methods=("frl",))  # --eval-every 1
+    assert bad.returncode == 2 and "must divide --eval-every" in bad.stderr
+    steps = 3 * 8192  # 3 updates of the preset's 8192 steps: a round of 2, then 1 (cut short)
+    done = bench(tmp_path, "--frl-local-updates", "2", "--eval-every", "2", "--steps", str(steps),
+                 methods=("frl",))
+    assert done.returncode == 0, done.stderr[-3000:]
+    run = json.loads((tmp_path / f"A3W3-10x10-frl-s0-{steps}.json").read_text())
+    assert run["local_updates"] == 2 and run["steps"] == steps
+    # evaluated after 2 updates (every --eval-every 2) and at the end, as a lone trainer is
+    assert [p["step"] for p in run["curve"]] == [2 * 8192, steps]
+    method = json.loads((tmp_path / f"A3W3-10x10-frl-s0-{steps}" / "model" / "model.json")
+                        .read_text())["training"]["method"]
+    assert method["local_updates"] == 2 and method["rounds"] == 2
+    assert "frl averaging every 2 local updates" in done.stdout

@@ -195,7 +195,9 @@ class FederatedTrainer:
 
     def train(self) -> dict[str, Any]:
         """Local PPO updates on every user, FedAvg every ``local_updates`` updates, greedy
-        evaluation of the global model on the target's env every ``run.eval_every`` rounds."""
+        evaluation of the global model on the target's env every ``run.eval_every`` rounds.
+        The last round is cut short where the budget ends, so the target user's steps overshoot
+        it by less than one update whatever ``local_updates`` is (as a lone ``Trainer``)."""
         if self.run.total_steps is None and self.run.minutes is None:
             raise ValueError("FederatedTrainer.train: give a budget (total_steps and/or minutes)")
         torch.set_num_threads(self.run.threads)
@@ -212,6 +214,9 @@ class FederatedTrainer:
                     t.update_idx += 1
                     if name == self.target:
                         episode_stats, loss_stats = stats, losses
+                if not self.run.budget_left(self.global_step,
+                                            elapsed0 + time.perf_counter() - t0):
+                    break  # the budget ends this round early: average what was trained
             self.average()
             last = not self.run.budget_left(self.global_step, elapsed0 + time.perf_counter() - t0)
             every = self.run.eval_every
@@ -282,7 +287,9 @@ class FederatedTrainer:
                   out=out if out is not None else path.parent, faulty=faulty)
         if "poison_rng" in meta:
             frl.poison_rng.set_state(torch.tensor(meta["poison_rng"], dtype=torch.uint8))
-        updates = meta["rounds"] * meta["local_updates"]
+        # every user made ``local_updates`` updates a round, but the last one if the budget
+        # cut it short (train)
+        rounds, k = meta["rounds"], meta["local_updates"]
         for name, t in frl.trainers.items():
             user = path / "users" / name
             try:
@@ -290,9 +297,12 @@ class FederatedTrainer:
             except (OSError, ValueError, KeyError, RuntimeError, SafetensorError) as exc:
                 raise ValueError(f"FRL checkpoint {path}: user {name}'s checkpoint {user} "
                                  f"cannot be loaded: {exc}") from exc
-            if t.update_idx != updates:
+        for name, t in frl.trainers.items():
+            if t.update_idx != frl.trainer.update_idx or -(-t.update_idx // k) != rounds:
                 raise ValueError(f"FRL checkpoint {path}: user {name} is at update "
-                                 f"{t.update_idx}, the federation at {updates}")
+                                 f"{t.update_idx}, the target user at update "
+                                 f"{frl.trainer.update_idx}, the federation at round {rounds} "
+                                 f"of {k} updates")
         frl.global_model = global_model
         frl.rounds, frl.elapsed = meta["rounds"], meta["elapsed"]
         return frl
