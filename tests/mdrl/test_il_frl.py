@@ -152,6 +152,11 @@ def test_frl_averaging_every_k_updates_ends_its_last_round_at_the_budget(tmp_pat
     again = FederatedTrainer.resume(tmp_path)
     assert (again.rounds, again.trainer.update_idx, again.local_updates) == (2, 3, 2)
     assert not again.budget_left()
+    # 3 updates in rounds of 2 cannot be 1 round: a checkpoint saying so is refused
+    meta = json.loads((tmp_path / "checkpoint" / "frl.json").read_text())
+    (tmp_path / "checkpoint" / "frl.json").write_text(json.dumps({**meta, "rounds": 1}))
+    with pytest.raises(ValueError, match="user A1W0 is at update 3, .* round 1 of 2 updates"):
+        FederatedTrainer.resume(tmp_path)
 
 
 def test_frl_refuses_users_it_cannot_average():

@@ -204,6 +204,10 @@ class FederatedTrainer:
         target = self.trainer
         target._open_outputs()
         t0, elapsed0 = time.perf_counter(), self.elapsed
+
+        def left() -> bool:
+            return self.run.budget_left(self.global_step, elapsed0 + time.perf_counter() - t0)
+
         while self.budget_left():
             step0 = self.global_step
             u0 = time.perf_counter()
@@ -214,11 +218,10 @@ class FederatedTrainer:
                     t.update_idx += 1
                     if name == self.target:
                         episode_stats, loss_stats = stats, losses
-                if not self.run.budget_left(self.global_step,
-                                            elapsed0 + time.perf_counter() - t0):
+                if not left():
                     break  # the budget ends this round early: average what was trained
             self.average()
-            last = not self.run.budget_left(self.global_step, elapsed0 + time.perf_counter() - t0)
+            last = not left()
             every = self.run.eval_every
             evals: dict[str, float] = {}
             if last or (every and self.rounds % every == 0):
