@@ -39,7 +39,9 @@ over seeds, min-max band).
 
 Each finished run is cached as JSON under ``--out`` (``TASK-METHOD-sSEED-STEPS.json``), so an
 interrupted benchmark re-runs only what is missing, and a killed run resumes from its last
-checkpoint (every ``CHECKPOINT_EVERY`` updates, FRL rounds).
+checkpoint (every ``CHECKPOINT_EVERY`` updates, FRL rounds). ``--jobs N`` trains the missing runs
+in N processes at once (each run uses one thread: one job per core); their figures are those of
+the same runs in turn, their wall-clock is that of runs sharing the machine.
 
 Usage: python benchmarks/medc/run.py --steps 1000000 --seeds 0,1,2
        [--tasks A3W2,A3W3] [--methods sparse,sr,dc,medc,medc-faulty,il,frl]
@@ -48,6 +50,7 @@ Usage: python benchmarks/medc/run.py --steps 1000000 --seeds 0,1,2
        [--cae DIR] [--bonus S]
        [--qos 1,1,1] [--rate R_E] [--anneal START,END]
        [--episodes 1000] [--eval-every 5] [--out runs/medc] [--png benchmarks/medc/curves.png]
+       [--jobs 2]
 """
 
 from __future__ import annotations
@@ -57,8 +60,10 @@ import dataclasses
 import json
 import math
 import re
+import subprocess
 import sys
 import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -593,6 +598,44 @@ def plot(results: list[dict], path: Path) -> None:
     fig.savefig(path, dpi=90)
 
 
+def run_in_processes(pending: list[tuple[str, str, int]], argv: list[str], jobs: int,
+                     out: Path) -> None:
+    """Train each pending (task, method, seed) in a process of its own, ``jobs`` at a time: this
+    script with the same options narrowed to that run (``--train-only``: it trains and writes
+    its JSON to the cache, no report), its output in ``out/logs``. A run that fails does not
+    stop the others; the benchmark then stops naming every failed run and its log (killed
+    runs resume from their checkpoints on the next call)."""
+    logs = out / "logs"
+    logs.mkdir(parents=True, exist_ok=True)
+    live: set[subprocess.Popen] = set()
+    failed: list[str] = []
+
+    def one(run: tuple[str, str, int]) -> None:
+        task, method, seed = run
+        log = logs / f"{task}-{method}-s{seed}.log"
+        cmd = [sys.executable, str(Path(__file__).resolve()), *argv, "--tasks", task,
+               "--methods", method, "--seeds", str(seed), "--jobs", "1", "--train-only"]
+        print(f"{task} {method} seed {seed}: started, log {log}", file=sys.stderr, flush=True)
+        with log.open("w") as f:
+            proc = subprocess.Popen(cmd, stdout=f, stderr=subprocess.STDOUT)
+            live.add(proc)
+            rc = proc.wait()
+            live.discard(proc)
+        if rc != 0:
+            failed.append(f"{task} {method} seed {seed} (exit {rc}; log {log})")
+            print(f"{task} {method} seed {seed}: FAILED with exit {rc}, log {log}",
+                  file=sys.stderr, flush=True)
+
+    try:
+        with ThreadPoolExecutor(max_workers=jobs) as pool:
+            list(pool.map(one, pending))
+    finally:  # interrupted: stop the children too (they resume from their checkpoints)
+        for proc in list(live):
+            proc.terminate()
+    if failed:
+        raise SystemExit(f"{len(failed)} of {len(pending)} run(s) failed: " + "; ".join(failed))
+
+
 def main(argv: list[str] | None = None) -> int:
     global HELDOUT_EPISODES, THRESHOLD, BELIEF, ROUTE, CAE, BONUS, MEDC_RATE, ANNEAL
     global FRL_LOCAL_UPDATES
@@ -639,7 +682,15 @@ def main(argv: list[str] | None = None) -> int:
                    "finding the source is worth against moving; give another --out")
     p.add_argument("--cae", default=None,
                    help="walls CAE directory for the -cae methods (drlaas cae train, same grid)")
+    p.add_argument("--jobs", type=int, default=1, metavar="N",
+                   help="train the runs not yet cached in N processes at once (default 1: in "
+                   "turn, in this process); the same figures, but the wall-clock of runs "
+                   "sharing the machine; each run's output goes to --out/logs")
+    p.add_argument("--train-only", action="store_true", help=argparse.SUPPRESS)
+    argv = sys.argv[1:] if argv is None else list(argv)
     args = p.parse_args(argv)
+    if args.jobs < 1:
+        p.error(f"--jobs must be >= 1, got {args.jobs}")
     BELIEF = args.belief
     ROUTE = args.route
     if BELIEF and ROUTE:
@@ -680,13 +731,23 @@ def main(argv: list[str] | None = None) -> int:
     if qos and len(qos) != len(experts):
         p.error(f"--qos: {len(qos)} weight(s) for {len(experts)} expert(s)")
     seeds = [int(s) for s in args.seeds.split(",") if s]
+    tasks = [t for t in args.tasks.split(",") if t]
+    g = args.grid
+
+    def cache(task: str, method: str, seed: int) -> Path:
+        steps = args.frl_steps if method in FRL and args.frl_steps else args.steps
+        return args.out / f"{task}-{g}x{g}-{method}-s{seed}-{steps}.json"
+
+    if args.jobs > 1:
+        pending = [(t, m, s) for t in tasks for m in methods for s in seeds
+                   if not cache(t, m, s).is_file()]
+        run_in_processes(pending, argv, args.jobs, args.out)
     results = []
-    for task in [t for t in args.tasks.split(",") if t]:
+    for task in tasks:
         for method in methods:
             for seed in seeds:
-                g = args.grid
                 steps = args.frl_steps if method in FRL and args.frl_steps else args.steps
-                cached = args.out / f"{task}-{g}x{g}-{method}-s{seed}-{steps}.json"
+                cached = cache(task, method, seed)
                 if cached.is_file():
                     r = json.loads(cached.read_text())
                     bonus = float(user_preset(task, "sparse", g).env.sparse_bonus)
@@ -706,6 +767,8 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"{task} {method} seed {seed}: time {h['time']:.2f} cost {h['cost']:.2f} "
                       f"success {h['success']:.3f} ({r['wall_s'] / 60:.1f} min)",
                       file=sys.stderr, flush=True)
+    if args.train_only:
+        return 0
     frl_local = (f", frl averaging every {FRL_LOCAL_UPDATES} local updates"
                  if FRL_LOCAL_UPDATES > 1 else "")
     print(f"MEDC benchmark: Ch. 4 setting on {args.grid}x{args.grid} cells of 50 m"

@@ -105,3 +105,45 @@ def test_frl_averaging_every_k_updates_is_evaluated_at_the_same_steps(tmp_path):
                         .read_text())["training"]["method"]
     assert method["local_updates"] == 2 and method["rounds"] == 2
     assert "frl averaging every 2 local updates" in done.stdout
+
+
+def _figures(run: dict) -> dict:
+    """A cached run without its wall-clock (the only thing sharing the machine changes)."""
+    return {"heldout": run["heldout"], "steps": run["steps"],
+            "curve": [{k: v for k, v in p.items() if k != "wall"} for p in run["curve"]]}
+
+
+def test_runs_in_parallel_processes_give_the_figures_of_runs_in_turn(tmp_path):
+    """--jobs 2: the missing runs train two at a time in processes of their own, each with its
+    log; every run's curve and held-out figures are those of the same run trained in turn."""
+    methods, seeds = ("sparse", "medc"), ("--seeds", "0,1")
+    parallel = bench(tmp_path / "jobs", *seeds, "--jobs", "2", methods=methods)
+    assert parallel.returncode == 0, parallel.stderr[-3000:]
+    in_turn = bench(tmp_path / "turn", *seeds, methods=methods)
+    assert in_turn.returncode == 0, in_turn.stderr[-3000:]
+    for m in methods:
+        assert f"| {m} | 2 |" in parallel.stdout, parallel.stdout
+        for s in (0, 1):
+            name = f"A3W3-10x10-{m}-s{s}-4096"
+            a, b = (json.loads((tmp_path / d / f"{name}.json").read_text())
+                    for d in ("jobs", "turn"))
+            assert _figures(a) == _figures(b), name
+            assert f"A3W3 {m} seed {s}: started" in parallel.stderr
+            assert "time" in (tmp_path / "jobs" / "logs" / f"A3W3-{m}-s{s}.log").read_text()
+    assert not (tmp_path / "turn" / "logs").exists()  # in turn: one process, no logs
+
+
+def test_a_failed_parallel_run_names_itself_and_its_log_and_spares_the_others(tmp_path):
+    """One run failing (its expert does not exist) stops the benchmark with its name and log;
+    the runs that could train are cached, so the next call trains only what is missing."""
+    missing = tmp_path / "no-such-expert"
+    r = bench(tmp_path, "--experts", f"oracle,{missing}", "--jobs", "2",
+              methods=("sparse", "medc"))
+    assert r.returncode != 0
+    log = tmp_path / "logs" / "A3W3-medc-s0.log"
+    assert "1 of 2 run(s) failed: A3W3 medc seed 0" in r.stderr and str(log) in r.stderr
+    assert str(missing) in log.read_text()  # the child's own error names the expert
+    assert (tmp_path / "A3W3-10x10-sparse-s0-4096.json").is_file()
+    assert not (tmp_path / "A3W3-10x10-medc-s0-4096.json").exists()
+    bad = bench(tmp_path, "--jobs", "0", methods=("sparse",))
+    assert bad.returncode == 2 and "--jobs must be >= 1, got 0" in bad.stderr
