@@ -616,12 +616,16 @@ def run_in_processes(pending: list[tuple[str, str, int]], argv: list[str], jobs:
         cmd = [sys.executable, str(Path(__file__).resolve()), *argv, "--tasks", task,
                "--methods", method, "--seeds", str(seed), "--jobs", "1", "--train-only"]
         print(f"{task} {method} seed {seed}: started, log {log}", file=sys.stderr, flush=True)
+        start = time.perf_counter()
         with log.open("w") as f:
             proc = subprocess.Popen(cmd, stdout=f, stderr=subprocess.STDOUT)
             live.add(proc)
             rc = proc.wait()
             live.discard(proc)
-        if rc != 0:
+        if rc == 0:
+            print(f"{task} {method} seed {seed}: done in "
+                  f"{(time.perf_counter() - start) / 60:.1f} min", file=sys.stderr, flush=True)
+        else:
             failed.append(f"{task} {method} seed {seed} (exit {rc}; log {log})")
             print(f"{task} {method} seed {seed}: FAILED with exit {rc}, log {log}",
                   file=sys.stderr, flush=True)

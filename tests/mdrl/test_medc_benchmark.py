@@ -129,6 +129,7 @@ def test_runs_in_parallel_processes_give_the_figures_of_runs_in_turn(tmp_path):
                     for d in ("jobs", "turn"))
             assert _figures(a) == _figures(b), name
             assert f"A3W3 {m} seed {s}: started" in parallel.stderr
+            assert f"A3W3 {m} seed {s}: done in " in parallel.stderr
             assert "time" in (tmp_path / "jobs" / "logs" / f"A3W3-{m}-s{s}.log").read_text()
     assert not (tmp_path / "turn" / "logs").exists()  # in turn: one process, no logs
 
@@ -145,5 +146,6 @@ def test_a_failed_parallel_run_names_itself_and_its_log_and_spares_the_others(tm
     assert str(missing) in log.read_text()  # the child's own error names the expert
     assert (tmp_path / "A3W3-10x10-sparse-s0-4096.json").is_file()
     assert not (tmp_path / "A3W3-10x10-medc-s0-4096.json").exists()
+    assert "A3W3 sparse seed 0: done in " in r.stderr and "A3W3 medc seed 0: done" not in r.stderr
     bad = bench(tmp_path, "--jobs", "0", methods=("sparse",))
     assert bad.returncode == 2 and "--jobs must be >= 1, got 0" in bad.stderr
