@@ -60,8 +60,10 @@ import dataclasses
 import json
 import math
 import re
+import signal
 import subprocess
 import sys
+import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -609,33 +611,48 @@ def run_in_processes(pending: list[tuple[str, str, int]], argv: list[str], jobs:
     logs.mkdir(parents=True, exist_ok=True)
     live: set[subprocess.Popen] = set()
     failed: list[str] = []
+    stopping = threading.Event()
+    lock = threading.Lock()  # no run starts once stopping is set
 
     def one(run: tuple[str, str, int]) -> None:
         task, method, seed = run
         log = logs / f"{task}-{method}-s{seed}.log"
         cmd = [sys.executable, str(Path(__file__).resolve()), *argv, "--tasks", task,
                "--methods", method, "--seeds", str(seed), "--jobs", "1", "--train-only"]
-        print(f"{task} {method} seed {seed}: started, log {log}", file=sys.stderr, flush=True)
         start = time.perf_counter()
-        with log.open("w") as f:
-            proc = subprocess.Popen(cmd, stdout=f, stderr=subprocess.STDOUT)
+        with lock:
+            if stopping.is_set():
+                return
+            with log.open("w") as f:  # the child holds its own copy of the descriptor
+                proc = subprocess.Popen(cmd, stdout=f, stderr=subprocess.STDOUT)
             live.add(proc)
-            rc = proc.wait()
-            live.discard(proc)
+        print(f"{task} {method} seed {seed}: started, log {log}", file=sys.stderr, flush=True)
+        rc = proc.wait()
+        live.discard(proc)
         if rc == 0:
             print(f"{task} {method} seed {seed}: done in "
                   f"{(time.perf_counter() - start) / 60:.1f} min", file=sys.stderr, flush=True)
-        else:
+        elif not stopping.is_set():
             failed.append(f"{task} {method} seed {seed} (exit {rc}; log {log})")
             print(f"{task} {method} seed {seed}: FAILED with exit {rc}, log {log}",
                   file=sys.stderr, flush=True)
 
+    def on_sigterm(signum: int, frame: Any) -> None:
+        raise SystemExit(128 + signum)
+
+    previous = signal.signal(signal.SIGTERM, on_sigterm)
+    pool = ThreadPoolExecutor(max_workers=jobs)
     try:
-        with ThreadPoolExecutor(max_workers=jobs) as pool:
-            list(pool.map(one, pending))
-    finally:  # interrupted: stop the children too (they resume from their checkpoints)
-        for proc in list(live):
-            proc.terminate()
+        list(pool.map(one, pending))
+    except BaseException:  # Ctrl-C or kill: stop the children too (they resume from their
+        with lock:         # last checkpoints on the next call) before waiting for them
+            stopping.set()
+            for proc in list(live):
+                proc.terminate()
+        raise
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
+        signal.signal(signal.SIGTERM, previous)
     if failed:
         raise SystemExit(f"{len(failed)} of {len(pending)} run(s) failed: " + "; ".join(failed))
 

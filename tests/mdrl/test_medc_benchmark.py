@@ -3,8 +3,10 @@ held-out figures, the table and the kept-policy table print, and cached runs are
 when they were run with another S of Eq. 9)."""
 
 import json
+import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -149,3 +151,22 @@ def test_a_failed_parallel_run_names_itself_and_its_log_and_spares_the_others(tm
     assert "A3W3 sparse seed 0: done in " in r.stderr and "A3W3 medc seed 0: done" not in r.stderr
     bad = bench(tmp_path, "--jobs", "0", methods=("sparse",))
     assert bad.returncode == 2 and "--jobs must be >= 1, got 0" in bad.stderr
+
+
+def test_a_killed_parallel_benchmark_stops_its_runs_and_starts_no_more(tmp_path):
+    """SIGTERM to the benchmark with --jobs 2: both running children are stopped with it (no
+    orphan goes on training), the third run never starts, and the exit status says killed."""
+    cmd = [sys.executable, str(ROOT / "benchmarks" / "medc" / "run.py"), "--grid", "10",
+           "--steps", "50000000", "--seeds", "0,1,2", "--tasks", "A3W3", "--methods", "sparse",
+           "--experts", "oracle", "--out", str(tmp_path), "--jobs", "2"]
+    parent = subprocess.Popen(cmd, cwd=ROOT, stderr=subprocess.PIPE, text=True)
+    started = [parent.stderr.readline() for _ in range(2)]
+    assert all(": started, log " in line for line in started), started
+    time.sleep(2)  # both children are training
+    parent.send_signal(signal.SIGTERM)
+    assert parent.wait(timeout=60) == 128 + signal.SIGTERM
+    parent.stderr.close()
+    left = subprocess.run(["pgrep", "-f", str(tmp_path)], capture_output=True, text=True)
+    assert left.stdout == "", f"children still running: {left.stdout}"
+    assert sorted(p.name for p in (tmp_path / "logs").iterdir()) == [
+        "A3W3-sparse-s0.log", "A3W3-sparse-s1.log"]
