@@ -755,9 +755,11 @@ def main(argv: list[str] | None = None) -> int:
     tasks = [t for t in args.tasks.split(",") if t]
     g = args.grid
 
+    def budget(method: str) -> int:
+        return args.frl_steps if method in FRL and args.frl_steps else args.steps
+
     def cache(task: str, method: str, seed: int) -> Path:
-        steps = args.frl_steps if method in FRL and args.frl_steps else args.steps
-        return args.out / f"{task}-{g}x{g}-{method}-s{seed}-{steps}.json"
+        return args.out / f"{task}-{g}x{g}-{method}-s{seed}-{budget(method)}.json"
 
     if args.jobs > 1:
         pending = [(t, m, s) for t in tasks for m in methods for s in seeds
@@ -767,7 +769,6 @@ def main(argv: list[str] | None = None) -> int:
     for task in tasks:
         for method in methods:
             for seed in seeds:
-                steps = args.frl_steps if method in FRL and args.frl_steps else args.steps
                 cached = cache(task, method, seed)
                 if cached.is_file():
                     r = json.loads(cached.read_text())
@@ -780,7 +781,7 @@ def main(argv: list[str] | None = None) -> int:
                                          f"local update(s), not {FRL_LOCAL_UPDATES}: give "
                                          f"another --out")
                 else:
-                    r = train_run(task, method, seed, steps, experts, qos,
+                    r = train_run(task, method, seed, budget(method), experts, qos,
                                   args.eval_every, args.out, args.grid)
                     cached.write_text(json.dumps(r))
                 results.append(r)
