@@ -43,6 +43,15 @@ CID = "bafkreidot3j5vvbthwtydmn3ny2pq2ckibhbuj5sech6wpzsxokrkqntsy"
 OUTCOME_CID = "bafkreigh2akiscaildcqabsyg3dfr6chu3fgpregiymsck7e7aqa4s52zy"  # not a listed one
 
 
+def _base32_letters(n: int) -> str:
+    """``n`` in the letters a-z: a suffix that keeps a CID text canonical and distinct."""
+    out = "a"
+    while n:
+        n, digit = divmod(n, 26)
+        out += chr(ord("a") + digit)
+    return out
+
+
 def intrinsic_gas(calldata: bytes, create: bool = False) -> int:
     """21,000 + calldata cost (+ contract-creation cost) charged before any opcode runs."""
     zeros = calldata.count(0)
@@ -74,7 +83,8 @@ def _grow_pool(p: Platform, rng: random.Random, target: int, workers: list[str])
             acct, [DOMAIN], rng.randint(1, 64), rng.randint(4, 256), rng.randint(1, 8)
         )
         env = [rng.randint(1, 10), rng.randint(0, 10)]
-        p.mmc.add_model(acct, f"{CID}{len(workers)}", DOMAIN, env, "ppo")  # a CID is listed once
+        # a CID is listed once, in lowercase base32 (the contracts' CidText)
+        p.mmc.add_model(acct, CID + _base32_letters(len(workers)), DOMAIN, env, "ppo")
         workers.append(acct)
     return rc
 

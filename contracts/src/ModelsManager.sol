@@ -5,6 +5,7 @@ import {ReentrancyGuardTransient} from "@openzeppelin/contracts/utils/Reentrancy
 import {IUsersManager, Packed} from "./IUsersManager.sol";
 import {ITasksOutcomes} from "./ITasksOutcomes.sol";
 import {QoSMath} from "./QoSMath.sol";
+import {CidText} from "./CidText.sol";
 
 /**
  * @title ModelsManager (MMC, thesis Tables 5.2 and 7.4)
@@ -169,6 +170,8 @@ contract ModelsManager is ReentrancyGuardTransient {
     error ModelsNotRequester(address account);
     error ModelsBadDomain(uint32 domain);
     error ModelsEmptyCid();
+    /// The CID is not in the one text form the chain records (lowercase base32 CIDv1).
+    error ModelsCidNotCanonical(string cid);
     error ModelsBadEnv(uint256 length);
     error ModelsBadModelCount(uint8 numModels);
     error ModelsBadWeights();
@@ -289,7 +292,7 @@ contract ModelsManager is ReentrancyGuardTransient {
      * environment attributes `env` (Table 5.2).
      * Requirements: caller is an approved worker (Active or Idle: not Pending, not removed)
      * covering `domain` (<= 47) and listing fewer than {maxModelsPerOwner} models; non-empty
-     * CID not listed before; at most 12 attributes; if the CID is a TMC outcome, the caller
+     * CID in {CidText}'s form (lowercase base32 CIDv1) not listed before; at most 12 attributes; if the CID is a TMC outcome, the caller
      * submitted it and its verdict is Accepted (see the contract's provenance rule), else the
      * caller committed keccak256(cid ++ caller) on the TMC in an earlier block (commitCid:
      * commit-reveal, so nobody who saw the CID pending can list it first).
@@ -309,6 +312,7 @@ contract ModelsManager is ReentrancyGuardTransient {
         uint256 maxOwned = _g.maxModelsPerOwner;
         if (owned >= maxOwned) revert ModelsOwnerLimit(msg.sender, maxOwned);
         if (bytes(cid).length == 0) revert ModelsEmptyCid();
+        if (!CidText.isCanonical(cid)) revert ModelsCidNotCanonical(cid);
         if (env.length > MAX_ENV_DIMS) revert ModelsBadEnv(env.length);
         bytes32 cidHash = keccak256(bytes(cid));
         uint256 listed = modelOfCid[cidHash];
@@ -349,7 +353,7 @@ contract ModelsManager is ReentrancyGuardTransient {
      * owners, and pays their owners `msg.value / numModels` each;
      * unfilled slots are refunded to the requester's credit.
      * Requirements: caller is a registered requester; 1 <= numModels <= 16; domain <= 47;
-     * thresholds <= 1e6; <= 64 attributes; weights empty or one per attribute summing to 1e6;
+     * thresholds <= 1e6; <= MAX_ENV_DIMS (12) attributes; weights empty or one per attribute summing to 1e6;
      * msg.value a multiple of numModels; price per model (msg.value / numModels) at least
      * {minModelPrice}; at least one eligible model.
      * Emits {ModelsRequested}, one {ModelAllocated} and {PaymentCredited} per model.

@@ -6,6 +6,7 @@ import {IUsersManager, Packed} from "./IUsersManager.sol";
 import {ITasksOutcomes} from "./ITasksOutcomes.sol";
 import {IModelsListing} from "./IModelsListing.sol";
 import {QoSMath} from "./QoSMath.sol";
+import {CidText} from "./CidText.sol";
 
 /**
  * @title TasksManager (TMC, thesis Table 7.3)
@@ -175,6 +176,8 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
     error TasksNotAssignedWorker(uint256 taskId, address worker);
     error TasksNotSubmitted(uint256 taskId, address worker);
     error TasksEmptyCid();
+    /// The CID is not in the one text form the chain records (lowercase base32 CIDv1).
+    error TasksCidNotCanonical(string cid);
     error TasksDuplicateOutcome(uint256 taskId, address worker);
     error TasksOutcomeIsListedModel(uint256 modelId);
     error TasksNotWorker(address account);
@@ -593,7 +596,7 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
      * handed in as an outcome would be someone else's work, and its outcome record would
      * name the wrong producer of a listed model.
      * Requirements: task open; caller accepted the task and has not submitted; before the
-     * deadline; non-empty CID never submitted before nor listed as a model; the caller
+     * deadline; non-empty CID in {CidText}'s form (lowercase base32 CIDv1), never submitted before nor listed as a model; the caller
      * committed {cidCommitment}(cid, caller) in an earlier block ({commitCid}; the commitment
      * is spent). Emits an {OutcomeSubmitted} event.
      */
@@ -603,6 +606,7 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
         Offer storage o = _offers[taskId][msg.sender];
         if (o.state != OfferState.Accepted) revert TasksNotAssignedWorker(taskId, msg.sender);
         if (bytes(cid).length == 0) revert TasksEmptyCid();
+        if (!CidText.isCanonical(cid)) revert TasksCidNotCanonical(cid);
         OutcomeRecord storage rec = _outcomes[keccak256(bytes(cid))];
         if (rec.worker != address(0)) revert TasksDuplicateOutcome(rec.taskId, rec.worker);
         if (address(models) != address(0)) {

@@ -375,8 +375,11 @@ contract UsersManager {
      * While {approvalRequired} is on, an approved (Active or Idle) worker whose capabilities
      * change is Pending again, out of its domains' queues, until an admin re-approves it
      * ({approveWorker}, which makes it Active): capabilities rank workers (Eq. 20), so an
-     * approval covers the ones declared. Unchanged values change nothing.
-     * Requirements: caller is a worker. Emits a {WorkerCapabilitiesUpdated} event, and a
+     * approval covers the ones declared. Unchanged values change nothing. A Pending worker
+     * cannot change them while approval is required: the admin approves the values it
+     * reviewed, not ones swapped in before the approval is mined. A removed worker cannot.
+     * Requirements: caller is a worker, not Removed, not Pending with changed values while
+     * {approvalRequired}. Emits a {WorkerCapabilitiesUpdated} event, and a
      * {WorkerStatusUpdated} event when the worker goes back to Pending.
      */
     function updateCapabilities(uint16 cpuCores, uint16 ramGb, uint8 gpuSeries) external {
@@ -384,6 +387,9 @@ contract UsersManager {
         Worker storage w = _workers[id];
         Status old = w.status;
         bool changed = w.cpuCores != cpuCores || w.ramGb != ramGb || w.gpuSeries != gpuSeries;
+        if (old == Status.Removed || (changed && approvalRequired && old == Status.Pending)) {
+            revert UsersNotApproved(msg.sender, old);
+        }
         (w.cpuCores, w.ramGb, w.gpuSeries) = (cpuCores, ramGb, gpuSeries);
         emit WorkerCapabilitiesUpdated(msg.sender, cpuCores, ramGb, gpuSeries);
         if (changed && approvalRequired && (old == Status.Active || old == Status.Idle)) {

@@ -1,6 +1,7 @@
 // SPDX-License-Identifier: MIT
 pragma solidity ^0.8.24;
 
+import {cidFor} from "./utils/CidFor.sol";
 import {Fixture} from "./utils/Fixture.sol";
 import {UsersManager} from "../src/UsersManager.sol";
 import {TasksManager} from "../src/TasksManager.sol";
@@ -73,7 +74,7 @@ contract GasTest is Fixture {
             umc.addWorker(1 << DOMAIN, uint16(1 + (i * 37) % 64), uint16(4 + (i * 11) % 252), uint8(1 + i % 8));
             if (i == 0) vm.snapshotGasLastCall("UMC.addWorker");
             if (i == POOL - 1) vm.snapshotGasLastCall("UMC.addWorker(nth)");
-            string memory cid = string(abi.encodePacked("bafkreidot3j5vvbthwtydmn3ny2pq2ckibhbuj5sech6wpzsxokrkqntsy", i));
+            string memory cid = cidFor(abi.encodePacked("gas", i));
             vm.prank(ws[i]);
             tmc.commitCid(keccak256(abi.encodePacked(cid, ws[i])));
             if (i == 0) vm.snapshotGasLastCall("TMC.commitCid");

@@ -1,6 +1,7 @@
 // SPDX-License-Identifier: MIT
 pragma solidity ^0.8.24;
 
+import {cidFor} from "./utils/CidFor.sol";
 import {Fixture} from "./utils/Fixture.sol";
 import {ModelsManager} from "../src/ModelsManager.sol";
 import {TasksManager} from "../src/TasksManager.sol";
@@ -72,7 +73,8 @@ contract ModelsManagerFuzzTest is Fixture {
 
     // ------------------------------------------------------------------ addModel
 
-    function testFuzz_addModel(string calldata cid, uint32[] calldata env) public {
+    function testFuzz_addModel(string calldata cidSeed, uint32[] calldata env) public {
+        string memory cid = cidFor(bytes(cidSeed));
         vm.assume(bytes(cid).length != 0 && env.length <= mmc.MAX_ENV_DIMS());
         _commit(owner, cid);
         _commit(owner2, cid);
@@ -96,39 +98,53 @@ contract ModelsManagerFuzzTest is Fixture {
         vm.assume(caller != owner && caller != owner2);
         vm.expectRevert(abi.encodeWithSelector(ModelsManager.ModelsNotWorker.selector, caller));
         vm.prank(caller);
-        mmc.addModel("c", "d", DOMAIN, _env(1, 1));
+        mmc.addModel(cidFor("c"), "d", DOMAIN, _env(1, 1));
         address pending = _actor("pending");
         vm.prank(pending);
         umc.addWorker(1 << DOMAIN, 1, 1, 1);
         vm.expectRevert(abi.encodeWithSelector(ModelsManager.ModelsNotApproved.selector, pending));
         vm.prank(pending);
-        mmc.addModel("c", "d", DOMAIN, _env(1, 1));
+        mmc.addModel(cidFor("c"), "d", DOMAIN, _env(1, 1));
         vm.startPrank(owner);
         uint32 bad = uint32(_bound(domain, 48, type(uint32).max));
         vm.expectRevert(abi.encodeWithSelector(ModelsManager.ModelsBadDomain.selector, bad));
-        mmc.addModel("c", "d", bad, _env(1, 1));
+        mmc.addModel(cidFor("c"), "d", bad, _env(1, 1));
         uint32 other = uint32(_bound(domain, 0, 46));
         if (other >= DOMAIN) ++other;
         vm.expectRevert(abi.encodeWithSelector(ModelsManager.ModelsOwnerNotInDomain.selector, owner, other));
-        mmc.addModel("c", "d", other, _env(1, 1));
+        mmc.addModel(cidFor("c"), "d", other, _env(1, 1));
         vm.expectRevert(ModelsManager.ModelsEmptyCid.selector);
         mmc.addModel("", "d", DOMAIN, _env(1, 1));
+        // one CID, one text: other encodings of a CID (a re-encoded copy) and junk are refused
+        string[6] memory variants = [
+            "BAFKREIDOT3J5VVBTHWTYDMN3NY2PQ2CKIBHBUJ5SECH6WPZSXOKRKQNTSY",
+            "QmYwAPJzv5CZsnA625s3Xf2nemtYgPpHdWEz79ojWnPbdG",
+            "bafkreidot3j5vvbthwtydmn3ny2pq2ckibhbuj5sech6wpzsxokrkqnts1",
+            "x",
+            "b",
+            "b/../../etc"
+        ];
+        for (uint256 i; i < variants.length; ++i) {
+            vm.expectRevert(abi.encodeWithSelector(ModelsManager.ModelsCidNotCanonical.selector, variants[i]));
+            mmc.addModel(variants[i], "d", DOMAIN, _env(1, 1));
+        }
         uint256 len = _bound(extra, mmc.MAX_ENV_DIMS() + 1, 200);
         vm.expectRevert(abi.encodeWithSelector(ModelsManager.ModelsBadEnv.selector, len));
-        mmc.addModel("c", "d", DOMAIN, new uint32[](len));
+        mmc.addModel(cidFor("c"), "d", DOMAIN, new uint32[](len));
         vm.stopPrank();
         for (uint256 i; i < mmc.maxModelsPerOwner(); ++i) {
-            _model(owner, string(abi.encodePacked("cid", i)), 1, 1);
+            _model(owner, cidFor(abi.encodePacked("cid", i)), 1, 1);
         }
         vm.startPrank(owner);
         vm.expectRevert(abi.encodeWithSelector(ModelsManager.ModelsOwnerLimit.selector, owner, 8));
-        mmc.addModel("one-more", "d", DOMAIN, _env(1, 1));
+        mmc.addModel(cidFor("one-more"), "d", DOMAIN, _env(1, 1));
         vm.stopPrank();
     }
 
     /// @dev Commit-reveal for own uploads: no listing without the caller's commitment from an
     /// earlier block; a copier that commits a seen CID and lists it in one block is refused.
-    function testFuzz_addModel_needsEarlierCommit(string calldata cid) public {
+    function testFuzz_addModel_needsEarlierCommit(string calldata cidSeed) public {
+        string memory cid = cidFor(bytes(cidSeed));
         vm.assume(bytes(cid).length != 0);
         bytes32 mine = keccak256(abi.encodePacked(cid, owner));
         vm.expectRevert(abi.encodeWithSelector(ModelsManager.ModelsCidNotCommitted.selector, mine));
@@ -156,18 +172,18 @@ contract ModelsManagerFuzzTest is Fixture {
         address other = w == owner ? owner2 : owner;
         vm.prank(w);
         tmc.acceptOffer(id);
-        _commit(w, "bafy-outcome");
+        _commit(w, "bafyoutcome");
         vm.prank(w);
-        tmc.submitOutcome(id, "bafy-outcome");
-        _commit(other, "bafy-outcome"); // a commitment does not outweigh the outcome record
+        tmc.submitOutcome(id, "bafyoutcome");
+        _commit(other, "bafyoutcome"); // a commitment does not outweigh the outcome record
         vm.expectRevert(abi.encodeWithSelector(ModelsManager.ModelsNotOutcomeOwner.selector, id, w));
         vm.prank(other);
-        mmc.addModel("bafy-outcome", "desc", DOMAIN, _env(1, 1));
+        mmc.addModel("bafyoutcome", "desc", DOMAIN, _env(1, 1));
         vm.expectRevert(
             abi.encodeWithSelector(ModelsManager.ModelsOutcomeNotAccepted.selector, id, ITasksOutcomes.Verdict.Pending)
         );
         vm.prank(w);
-        mmc.addModel("bafy-outcome", "desc", DOMAIN, _env(1, 1));
+        mmc.addModel("bafyoutcome", "desc", DOMAIN, _env(1, 1));
         vm.prank(requester);
         tmc.reviewOutcome(id, w, uint8(_bound(review, 0, 5)), accept);
         if (!accept) {
@@ -176,14 +192,14 @@ contract ModelsManagerFuzzTest is Fixture {
             );
         }
         vm.prank(w); // its own accepted outcome needs no new commitment (spent by submitOutcome)
-        mmc.addModel("bafy-outcome", "desc", DOMAIN, _env(1, 1));
+        mmc.addModel("bafyoutcome", "desc", DOMAIN, _env(1, 1));
     }
 
     // ------------------------------------------------------------------ allocateModel
 
     function testFuzz_allocateModel(uint8 n, uint80 price, bool sharing) public {
-        uint256 a = _model(owner, "m-a", 3, 3); // exact match
-        uint256 b = _model(owner2, "m-b", 9, 9);
+        uint256 a = _model(owner, cidFor("m-a"), 3, 3); // exact match
+        uint256 b = _model(owner2, cidFor("m-b"), 9, 9);
         uint8 k = uint8(_bound(n, 1, 16));
         uint256 p = _bound(price, 1, 1e24);
         ModelsManager.ModelRequest memory r =
@@ -204,7 +220,7 @@ contract ModelsManagerFuzzTest is Fixture {
     }
 
     function testFuzz_allocateModel_rejects(address caller, uint8 n, uint32 threshold, uint256 value) public {
-        _model(owner, "m-a", 3, 3);
+        _model(owner, cidFor("m-a"), 3, 3);
         vm.assume(caller != requester);
         vm.deal(caller, 1 ether);
         ModelsManager.ModelRequest memory r = _request(1, ModelsManager.Metric.Model);
@@ -244,7 +260,7 @@ contract ModelsManagerFuzzTest is Fixture {
     // ------------------------------------------------------------------ updateModelRep
 
     function testFuzz_updateModelRep(uint8 review, address stranger_) public {
-        uint256 a = _model(owner, "m-a", 3, 3);
+        uint256 a = _model(owner, cidFor("m-a"), 3, 3);
         vm.prank(requester);
         uint256 allocId = mmc.allocateModel{value: 1e9}(_request(1, ModelsManager.Metric.Sharing));
         vm.assume(stranger_ != requester);
@@ -282,7 +298,7 @@ contract ModelsManagerFuzzTest is Fixture {
         for (uint256 i; i < 16; ++i) {
             // distance to the request grows with i, and ties go to the lower id: the top k
             // are the first k listed.
-            ids[i] = _model(owner, string(abi.encodePacked("m-", i)), uint32(3 + i), 3);
+            ids[i] = _model(owner, cidFor(abi.encodePacked("m-", i)), uint32(3 + i), 3);
         }
         uint8 k = uint8(_bound(n, 1, 16));
         vm.prank(requester);
@@ -332,7 +348,7 @@ contract ModelsManagerFuzzTest is Fixture {
             address w = who[(pattern >> (i % 8)) & 1];
             // the first model is in DOMAIN, so the allocation below has a candidate
             uint32 d = i == 0 || (pattern >> ((i + 3) % 8)) & 1 == 0 ? DOMAIN : other;
-            string memory cid = string(abi.encodePacked("rec-", i));
+            string memory cid = cidFor(abi.encodePacked("rec-", i));
             _commit(w, cid);
             vm.prank(w);
             // distance to the request (3, 3) grows with i: DOMAIN's top k are its first k listed
@@ -354,7 +370,7 @@ contract ModelsManagerFuzzTest is Fixture {
             vm.assertEq(m.envLen, 2, "attribute count");
             vm.assertEq(env[0], 3 + i, "attribute 0");
             vm.assertEq(env[1], 3 + i % 2, "attribute 1");
-            vm.assertEq(keccak256(bytes(cid)), keccak256(abi.encodePacked("rec-", i)), "cid");
+            vm.assertEq(keccak256(bytes(cid)), keccak256(bytes(cidFor(abi.encodePacked("rec-", i)))), "cid");
             vm.assertEq(m.allocCount, allocated ? 1 : 0, "Eq. 11 count of this model only");
             vm.assertEq(uint256(mmc.allocState(allocId, ids[i])), allocated ? 1 : 0, "allocation entry");
             vm.assertEq(m.totalReview, 0, "no review yet");
@@ -371,7 +387,7 @@ contract ModelsManagerFuzzTest is Fixture {
     // ------------------------------------------------------------------ withdraw
 
     function testFuzz_withdraw(uint80 price, address stranger_) public {
-        _model(owner, "m-a", 3, 3);
+        _model(owner, cidFor("m-a"), 3, 3);
         uint256 p = _bound(price, 1, 1e24);
         vm.prank(requester);
         mmc.allocateModel{value: p}(_request(1, ModelsManager.Metric.Model));
@@ -394,7 +410,7 @@ contract ModelsManagerFuzzTest is Fixture {
     /// worker that also requests models withdraws earnings and refunds in one call, even
     /// after it was removed.
     function testFuzz_withdraw_earningsAndRefunds(uint80 price, uint8 n) public {
-        _model(owner, "m-a", 3, 3);
+        _model(owner, cidFor("m-a"), 3, 3);
         uint256 p = _bound(price, 1, 1e24);
         uint8 k = uint8(_bound(n, 2, 16)); // owner2's request: only owner's one model fits
         vm.prank(requester);
@@ -406,7 +422,7 @@ contract ModelsManagerFuzzTest is Fixture {
         vm.deal(owner2, p * k);
         vm.prank(owner2);
         mmc.allocateModel{value: p * k}(_request(k, ModelsManager.Metric.Model));
-        _model(owner2, "m-b", 3, 3);
+        _model(owner2, cidFor("m-b"), 3, 3);
         vm.prank(owner);
         umc.addRequester();
         vm.prank(admin);

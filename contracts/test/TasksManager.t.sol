@@ -1,6 +1,7 @@
 // SPDX-License-Identifier: MIT
 pragma solidity ^0.8.24;
 
+import {cidFor} from "./utils/CidFor.sol";
 import {Fixture} from "./utils/Fixture.sol";
 import {TasksManager} from "../src/TasksManager.sol";
 import {IModelsListing} from "../src/IModelsListing.sol";
@@ -302,7 +303,8 @@ contract TasksManagerFuzzTest is Fixture {
 
     // ------------------------------------------------------------------ submitOutcome
 
-    function testFuzz_submitOutcome(string calldata cid, address stranger_) public {
+    function testFuzz_submitOutcome(string calldata cidSeed, address stranger_) public {
+        string memory cid = cidFor(bytes(cidSeed));
         vm.assume(bytes(cid).length != 0);
         (uint256 id, address w) = _accepted(1e9);
         vm.assume(stranger_ != w);
@@ -327,9 +329,19 @@ contract TasksManagerFuzzTest is Fixture {
         vm.expectRevert(abi.encodeWithSelector(TasksManager.TasksDuplicateOutcome.selector, id, w));
         vm.prank(w2);
         tmc.submitOutcome(id2, cid);
+        // ... and so is the same CID re-encoded (multibase B, upper-case base32): one text per CID
+        bytes memory upper = bytes(cid);
+        for (uint256 i; i < upper.length; ++i) {
+            if (upper[i] >= "a" && upper[i] <= "z") upper[i] = bytes1(uint8(upper[i]) - 32);
+        }
+        _commit(w2, string(upper));
+        vm.expectRevert(abi.encodeWithSelector(TasksManager.TasksCidNotCanonical.selector, string(upper)));
+        vm.prank(w2);
+        tmc.submitOutcome(id2, string(upper));
     }
 
-    function testFuzz_submitOutcome_listedModelRefused(string calldata cid) public {
+    function testFuzz_submitOutcome_listedModelRefused(string calldata cidSeed) public {
+        string memory cid = cidFor(bytes(cidSeed));
         vm.assume(bytes(cid).length != 0);
         // a worker lists its own upload; another hands the same CID in as its task's outcome
         address owner_ = workers[5];
@@ -371,7 +383,8 @@ contract TasksManagerFuzzTest is Fixture {
         vm.assertTrue(tmc.committedBefore(commitment), "committed before this block");
     }
 
-    function testFuzz_submitOutcome_needsEarlierCommit(string calldata cid) public {
+    function testFuzz_submitOutcome_needsEarlierCommit(string calldata cidSeed) public {
+        string memory cid = cidFor(bytes(cidSeed));
         vm.assume(bytes(cid).length != 0);
         (uint256 id, address w) = _accepted(1e9);
         bytes32 commitment = keccak256(abi.encodePacked(cid, w));
@@ -398,7 +411,8 @@ contract TasksManagerFuzzTest is Fixture {
     /// @dev The attack commit-reveal closes: a worker's CID shows in its pending submitOutcome;
     /// a copier with an accepted offer of its own commits it at once and tries to hand it in
     /// first. Its reveal cannot come before the next block, by which the producer's is in.
-    function testFuzz_frontRunningOutcomeFails(string calldata cid) public {
+    function testFuzz_frontRunningOutcomeFails(string calldata cidSeed) public {
+        string memory cid = cidFor(bytes(cidSeed));
         vm.assume(bytes(cid).length != 0);
         (uint256 id, address[] memory ws) = _twoAccepted();
         _commit(ws[0], cid); // the producer commits before it uploads
@@ -444,7 +458,7 @@ contract TasksManagerFuzzTest is Fixture {
 
     function testFuzz_reviewOutcome(uint8 review, bool accepted, address stranger_) public {
         uint256 reward = 1e9;
-        (uint256 id, address w) = _submitted(reward, "bafy-review");
+        (uint256 id, address w) = _submitted(reward, "bafyreview");
         vm.assume(stranger_ != requester);
         uint8 r = uint8(_bound(review, 0, 5));
         vm.expectRevert(abi.encodeWithSelector(TasksManager.TasksNotTaskRequester.selector, id, stranger_));
@@ -468,7 +482,7 @@ contract TasksManagerFuzzTest is Fixture {
     }
 
     function testFuzz_reviewOutcome_windowCloses(uint32 late) public {
-        (uint256 id, address w) = _submitted(1e9, "bafy-late");
+        (uint256 id, address w) = _submitted(1e9, "bafylate");
         (TasksManager.Task memory t,) = tmc.getTask(id);
         uint256 end = uint256(t.deadline) + REVIEW_WINDOW;
         vm.warp(_bound(late, end + 1, end + 1e9));
@@ -546,9 +560,9 @@ contract TasksManagerFuzzTest is Fixture {
         (uint256 id, address[] memory offered) = _allocated(3, reward);
         vm.prank(offered[0]);
         tmc.acceptOffer(id);
-        _commit(offered[0], "bafy-close");
+        _commit(offered[0], "bafyclose");
         vm.prank(offered[0]);
-        tmc.submitOutcome(id, "bafy-close");
+        tmc.submitOutcome(id, "bafyclose");
         vm.prank(offered[1]);
         tmc.acceptOffer(id); // accepted, never submits -> Failed at close
         (TasksManager.Task memory t,) = tmc.getTask(id);

@@ -409,6 +409,35 @@ contract UsersManagerFuzzTest is Fixture {
         umc.updateCapabilities(cores, ram, gpu);
     }
 
+    /// An approval covers the values the admin reviewed: a Pending worker cannot swap in
+    /// others before the approval is mined, and a removed worker cannot change anything.
+    function testFuzz_updateCapabilities_frozenWhilePendingOrRemoved(uint16 cores, uint16 ram, uint8 gpu) public {
+        vm.assume(cores != 8 || ram != 32 || gpu != 1);
+        address w = address(0xBEEF);
+        vm.prank(admin);
+        umc.setApprovalRequired(true);
+        vm.prank(w);
+        umc.addWorker(1 << DOMAIN, 8, 32, 1);
+        vm.expectRevert(
+            abi.encodeWithSelector(UsersManager.UsersNotApproved.selector, w, UsersManager.Status.Pending)
+        );
+        vm.prank(w);
+        umc.updateCapabilities(cores, ram, gpu);
+        vm.prank(w);
+        umc.updateCapabilities(8, 32, 1); // the same values: a no-op, allowed
+        vm.prank(admin);
+        umc.approveWorker(w);
+        UsersManager.Worker memory rec = umc.getWorker(w);
+        vm.assertEq(rec.cpuCores, 8, "approved the reviewed cores");
+        vm.prank(w);
+        umc.removeWorker(w);
+        vm.expectRevert(
+            abi.encodeWithSelector(UsersManager.UsersNotApproved.selector, w, UsersManager.Status.Removed)
+        );
+        vm.prank(w);
+        umc.updateCapabilities(8, 32, 1);
+    }
+
     // ------------------------------------------------------------------ updateInfo
 
     function testFuzz_updateInfo(uint8 flags, uint8 review, uint8 taskType) public {

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import base64
+import hashlib
 from collections.abc import Callable
 from typing import Any
 
@@ -10,6 +12,13 @@ import pytest
 from backend.chain import errors
 
 CID = "bafkreidot3j5vvbthwtydmn3ny2pq2ckibhbuj5sech6wpzsxokrkqntsy"
+
+
+def cid_for(seed: object) -> str:
+    """A CID text the contracts accept (lowercase base32 CIDv1, like the store's), distinct
+    for distinct seeds, for tests that list many models."""
+    digest = hashlib.sha256(repr(seed).encode()).digest()
+    return "bafkrei" + base64.b32encode(digest).decode().lower().rstrip("=")[:52]
 
 
 def reverts(name: str, fn: Callable[..., Any], *args: Any, **kwargs: Any) -> errors.ContractError:

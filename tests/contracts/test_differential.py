@@ -15,6 +15,7 @@ from backend.chain import errors, qos
 from backend.chain.platform import Metric, Platform, WorkerStatus
 
 from .conftest import ACCEPTED_GPUS, Actors, actors_of
+from .helpers import cid_for
 
 DOM = 1  # task domain; workers also cover domain 2
 SETTINGS = settings(
@@ -79,11 +80,11 @@ def _add_models(p: Platform, addrs: list[str], workers: list[qos.Worker], specs)
     for i, (o, e) in enumerate(specs):
         if DOM not in workers[o].domains:
             try:
-                p.mmc.add_model(addrs[o], f"bafy{i}", DOM, e)
+                p.mmc.add_model(addrs[o], cid_for(i), DOM, e)
                 raise AssertionError("a model outside the owner's domains must revert")
             except errors.get("ModelsOwnerNotInDomain"):
                 continue
-        ids.append(p.mmc.add_model(addrs[o], f"bafy{i}", DOM, e)[0])
+        ids.append(p.mmc.add_model(addrs[o], cid_for(i), DOM, e)[0])
         models.append(qos.Model(o, DOM, e))
     return ids, models
 

@@ -110,7 +110,7 @@ def test_training_and_sharing_flows_conserve_payments(any_chain: Chain) -> None:
 
     # -- model sharing: both metrics, reviews ----------------------------------------------
     p.umc.update_status(w[0], WorkerStatus.ACTIVE)
-    m1, _ = p.mmc.add_model(w[0], CID + "m1", DOMAIN, [3, 3], "3A3W")
+    m1, _ = p.mmc.add_model(w[0], CID + "mq", DOMAIN, [3, 3], "3A3W")
     m2, _ = p.mmc.add_model(w[1], CID + "m2", DOMAIN, [1, 0], "1A0W")
     m3, _ = p.mmc.add_model(w[2], CID + "m3", DOMAIN, [2, 2], "2A2W")
     alloc, ids, _ = p.mmc.allocate(

@@ -50,7 +50,7 @@ def test_add_model_stores_and_validates(setup, actors) -> None:
 
 def test_allocate_pays_owners_refunds_rest(setup) -> None:
     p, r, ws = setup
-    m1, _ = p.mmc.add_model(ws[0], CID + "1", DOMAIN, [2, 2])
+    m1, _ = p.mmc.add_model(ws[0], CID + "q", DOMAIN, [2, 2])
     m2, _ = p.mmc.add_model(ws[1], CID + "2", DOMAIN, [5, 5])
     p.mmc.add_model(ws[2], CID + "3", DOMAIN, [1, 1, 1])  # other attribute count: never eligible
     alloc, ids, rc = p.mmc.allocate(

@@ -10,7 +10,7 @@ from backend.chain import qos
 from backend.chain.platform import Metric, WorkerStatus
 
 from .conftest import DOMAIN
-from .helpers import CID, reverts
+from .helpers import CID, cid_for, reverts
 
 
 def _task(p, requester, nw=3):
@@ -118,7 +118,7 @@ def test_removed_workers_are_never_offered(p, actors) -> None:
     ws = actors.workers[:4]
     for i, w in enumerate(ws):
         p.umc.add_worker(w, [DOMAIN], 64 - i, 64, 1)  # ws[0] is the best
-        p.mmc.add_model(w, f"{CID}{i}", DOMAIN, [1])
+        p.mmc.add_model(w, cid_for(i), DOMAIN, [1])
     reverts("UsersNotSelfOrAdmin", p.umc.remove_worker, ws[2], ws[0])
     rc = p.umc.remove_worker(ws[0], ws[0])
     assert rc.one("WorkerRemoved").args["by"] == ws[0]
@@ -221,3 +221,29 @@ def test_queue_links_survive_random_joins_and_leaves(p, actors) -> None:
         for d in model:
             assert p.umc.queue(d) == model[d]
             assert p.umc.call("queueLength", d) == len(model[d])
+
+
+def test_pending_capabilities_are_frozen_until_the_admin_decides(p, actors) -> None:
+    """The audit's finding: a Pending worker declared 4 cores, swapped in 65,535 before the
+    admin's approval was mined, and was approved as the pool's best. The values under review
+    now cannot change (the same values can be sent again), and a removed worker's cannot;
+    the worker daemon reports the frozen values instead of failing on the revert."""
+    from types import SimpleNamespace
+
+    from workers.daemon.capabilities import Capabilities
+    from workers.daemon.command import register_worker
+
+    admin = actors.admin
+    p.umc.set_approval_required(admin, True)
+    w = actors.workers[0]
+    p.umc.add_worker(w, [DOMAIN], 4, 8, 1)
+    assert p.umc.status(w) == WorkerStatus.PENDING
+    reverts("UsersNotApproved", p.umc.transact, "updateCapabilities", 65_535, 8, 1, sender=w)
+    p.umc.transact("updateCapabilities", 4, 8, 1, sender=w)  # unchanged: allowed
+    daemon = SimpleNamespace(umc=p.umc, admin=w, chain=p.chain)
+    said = register_worker(daemon, Capabilities(cpu_cores=64, ram_gb=8, gpu_series=1), (DOMAIN,))
+    assert "4 cores" in said and "once approved" in said
+    p.umc.approve_worker(admin, w)
+    assert tuple(p.umc.call("getWorker", w))[2:5] == (1, 4, 8)  # gpu, cores, ram reviewed
+    p.umc.transact("removeWorker", w, sender=w)
+    reverts("UsersNotApproved", p.umc.transact, "updateCapabilities", 4, 8, 1, sender=w)

@@ -79,6 +79,11 @@ def register_worker(platform: Any, caps: Capabilities, domains: tuple[int, ...])
         raise RuntimeError(f"worker {me} was removed from the platform; use another key")
     current = (int(w[3]), int(w[4]), int(w[2]))  # cpuCores, ramGb, gpuSeries
     if current != (caps.cpu_cores, caps.ram_gb, caps.gpu_series):
+        if w[1] == WorkerStatus.PENDING and umc.call("approvalRequired"):
+            # the admin approves the values it reviewed: they are frozen until it decides
+            return (f"pending a consortium admin's approval of the capabilities registered "
+                    f"({current[0]} cores, {current[1]} GB, GPU series {current[2]}); they "
+                    f"can change once approved")
         umc.transact("updateCapabilities", caps.cpu_cores, caps.ram_gb, caps.gpu_series, sender=me)
         if umc.call("getWorker", me)[1] == WorkerStatus.PENDING:  # approval covers capabilities
             return "updated, pending a consortium admin's re-approval"

@@ -1,6 +1,7 @@
 // SPDX-License-Identifier: MIT
 pragma solidity ^0.8.24;
 
+import {cidFor} from "../utils/CidFor.sol";
 import {Vm} from "../utils/Vm.sol";
 import {UsersManager} from "../../src/UsersManager.sol";
 import {TasksManager} from "../../src/TasksManager.sol";
@@ -364,7 +365,7 @@ contract PlatformHandler {
         if (a == 0) data = abi.encodeCall(TasksManager.acceptOffer, (id));
         else if (a == 1) data = abi.encodeCall(TasksManager.declineOffer, (id));
         else if (a == 2) data = abi.encodeCall(TasksManager.abandonOffer, (id));
-        else data = abi.encodeCall(TasksManager.submitOutcome, (id, _committed(w, string(abi.encodePacked("bafy", ++_cidNonce)))));
+        else data = abi.encodeCall(TasksManager.submitOutcome, (id, _committed(w, cidFor(abi.encodePacked("bafy", ++_cidNonce)))));
         Snap memory s = _begin();
         _try(w, address(tmc), data, 0);
         _end(s);
@@ -385,7 +386,7 @@ contract PlatformHandler {
         if (st == TasksManager.OfferState.Offered) {
             data = abi.encodeCall(TasksManager.acceptOffer, (id));
         } else if (st == TasksManager.OfferState.Accepted) {
-            data = abi.encodeCall(TasksManager.submitOutcome, (id, _committed(w, string(abi.encodePacked("bafy", ++_cidNonce)))));
+            data = abi.encodeCall(TasksManager.submitOutcome, (id, _committed(w, cidFor(abi.encodePacked("bafy", ++_cidNonce)))));
         } else if (st == TasksManager.OfferState.Submitted) {
             (TasksManager.Task memory t,) = tmc.getTask(id);
             who = t.requester;
@@ -443,8 +444,8 @@ contract PlatformHandler {
 
     function addModel(uint256 who, uint32 a, uint32 b, bool outcome) external {
         address w = _pick(workers, who);
-        string memory cid = string(abi.encodePacked("model", ++_cidNonce));
-        if (outcome && _cidNonce > 1) cid = string(abi.encodePacked("bafy", (a % _cidNonce) + 1)); // an outcome CID
+        string memory cid = cidFor(abi.encodePacked("model", ++_cidNonce));
+        if (outcome && _cidNonce > 1) cid = cidFor(abi.encodePacked("bafy", (a % _cidNonce) + 1)); // an outcome CID
         uint32[] memory env = new uint32[](2);
         (env[0], env[1]) = (a % 8, b % 8);
         _committed(w, cid); // an outcome CID's record outweighs any commitment
@@ -670,7 +671,7 @@ contract PlatformHandler {
                     : call_ == 1
                         ? abi.encodeCall(TasksManager.declineOffer, (id))
                         : abi.encodeCall(
-                            TasksManager.submitOutcome, (id, _committed(actor, string(abi.encodePacked("x", ++_cidNonce))))
+                            TasksManager.submitOutcome, (id, _committed(actor, cidFor(abi.encodePacked("x", ++_cidNonce))))
                         );
             } else if (a == 10) {
                 // front-running: a worker sees another worker's CID (committed a block ago, its
@@ -686,7 +687,7 @@ contract PlatformHandler {
                     if (aid == 0) return;
                     (id, actor) = (aid, thief);
                 }
-                string memory cid = string(abi.encodePacked("fr", ++_cidNonce));
+                string memory cid = cidFor(abi.encodePacked("fr", ++_cidNonce));
                 _committed(_other(workers, actor, actorSeed / 2 + 1), cid); // the producer
                 _try(actor, address(tmc), abi.encodeCall(TasksManager.commitCid, (keccak256(abi.encodePacked(cid, actor)))), 0);
                 uint32[] memory env = new uint32[](2);
