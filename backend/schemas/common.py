@@ -18,7 +18,10 @@ __all__ = [
     "CidStr",
     "Domain",
     "EventPublic",
+    "Flag",
+    "json_number_only",
     "Fraction",
+    "ID_DIGITS",
     "ListPublic",
     "Review",
     "TxPublic",
@@ -50,6 +53,26 @@ def _not_bool(v: Any) -> Any:
     return v
 
 
+def json_number_only(what: str) -> BeforeValidator:
+    """Refuse ``true``/``false`` and strings for a number field (pydantic's lax mode reads
+    true as 1 and "0.5" as 0.5), the message naming ``what`` the field holds."""
+
+    def check(v: Any) -> Any:
+        if isinstance(v, bool):
+            raise ValueError(f"{what} is a number, not true/false")
+        if isinstance(v, str):
+            raise ValueError(f"{what} is a JSON number, not a string")
+        return v
+
+    return BeforeValidator(check)
+
+
+def _json_bool(v: Any) -> Any:
+    if not isinstance(v, bool):
+        raise ValueError("a flag is JSON true or false, not a number or a string")
+    return v
+
+
 JSON_NUMBER_ONLY = BeforeValidator(_not_bool)
 """Put after a ``Field`` with bounds (before it, pydantic writes ge/le into the schema, not
 minimum/maximum)."""
@@ -64,7 +87,15 @@ Domain = Annotated[
 Review = Annotated[
     int, Field(ge=0, le=5, description="review score 0-5"), JSON_NUMBER_ONLY
 ]
-Fraction = Annotated[float, Field(ge=0.0, le=1.0, description="QoS value in [0, 1]")]
+Fraction = Annotated[
+    float,
+    Field(ge=0.0, le=1.0, description="QoS value in [0, 1]"),
+    json_number_only("a fraction"),
+]
+"""A QoS value as JSON Schema has it: ``0.5``, never ``true`` or ``"0.5"``."""
+JSON_BOOL_ONLY = BeforeValidator(_json_bool)
+"""A JSON boolean only: pydantic's lax bool reads 0/1 and "yes"/"no" as flags."""
+Flag = Annotated[bool, JSON_BOOL_ONLY]
 
 
 def _check_cid(v: str) -> str:
@@ -100,13 +131,26 @@ MAX_ID = 10**18
 and a power of ten, which JSON tools that read numbers as doubles read exactly."""
 
 
+def _digits(v: Any) -> Any:
+    if isinstance(v, str) and not (v.isascii() and v.isdigit()):
+        raise ValueError("an id is decimal digits only")
+    return v
+
+
+ID_DIGITS = BeforeValidator(_digits)
+"""A resource id in a URL path is digits only (put after its ``Path``): pydantic's lax int
+takes "1.0" and " 1", so one resource would have many URLs."""
+
+
 def Wei(upper_bits: int) -> Any:  # noqa: N802 - a type factory
     """An amount of wei at most the largest power of ten below 2^``upper_bits`` (so it fits the
     contract's uint): a bound like 2^96 becomes a rounded double in JSON tools, and clients
     would then send values just above it as valid."""
     bound = 10 ** (len(str(2**upper_bits - 1)) - 1)
     return Annotated[
-        int, Field(ge=0, le=bound, description=f"wei, at most 1e{len(str(bound)) - 1}")
+        int,
+        Field(ge=0, le=bound, description=f"wei, at most 1e{len(str(bound)) - 1}"),
+        json_number_only("an amount of wei"),
     ]
 
 

@@ -1,6 +1,8 @@
 from __future__ import annotations
 
 import math
+import re
+import unicodedata
 from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, WithJsonSchema, model_validator
@@ -10,18 +12,43 @@ from workers.mdrl.trainingspec import EXPERT_PATTERN, trainingspec_json_schema
 from .common import (
     CID_LENGTH,
     CID_PATTERN,
+    JSON_NUMBER_ONLY,
     MAX_ID,
+    PLAIN_TEXT_PATTERN,
     Address,
     Count,
     Domain,
     EventPublic,
+    Flag,
     Fraction,
     ListPublic,
     Review,
     Wei,
+    _printable,
+    json_number_only,
 )
 
 MAX_EXTRA_METRICS = 16
+_METRIC = json_number_only("a metric")
+
+
+def _format_ranges() -> str:
+    """The Basic Multilingual Plane's format characters (Unicode category Cf: bidi controls
+    such as U+202E, zero-width ones, U+FEFF) as regex class ranges."""
+    codes = [c for c in range(0x10000) if unicodedata.category(chr(c)) == "Cf"]
+    ranges: list[tuple[int, int]] = []
+    for c in codes:
+        if ranges and ranges[-1][1] == c - 1:
+            ranges[-1] = (ranges[-1][0], c)
+        else:
+            ranges.append((c, c))
+    return "".join(f"\\u{a:04X}" + (f"-\\u{b:04X}" if b > a else "") for a, b in ranges)
+
+
+METRIC_NAME_PATTERN = PLAIN_TEXT_PATTERN[:-3] + _format_ranges() + "]*$"
+"""A metric name: free text's rule (no control characters) and no invisible format character
+(a bidi override reorders what follows it in pages and plots)."""
+_METRIC_NAME_FORMAT = re.compile("[" + _format_ranges() + "]")
 
 
 def _models_by_cid(schema: Any) -> Any:
@@ -78,10 +105,8 @@ class TaskCreate(BaseModel):
         "deadline_s <= maxDuration (consortium settings; 422 tasks_bad_duration otherwise)",
     )
     payment_wei: Wei(96) = Field(default=0, description="reward per worker, escrowed")  # type: ignore[valid-type]
-    expert_allocation: int | None = Field(
+    expert_allocation: Annotated[int, Field(ge=1, le=MAX_ID), JSON_NUMBER_ONLY] | None = Field(
         default=None,
-        ge=1,
-        le=MAX_ID,
         description="one of the caller's MMC model allocations (POST /models/requests): its "
         "models become the spec's experts with the QoS the MMC gave them (MEDC); instead of "
         "experts",
@@ -156,16 +181,20 @@ class ProgressCreate(BaseModel):
         extra="allow",
         json_schema_extra={
             "additionalProperties": {"type": "number", "minimum": -1e300, "maximum": 1e300},
-            "propertyNames": {"maxLength": 64},
+            "propertyNames": {"maxLength": 64, "pattern": METRIC_NAME_PATTERN},
             "maxProperties": 4 + MAX_EXTRA_METRICS,
         },
     )
 
-    step: int = Field(ge=0, le=10**12)
+    step: Count = Field(ge=0, le=10**12)
     # NaN/Infinity: "should be a finite number", not a bound's message
-    success: float | None = Field(default=None, ge=0.0, le=1.0, allow_inf_nan=False)
-    time: float | None = Field(default=None, ge=0.0, le=1e9, allow_inf_nan=False)
-    cost: float | None = Field(default=None, ge=-1e12, le=1e12, allow_inf_nan=False)
+    success: Annotated[
+        float, Field(ge=0.0, le=1.0, allow_inf_nan=False), _METRIC
+    ] | None = None
+    time: Annotated[float, Field(ge=0.0, le=1e9, allow_inf_nan=False), _METRIC] | None = None
+    cost: Annotated[
+        float, Field(ge=-1e12, le=1e12, allow_inf_nan=False), _METRIC
+    ] | None = None
 
     @model_validator(mode="after")
     def _extra(self) -> ProgressCreate:
@@ -173,12 +202,24 @@ class ProgressCreate(BaseModel):
         if len(extra) > MAX_EXTRA_METRICS:
             raise ValueError(f"at most {MAX_EXTRA_METRICS} extra metrics")
         for k, v in extra.items():
+            _metric_name(k)
             if len(k) > 64 or isinstance(v, bool) or not isinstance(v, int | float):
                 raise ValueError(f"extra metric {k[:64]!r} must be a number with a short name")
             if abs(v) > 1e300 or not math.isfinite(v):  # NaN, Infinity, 1e400; huge integers
                 raise ValueError(f"extra metric {k[:64]!r} must be a finite number in "
                                  "[-1e300, 1e300]")
         return self
+
+
+def _metric_name(k: str) -> None:
+    """:data:`METRIC_NAME_PATTERN`, its bad characters named."""
+    bad = sorted({f"U+{ord(c):04X}" for c in _METRIC_NAME_FORMAT.findall(k)})
+    try:
+        _printable(k)
+        if bad:
+            raise ValueError(f"format characters are not allowed: {', '.join(bad[:5])}")
+    except ValueError as exc:
+        raise ValueError(f"extra metric name {k[:64]!r}: {exc}") from None
 
 
 class ProgressPublic(BaseModel):
@@ -193,7 +234,7 @@ class ProgressPublic(BaseModel):
 class TaskReviewCreate(BaseModel):
     worker: Address
     review: Review
-    accepted: bool = True
+    accepted: Flag = True
 
 
 class TaskExpertPublic(BaseModel):

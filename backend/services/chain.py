@@ -28,9 +28,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import rlp  # type: ignore[import-untyped]
 from eth_account import Account
 from eth_account.signers.local import LocalAccount
+from eth_account.typed_transactions import TypedTransaction
+from hexbytes import HexBytes
 from web3 import Web3
+from web3.exceptions import TimeExhausted
 
 from backend.auth import DemoKeys
 from backend.chain.client import GAS_MARGIN, Chain, ContractHandle, Receipt, typed_revert
@@ -44,6 +48,7 @@ from backend.errors import (
     Invalid,
     NotFound,
     PaymentRequired,
+    Unavailable,
 )
 from backend.services.rpc_call import unpriced_call
 from backend.settings import Settings
@@ -120,6 +125,38 @@ _NODE_RULES: tuple[tuple[tuple[str, ...], type[DomainError], str, str], ...] = (
         "the called function does not take this value",
     ),
 )
+
+
+RELAY_RECEIPT_TIMEOUT_S = 120.0
+"""Longest wait of ``POST /api/tx`` for the receipt of a transaction the node accepted."""
+
+
+class TxPending(Unavailable):
+    """A relayed transaction the node accepted but did not mine within
+    :data:`RELAY_RECEIPT_TIMEOUT_S`: it may still be mined (the route answers 504
+    ``tx_pending`` with its hash, to be looked up instead of sent again)."""
+
+    def __init__(self, tx_hash: str, waited_s: float) -> None:
+        super().__init__(
+            "tx_pending",
+            f"transaction {tx_hash} was accepted by the node but not mined within {waited_s:g} s;"
+            " look its receipt up (eth_getTransactionReceipt) rather than sending it again",
+        )
+        self.tx_hash = tx_hash
+
+
+def _nonce_and_max_fee(raw: bytes) -> tuple[int, int]:
+    """Nonce and max fee per gas (gasPrice for legacy and EIP-2930 transactions) of a raw
+    transaction that :func:`decode_raw_tx` read."""
+    try:
+        if raw[0] < 0x7F:
+            fields = TypedTransaction.from_bytes(HexBytes(raw)).as_dict()
+            fee = fields["maxFeePerGas"] if "maxFeePerGas" in fields else fields["gasPrice"]
+            return int(fields["nonce"]), int(fee)
+        items = rlp.decode(raw)
+        return int.from_bytes(items[0], "big"), int.from_bytes(items[1], "big")
+    except Exception:  # rlp / eth_account raise several types on malformed input
+        raise Invalid("tx_invalid", "cannot read the transaction's nonce and fee") from None
 
 
 class SignLocally(Exception):
@@ -373,16 +410,40 @@ class ChainService:
             raise Invalid(
                 "tx_target", f"transaction goes to {to}; only platform contracts: {targets}"
             )
+        nonce, max_fee = _nonce_and_max_fee(raw)
         w3 = self.chain.w3
+        embedded = self.chain.kind == "embedded"
         with self.lock:
+            # A node keeps a transaction with a nonce gap (or a fee below the base fee) queued
+            # without mining it, so the relay would wait for a receipt that never comes:
+            # refused here, with what to sign instead.
+            expected = int(w3.eth.get_transaction_count(sender, "pending"))  # type: ignore[arg-type]
+            if nonce != expected:
+                raise Conflict(
+                    "nonce_mismatch",
+                    f"the transaction's nonce is {nonce}; the sender's next nonce is "
+                    f"{expected}: sign it again with nonce {expected}",
+                )
+            base = w3.eth.get_block("latest").get("baseFeePerGas")
+            if base is not None and max_fee < int(base):
+                raise Invalid(
+                    "fee_too_low",
+                    f"the transaction's max fee per gas is {max_fee} wei; the chain's base fee "
+                    f"is {int(base)} wei: sign it again with a max fee of at least that",
+                )
             try:
                 tx_hash = w3.eth.send_raw_transaction(raw)
             except Exception as exc:  # revert at inclusion (eth-tester) or node refusal
                 raise node_rule_error(exc) or Conflict(
                     "tx_rejected", f"node refused the transaction: {exc}"
                 ) from None
-            raw_receipt = w3.eth.wait_for_transaction_receipt(tx_hash, timeout=120)
-            events = self.chain._decode_logs(raw_receipt["logs"])
+            if embedded:  # eth-tester is not thread-safe (and mines at once)
+                raw_receipt = self._await_receipt(tx_hash)
+        if not embedded:
+            # A node is polled without the lock: the transaction is in its pool, so the
+            # sender's next nonce already counts it, and other writes need not wait for a block.
+            raw_receipt = self._await_receipt(tx_hash)
+        events = self.chain._decode_logs(raw_receipt["logs"])
         receipt = Receipt(
             tx_hash="0x" + bytes(tx_hash).hex(),
             status=raw_receipt["status"],
@@ -394,6 +455,14 @@ class ChainService:
         if receipt.status != 1:
             raise self._revert_reason(tx, sender, receipt)
         return receipt
+
+    def _await_receipt(self, tx_hash: Any) -> Any:
+        try:
+            return self.chain.w3.eth.wait_for_transaction_receipt(
+                tx_hash, timeout=RELAY_RECEIPT_TIMEOUT_S
+            )
+        except TimeExhausted:
+            raise TxPending("0x" + bytes(tx_hash).hex(), RELAY_RECEIPT_TIMEOUT_S) from None
 
     def _revert_reason(self, tx: RawTx, sender: str, receipt: Receipt) -> DomainError:
         """Why a relayed transaction reverted, as the gateway's own routes say it (the

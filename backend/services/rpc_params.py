@@ -183,20 +183,65 @@ def log_filter(flt: Any, by_hash: BlockByHash) -> dict[str, Any]:
             raise InvalidParams("blockHash excludes fromBlock/toBlock")
         number = block_id({"blockHash": flt.pop("blockHash")}, by_hash)
         flt["fromBlock"] = flt["toBlock"] = number
+    if "address" in flt:
+        flt["address"] = _filter_address(flt["address"])
+    if "topics" in flt:
+        flt["topics"] = _filter_topics(flt["topics"])
     for key in ("fromBlock", "toBlock"):
         if key in flt:
             if isinstance(flt[key], dict):
                 raise InvalidParams(f"{key} is a tag or a number")
-            flt[key] = _executed(block_id(flt[key], by_hash))
-            if flt[key] == "earliest":  # eth-tester's log filter finds nothing from this tag
-                flt[key] = 0
+            flt[key] = _executed(_named(key, block_id, flt[key], by_hash))
     return flt
 
 
+def _named(key: str, parse: Callable[..., Any], *args: Any) -> Any:
+    """``parse(*args)`` with ``key`` named in its :class:`InvalidParams`."""
+    try:
+        return parse(*args)
+    except InvalidParams as exc:
+        raise InvalidParams(f"{key}: {exc}") from None
+
+
+def _filter_address(value: Any) -> Any:
+    """A log filter's ``address``: one address or a list of them."""
+    many = value if isinstance(value, list) else [value]
+    if not all(isinstance(a, str) and _ADDRESS.fullmatch(a) for a in many):
+        raise InvalidParams("address must be a 20-byte hex address or a list of them")
+    return value
+
+
+MAX_TOPICS = 4
+"""Topic positions of a log (LOG0-LOG4): a filter names at most this many."""
+
+
+def _filter_topics(value: Any) -> Any:
+    """A log filter's ``topics``: up to 4 positions, each null (any), a 32-byte hash, or a
+    list of hashes (any of them)."""
+
+    def topic(t: Any) -> bool:
+        return isinstance(t, str) and _HASH.fullmatch(t) is not None
+
+    ok = isinstance(value, list) and len(value) <= MAX_TOPICS and all(
+        t is None or topic(t) or (isinstance(t, list) and all(topic(x) for x in t))
+        for t in value
+    )
+    if not ok:
+        raise InvalidParams(
+            f"topics must be a list of at most {MAX_TOPICS} entries, each null, a 32-byte hex "
+            "hash or a list of them"
+        )
+    return value
+
+
 def _executed(block: int | str) -> int | str:
-    """A log filter's "pending" is "latest": the embedded chain mines every transaction at
-    once, so no pending block holds logs."""
-    return "latest" if block == "pending" else block
+    """A log filter's block tag as a block eth-tester's filter knows: the embedded chain mines
+    every transaction at once and has no forks, so no pending block holds logs and every mined
+    block is final ("pending", "safe" and "finalized" are "latest"); "earliest" is block 0
+    (eth-tester's filter finds nothing from that tag, and raises on "safe"/"finalized")."""
+    if block in ("pending", "safe", "finalized"):
+        return "latest"
+    return 0 if block == "earliest" else block
 
 
 def normalize(method: str, params: list[Any], chain_id: int, by_hash: BlockByHash) -> list[Any]:

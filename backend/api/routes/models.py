@@ -32,6 +32,7 @@ from backend.chain.qos import mmc_reputation_fixed
 from backend.db import models as m
 from backend.schemas.cards import MAX_EXPERTS, CardView, ExpertUsagePublic, is_cid
 from backend.schemas.common import (
+    ID_DIGITS,
     MAX_DOMAIN,
     MAX_ID,
     TxPublic,
@@ -65,9 +66,9 @@ from backend.store.sealed import sealed_envelopes
 
 router = APIRouter(prefix="/models", tags=["models"])
 log = logging.getLogger(__name__)
-ModelId = Annotated[int, Path(ge=1, le=MAX_ID)]
-AllocId = Annotated[int, Path(ge=1, le=MAX_ID)]
-TaskId = Annotated[int, Path(ge=1, le=MAX_ID)]
+ModelId = Annotated[int, Path(ge=1, le=MAX_ID), ID_DIGITS]
+AllocId = Annotated[int, Path(ge=1, le=MAX_ID), ID_DIGITS]
+TaskId = Annotated[int, Path(ge=1, le=MAX_ID), ID_DIGITS]
 BundleFile = Literal["model.safetensors", "model.json"]
 MAX_CARD_DEPTH = 32
 HALF = 500_000
@@ -770,6 +771,10 @@ def review_model(
         raise RuleError(
             403, "not_allocation_requester", f"allocation {alloc_id} belongs to {alloc.requester}"
         )
+    # Not indexed: the chain says whether it exists (the contract's own refusal of an unknown
+    # allocation is NotAllocationRequester, a 403 that would hide the 404).
+    if alloc is None and alloc_id > int(chain.call(chain.platform.mmc, "allocCount")):
+        raise RuleError(404, "allocation_not_found", f"no allocation {alloc_id}")
     # MMC.AllocState: None, Allocated, Reviewed. The contract answers ModelsNotAllocated to
     # both None and Reviewed; a second review is named here (the contract still decides).
     if int(chain.call(chain.platform.mmc, "allocState", alloc_id, body.model_id)) == 2:

@@ -23,6 +23,7 @@ from backend.api.writes import catch_up, field_error, receipt_public
 from backend.chain.platform import TaskStatus, WorkerStatus
 from backend.db import models as m
 from backend.schemas.common import (
+    ID_DIGITS,
     MAX_DOMAIN,
     MAX_ID,
     EventPublic,
@@ -57,7 +58,7 @@ from backend.store.sealed import address_of, parse_public_key
 from workers.mdrl.trainingspec import TrainingSpec
 
 router = APIRouter(prefix="/tasks", tags=["tasks"])
-TaskId = Annotated[int, Path(ge=1, le=MAX_ID)]
+TaskId = Annotated[int, Path(ge=1, le=MAX_ID), ID_DIGITS]
 PROGRESS_STATES = ("accepted", "submitted")
 """Offer states in which a worker posts curve points: from acceptance until its outcome is
 reviewed (a point may arrive just after the submission)."""

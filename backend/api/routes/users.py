@@ -76,7 +76,7 @@ def remove_requester(
     "/workers",
     status_code=status.HTTP_201_CREATED,
     response_model=RegistrationPublic,
-    responses=rule_responses(401, 409, 503),
+    responses=rule_responses(401, 403, 409, 503),
 )
 def register_worker(
     body: WorkerCreate, user: CurrentUser, chain: ChainDep, indexer: IndexerDep
@@ -99,6 +99,14 @@ def register_worker(
         )
         created = True
     else:
+        # The UMC updates a removed worker's capabilities (it only checks registration): the
+        # gateway refuses, as a removed worker takes no part in the platform any more.
+        if _status(chain, user.address) == WorkerStatus.REMOVED.name.lower():
+            raise RuleError(
+                403,
+                "users_not_approved",
+                f"worker {user.address} was removed: it cannot update its capabilities",
+            )
         if _registered_domains(chain, user.address) != domain_mask(body.domains):
             raise RuleError(
                 409,
