@@ -96,10 +96,37 @@ def model_files(store: Any, cid: str) -> dict[str, tuple[str, int]]:
     return files
 
 
+def check_model_card(store: Any, cid: str, files: dict[str, tuple[str, int]]) -> None:
+    """Fetch and check the card of model bundle ``cid`` before a file is written: a JSON
+    object, and a policy's card within the task-spec bounds
+    (``workers.mdrl.modelio.check_card_bounds``: an ``eval`` of a card saying
+    ``max_steps: 1e9`` would never end). InvalidContent names what is wrong. A walls CAE's
+    card (``kind``) is checked when it is loaded."""
+    from workers.mdrl.modelio import CARD_FORMAT, check_card_bounds
+
+    card_cid, size = files["model.json"]
+    raw = store.get(card_cid, max_size=max(size, 1))
+    try:
+        card = json.loads(raw)
+    except (ValueError, RecursionError):
+        raise InvalidContent(f"model.json of bundle {cid} is not JSON") from None
+    if not isinstance(card, dict):
+        raise InvalidContent(f"model.json of bundle {cid} is not a JSON object")
+    if card.get("format") != CARD_FORMAT or "kind" in card:
+        return
+    try:
+        if not isinstance(card.get("env"), dict) or not isinstance(card.get("observation"), dict):
+            raise ValueError("the card needs 'env' and 'observation' objects")
+        check_card_bounds(card, task_grid=False)
+    except (KeyError, TypeError, ValueError, ArithmeticError) as exc:
+        raise InvalidContent(f"model.json of bundle {cid}: {exc} (bounds of a task spec)") from None
+
+
 def pull_model(store: Any, cid: str, dest: str | os.PathLike[str]) -> Path:
     """Fetch both model files of bundle ``cid`` into ``dest``, each verified by its CID and
-    bounded (``model_files``)."""
+    bounded (``model_files``), once its card is checked (``check_model_card``)."""
     files = model_files(store, cid)
+    check_model_card(store, cid, files)
     out = Path(dest)
     out.mkdir(parents=True, exist_ok=True)
     for name in MODEL_FILES:

@@ -29,6 +29,10 @@ CHUNK_SIZE = 262_144
 """Default fixed-size chunker of IPFS (``size-262144``)."""
 MAX_LINKS = 174
 """Default maximum number of links per node of the balanced layout."""
+MAX_READ_LINKS = 1024
+"""Most links a node may have when reading: the store builds nodes of :data:`MAX_LINKS`, and
+the most an IPFS node makes is 1024 (kubo's ``Import.UnixFSFileMaxLinks`` in the
+``unixfs-v1-2025`` profile). More is a DAG made to pile up pending links, refused."""
 MAX_BLOCK_SIZE = 2 * 2**20
 """Largest block accepted when reading (IPFS nodes refuse blocks above ~2 MiB as well)."""
 MIN_MEAN_LEAF = 16 * 1024
@@ -157,12 +161,17 @@ def encode_pbnode(links: list[tuple[CID, int]], data: bytes | None) -> bytes:
     return bytes(out)
 
 
-def decode_pbnode(buf: bytes) -> tuple[list[tuple[CID, int | None]], bytes | None]:
-    """Parse a dag-pb node into ([(child CID, Tsize)], Data)."""
+def decode_pbnode(
+    buf: bytes, max_links: int | None = None
+) -> tuple[list[tuple[CID, int | None]], bytes | None]:
+    """Parse a dag-pb node into ([(child CID, Tsize)], Data); ValueError as soon as it has more
+    than ``max_links`` links (when given), before they are all parsed."""
     links: list[tuple[CID, int | None]] = []
     data: bytes | None = None
     for no, wt, value in _pb_fields(buf):
         if no == 2 and wt == _LEN:
+            if max_links is not None and len(links) >= max_links:
+                raise ValueError(f"more than {max_links} links")
             cid: CID | None = None
             tsize: int | None = None
             for lno, lwt, lvalue in _pb_fields(value):  # type: ignore[arg-type]
@@ -314,22 +323,29 @@ def read_file(
     bytes arrive, so a node lying about sizes cannot make us read more than ``max_size``.
     Nor more blocks than ``max_blocks(max_size, min_mean_leaf)``, and a link below the root
     must carry bytes: :class:`InvalidContent` otherwise (a DAG of empty links would be read
-    without end).
+    without end). Pending links are bounded too, as soon as a node is read: at most
+    :data:`MAX_READ_LINKS` per node, no more in all than blocks left to read, and no more file
+    bytes declared than ``max_size`` leaves (else a chain of 2 MiB nodes of 45,000 links each
+    piles up gigabytes of stack before the first byte).
     """
     total = 0
     first = True
     stack: list[tuple[CID, int | None]] = [(root, None)]
     budget = limit_blocks = max_blocks(max_size, min_mean_leaf)
+    pending_bytes = 0  # file bytes the links on the stack declare
+
+    def too_many_blocks() -> InvalidContent:
+        return InvalidContent(
+            f"{root} needs more than {limit_blocks} blocks for at most {max_size} "
+            f"bytes (leaves under {min_mean_leaf} bytes on average are not read)"
+        )
+
     while stack:
         cid, expected_size = stack.pop()
+        pending_bytes -= expected_size or 0
         budget -= 1
         if budget < 0:
-            raise InvalidContent(
-                f"{root} needs more than {limit_blocks} blocks for at most {max_size} "
-                f"bytes (leaves under {min_mean_leaf} bytes on average are not read)"
-            )
-        if expected_size == 0:
-            raise InvalidContent(f"{root} links {cid} with a size of 0: no file has such a link")
+            raise too_many_blocks()
         limit = MAX_BLOCK_SIZE if cid.codec == DAG_PB else min(MAX_BLOCK_SIZE, max_size - total)
         if first and cid.codec == RAW:
             limit = max_size
@@ -347,6 +363,19 @@ def read_file(
                 raise InvalidContent(
                     f"node {cid} declares {declared} bytes but its parent says {expected_size}"
                 )
+            for child, size in children:
+                if size == 0:
+                    raise InvalidContent(
+                        f"{root} links {child} with a size of 0: no file has such a link"
+                    )
+            if len(stack) + len(children) > budget:  # each pending link costs a block read
+                raise too_many_blocks()
+            pending_bytes += sum(size or 0 for _, size in children)
+            if total + len(chunk) + pending_bytes > max_size:
+                raise InvalidContent(
+                    f"node {cid} of {root} links {pending_bytes} bytes still to read after "
+                    f"{total + len(chunk)}: more than the {max_size} bytes allowed"
+                )
             stack.extend(reversed(children))
         first = False
         if expected_size is not None and cid.codec == RAW and len(chunk) != expected_size:
@@ -363,7 +392,7 @@ def read_file(
 def _file_node(cid: CID, block: bytes) -> tuple[bytes, list[tuple[CID, int | None]], int | None]:
     """(inline data, [(child, its file size)], declared filesize) of a UnixFS file node."""
     try:
-        links, data = decode_pbnode(block)
+        links, data = decode_pbnode(block, max_links=MAX_READ_LINKS)
         if data is None:
             raise ValueError("dag-pb node without UnixFS Data")
         fs = UnixFSData.decode(data)

@@ -36,16 +36,15 @@ _NOT_FOUND = re.compile(
 """Node error messages that mean "this content is not available" (Kubo and js-ipfs wording;
 an offline or unlucky node only knows it gave up after ``find_timeout``)."""
 
-_TRANSIENT = (
-    httpx.ConnectError,
-    httpx.ConnectTimeout,
-    httpx.ReadTimeout,
-    httpx.WriteTimeout,
-    httpx.PoolTimeout,
-    httpx.ReadError,
-    httpx.WriteError,
-    httpx.RemoteProtocolError,
-)
+_TRANSIENT = (httpx.TransportError,)
+"""Failures of the connection (refused, reset, timed out, broken HTTP): :class:`StoreUnavailable`,
+retried. Any other ``httpx.HTTPError`` (a body that does not decode as its Content-Encoding
+says, say) is an answer the node got wrong: :class:`StoreError`, not retried."""
+
+DEADLINE_FACTOR = 4
+"""A block read, all its bytes, may take at most this many ``timeout``s by default: the
+timeout bounds each read only, and a node sending a byte per ``timeout - 1`` s would otherwise
+hold a worker for days."""
 
 
 def normalize_api_url(url: str) -> str:
@@ -70,7 +69,9 @@ def normalize_api_url(url: str) -> str:
 class IpfsRpcStore(ContentStore):
     """Content store talking to an IPFS node over its RPC API.
 
-    ``timeout``: seconds for connecting/reading one HTTP response. ``find_timeout``: how long the
+    ``timeout``: seconds for connecting/reading one HTTP response. ``deadline``: seconds one
+    block read may take in all (default ``DEADLINE_FACTOR * timeout``; checked as bytes arrive,
+    so a read ends within ``deadline + timeout``). ``find_timeout``: how long the
     node may search for a block before the call counts as :class:`NotFound`. ``retries``: extra
     attempts, with capped exponential backoff and jitter, for transient failures only
     (connection refused, timeouts, 502/503/504); after them :class:`StoreUnavailable`.
@@ -86,9 +87,11 @@ class IpfsRpcStore(ContentStore):
         retries: int = 2,
         backoff: float = 0.25,
         transport: httpx.BaseTransport | None = None,
+        deadline: float | None = None,
     ) -> None:
         super().__init__(max_size=max_size)
         self.url = normalize_api_url(url)
+        self.deadline = deadline if deadline is not None else DEADLINE_FACTOR * timeout
         self.find_timeout = find_timeout
         self.retries = max(0, retries)
         self.backoff = backoff
@@ -124,6 +127,13 @@ class IpfsRpcStore(ContentStore):
         retry_after = max(1.0, self.backoff * 8)
         return StoreUnavailable(self.url, f"{endpoint}: {reason}", retry_after=retry_after)
 
+    def _http_error(self, endpoint: str, exc: httpx.HTTPError) -> StoreError:
+        """The store error of an httpx failure: transport ones are transient."""
+        if isinstance(exc, _TRANSIENT):
+            return self._unavailable(endpoint, f"{type(exc).__name__}: {exc}")
+        return StoreError(f"IPFS node {self.url} answered {endpoint} wrongly: "
+                          f"{type(exc).__name__}: {exc}")
+
     def _check(self, endpoint: str, response: httpx.Response, arg: str = "") -> None:
         """Map a non-200 answer to a typed error."""
         if response.status_code == 200:
@@ -145,14 +155,21 @@ class IpfsRpcStore(ContentStore):
     def _post(self, endpoint: str, params: dict[str, Any], **kw: Any) -> httpx.Response:
         try:
             response = self._client.post(endpoint, params=params, **kw)
-        except _TRANSIENT as e:
-            raise self._unavailable(endpoint, f"{type(e).__name__}: {e}") from e
-        self._check(endpoint, response, str(params.get("arg", "")))
+            self._check(endpoint, response, str(params.get("arg", "")))
+        except httpx.HTTPError as e:
+            raise self._http_error(endpoint, e) from e
         return response
 
-    def _json(self, endpoint: str, params: dict[str, Any]) -> Any:
+    def _json(self, endpoint: str, params: dict[str, Any]) -> dict[str, Any]:
         response = self._retrying(endpoint, lambda: self._post(endpoint, params))
-        return response.json()
+        try:
+            answer = json.loads(response.content)
+        except (ValueError, RecursionError):
+            answer = None
+        if not isinstance(answer, dict):
+            raise StoreError(f"IPFS node {self.url} answered {endpoint} with no JSON object: "
+                             f"{response.content[:200]!r}")
+        return answer
 
     # -- writing -----------------------------------------------------------------------------------
     def _add_stream(self, source: bytes | BinaryIO, *, pin: bool) -> str:
@@ -169,10 +186,12 @@ class IpfsRpcStore(ContentStore):
         response = self._retrying("add", upload)
         answer: dict[str, Any] = {}
         for line in response.text.splitlines():
-            if line.strip():
-                entry = json.loads(line)
-                if "Hash" in entry:
-                    answer = entry
+            try:
+                entry = json.loads(line) if line.strip() else None
+            except (ValueError, RecursionError):
+                entry = None
+            if isinstance(entry, dict) and isinstance(entry.get("Hash"), str):
+                answer = entry
         if "Hash" not in answer:
             raise StoreError(f"IPFS node gave no CID for add: {response.text[:200]!r}")
         got = cid_key(answer["Hash"])
@@ -185,6 +204,7 @@ class IpfsRpcStore(ContentStore):
         params = {"arg": str(cid), "timeout": self._find_timeout()}
 
         def fetch() -> bytes:
+            give_up = time.monotonic() + self.deadline
             try:
                 with self._client.stream("POST", "block/get", params=params) as response:
                     self._check("block/get", response, str(cid))
@@ -196,9 +216,15 @@ class IpfsRpcStore(ContentStore):
                         buf += part
                         if len(buf) > max_bytes:
                             raise ContentTooLarge(None, max_bytes, f"block {cid}")
+                        if time.monotonic() > give_up:
+                            raise self._unavailable(
+                                "block/get",
+                                f"block {cid} not received within {self.deadline:g} s "
+                                f"({len(buf)} bytes so far)",
+                            )
                     return bytes(buf)
-            except _TRANSIENT as e:
-                raise self._unavailable("block/get", f"{type(e).__name__}: {e}") from e
+            except httpx.HTTPError as e:
+                raise self._http_error("block/get", e) from e
 
         return self._retrying("block/get", fetch)
 
@@ -219,7 +245,10 @@ class IpfsRpcStore(ContentStore):
 
     def pins(self) -> list[str]:
         answer = self._json("pin/ls", {"type": "recursive"})
-        return sorted(cid_key(key) for key in answer.get("Keys", {}))
+        keys = answer.get("Keys") or {}
+        if not isinstance(keys, dict):
+            raise StoreError(f"IPFS node {self.url} answered pin/ls without a Keys object")
+        return sorted(cid_key(key) for key in keys)
 
     def ping(self) -> dict[str, str]:
         answer = self._json("version", {})

@@ -36,6 +36,7 @@ from .bundle import (
     MAX_MANIFEST_BYTES,
     MODEL_FILES,
     canonical_json,
+    check_model_card,
     model_files,
     read_bundle,
 )
@@ -210,6 +211,7 @@ def pull_model_with_key(
     when ``private_key`` is given, every other file from the store (SealedContent for a sealed
     file without a key that its owner has not published)."""
     files = model_files(store, cid)  # exactly the model files, each within its bound
+    check_model_card(store, cid, files)  # the card is never sealed
     sealed = sealed_envelopes(store, cid)
     out = Path(dest)
     out.mkdir(parents=True, exist_ok=True)

@@ -200,10 +200,8 @@ def check_safetensors(path: Path, ref: str) -> None:
 
 def check_card(path: Path, ref: str) -> dict[str, Any]:
     """The expert's card, if it is one this worker can rebuild a model from."""
-    from workers.mdrl.modelio import CARD_FORMAT, card_observation
-    from workers.mdrl.observations import ObservationSpec
-    from workers.mdrl.specfields import SpecError, check_object
-    from workers.mdrl.trainingspec import OBSERVATION_RULES, parse_env
+    from workers.mdrl.modelio import CARD_FORMAT, check_card_bounds
+    from workers.mdrl.specfields import SpecError
 
     try:
         card = json.loads(path.read_bytes())
@@ -216,15 +214,7 @@ def check_card(path: Path, ref: str) -> dict[str, Any]:
         # The task-spec bounds (grid, agents, window, ...): a card is as untrusted as a spec, and
         # an unbounded one (a 10^5 x 10^5 grid, a window of 10^4) would exhaust the worker's
         # memory when the expert's observer is built.
-        parse_env(card["env"], "env")
-        obs = card_observation(card)
-        embedding = obs.pop("walls_embedding", None)  # informative: the file holds the encoder
-        if embedding is not None and not (isinstance(embedding, str) and len(embedding) <= 600):
-            raise ValueError("observation.walls_embedding: expected a CAE reference or null")
-        check_object(obs, OBSERVATION_RULES, "observation")
-        ObservationSpec.from_dict({**obs, "walls_embedding": embedding})
-        if not isinstance(card["observation"]["actor_shape"], list):
-            raise TypeError("actor_shape must be a list")
+        check_card_bounds(card)
     except SpecError as exc:
         raise ExpertFetchError(ref, f"model.json: {exc} (bounds of a task spec)") from None
     except (KeyError, TypeError, ValueError, AttributeError, ArithmeticError) as exc:

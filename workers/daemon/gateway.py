@@ -6,6 +6,7 @@ and fetched again once when the gateway answers 401 (tokens are short-lived).
 
 from __future__ import annotations
 
+import json
 from typing import Any
 
 import httpx
@@ -16,7 +17,8 @@ API = "/api"
 
 
 class GatewayError(RuntimeError):
-    """A non-2xx answer; ``status`` and the gateway's ``detail`` (rule + msg, or field list)."""
+    """A non-2xx answer, or one that is not what the API answers (not JSON, a field missing);
+    ``status`` and the gateway's ``detail`` (rule + msg, or field list, or what was wrong)."""
 
     def __init__(self, method: str, path: str, status: int, detail: Any) -> None:
         self.status = status
@@ -73,14 +75,14 @@ class Gateway:
         """nonce -> personal_sign -> bearer token (valid for the gateway's token TTL)."""
         r = self._client.post(f"{API}/auth/nonce", json={"address": self.address})
         self._check("POST", "/auth/nonce", r)
-        message = r.json()["message"]
+        message = _field("POST", "/auth/nonce", r, "message")
         assert self.account is not None
         sig = self.account.sign_message(encode_defunct(text=message)).signature
         r = self._client.post(
             f"{API}/auth/token", json={"message": message, "signature": "0x" + bytes(sig).hex()}
         )
         self._check("POST", "/auth/token", r)
-        self._token = str(r.json()["access_token"])
+        self._token = _field("POST", "/auth/token", r, "access_token")
         return self._token
 
     def request(self, method: str, path: str, *, auth: bool = False, **kwargs: Any) -> Any:
@@ -99,7 +101,7 @@ class Gateway:
             if r.status_code == 204 or not r.content:
                 return None
             ctype = r.headers.get("content-type", "")
-            return r.json() if "json" in ctype else r.content
+            return _json(method, path, r) if "json" in ctype else r.content
         raise AssertionError("unreachable")
 
     def rpc(self, path: str, method: str, params: list[Any]) -> Any:
@@ -109,7 +111,9 @@ class Gateway:
             path, json={"jsonrpc": "2.0", "id": 1, "method": method, "params": params}
         )
         self._check("POST", path, r)
-        doc = r.json()
+        doc = _json("POST", path, r)
+        if not isinstance(doc, dict):
+            raise GatewayError("POST", f"{path} {method}", r.status_code, "not a JSON-RPC reply")
         if "error" in doc:
             raise GatewayError("POST", f"{path} {method}", r.status_code, doc["error"])
         return doc.get("result")
@@ -125,7 +129,27 @@ class Gateway:
         if r.is_success:
             return
         try:
-            detail = r.json().get("detail", r.text)
-        except ValueError:
-            detail = r.text
+            doc = json.loads(r.content)
+        except (ValueError, RecursionError):
+            doc = None
+        detail = doc.get("detail", r.text) if isinstance(doc, dict) else r.text[:500]
         raise GatewayError(method, path, r.status_code, detail)
+
+
+def _json(method: str, path: str, r: httpx.Response) -> Any:
+    """The JSON body of a 2xx answer; GatewayError when it is not JSON (a proxy's HTML page)."""
+    try:
+        return json.loads(r.content)
+    except (ValueError, RecursionError):
+        raise GatewayError(
+            method, path, r.status_code, f"answer is not JSON: {r.text[:200]!r}"
+        ) from None
+
+
+def _field(method: str, path: str, r: httpx.Response, key: str) -> str:
+    """The string field ``key`` of a JSON object answer; GatewayError when it has none."""
+    doc = _json(method, path, r)
+    value = doc.get(key) if isinstance(doc, dict) else None
+    if not isinstance(value, str):
+        raise GatewayError(method, path, r.status_code, f"answer has no {key!r} string")
+    return value

@@ -211,16 +211,22 @@ class OfferHandler:
         """A job in hand on disk that the chain no longer holds as accepted is finished:
         ``submitted`` if the chain has its outcome (killed after submitOutcome, before its
         record), else ``closed`` (task cancelled, closed or past its deadline); returns that
-        phase, or None while the chain still holds the job."""
+        phase, or None while the chain still holds the job. A job ``accepting`` whose offer is
+        still live (offered, not expired: killed before the acceptOffer transaction was sent)
+        is held too: handling it again accepts it."""
         with chain_call(f"reading the offer of task {task_id}"):
             offer = self.platform.tmc.offer(task_id, self.address)
             task = self.platform.tmc.task(task_id)
             now = self.platform.chain.now()
         state = offer["state"]
+        live = task["status"] == TaskStatus.OPEN and int(task["deadline"]) > now
+        if live and state == OfferState.ACCEPTED:
+            return None
         if (
-            state == OfferState.ACCEPTED
-            and task["status"] == TaskStatus.OPEN
-            and int(task["deadline"]) > now
+            live
+            and state == OfferState.OFFERED
+            and st.get("phase") == "accepting"
+            and int(offer.get("expiry", 0)) >= now
         ):
             return None
         if state in (OfferState.SUBMITTED, OfferState.REVIEWED) and st.get("cid"):
@@ -412,7 +418,8 @@ class OfferHandler:
         * ``reported``: failed jobs whose ``abandonOffer`` never reached the chain (the node was
           down when the job gave up) are given back now;
         * ``queued``: jobs in hand (accepting, accepted, trained, uploaded) that the chain still
-          holds as accepted go to ``enqueue(task_id, worker)`` again: their message may be gone
+          holds as accepted (or, for ``accepting``, still offers) go to
+          ``enqueue(task_id, worker)`` again: their message may be gone
           (a broker restarted without persistence). A duplicate is harmless: the handler is
           idempotent and the daemon's solo pool runs one job at a time. So does a job whose
           state.json was unreadable (set aside by ``_state``) when the chain holds it;
@@ -540,8 +547,11 @@ class OfferHandler:
             raw = self.store.get(cid, max_size=MAX_SPEC_BYTES)
         except StoreUnavailable as exc:
             raise Transient(f"cannot fetch task spec {cid}: {exc}") from exc
-        except StoreError as exc:  # bad CID, not found, mismatch, too large
+        except StoreError as exc:  # bad CID, not found, mismatch, too large, garbled answer
             return SpecError("spec", f"task spec {cid!r}: {exc}")
+        except Exception as exc:  # noqa: BLE001 - a store's own bug: the offer is still answered
+            log.exception("task %s: reading task spec %s failed", task_id, cid)
+            return SpecError("spec", f"task spec {cid!r}: {type(exc).__name__}: {exc}")
         try:
             return TrainingSpec.from_json(raw)
         except SpecError as exc:
@@ -550,8 +560,9 @@ class OfferHandler:
     def _train(self, task_id: int, spec: TrainingSpec, *, deadline: int) -> Path:
         """Fetch the job's models, then train until the spec's budget or DEADLINE_MARGIN_S
         before the deadline, whichever comes first (the fetches' time comes off the training
-        time, not off the margin). A start counts against MAX_STARTS_WITHOUT_PROGRESS only
-        once the fetches are done: a store outage is not a process dying."""
+        time, not off the margin). A start counts against MAX_STARTS_WITHOUT_PROGRESS before
+        the fetches (a process killed for memory while loading experts dies there too), and is
+        taken back when they fail for a store outage: that is not a process dying."""
         st = self._state(task_id)
         starts = _count(st, "starts_without_progress")
         if starts >= MAX_STARTS_WITHOUT_PROGRESS:
@@ -559,12 +570,16 @@ class OfferHandler:
                 f"training was started {starts} times and its process died each time before "
                 f"getting past step {st.get('resumed_from_step', 0)} (killed for memory?)"
             )
-        experts = self._fetch_experts(task_id, spec)
-        walls_cae = self._fetch_walls_cae(task_id, spec)
+        self._save(task_id, starts_without_progress=starts + 1)
+        try:
+            experts = self._fetch_experts(task_id, spec)
+            walls_cae = self._fetch_walls_cae(task_id, spec)
+        except Transient:
+            self._save(task_id, starts_without_progress=starts)
+            raise
         left_min = (deadline - self.clock() - DEADLINE_MARGIN_S) / 60.0
         if left_min <= 0:
             raise RuntimeError(f"task {task_id}: deadline {deadline} leaves no time to train")
-        self._save(task_id, starts_without_progress=starts + 1)
 
         def first(step: int) -> None:
             st = self._state(task_id)
@@ -647,8 +662,8 @@ class OfferHandler:
                     time.sleep(0.2)
                     continue
                 self._progress_warning(task_id, exc)  # 409 duplicate step, 422: drop it
-            except httpx.HTTPError as exc:
-                self._progress_warning(task_id, exc)
+            except Exception as exc:  # noqa: BLE001 - best effort: training goes on
+                self._progress_warning(task_id, exc)  # connection down, a point not JSON ...
                 return
             queue.pop(0)
 

@@ -26,6 +26,9 @@ from safetensors.torch import load_file, save_file
 
 from workers.mdrl.rollout import GreedySelector, PolicyHead, policy_step
 
+MAX_CARD_BYTES = 1 << 20
+"""Bound on a card read here (``backend.store.bundle.MAX_CARD_BYTES``, the bound wherever one
+is read; not imported: the core does not depend on the platform)."""
 CARD_FORMAT = "drlaas-model/1"
 WEIGHTS = "model.safetensors"
 CARD = "model.json"
@@ -151,15 +154,59 @@ def save_model(path: str | Path, agent: torch.nn.Module, env_spec: Any, obs_spec
     return path
 
 
+def model_file(path: str | Path, name: str) -> Path:
+    """``path/name``, a regular file and no symlink: a model directory fetched or unpacked from
+    elsewhere must not make a loader read (or a size bound check) another file of this host."""
+    file = Path(path) / name
+    if file.is_symlink():
+        raise ValueError(f"{file}: a symlink; a model directory holds its files themselves")
+    if not file.is_file():
+        raise FileNotFoundError(f"not a model directory {path}: no {name}")
+    return file
+
+
+def check_card_bounds(card: dict[str, Any], *, task_grid: bool = True) -> None:
+    """The task-spec bounds on a card's env and observation (grid, agents, window,
+    max_steps, idle_limit ...): a card is as untrusted as a spec, and an unbounded one (a
+    10^5 x 10^5 grid, episodes of 10^9 steps) exhausts memory or never ends an evaluation.
+    ``task_grid=False`` (a model on this machine, which may be trained on a long thin grid)
+    bounds the grid by EnvSpec's cell count instead of the task spec's side. SpecError (a
+    ValueError) names the field; TypeError/KeyError for a card of the wrong shape."""
+    from workers.mdrl.observations import ObservationSpec
+    from workers.mdrl.spec import EnvSpec
+    from workers.mdrl.specfields import check_object
+    from workers.mdrl.trainingspec import ENV_RULES, OBSERVATION_RULES, parse_env
+
+    env = card["env"]
+    if task_grid or not isinstance(env, dict):
+        parse_env(env, "env")
+    else:
+        side = ("rows", "cols")
+        check_object({k: v for k, v in env.items() if k not in side},
+                     {k: rule for k, rule in ENV_RULES.items() if k not in side}, "env")
+        EnvSpec.from_dict(env)
+    obs = card_observation(card)
+    embedding = obs.pop("walls_embedding", None)  # informative: the file holds the encoder
+    if embedding is not None and not (isinstance(embedding, str) and len(embedding) <= 600):
+        raise ValueError("observation.walls_embedding: expected a CAE reference or null")
+    check_object(obs, OBSERVATION_RULES, "observation")
+    ObservationSpec.from_dict({**obs, "walls_embedding": embedding})
+    if not isinstance(card["observation"].get("actor_shape"), list):
+        raise TypeError("observation.actor_shape must be a list")
+
+
 def load_card(path: str | Path) -> dict[str, Any]:
-    """Read and check `model.json` of a model directory."""
-    card_path = Path(path) / CARD
-    if not card_path.is_file():
-        raise FileNotFoundError(f"not a model directory {path}: no {CARD}")
+    """Read and check `model.json` of a model directory: at most MAX_CARD_BYTES, within the
+    task-spec bounds (``check_card_bounds``)."""
+    card_path = model_file(path, CARD)
+    with card_path.open("rb") as fh:
+        raw = fh.read(MAX_CARD_BYTES + 1)
+    if len(raw) > MAX_CARD_BYTES:
+        raise ValueError(f"{card_path}: more than {MAX_CARD_BYTES} bytes, not a model card")
     try:
-        card = json.loads(card_path.read_text())
-    except (UnicodeDecodeError, ValueError) as exc:  # JSONDecodeError is a ValueError
-        raise ValueError(f"{card_path}: not JSON ({exc})") from None
+        card = json.loads(raw)
+    except (ValueError, RecursionError) as exc:  # JSONDecodeError, UnicodeDecodeError
+        raise ValueError(f"{card_path}: not JSON ({type(exc).__name__}: {exc})") from None
     if not isinstance(card, dict):
         raise ValueError(f"{card_path}: a model card is a JSON object, got "
                          f"{type(card).__name__}")
@@ -172,6 +219,10 @@ def load_card(path: str | Path) -> dict[str, Any]:
         if not isinstance(card.get(section), dict):
             raise ValueError(f"{card_path}: the card has no {section!r} section (an object), "
                              f"got {card.get(section)!r}")
+    try:
+        check_card_bounds(card, task_grid=False)
+    except (KeyError, TypeError, ValueError, ArithmeticError) as exc:
+        raise ValueError(f"{card_path}: {exc} (bounds of a task spec)") from None
     return card
 
 
@@ -179,10 +230,7 @@ def load_weights(path: str | Path) -> dict[str, torch.Tensor]:
     """The tensors of a model directory's ``model.safetensors``; ValueError naming the model
     when the file is not readable safetensors or a weight is NaN or infinite (a diverged
     run's model acts on garbage)."""
-    path = Path(path)
-    file = path / WEIGHTS
-    if not file.is_file():
-        raise FileNotFoundError(f"not a model directory {path}: no {WEIGHTS}")
+    file = model_file(path, WEIGHTS)
     try:
         tensors = load_file(str(file))
     except SafetensorError as exc:

@@ -201,6 +201,9 @@ def _merge(base: dict[str, Any], changes: dict[str, Any], what: str) -> dict[str
 
 def preset_from_dict(doc: dict[str, Any], name: str = "custom") -> Preset:
     """Build a preset from a config document (sections env/observation/ppo/run, optional base)."""
+    if not isinstance(doc, dict):  # a file holding `[]` or `3` is JSON, not a config
+        raise ValueError(f"config must be a JSON/TOML object (a table of sections), got "
+                         f"{type(doc).__name__}")
     allowed = {"preset", "name", "description", "env", "observation", "ppo", "run",
                "experts"}
     unknown = sorted(set(doc) - allowed)
@@ -228,7 +231,10 @@ def load_config(path: str | Path) -> Preset:
     if not path.is_file():
         raise FileNotFoundError(f"config file not found: {path}")
     if path.suffix == ".json":
-        doc = json.loads(path.read_text())
+        try:
+            doc = json.loads(path.read_text())
+        except RecursionError:
+            raise ValueError(f"config {path}: JSON nested too deeply") from None
     elif path.suffix == ".toml":
         doc = tomllib.loads(path.read_text())
     else:
