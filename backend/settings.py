@@ -145,6 +145,12 @@ class Settings(BaseSettings):
     """Embedded demo chain: seconds between two faucet top-ups of one address."""
     faucet_per_minute: int = Field(default=30, ge=1, le=10_000)
     """Embedded demo chain: faucet top-ups per minute over all addresses."""
+    faucet_per_client_per_minute: int = Field(default=5, ge=1, le=10_000)
+    """Embedded demo chain: faucet top-ups per minute for one client (IP address), whatever
+    keys it signs in with, so one client cannot take the whole ``faucet_per_minute``."""
+    faucet_max_per_address: int = Field(default=3, ge=1, le=10_000)
+    """Embedded demo chain: top-ups one address may ever get (while the gateway runs); an
+    address that sends its gas money away does not qualify again and again."""
     rpc_gas_cap: int = Field(default=8_000_000, ge=100_000, le=2**40)
     """Embedded ``/rpc``: most gas one ``eth_call`` / ``eth_estimateGas`` execution may use
     (geth's ``RPCGasCap``; a larger ``gas`` is clamped to it)."""
@@ -167,6 +173,16 @@ class Settings(BaseSettings):
     """Requests the gateway works on at once; beyond that it answers 503 + Retry-After."""
     retry_after_s: int = Field(default=1, ge=1, le=3600)
     """Retry-After (seconds) sent with every load-shedding 503."""
+    max_downloads: int = Field(default=64, ge=1, le=10_000)
+    """Streamed downloads (``/models/.../download``) at once over all clients; beyond that
+    503 ``downloads_busy`` + Retry-After. A download holds no ``max_in_flight`` slot once its
+    response starts."""
+    max_downloads_per_client: int = Field(default=4, ge=1, le=1000)
+    """Streamed downloads at once for one client (IP address); beyond that 429
+    ``downloads_per_client`` + Retry-After."""
+    download_idle_timeout_s: float = Field(default=30.0, gt=0, le=3600)
+    """Seconds a download may wait on a client that reads nothing; then it is given up and
+    its connection closed."""
     db_pool_size: int = Field(default=8, ge=1, le=1000)
     """Database connections kept open (SQLite and PostgreSQL)."""
     db_max_overflow: int = Field(default=8, ge=0, le=1000)

@@ -223,6 +223,8 @@ def _start_services(
                 service,
                 interval_s=settings.faucet_interval_s,
                 per_minute=settings.faucet_per_minute,
+                per_client_per_minute=settings.faucet_per_client_per_minute,
+                max_per_address=settings.faucet_max_per_address,
             )
     indexer = Indexer(
         service,

@@ -3,8 +3,12 @@ with 503 + Retry-After instead of queueing until something times out (docs/platf
 "Overload").
 
 A pure ASGI middleware (no per-request task or thread): the counter lives on the event loop,
-where every ASGI call starts, so it needs no lock. A request counts until its response is
-fully sent, streaming downloads included.
+where every ASGI call starts, so it needs no lock. A request counts until its response starts
+(or until it returns, when it never starts one): the body that follows is only waiting on the
+client, and a client that reads slowly or not at all must not hold a slot meanwhile (a few
+stalled downloads would answer everyone else 503). Streamed downloads are bounded on their own:
+per client and overall, and cut when their client reads nothing for a while
+(``backend.api.routes.models``).
 """
 
 from __future__ import annotations
@@ -50,7 +54,20 @@ class LoadShedder:
             await send({"type": "http.response.body", "body": self._body})
             return
         self.in_flight += 1
+        held = True
+
+        def release() -> None:
+            nonlocal held
+            if held:
+                held = False
+                self.in_flight -= 1
+
+        async def send_releasing(message: dict[str, Any]) -> None:
+            if message["type"] == "http.response.start":
+                release()  # what remains is sending the body: the client's pace, not ours
+            await send(message)
+
         try:
-            await self.app(scope, receive, send)
+            await self.app(scope, receive, send_releasing)
         finally:
-            self.in_flight -= 1
+            release()

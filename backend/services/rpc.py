@@ -17,6 +17,7 @@ so standard clients such as Foundry's ``cast`` work unchanged.
 
 from __future__ import annotations
 
+import logging
 import threading
 from typing import Any
 
@@ -30,6 +31,8 @@ from backend.services.rpc_budget import GasBudget
 from backend.services.rpc_call import ExecutionFailed, OutOfGas, bounded_estimate, unpriced_call
 from backend.services.rpc_params import InvalidParams, is_unpriced, normalize
 from backend.services.rpc_results import fee_history, shape
+
+log = logging.getLogger(__name__)
 
 #: Served methods -> (fewest, most) parameters.
 METHODS: dict[str, tuple[int, int]] = {
@@ -189,7 +192,10 @@ class EmbeddedRpc:
                 return _error(
                     rid, EXECUTION_REVERTED, "execution reverted", "0x" + (data or b"").hex()
                 )
-            return _error(rid, INTERNAL_ERROR, f"{type(exc).__name__}: {exc}")
+            # anything else is our bug or eth-tester's: its text may quote internals (paths,
+            # state), so the client gets a generic answer and the log the details
+            log.exception("JSON-RPC %s from %s failed unexpectedly", method, client)
+            return _error(rid, INTERNAL_ERROR, "internal error")
         return {"jsonrpc": "2.0", "id": rid, "result": _quantities(result)}
 
     def _dispatch(

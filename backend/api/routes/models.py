@@ -11,13 +11,14 @@ set, the card's format, safetensors weights within bounds), as it checks a task'
 
 from __future__ import annotations
 
+import asyncio
 import json
 import logging
 from collections.abc import Iterator
 from typing import Annotated, Any, Literal
 
 from fastapi import APIRouter, Path, Query, Request, status
-from fastapi.responses import StreamingResponse
+from fastapi.responses import JSONResponse, StreamingResponse
 from sqlalchemy import func, or_, select
 
 from backend.api.bundles import BundleRefused, check_model_bundle
@@ -483,7 +484,10 @@ def _requests(session: SessionDep, model_id: int) -> list[ModelRequestPublic]:
 
 @router.get(
     "/{model_id}/download",
-    responses={200: {"content": {"application/octet-stream": {}}}, **rule_responses(404, 413, 502)},
+    responses={
+        200: {"content": {"application/octet-stream": {}}},
+        **rule_responses(404, 413, 429, 502, 503),
+    },
     response_class=StreamingResponse,
 )
 def download_model(
@@ -503,7 +507,7 @@ def download_model(
     "/outcomes/{task_id}/{worker}/download",
     responses={
         200: {"content": {"application/octet-stream": {}}},
-        **rule_responses(401, 403, 404, 413, 502),
+        **rule_responses(401, 403, 404, 413, 429, 502, 503),
     },
     response_class=StreamingResponse,
 )
@@ -538,10 +542,106 @@ def download_outcome(
     )
 
 
+class _DownloadStalled(Exception):
+    """The client read nothing of a download for ``download_idle_timeout_s``."""
+
+
+class _DownloadPool:
+    """Streamed downloads in progress, overall and per client address. Used on the event loop
+    only (a response's ``__call__``), so it needs no lock."""
+
+    def __init__(self) -> None:
+        self.total = 0
+        self.by_client: dict[str, int] = {}
+
+    def release(self, client: str) -> None:
+        self.total -= 1
+        left = self.by_client[client] - 1
+        if left:
+            self.by_client[client] = left
+        else:
+            del self.by_client[client]
+
+
+def _download_pool(app: Any) -> _DownloadPool:
+    pool = getattr(app.state, "download_pool", None)
+    if pool is None:
+        pool = app.state.download_pool = _DownloadPool()
+    return pool
+
+
+class _Download(StreamingResponse):
+    """A bundle file streamed to its client, within bounds that hold however slowly the client
+    reads: ``max_downloads_per_client`` at once per client address (429
+    ``downloads_per_client``), ``max_downloads`` at once overall (503 ``downloads_busy``), and
+    given up (connection closed) once the client has read nothing for
+    ``download_idle_timeout_s``. It holds no in-flight slot once it starts
+    (backend.api.shedding), so stalled downloads never answer other routes 503."""
+
+    def __init__(self, content: Iterator[bytes], *, settings: Any, what: str, **kw: Any) -> None:
+        super().__init__(content, **kw)
+        self.per_client = int(settings.max_downloads_per_client)
+        self.max_total = int(settings.max_downloads)
+        self.idle_s = float(settings.download_idle_timeout_s)
+        self.retry_after = int(settings.retry_after_s)
+        self.what = what
+
+    def _refusal(self, status_code: int, rule: str, msg: str) -> JSONResponse:
+        return JSONResponse(
+            status_code=status_code,
+            content={"detail": {"rule": rule, "msg": msg}},
+            headers={"Retry-After": str(self.retry_after)},
+        )
+
+    async def __call__(self, scope: Any, receive: Any, send: Any) -> None:
+        pool = _download_pool(scope["app"])
+        peer = scope.get("client")
+        client = str(peer[0]) if peer else "unknown"
+        if pool.by_client.get(client, 0) >= self.per_client:
+            await self._refusal(
+                429,
+                "downloads_per_client",
+                f"at most {self.per_client} downloads at once per client "
+                "(max_downloads_per_client); finish one first",
+            )(scope, receive, send)
+            return
+        if pool.total >= self.max_total:
+            await self._refusal(
+                503,
+                "downloads_busy",
+                f"the gateway is at its limit of {self.max_total} downloads at once "
+                f"(max_downloads); retry after {self.retry_after} s",
+            )(scope, receive, send)
+            return
+        pool.total += 1
+        pool.by_client[client] = pool.by_client.get(client, 0) + 1
+
+        async def send_or_give_up(message: Any) -> None:
+            try:  # a send waits while the client's buffers are full, i.e. it reads nothing
+                await asyncio.wait_for(send(message), self.idle_s)
+            except TimeoutError:
+                raise _DownloadStalled from None
+
+        try:
+            await super().__call__(scope, receive, send_or_give_up)
+        except _DownloadStalled:
+            # returning unfinished makes the server close the connection (nothing more sent)
+            log.warning(
+                "download of %s to %s given up: nothing read for %g s",
+                self.what,
+                client,
+                self.idle_s,
+            )
+        finally:
+            pool.release(client)
+
+
 def _stream_bundle_file(
     store: StoreDep, settings: SettingsDep, cid: str, file: str, what: str
 ) -> StreamingResponse:
-    """Stream ``file`` of bundle ``cid``; 404/413/502 naming the rule before any byte."""
+    """Stream ``file`` of bundle ``cid``; 404/413/502 naming the rule before any byte, 429
+    ``downloads_per_client`` / 503 ``downloads_busy`` past the download bounds
+    (:class:`_Download`)."""
     try:
         file_cid, size = bundle_entry(store, cid, file)
         sealed = file in sealed_envelopes(store, cid)
@@ -582,8 +682,10 @@ def _stream_bundle_file(
             raise CIDMismatch(file_cid, f"{sent} bytes", f"manifest says {size} bytes")
 
     media = "application/json" if file.endswith(".json") else "application/octet-stream"
-    return StreamingResponse(
+    return _Download(
         body(),
+        settings=settings,
+        what=f"{what}'s {file}",
         media_type=media,
         headers={
             "Content-Length": str(size),

@@ -159,12 +159,14 @@ class FaucetPublic(BaseModel):
 )
 def faucet(user: CurrentUser, request: Request) -> FaucetPublic:
     """Embedded demo chain only (development mode): top the caller up to pay gas, 10 ETH when
-    it holds less than 1 ETH. Rate-limited per address and overall (429 + Retry-After);
+    it holds less than 1 ETH. Rate-limited per address, per client IP and overall (429 +
+    Retry-After), a few top-ups per address in all;
     answers 404 ``faucet_disabled`` anywhere else."""
     service: Faucet | None = getattr(request.app.state, "faucet", None)
     if service is None:
         raise RuleError(404, "faucet_disabled", "the faucet exists only on the embedded demo chain")
-    done = service.top_up(user.address)  # FaucetLimited: a domain error, 429 + Retry-After
+    client = request.client.host if request.client else None
+    done = service.top_up(user.address, client)  # FaucetLimited: a domain error, 429 + Retry-After
     return FaucetPublic(
         address=done.address, balance_wei=str(done.balance_wei), tx_hash=done.tx_hash
     )
