@@ -3,6 +3,7 @@ deployed state after each test; a fresh data dir, SQLite database and embedded s
 
 from __future__ import annotations
 
+import contextlib
 import socket
 import threading
 import time
@@ -70,7 +71,13 @@ def _free_port() -> int:
 @pytest.fixture
 def gateway(settings: Settings, service: ChainService) -> Iterator[str]:
     """A real HTTP gateway (uvicorn in a thread) on the session chain; yields its base URL."""
-    app = create_app(settings, chain=service, indexer_interval=0.1)
+    with serving(create_app(settings, chain=service, indexer_interval=0.1)) as url:
+        yield url
+
+
+@contextlib.contextmanager
+def serving(app: Any) -> Iterator[str]:
+    """Serve ``app`` with uvicorn in a thread on a free loopback port; yields its base URL."""
     port = _free_port()
     server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning"))
     thread = threading.Thread(target=server.run, daemon=True)

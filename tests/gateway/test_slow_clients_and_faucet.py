@@ -17,7 +17,6 @@ from __future__ import annotations
 import json
 import logging
 import socket
-import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -26,7 +25,6 @@ from typing import Any
 import httpx
 import numpy as np
 import pytest
-import uvicorn
 from eth_account import Account
 from fastapi import FastAPI
 from safetensors.numpy import save as save_safetensors
@@ -41,7 +39,7 @@ from backend.services.specs import validate_env
 from backend.settings import Settings
 from backend.store.bundle import add_bundle, canonical_json
 
-from .conftest import P, _free_port, register
+from .conftest import P, register, serving
 from .test_faucet import URL as FAUCET_URL
 from .test_faucet import make_client, sign_in, spend
 from .test_overload import run_in_fresh_loop
@@ -65,19 +63,8 @@ def served(tmp_path: Path, service: ChainService) -> Iterator[tuple[str, FastAPI
         download_idle_timeout_s=IDLE_S,
     )
     app = create_app(settings, chain=service, indexer_interval=0.1)
-    port = _free_port()
-    server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning"))
-    thread = threading.Thread(target=server.run, daemon=True)
-    thread.start()
-    deadline = time.monotonic() + 20
-    while not server.started:
-        assert time.monotonic() < deadline, "gateway did not start"
-        time.sleep(0.05)
-    try:
-        yield f"http://127.0.0.1:{port}", app
-    finally:
-        server.should_exit = True
-        thread.join(10)
+    with serving(app) as url:
+        yield url, app
 
 
 def _list_big_model(base: str, app: FastAPI, service: ChainService) -> tuple[int, int]:
