@@ -264,6 +264,7 @@ class TasksManager(ContractHandle):
             "settled",
             "offer_count",
             "deadline",
+            "taken",
         )
         keys_r = ("domain", "min_reputation", "min_rating", "min_cpu_cores", "min_ram_gb", "reward")
         out = dict(zip(keys_t, t, strict=True)) | dict(zip(keys_r, r, strict=True))

@@ -51,11 +51,14 @@ Precision (fixed vs float, in [0, 1] units; checked by tests/contracts/test_qos_
 Decisions where the thesis is vague (also in the issue report)
 ------------------------------------------------------------------
 1. Counters are kept per (domain, task type) -- :class:`Counters`: ``assigned`` (A, offers
-   made to the worker, including offers that later expired or were declined), ``accepted``
-   (Ac, offers accepted within the acceptance window), ``completed`` (E, outcomes submitted
-   before the deadline; also N in Eq. 16), ``rating_sum`` / ``rating_count`` (requester
-   reviews). For model sharing "assigned" is a model allocation offered to the owner,
-   "accepted" the owner accepting to share, "completed" the model delivered.
+   made to the worker, including offers that later expired or were declined, except those of
+   a task no worker ever accepted, which are taken back when it ends), ``accepted`` (Ac,
+   offers accepted within the acceptance window), ``completed`` (E, outcomes submitted before
+   the deadline and then accepted, or paid unreviewed at close; also N in Eq. 16),
+   ``rating_sum`` / ``rating_count`` (requester reviews; an accepted offer without outcome at
+   close is rated 0); docs/chain.md, "Offers that count". For model sharing "assigned" is a
+   model allocation offered to the owner, "accepted" the owner accepting to share,
+   "completed" the model delivered.
 2. Reviews are integers in [0, REVIEW_MAX] (REVIEW_MAX = 5 stars); the rating is their mean
    divided by REVIEW_MAX, i.e. in [0, 1].
 3. New users start at 0.5: reputation is ONE/2 while ``assigned == 0`` and rating is ONE/2

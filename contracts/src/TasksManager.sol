@@ -82,6 +82,7 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
     uint8 internal constant ACCEPTED = 2;
     uint8 internal constant COMPLETED = 4;
     uint8 internal constant REVIEWED = 8;
+    uint8 internal constant WITHDRAWN = 16;
     uint256 public constant MAX_WORKERS = 16; // NW fits uint8 and keeps the top-k array tiny
     uint256 public constant MAX_OFFERS = 64; // bounds the per-task offer loops
     uint256 internal constant ELIGIBLE = 1 << 255;
@@ -118,6 +119,7 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
         uint8 settled; // slots paid or refunded
         uint8 offerCount; // offers ever made (<= MAX_OFFERS)
         uint40 deadline;
+        bool taken; // a worker accepted an offer of this task at some point
     }
 
     /// One slot: the requirements of 7.5.1 and the reward per worker.
@@ -362,7 +364,7 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
         if (reward < minimum) revert TasksRewardBelowMinimum(reward, minimum);
         taskId = ++taskCount;
         uint40 deadline = uint40(block.timestamp) + p.duration;
-        _tasks[taskId] = Task(msg.sender, TaskStatus.Open, p.numWorkers, 0, 0, 0, 0, deadline);
+        _tasks[taskId] = Task(msg.sender, TaskStatus.Open, p.numWorkers, 0, 0, 0, 0, deadline, false);
         _reqs[taskId] =
             Reqs(p.domain, p.minReputation, p.minRating, p.minCpuCores, p.minRamGb, uint96(reward));
         _domainTasks[p.domain].push(taskId);
@@ -431,8 +433,9 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
 
     /**
      * @dev The requester reviews a submitted outcome once: `review` in [0, 5] feeds the
-     * worker's rating; `accepted` releases the slot's reward to the worker, otherwise it is
-     * refunded. Requirements: caller is the task's requester; the worker's outcome is
+     * worker's rating; `accepted` releases the slot's reward to the worker and counts the
+     * task as completed (E of Eq. 18, N of Eq. 16), otherwise the reward is refunded and the
+     * task does not count as completed. Requirements: caller is the task's requester; the worker's outcome is
      * submitted and not yet reviewed; now <= deadline + reviewWindow (afterwards the outcome
      * is the worker's: paid at close); review <= 5.
      * Emits {OutcomeReviewed}, {PaymentCredited} and, on the last slot, {TaskStatusUpdated}.
@@ -455,21 +458,24 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
             t.status = TaskStatus.Completed;
             emit TaskStatusUpdated(taskId, TaskStatus.Completed);
         }
-        umc.updateInfo(worker, r.domain, TRAINING, REVIEWED, review);
+        // a rejected outcome is rated but not completed (E of Eq. 18, N of Eq. 16)
+        umc.updateInfo(worker, r.domain, TRAINING, accepted ? COMPLETED | REVIEWED : REVIEWED, review);
         emit OutcomeReviewed(taskId, worker, review, accepted);
     }
 
     /**
      * @dev Task status changes (thesis updateTaskStatus):
      * - Cancelled: by the requester while open, before any worker accepted and with no offer
-     *   inside its acceptance window (an offered worker keeps its chance to accept: its
-     *   offer already counts in A of Eq. 17); offers past their window expire with it
+     *   inside its acceptance window (an offered worker keeps its chance to accept);
+     *   offers past their window expire with it
      *   ({OfferExpired} each, as at close); refunds all. With workers holding slots, use
      *   {cancelOpenSlots} to refund the rest.
      * - Closed: after the deadline, by the requester, an admin or any worker offered the
-     *   task. Outcomes submitted but not reviewed are paid (if the review window is over;
-     *   otherwise the call reverts), accepted offers without outcome become Failed, pending
-     *   offers Expired, and the unsettled slots are refunded to the requester.
+     *   task. Outcomes submitted but not reviewed are paid and count as completed (if the
+     *   review window is over; otherwise the call reverts), accepted offers without outcome
+     *   become Failed and are rated 0, pending offers Expired, and the unsettled slots are
+     *   refunded to the requester.
+     * - Either way, a task no worker ever accepted takes its offers back from A of Eq. 17.
      * Emits {TaskStatusUpdated}, {PaymentCredited} and per-offer events.
      */
     function updateTaskStatus(uint256 taskId, TaskStatus status) external {
@@ -485,6 +491,7 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
                 if (live != 0) revert TasksHasLiveOffers(taskId);
                 t.liveOffers = 0;
             }
+            if (!t.taken) _withdrawOffers(taskId);
         } else if (status == TaskStatus.Closed) {
             if (
                 t.requester != msg.sender && _offers[taskId][msg.sender].state == OfferState.None
@@ -525,6 +532,7 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
         t.liveOffers = uint8(live);
         emit SlotsCancelled(taskId, uint8(cancelled), left);
         _credit(t.requester, taskId, cancelled * _reqs[taskId].reward);
+        if (left == 0 && !t.taken) _withdrawOffers(taskId);
         if (left == 0 || t.settled == left) {
             TaskStatus s = left == 0 ? TaskStatus.Cancelled : TaskStatus.Completed;
             t.status = s;
@@ -548,6 +556,7 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
         o.state = OfferState.Accepted;
         t.liveOffers -= 1;
         t.filled += 1;
+        t.taken = true;
         umc.updateInfo(msg.sender, _reqs[taskId].domain, TRAINING, ACCEPTED, 0);
         emit OfferAccepted(taskId, msg.sender);
     }
@@ -588,8 +597,9 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
     }
 
     /**
-     * @dev An assigned worker submits the outcome's IPFS CID before the deadline; this
-     * counts as a completed task (E of Eq. 18, N of Eq. 16). The CID is recorded as this
+     * @dev An assigned worker submits the outcome's IPFS CID before the deadline. It counts
+     * as a completed task (E of Eq. 18, N of Eq. 16) only once accepted ({reviewOutcome}) or
+     * paid at close unreviewed: a rejected outcome is not a completed task. The CID is recorded as this
      * worker's outcome of this task ({outcomeOf}); a CID is an outcome once on this chain,
      * so no worker can hand in a model already submitted (by itself or anyone else) for
      * another task or slot, nor one already listed on the MMC ({setModels}): a shared model
@@ -618,7 +628,6 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
         delete cidCommits[commitment];
         (rec.worker, rec.taskId) = (msg.sender, uint64(taskId));
         o.state = OfferState.Submitted;
-        umc.updateInfo(msg.sender, _reqs[taskId].domain, TRAINING, COMPLETED, 0);
         emit OutcomeSubmitted(taskId, msg.sender, cid);
     }
 
@@ -780,12 +789,15 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
         }
     }
 
-    /// @dev At close: pay unreviewed outcomes (after the review window), fail or expire the
-    /// rest. Bounded by MAX_OFFERS.
+    /// @dev At close: pay unreviewed outcomes (after the review window; they count as
+    /// completed), fail the accepted offers without outcome (rated 0: holding a slot to the
+    /// deadline costs more than declining or {abandonOffer}), expire the rest; with no worker
+    /// ever accepting, take every offer back from A of Eq. 17. Bounded by MAX_OFFERS.
     function _settleOffers(uint256 taskId, Task storage t) internal {
         address[] storage list = _offerees[taskId];
         uint256 m = list.length;
         uint256 reward = _reqs[taskId].reward;
+        uint32 domain = _reqs[taskId].domain;
         uint256 reviewEnd = uint256(t.deadline) + reviewWindow;
         for (uint256 j; j < m; ++j) {
             address a = list[j];
@@ -797,9 +809,11 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
                 o.paid = true;
                 t.settled += 1;
                 _credit(a, taskId, reward);
+                umc.updateInfo(a, domain, TRAINING, COMPLETED, 0);
                 emit OutcomeReviewed(taskId, a, 0, true);
             } else if (s == OfferState.Accepted) {
                 o.state = OfferState.Failed;
+                umc.updateInfo(a, domain, TRAINING, REVIEWED, 0);
                 emit OfferFailed(taskId, a);
             } else if (s == OfferState.Offered) {
                 o.state = OfferState.Expired;
@@ -807,6 +821,21 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
             }
         }
         t.liveOffers = 0;
+        if (!t.taken) _withdrawOffers(taskId);
+    }
+
+    /// @dev The end of a task no worker ever accepted (cancelled, or closed at the deadline):
+    /// all its offers were declined or expired, and each is taken back from A of Eq. 17. A
+    /// requester's offers then cost the workers it offered nothing unless the task found a
+    /// worker, so offers made only to be refused cannot lower anyone's reputation
+    /// (docs/chain.md, "Offers that count"). Bounded by MAX_OFFERS.
+    function _withdrawOffers(uint256 taskId) internal {
+        address[] storage list = _offerees[taskId];
+        uint256 m = list.length;
+        uint32 domain = _reqs[taskId].domain;
+        for (uint256 j; j < m; ++j) {
+            umc.updateInfo(list[j], domain, TRAINING, WITHDRAWN, 0);
+        }
     }
 
     function _credit(address account, uint256 taskId, uint256 amount) internal {

@@ -57,6 +57,9 @@ contract UsersManager {
     uint8 public constant ACCEPTED = 2;
     uint8 public constant COMPLETED = 4;
     uint8 public constant REVIEWED = 8;
+    /// On its own, not combined: one assignment is taken back (its task ended before any
+    /// worker accepted it, so its unanswered offers do not count in A of Eq. 17).
+    uint8 public constant WITHDRAWN = 16;
 
     uint256 internal constant REVIEW_MAX = 5;
     uint256 internal constant MEMBER_BIT = 1 << 255;
@@ -173,6 +176,9 @@ contract UsersManager {
     mapping(uint256 => uint256) internal _links;
     /// Active queue ends per domain: head | tail << 32 | length << 64.
     mapping(uint256 => uint256) internal _queues;
+    /// Workers Pending again after a change of capabilities made while Idle: their
+    /// re-approval restores Idle, not Active (a worker that chose to pause stays paused).
+    mapping(uint32 => bool) internal _idleOnApproval;
 
     modifier onlyAdmin() {
         _checkAdmin();
@@ -236,17 +242,24 @@ contract UsersManager {
 
     /**
      * @dev Approves a Pending worker: it becomes Active and joins the tail of each of its
-     * domains' queues. Requirements: caller is an admin; `worker` is Pending.
-     * Emits {WorkerApproved} and {WorkerStatusUpdated} events.
+     * domains' queues, or, if it was Idle when its capabilities changed, Idle again (out of
+     * the queues until it sets itself Active). Requirements: caller is an admin; `worker` is
+     * Pending. Emits {WorkerApproved} and {WorkerStatusUpdated} events.
      */
     function approveWorker(address worker) external onlyAdmin {
         uint32 id = _workerIdOf(worker);
         Worker storage w = _workers[id];
         if (w.status != Status.Pending) revert UsersNotPending(worker, w.status);
-        w.status = Status.Active;
-        _join(id, w.domains);
+        Status next = Status.Active;
+        if (_idleOnApproval[id]) {
+            delete _idleOnApproval[id];
+            next = Status.Idle;
+        } else {
+            _join(id, w.domains);
+        }
+        w.status = next;
         emit WorkerApproved(worker, msg.sender);
-        emit WorkerStatusUpdated(worker, Status.Active);
+        emit WorkerStatusUpdated(worker, next);
     }
 
     /**
@@ -374,7 +387,7 @@ contract UsersManager {
      * @dev A worker updates its computational capabilities (Comp. Capabilities, Table 7.2).
      * While {approvalRequired} is on, an approved (Active or Idle) worker whose capabilities
      * change is Pending again, out of its domains' queues, until an admin re-approves it
-     * ({approveWorker}, which makes it Active): capabilities rank workers (Eq. 20), so an
+     * ({approveWorker}, which restores Active or Idle): capabilities rank workers (Eq. 20), so an
      * approval covers the ones declared. Unchanged values change nothing. A Pending worker
      * cannot change them while approval is required: the admin approves the values it
      * reviewed, not ones swapped in before the approval is mined. A removed worker cannot.
@@ -394,6 +407,7 @@ contract UsersManager {
         emit WorkerCapabilitiesUpdated(msg.sender, cpuCores, ramGb, gpuSeries);
         if (changed && approvalRequired && (old == Status.Active || old == Status.Idle)) {
             if (old == Status.Active) _leave(id, w.domains);
+            else _idleOnApproval[id] = true;
             w.status = Status.Pending;
             emit WorkerStatusUpdated(msg.sender, Status.Pending);
         }
@@ -401,7 +415,8 @@ contract UsersManager {
 
     /**
      * @dev Performance details after a platform event (thesis updateInfo): increments the
-     * counters selected by `flags` (ASSIGNED, ACCEPTED, COMPLETED, REVIEWED with `review`).
+     * counters selected by `flags` (ASSIGNED, ACCEPTED, COMPLETED, REVIEWED with `review`), or
+     * with `flags` == WITHDRAWN alone takes one assignment back (assigned - 1).
      * Requirements: caller is a platform contract (TMC, MMC); `worker` is a worker; taskType
      * TRAINING or SHARING; review <= 5; completed <= accepted <= assigned afterwards.
      * Emits a {WorkerInfoUpdated} event with the new counters.
@@ -647,8 +662,13 @@ contract UsersManager {
         internal
     {
         if (taskType > SHARING) revert UsersBadTaskType(taskType);
-        if (flags == 0 || flags > 15) revert UsersBadFlags(flags);
+        if (flags == 0 || (flags > 15 && flags != WITHDRAWN)) revert UsersBadFlags(flags);
         Counters memory c = _counters[_key(id, domain, taskType)];
+        if (flags == WITHDRAWN) {
+            // only an assignment never accepted can be taken back (assigned > accepted)
+            if (c.assigned == c.accepted) revert UsersCountersInconsistent(worker, domain, taskType);
+            --c.assigned;
+        }
         unchecked {
             // uint48 counters: 2.8e14 events per worker before wrapping.
             if (flags & ASSIGNED != 0) ++c.assigned;

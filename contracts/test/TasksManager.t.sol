@@ -322,7 +322,7 @@ contract TasksManagerFuzzTest is Fixture {
         (address who, uint256 task,) = tmc.outcomeOf(keccak256(bytes(cid)));
         vm.assertEq(who, w, "provenance worker");
         vm.assertEq(task, id, "provenance task");
-        vm.assertEq(umc.counters(w, DOMAIN, 0).completed, 1, "completed counted");
+        vm.assertEq(umc.counters(w, DOMAIN, 0).completed, 0, "completed only once accepted");
         // the same CID for another slot is refused
         (uint256 id2, address w2) = _accepted(1e9);
         _commit(w2, cid);
@@ -476,6 +476,9 @@ contract TasksManagerFuzzTest is Fixture {
         (TasksManager.Task memory t,) = tmc.getTask(id);
         vm.assertEq(uint256(t.status), uint256(TasksManager.TaskStatus.Completed), "completed");
         vm.assertEq(umc.counters(w, DOMAIN, 0).ratingSum, r, "rating");
+        vm.assertEq(umc.counters(w, DOMAIN, 0).ratingCount, 1, "rated either way");
+        // a rejected outcome is no completed task (E of Eq. 18, N of Eq. 16)
+        vm.assertEq(umc.counters(w, DOMAIN, 0).completed, accepted ? 1 : 0, "completed only if accepted");
         vm.expectRevert(abi.encodeWithSelector(TasksManager.TasksNotSubmitted.selector, id, w));
         vm.prank(requester);
         tmc.reviewOutcome(id, w, r, accepted);
@@ -552,6 +555,7 @@ contract TasksManagerFuzzTest is Fixture {
             vm.assertEq(
                 uint256(tmc.getOffer(id, offered[i]).state), uint256(TasksManager.OfferState.Expired), "expired"
             );
+            vm.assertEq(umc.counters(offered[i], DOMAIN, 0).assigned, 0, "offer taken back");
         }
     }
 
@@ -588,6 +592,83 @@ contract TasksManagerFuzzTest is Fixture {
         vm.assertEq(tmc.credits(requester), 2 * reward, "other slots refunded");
         vm.assertEq(uint256(tmc.getOffer(id, offered[1]).state), uint256(TasksManager.OfferState.Failed), "failed");
         vm.assertEq(uint256(tmc.getOffer(id, offered[2]).state), uint256(TasksManager.OfferState.Expired), "expired");
+        // paid unreviewed: completed, not rated; held to the deadline: rated 0, not completed;
+        // the expired offer of a task that found workers still counts as assigned
+        _assertCounters(offered[0], 1, 1, 1, 0);
+        _assertCounters(offered[1], 1, 1, 0, 1);
+        _assertCounters(offered[2], 1, 0, 0, 0);
+        vm.assertEq(umc.counters(offered[1], DOMAIN, 0).ratingSum, 0, "rated 0");
+    }
+
+    function _assertCounters(address w, uint256 assigned, uint256 accepted, uint256 completed, uint256 rated)
+        internal
+        view
+    {
+        vm.assertEq(umc.counters(w, DOMAIN, 0).assigned, assigned, "assigned");
+        vm.assertEq(umc.counters(w, DOMAIN, 0).accepted, accepted, "accepted");
+        vm.assertEq(umc.counters(w, DOMAIN, 0).completed, completed, "completed");
+        vm.assertEq(umc.counters(w, DOMAIN, 0).ratingCount, rated, "rating count");
+    }
+
+    /// @dev The audit's attack: a requester makes offers only to have them refused (declined,
+    /// or left to expire), then cancels or lets the tasks run out and closes them. With no
+    /// worker ever accepting, every offer is taken back: the victims' counters, hence their
+    /// reputations, end where they started, whichever way each task ends.
+    function testFuzz_offersOfUntakenTasksAreWithdrawn(uint8 n, uint256 seed) public {
+        uint256 tasks = _bound(n, 1, 6);
+        address victim;
+        uint256[] memory ids = new uint256[](tasks);
+        for (uint256 i; i < tasks; ++i) {
+            address[] memory offered;
+            (ids[i], offered) = _allocated(uint8(1 + (seed >> i) % 3), 1e9);
+            victim = offered[0];
+            if ((seed >> (8 + i)) & 1 == 1) {
+                for (uint256 j; j < offered.length; ++j) {
+                    vm.prank(offered[j]);
+                    tmc.declineOffer(ids[i]);
+                }
+            }
+        }
+        vm.assertTrue(umc.counters(victim, DOMAIN, 0).assigned > 0, "offers count while live");
+        vm.warp(block.timestamp + ACCEPT_WINDOW + 1);
+        for (uint256 i; i < tasks; ++i) {
+            uint256 how = (seed >> (16 + 2 * i)) % 3;
+            vm.startPrank(requester);
+            if (how == 0) tmc.updateTaskStatus(ids[i], TasksManager.TaskStatus.Cancelled);
+            else if (how == 1) tmc.cancelOpenSlots(ids[i]);
+            vm.stopPrank();
+        }
+        (TasksManager.Task memory last,) = tmc.getTask(ids[tasks - 1]);
+        vm.warp(uint256(last.deadline) + 1);
+        for (uint256 i; i < tasks; ++i) {
+            (TasksManager.Task memory t,) = tmc.getTask(ids[i]);
+            vm.assertFalse(t.taken, "never taken");
+            if (t.status != TasksManager.TaskStatus.Open) continue;
+            vm.prank(requester);
+            tmc.updateTaskStatus(ids[i], TasksManager.TaskStatus.Closed);
+        }
+        for (uint256 k; k < workers.length; ++k) _assertCounters(workers[k], 0, 0, 0, 0);
+        vm.assertTrue(tmc.credits(requester) > 0, "escrow refunded");
+    }
+
+    /// @dev A task that found a worker keeps every offer it made in A of Eq. 17, also when
+    /// that worker gave the slot back ({abandonOffer}) before the requester cancelled.
+    function testFuzz_offersOfTakenTasksCount(bool viaSlots) public {
+        (uint256 id, address[] memory offered) = _allocated(2, 1e9);
+        vm.prank(offered[1]);
+        tmc.declineOffer(id);
+        vm.prank(offered[0]);
+        tmc.acceptOffer(id);
+        vm.prank(offered[0]);
+        tmc.abandonOffer(id);
+        vm.prank(requester);
+        if (viaSlots) tmc.cancelOpenSlots(id);
+        else tmc.updateTaskStatus(id, TasksManager.TaskStatus.Cancelled);
+        (TasksManager.Task memory t,) = tmc.getTask(id);
+        vm.assertEq(uint256(t.status), uint256(TasksManager.TaskStatus.Cancelled), "cancelled");
+        vm.assertTrue(t.taken, "taken once");
+        _assertCounters(offered[0], 1, 1, 0, 0); // gave it back: no rating, not completed
+        _assertCounters(offered[1], 1, 0, 0, 0); // declined a task that found a worker
     }
 
     // ------------------------------------------------------------------ cancelOpenSlots

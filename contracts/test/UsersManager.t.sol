@@ -400,9 +400,25 @@ contract UsersManagerFuzzTest is Fixture {
         vm.assertEq(uint8(rec.status), uint8(want), "status");
         vm.assertEq(umc.queueLength(DOMAIN), want == UsersManager.Status.Active ? 1 : 0, "queue");
         if (want == UsersManager.Status.Pending) {
+            // re-approval restores the status the worker chose: Active (a candidate again)
+            // or Idle (paused, out of the queue until it sets itself Active)
+            vm.expectEmit(address(umc));
+            emit UsersManager.WorkerStatusUpdated(w, before);
             vm.prank(admin);
             umc.approveWorker(w);
-            vm.assertEq(umc.queueLength(DOMAIN), 1, "re-approved: a candidate again");
+            vm.assertEq(uint8(umc.getWorker(w).status), uint8(before), "re-approved as before");
+            vm.assertEq(umc.queueLength(DOMAIN), idle ? 0 : 1, "a candidate again only if Active");
+            if (idle) {
+                vm.prank(w);
+                umc.updateStatus(UsersManager.Status.Active);
+                vm.assertEq(umc.queueLength(DOMAIN), 1, "its own choice to come back");
+                // the next change while Active is re-approved as Active: nothing left over
+                vm.prank(w);
+                umc.updateCapabilities(cores == 0 ? 1 : cores - 1, ram, gpu);
+                vm.prank(admin);
+                umc.approveWorker(w);
+                vm.assertEq(uint8(umc.getWorker(w).status), uint8(UsersManager.Status.Active), "active");
+            }
         }
         vm.expectRevert(abi.encodeWithSelector(UsersManager.UsersNotWorker.selector, other));
         vm.prank(other);
@@ -479,7 +495,7 @@ contract UsersManagerFuzzTest is Fixture {
         uint8 badType = uint8(_bound(taskType, 2, 255));
         vm.expectRevert(abi.encodeWithSelector(UsersManager.UsersBadTaskType.selector, badType));
         umc.updateInfo(w, DOMAIN, badType, 1, 0);
-        uint8 badFlags = flags > 15 ? flags : 0;
+        uint8 badFlags = flags > 15 && flags != umc.WITHDRAWN() ? flags : 0; // WITHDRAWN alone is valid
         vm.expectRevert(abi.encodeWithSelector(UsersManager.UsersBadFlags.selector, badFlags));
         umc.updateInfo(w, DOMAIN, 0, badFlags, 0);
         uint8 badReview = uint8(_bound(review, 6, 255));
@@ -489,6 +505,33 @@ contract UsersManagerFuzzTest is Fixture {
         vm.expectRevert(abi.encodeWithSelector(UsersManager.UsersCountersInconsistent.selector, w, DOMAIN, 0));
         umc.updateInfo(w, DOMAIN, 0, 4, 0);
         vm.stopPrank();
+    }
+
+    /// WITHDRAWN takes back one assignment never accepted, and only that: not combined with
+    /// another flag, not below the accepted count.
+    function testFuzz_updateInfo_withdrawn(uint8 assigned, uint8 accepted) public {
+        address w = _actor("worker");
+        _worker(w, 1 << DOMAIN, 8);
+        uint8 withdrawn = umc.WITHDRAWN();
+        uint256 a = _bound(assigned, 0, 6);
+        uint256 ac = _bound(accepted, 0, a);
+        vm.startPrank(address(tmc));
+        for (uint256 i; i < a; ++i) umc.updateInfo(w, DOMAIN, 0, i < ac ? 1 | 2 : 1, 0);
+        for (uint256 f = withdrawn + 1; f < withdrawn + 16; ++f) {
+            vm.expectRevert(abi.encodeWithSelector(UsersManager.UsersBadFlags.selector, uint8(f)));
+            umc.updateInfo(w, DOMAIN, 0, uint8(f), 0);
+        }
+        for (uint256 left = a; left > ac; --left) {
+            vm.expectEmit(true, true, true, true, address(umc));
+            emit UsersManager.WorkerInfoUpdated(w, DOMAIN, 0, uint48(left - 1), uint48(ac), 0, 0, 0);
+            umc.updateInfo(w, DOMAIN, 0, withdrawn, 0);
+        }
+        // every assignment left was accepted: none can be taken back
+        vm.expectRevert(abi.encodeWithSelector(UsersManager.UsersCountersInconsistent.selector, w, DOMAIN, 0));
+        umc.updateInfo(w, DOMAIN, 0, withdrawn, 0);
+        vm.stopPrank();
+        vm.assertEq(umc.counters(w, DOMAIN, 0).assigned, ac, "assigned down to accepted");
+        vm.assertEq(umc.counters(w, DOMAIN, 0).accepted, ac, "accepted untouched");
     }
 
     // ------------------------------------------------------------------ updateInfoBatch
@@ -534,7 +577,7 @@ contract UsersManagerFuzzTest is Fixture {
         (two[0], two[1]) = (ids[0], bad);
         vm.expectRevert(abi.encodeWithSelector(UsersManager.UsersNotWorkerId.selector, bad));
         umc.updateInfoBatch(two, DOMAIN, 0, 1, 0);
-        uint8 badFlags = flags > 15 ? flags : 0;
+        uint8 badFlags = flags > 15 && flags != umc.WITHDRAWN() ? flags : 0; // WITHDRAWN alone is valid
         vm.expectRevert(abi.encodeWithSelector(UsersManager.UsersBadFlags.selector, badFlags));
         umc.updateInfoBatch(ids, DOMAIN, 0, badFlags, 0);
         vm.stopPrank();

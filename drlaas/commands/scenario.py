@@ -175,15 +175,7 @@ def run_scenario(
         f"{report['seconds_to_outcome']:.1f} s and {report['progress_points']} progress points"
     )
 
-    write(
-        req1, "POST", f"/tasks/{task_id}/reviews", {"worker": worker, "review": 5, "accepted": True}
-    )
-    after = wait_for(
-        "the worker's reputation to change",
-        lambda: anon.get(f"/workers/{worker}"),
-        lambda w: w.get("reputation") != rep_before.get(worker),
-        timeout=30,
-    )
+    after = _accept_outcome(req1, anon, task_id, worker, review=5)
     report.update(reputation_before=rep_before.get(worker), reputation_after=after["reputation"])
     say(f"review 5/5: reputation of {worker} {rep_before.get(worker)} -> {after['reputation']}")
 
@@ -244,6 +236,24 @@ def detail_updates(card: dict[str, Any]) -> Any:
     return (card.get("curve") or {}).get("updates", "?")
 
 
+def _accept_outcome(
+    req: Gateway, anon: Gateway, task_id: int, worker: str, *, review: int
+) -> dict[str, Any]:
+    """The requester accepts ``worker``'s outcome of ``task_id`` with ``review`` stars; the
+    worker as the index shows it once the review is in. The accepted review is what counts
+    the task as completed (E of Eq. 18), so this waits for the review in the counters, not for
+    any change of reputation (the offer alone moved it already)."""
+    rated = anon.get(f"/workers/{worker}")["counters"]["rating_count"]
+    write(req, "POST", f"/tasks/{task_id}/reviews",
+          {"worker": worker, "review": review, "accepted": True})
+    return wait_for(
+        "the review in the worker's counters",
+        lambda: anon.get(f"/workers/{worker}"),
+        lambda w: w["counters"]["rating_count"] > rated,
+        timeout=30,
+    )
+
+
 def _medc_task(
     req: Gateway,
     anon: Gateway,
@@ -254,7 +264,8 @@ def _medc_task(
     say: Callable[[str], None],
 ) -> dict[str, Any]:
     """Train a task guided by the allocation's models (MEDC), read which experts the outcome's
-    card says were used, and review the expert (MMC updateModelRep, Eq. 10-11)."""
+    card says were used, accept the outcome and review the expert (MMC updateModelRep,
+    Eq. 10-11)."""
     created = write(
         req,
         "POST",
@@ -302,6 +313,8 @@ def _medc_task(
         f"{detail_updates(card)} (mean time {selected['eval_time']:.1f} steps on "
         f"{selected['eval_episodes']} evaluation episodes)"
     )
+    _accept_outcome(req, anon, task_id, worker, review=5)
+    say(f"  outcome of {worker} accepted, 5/5")
     before = anon.get(f"/models/{model_id}")["reputation"]
     write(req, "POST", f"/models/requests/{alloc_id}/reviews", {"model_id": model_id, "review": 4})
     after = wait_for(

@@ -69,6 +69,8 @@ def test_training_and_sharing_flows_conserve_payments(any_chain: Chain) -> None:
     assert (c["assigned"], c["accepted"], c["completed"]) == (1, 0, 0)
     c = p.umc.counters(w[4], DOMAIN, 0)
     assert c == {"assigned": 1, "accepted": 1, "completed": 1, "rating_sum": 5, "rating_count": 1}
+    c = p.umc.counters(w[1], DOMAIN, 0)  # rejected: rated, not completed
+    assert c == {"assigned": 1, "accepted": 1, "completed": 0, "rating_sum": 1, "rating_count": 1}
 
     # -- a cancelled task and a task closed after its deadline ---------------------------
     cancel_id, _ = p.tmc.add_task(

@@ -80,6 +80,7 @@ def test_an_offer_made_in_time_can_be_accepted_late_and_completed(setup) -> None
     p.chain.advance_time(ACCEPT_WINDOW - MARGIN)  # near the end of the window
     p.tmc.transact("acceptOffer", tid, sender=w)
     p.tmc.submit_outcome(w, tid, CID)
+    p.tmc.transact("reviewOutcome", tid, w, 5, True, sender=r)
     c = p.umc.counters(w, DOMAIN, 0)
     assert (c["assigned"], c["accepted"], c["completed"]) == (1, 1, 1)
 

@@ -102,7 +102,8 @@ def test_update_info_counters_and_checks(p, actors) -> None:
     )
     reverts("UsersBadReview", p.umc.transact, "updateInfo", w, DOMAIN, 0, REVIEWED, 6, sender=admin)
     reverts("UsersBadFlags", p.umc.transact, "updateInfo", w, DOMAIN, 0, 0, 0, sender=admin)
-    reverts("UsersBadFlags", p.umc.transact, "updateInfo", w, DOMAIN, 0, 16, 0, sender=admin)
+    for bad in (17, 31, 32, 255):  # WITHDRAWN (16) combined with another flag, or unknown
+        reverts("UsersBadFlags", p.umc.transact, "updateInfo", w, DOMAIN, 0, bad, 0, sender=admin)
     reverts(
         "UsersBadTaskType", p.umc.transact, "updateInfo", w, DOMAIN, 2, ASSIGNED, 0, sender=admin
     )
