@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import tracemalloc
+from pathlib import Path
 
 import pytest
 import torch
@@ -15,7 +16,10 @@ from workers.mdrl.resources import (
     REFERENCE_PRESET,
     REFERENCE_STEPS_PER_S,
     estimate,
+    expert_bytes,
     lenet_params,
+    observer_bytes,
+    walls_cae_bytes,
     worker_hours,
 )
 from workers.mdrl.trainingspec import TrainingSpec
@@ -136,3 +140,75 @@ def test_estimate_is_not_below_a_real_small_run() -> None:
     est = estimate(s)
     assert held <= est.memory_parts["rollout"]
     assert math.isclose(held, est.memory_parts["rollout"], rel_tol=0.05)
+
+
+# ------------------------------------------------------ the nets a run loads besides its own
+
+ZOO = Path(__file__).resolve().parents[2] / "models"
+
+
+@pytest.mark.parametrize(
+    ("grid", "d", "channels"),
+    [((30, 30), 128, (8, 16, 16)), ((10, 10), 16, (4,)), ((7, 13), 64, (8, 16, 16, 32))],
+)
+def test_walls_cae_weights_are_the_files_parameters(grid, d, channels) -> None:
+    from workers.mdrl import cae
+
+    model = cae.WallsCAE(grid, d, channels)
+    card = {"grid": list(grid), "embedding": d, "architecture": {"channels": list(channels)}}
+    assert walls_cae_bytes(card, 0) == 4 * cae.parameters(model)
+    # one encoding of every env's map on top: its input, conv outputs and the d-vector
+    assert walls_cae_bytes(card, 10) - walls_cae_bytes(card, 0) > 10 * (grid[0] * grid[1] + d) * 4
+
+
+@pytest.mark.parametrize(
+    "name", ["ch4-a1w0-route-30x30", "ch4-a3w3-belief-30x30", "dmtl-3a", "cmtl-2a"]
+)
+def test_an_experts_weights_are_the_loaded_models(name: str) -> None:
+    from workers.mdrl.modelio import card_observation, load_card, load_model
+    from workers.mdrl.observations import ObservationSpec
+    from workers.mdrl.spec import EnvSpec
+
+    card = load_card(ZOO / name)
+    env, obs = EnvSpec.from_dict(card["env"]), ObservationSpec.from_dict(card_observation(card))
+    real = 4 * sum(t.numel() for t in load_model(ZOO / name).agent.parameters())
+    held, forward = expert_bytes(env, env, obs, 0)
+    assert held == real + observer_bytes(env, obs, 0) and forward == 0
+    held_b, forward_b = expert_bytes(env, env, obs, 8)
+    assert held_b > held and forward_b > 0
+
+
+def test_estimate_adds_the_experts_and_the_walls_cae() -> None:
+    """The A3W3 30 x 30 task guided by a belief-map expert: the expert's observer on the walled
+    task holds a gain table per env (2 x C x C float32 each), which the spec alone does not
+    show; the forward passes of several experts come one at a time."""
+    from workers.mdrl.cae import load_cae_card
+    from workers.mdrl.modelio import card_observation, load_card
+    from workers.mdrl.observations import ObservationSpec
+    from workers.mdrl.spec import EnvSpec
+
+    task = TrainingSpec.from_dict(
+        {
+            "env": {"rows": 30, "cols": 30, "agents": 3, "walls": [3, 3]},
+            "observation": {"kind": "odmtl", "window": 7},
+            "algorithm": {"ppo": {"num_envs": 64}},
+            "budget": {"steps": 100_000},
+        }
+    )
+    guides = []
+    for name in ("ch4-a3w3-belief-30x30", "ch4-a1w0-route-30x30"):
+        card = load_card(ZOO / name)
+        guides.append(
+            (EnvSpec.from_dict(card["env"]), ObservationSpec.from_dict(card_observation(card)))
+        )
+    cae_card = load_cae_card(ZOO / "cae-30x30")
+    alone, guided = estimate(task), estimate(task, experts=guides, walls_cae=cae_card)
+    assert alone.memory_parts["experts"] == alone.memory_parts["walls_cae"] == 0
+    parts = [expert_bytes(task.env, e, o, 64) for e, o in guides]
+    assert guided.memory_parts["experts"] == sum(h for h, _ in parts) + max(f for _, f in parts)
+    assert guided.memory_parts["experts"] >= 2 * 900 * 900 * 64 * 4  # the belief expert's gains
+    assert guided.memory_parts["walls_cae"] == walls_cae_bytes(cae_card, 64)
+    assert (
+        guided.memory_bytes
+        == alone.memory_bytes + guided.memory_parts["experts"] + guided.memory_parts["walls_cae"]
+    )

@@ -217,6 +217,27 @@ def test_an_expert_whose_card_no_worker_can_use_is_declined_not_failed(
         assert not (h.job_dir(task_id) / "experts").exists()
 
 
+def test_the_experts_nets_count_against_the_workers_memory(env, store, tmp_path) -> None:
+    """A worker sizes a task with its experts before accepting: memory for the spec alone is
+    not enough when the experts' weights, observers and forward pass do not fit beside it."""
+    from workers.mdrl.resources import estimate
+
+    p, actors = env
+    cid = upload_model(store, EXPERT)
+    spec = {**TINY_SPEC, "experts": [cid], "algorithm": {"demonstration": {"rate": 0.5}}}
+    parsed = TrainingSpec.from_dict(spec)
+    alone = estimate(parsed).memory_bytes
+    h = OfferHandler(account=p.chain._keys[p.chain.accounts[2]], platform=p, store=store,
+                     data_dir=tmp_path / "w", memory_bytes=alone, max_jobs=1)  # the spec fits
+    task_id, offered, _ = post_task(p, store, actors.requester, spec=spec)
+    assert offered == [h.address]
+    out = h.handle(task_id, offered[0])
+    assert out["status"] == "declined", out
+    assert out["reason"].startswith("spec_exceeds_worker_memory") and "1 expert(s)" in out["reason"]
+    assert p.tmc.offer(task_id, offered[0])["state"] == OfferState.DECLINED
+    assert not (h.job_dir(task_id) / "experts").exists()  # nothing fetched
+
+
 def test_an_offer_naming_a_path_as_expert_is_declined(env, store, tmp_path) -> None:
     p, actors = env
     spec = {**TINY_SPEC, "experts": ["runs/my-model"]}  # the core's form, not the platform's

@@ -107,26 +107,31 @@ def _fetch_verified(
 
 def check_expert_card(
     store: ContentStore, ref: str, *, max_weights: int = MAX_WEIGHTS_BYTES, task: Any = None
-) -> dict[str, Any]:
+) -> tuple[Any, Any]:
     """The checks of an expert that need only its manifest and card (at most MAX_CARD_BYTES),
     run before a worker accepts an offer: a requester naming a model no worker can use (the
     gateway's bundle check is looser than this), or one that cannot serve the task's EnvSpec
     ``task`` (``experts.expert_misfit``), gets its offers declined, not a worker's job failed
-    on chain after acceptance. The weights are fetched and checked after acceptance."""
+    on chain after acceptance. The weights are fetched and checked after acceptance. Returns
+    the expert's (EnvSpec, ObservationSpec): the resource model sizes its nets from them."""
     from workers.mdrl.experts import expert_misfit
     from workers.mdrl.modelio import card_observation
+    from workers.mdrl.observations import ObservationSpec
     from workers.mdrl.trainingspec import parse_env
 
     with tempfile.TemporaryDirectory(prefix="drlaas-card-") as tmp:
         _download(store, ref, Path(tmp), max_weights, only=("model.json",))
         card = check_card(Path(tmp) / "model.json", ref)
+    try:
+        env = parse_env(card["env"], "env")
+        obs = ObservationSpec.from_dict(card_observation(card))
+    except (ValueError, TypeError, KeyError) as exc:  # SpecError is a ValueError
+        raise ExpertFetchError(ref, f"model.json: {exc}") from None
     if task is not None:
-        obs = card_observation(card)
-        why = expert_misfit(parse_env(card["env"], "env"), str(obs.get("kind", "")),
-                            bool(obs.get("walls_embedding")), task)
+        why = expert_misfit(env, obs.kind, bool(obs.walls_embedding), task)
         if why is not None:
             raise ExpertFetchError(ref, f"this expert cannot serve the task: {why}")
-    return card
+    return env, obs
 
 
 def check_walls_cae_card(

@@ -341,12 +341,13 @@ class OfferHandler:
             owner = address_of(parse_public_key(spec.outcome_key))
             if owner.lower() != requester.lower():
                 return f"outcome_key belongs to {owner}, not to the task's requester {requester}"
+        cae_card, guides = None, []  # what the run loads besides its own nets (their cards)
         try:  # experts (and a walls CAE) are fetched after acceptance; a reference no worker
             # can fetch, and an expert whose card no worker can use, are known now
             for ref in spec.experts:
                 expert_key(ref)
             if spec.observation.walls_embedding is not None:
-                check_walls_cae_card(
+                cae_card = check_walls_cae_card(
                     self.store,
                     spec.observation.walls_embedding,
                     max_weights=self.max_expert_bytes,
@@ -354,9 +355,9 @@ class OfferHandler:
                 )
             demo = spec.demonstration()
             for ref in demo.experts if demo is not None else ():
-                check_expert_card(
+                guides.append(check_expert_card(
                     self.store, ref, max_weights=self.max_expert_bytes, task=spec.env
-                )
+                ))
         except ExpertFetchError as exc:
             return str(exc)
         except StoreUnavailable as exc:
@@ -365,11 +366,13 @@ class OfferHandler:
         if len(busy) >= self.max_jobs:
             return "at capacity"
         share = self.memory_bytes // max(1, self.max_jobs)
-        need = estimate(spec).memory_bytes  # integer arithmetic: nothing is allocated
+        # integer arithmetic: nothing is allocated; the experts' and the CAE's nets included
+        need = estimate(spec, experts=guides, walls_cae=cae_card).memory_bytes
         if need > share:
+            extra = f" with its {len(guides)} expert(s)" if guides else ""
             return (
-                f"spec_exceeds_worker_memory: needs about {need / 2**30:.3g} GiB, this worker "
-                f"has {share / 2**30:.3g} GiB per job"
+                f"spec_exceeds_worker_memory: needs about {need / 2**30:.3g} GiB{extra}, this "
+                f"worker has {share / 2**30:.3g} GiB per job"
             )
         left_s = deadline - self.clock() - DEADLINE_MARGIN_S
         one_update_s = update_seconds(spec)  # the time budget is checked between updates only

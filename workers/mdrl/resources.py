@@ -12,17 +12,27 @@ and a fixed process overhead (Python, numpy, torch). Compute counts the LeNet fo
 the rollout, forward + backward (~3x forward) per epoch of the update, and the env/observer
 work per step, and with ``selection.keep_best`` the job's greedy evaluations (actor forward
 passes and env work of at most JOB_EVAL_EPISODES x max_steps steps every ``eval_every``
-updates), spread over the env steps between them. Wall time is compute over a reference
-rate, calibrated so the ODMTL 3-agent 10x10 preset runs at the ~7,000 env steps/s measured on
-one thread of a 2-core CPU (presets.FAST_PPO). These are estimates to refuse the absurd, not
-capacity planning.
+updates), spread over the env steps between them.
+
+The networks a run loads besides its own are counted when their cards are at hand (a worker
+reads them before it accepts; ``experts`` and ``walls_cae`` of :func:`estimate`): each MEDC
+expert's weights, its observer on the task's grid (the adapter of ``experts.py``: a belief-map
+expert on a walled task holds a gain table per env) and one forward pass over every env's
+agents; the walls CAE's weights and one encoding of every env's map.
+
+Wall time is compute over a reference rate, calibrated so the ODMTL 3-agent 10x10 preset runs
+at the ~7,000 env steps/s measured on one thread of a 2-core CPU (presets.FAST_PPO). These are
+estimates to refuse the absurd, not capacity planning.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import cache
+from typing import Any
 
 from workers.mdrl.env import HISTORY
 from workers.mdrl.observations import ROUTE_CELLS, channel_layout
@@ -88,13 +98,81 @@ def lenet_activations(in_shape: tuple[int, int, int], outputs: int) -> int:
     )
 
 
-def estimate(spec: TrainingSpec) -> ResourceEstimate:
-    """Memory and compute of training ``spec`` (see the module docstring)."""
+def _policy_outputs(env: Any, obs: Any) -> tuple[int, int]:
+    """Actor samples per env step and actor outputs: CMTL ranks the joint action (A**N)."""
+    a = env.moves + 1
+    return (1, a**env.agents) if obs.kind == "cmtl" else (env.agents, a)
+
+
+def observer_bytes(env: Any, obs: Any, num_envs: int) -> int:
+    """One observation batch of ``num_envs`` envs, the policy mask of a step (joint: A**N per
+    env) and its logits, and the observer's own state (belief filter, route distances)."""
+    b, c = num_envs, env.rows * env.cols
+    np_, ap = _policy_outputs(env, obs)
+    layout = channel_layout(env, obs)
+    actor_in, critic_in = math.prod(layout.actor_shape), math.prod(layout.critic_shape)
+    window = obs.window * obs.window if obs.kind == "odmtl" else 0
+    out = b * (np_ * actor_in + critic_in) * F32 + c * window * F32 + b * np_ * ap * (1 + 3 * F32)
+    # belief filter (workers/mdrl/belief.py): unit counts and their logs, C x C float64 shared
+    # without walls, per env float32 with walls; the (B, K, C) log-likelihood of a step
+    if obs.belief:
+        gains = 2 * c * c * (b * F32 if env.walls[1] > 0 else 8)
+        out += gains + 3 * b * 8 * c * 8
+    if obs.route:  # BFS steps from the posterior's top cells, int32 (observations.py)
+        out += b * ROUTE_CELLS * c * 4
+    return out
+
+
+def expert_bytes(task: Any, env: Any, obs: Any, num_envs: int) -> tuple[int, int]:
+    """An MEDC expert trained on ``env`` with observation ``obs`` (its card) guiding a run of
+    EnvSpec ``task`` on ``num_envs`` envs: (held for the whole run: its actor and critic
+    weights and the observer the adapter builds for it on the task's grid; one forward pass of
+    its actor over every env's agents: the layer outputs, inference keeps no gradients)."""
+    on_task = dataclasses.replace(env, rows=task.rows, cols=task.cols, agents=task.agents,
+                                  walls=task.walls, wall_length=task.wall_length,
+                                  moves=task.moves)
+    own = dataclasses.replace(on_task, agents=env.agents, moves=env.moves)
+    layout = channel_layout(own, obs)
+    samples, outputs = _policy_outputs(env, obs)
+    if obs.kind != "cmtl":
+        samples = task.agents  # the adapter ranks each task agent's action
+    params = lenet_params(layout.actor_shape, outputs) + lenet_params(layout.critic_shape, 1)
+    forward = num_envs * samples * lenet_activations(layout.actor_shape, outputs) * F32
+    return params * F32 + observer_bytes(on_task, obs, num_envs), forward
+
+
+def walls_cae_bytes(card: dict[str, Any], num_envs: int) -> int:
+    """The walls CAE of ``observation.walls_embedding`` (its card as ``cae.save_cae`` writes
+    it: grid, embedding d, architecture.channels): the whole file's weights (the encoder and
+    its mirrored decoder) and one encoding of every env's walls map (a reset embeds the new
+    layouts)."""
+    rows, cols = (int(g) for g in card["grid"])
+    d = int(card["embedding"])
+    channels = [int(ch) for ch in card["architecture"]["channels"]]
+    kernels, acts, c_in, h, w = 0, rows * cols, 1, rows, cols
+    for ch in channels:  # 3x3 stride-2 convolutions; the decoder's transposed ones mirror them
+        h, w = math.ceil(h / 2), math.ceil(w / 2)
+        kernels += c_in * ch * 9
+        acts += ch * h * w
+        c_in = ch
+    code = c_in * h * w
+    biases = sum(channels) + sum(channels[:-1]) + 1 + d + code  # decoder ends in one channel
+    params = 2 * kernels + 2 * code * d + biases  # fc code -> d and d -> code
+    return params * F32 + num_envs * (acts + d) * F32
+
+
+def estimate(
+    spec: TrainingSpec,
+    experts: Sequence[tuple[Any, Any]] = (),
+    walls_cae: dict[str, Any] | None = None,
+) -> ResourceEstimate:
+    """Memory and compute of training ``spec`` (see the module docstring); ``experts`` are
+    the (EnvSpec, ObservationSpec) of the MEDC experts' cards and ``walls_cae`` the card of
+    the walls CAE, when known (their parts are 0 otherwise)."""
     env, obs, ppo = spec.env, spec.observation, spec.ppo
     b, n, c, a = ppo.num_envs, env.agents, env.rows * env.cols, env.moves + 1
     t = ppo.rollout_steps
-    joint = obs.kind == "cmtl"
-    np_, ap = (1, a**n) if joint else (n, a)  # actor samples per env step, actor outputs
+    np_, ap = _policy_outputs(env, obs)  # actor samples per env step, actor outputs
     layout = channel_layout(env, obs)
     actor_in = math.prod(layout.actor_shape)
     critic_in = math.prod(layout.critic_shape)
@@ -103,11 +181,7 @@ def estimate(spec: TrainingSpec) -> ResourceEstimate:
     geometry = c * c * (8 + 4 + 8 + 8) + c * a * I64
     per_env = c * (1 + 4 + 8 + 4 + 4 + a * I64) + n * (I64 + HISTORY * I64 + a) + 7 * I64
     env_bytes = geometry + 2 * b * per_env  # x2: the arrays a reset builds for the new episodes
-    # one observation batch, the policy mask of a step (joint: A**N per env) and its logits
-    window = obs.window * obs.window if obs.kind == "odmtl" else 0
-    obs_bytes = (
-        b * (np_ * actor_in + critic_in) * F32 + c * window * F32 + b * np_ * ap * (1 + 3 * F32)
-    )
+    obs_bytes = observer_bytes(env, obs, b)
     # per step: actor and critic maps, masks, actions + log-probs, value + reward + done (9 B)
     # and the policy-loss weight (4 B, rollout.RolloutBuffer.weights)
     rollout = t * b * (np_ * actor_in * F32 + critic_in * F32 + np_ * ap + np_ * (I64 + F32) + 13)
@@ -124,13 +198,8 @@ def estimate(spec: TrainingSpec) -> ResourceEstimate:
         * F32
         * 2  # activations and their gradients
     )
-    # belief filter (workers/mdrl/belief.py): unit counts and their logs, C x C float64 shared
-    # without walls, per env float32 with walls; the (B, K, C) log-likelihood of a step
-    if obs.belief:
-        gains = 2 * c * c * (b * F32 if env.walls[1] > 0 else 8)
-        obs_bytes += gains + 3 * b * 8 * c * 8
-    if obs.route:  # BFS steps from the posterior's top cells, int32 (observations.py)
-        obs_bytes += b * ROUTE_CELLS * c * 4
+    # each expert keeps its weights and observer; their forward passes come one at a time
+    guides = [expert_bytes(env, e, o, b) for e, o in experts]
     parts = {
         "env": env_bytes,
         "observations": obs_bytes,
@@ -139,6 +208,8 @@ def estimate(spec: TrainingSpec) -> ResourceEstimate:
         "optimizer": optimizer,
         "update": update,
         "process": PROCESS_BASE_BYTES,
+        "experts": sum(h for h, _ in guides) + max((f for _, f in guides), default=0),
+        "walls_cae": 0 if walls_cae is None else walls_cae_bytes(walls_cae, b),
     }
 
     per_step = flops_per_step(spec)
