@@ -109,6 +109,10 @@ class Settings(BaseSettings):
     """HMAC key of access tokens; required (>= 32 chars, not a placeholder) in production."""
     token_ttl_s: int = Field(default=900, ge=10, le=86_400)
     """Lifetime of an access token (short-lived: sign in again after it)."""
+    metrics_token: SecretStr | None = None
+    """Bearer token ``GET /metrics`` asks for (Prometheus: ``authorization.credentials``);
+    unset, the scrape is anonymous, as in development (traffic, error and queue figures tell
+    an attacker when the platform is loaded)."""
     auth_domain: str = "localhost:8000"
     """EIP-4361 ``domain`` (the gateway's host[:port]) that sign-in messages must name."""
     auth_uri: str = "http://localhost:8000"
@@ -198,6 +202,14 @@ class Settings(BaseSettings):
         v = v.expanduser().resolve()
         if v.exists() and not v.is_dir():
             raise ValueError(f"{env_name('data_dir')} must be a directory, got the file {v}")
+        return v
+
+    @field_validator("metrics_token")
+    @classmethod
+    def _check_metrics_token(cls, v: SecretStr | None) -> SecretStr | None:
+        # a token a scraper can guess protects nothing; unset (anonymous) must be explicit
+        if v is not None and len(v.get_secret_value()) < 16:
+            raise ValueError(f"{env_name('metrics_token')} must be at least 16 characters")
         return v
 
     @field_validator("chain")

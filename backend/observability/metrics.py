@@ -15,6 +15,7 @@ Each app owns its registry (tests and ``drlaas up`` build several apps in one pr
 
 from __future__ import annotations
 
+import hmac
 import logging
 import re
 import sqlite3
@@ -23,7 +24,7 @@ from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
-from fastapi import FastAPI
+from fastapi import FastAPI, Request
 from fastapi.responses import Response
 from prometheus_client import CollectorRegistry, Counter, Histogram, generate_latest
 from prometheus_client.core import GaugeMetricFamily, Metric
@@ -34,6 +35,7 @@ from starlette.types import ASGIApp, Message, Receive, Scope, Send
 from web3 import Web3
 from web3.middleware import Web3Middleware
 
+from backend.api.errors import RuleError
 from backend.db import models as m
 from backend.observability.logs import task_context
 from backend.settings import Settings
@@ -232,7 +234,18 @@ def install_metrics(app: FastAPI, settings: Settings) -> GatewayMetrics:
     app.state.metrics = metrics
     app.add_middleware(MetricsMiddleware, metrics=metrics)
 
-    def scrape() -> Response:
+    want = settings.metrics_token
+
+    def scrape(request: Request) -> Response:
+        if want is not None:  # constant-time comparison of the whole header
+            sent = request.headers.get("authorization", "").encode()
+            if not hmac.compare_digest(sent, b"Bearer " + want.get_secret_value().encode()):
+                raise RuleError(
+                    401,
+                    "metrics_token_required",
+                    "send 'Authorization: Bearer <DRLAAS_METRICS_TOKEN>' to read /metrics",
+                    headers={"WWW-Authenticate": 'Bearer realm="drlaas-metrics"'},
+                )
         return Response(metrics.exposition(), media_type=CONTENT_TYPE)
 
     app.add_api_route("/metrics", scrape, methods=["GET"], include_in_schema=False)

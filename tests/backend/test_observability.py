@@ -151,3 +151,22 @@ def test_gateway_requests_about_a_task_log_its_id(
         root = logging.getLogger()
         for h in [h for h in root.handlers if isinstance(h, _Ours)]:
             root.removeHandler(h)
+
+
+def test_metrics_ask_for_their_token_when_one_is_set(tmp_path: Path) -> None:
+    """DRLAAS_METRICS_TOKEN: only a scraper sending it reads the figures; the rest of the API
+    is unchanged (the token is not an API credential)."""
+    token = "scrape-" + "x" * 30
+    settings = Settings(data_dir=tmp_path / "data", metrics_token=token)
+    with TestClient(create_app(settings, chain=False)) as c:
+        for headers in ({}, {"Authorization": "Bearer wrong"}, {"Authorization": token}):
+            r = c.get("/metrics", headers=headers)
+            assert r.status_code == 401, headers
+            assert r.json()["detail"]["rule"] == "metrics_token_required"
+            assert token not in r.text and "drlaas_" not in r.text
+            assert r.headers["www-authenticate"].startswith("Bearer")
+        ok = c.get("/metrics", headers={"Authorization": f"Bearer {token}"})
+        assert ok.status_code == 200 and "drlaas_http_request_duration_seconds" in ok.text
+        assert c.get("/api/health").status_code == 200
+    with pytest.raises(ValueError, match="DRLAAS_METRICS_TOKEN must be at least 16"):
+        Settings(data_dir=tmp_path / "data", metrics_token="short")
