@@ -27,6 +27,8 @@ from backend.api.writes import field_error
 from backend.db import models as m
 from backend.schemas.common import from_fixed
 from backend.store import CID, ContentStore, InvalidCID, NotFound, StoreError, StoreUnavailable
+from workers.mdrl.cae import check_cae_fields
+from workers.mdrl.modelio import card_specs
 from workers.mdrl.trainingspec import MAX_EXPERTS
 
 CAE_KIND = "cae"
@@ -68,23 +70,48 @@ def allocation_experts(session: Session, alloc_id: int, caller: str) -> list[Any
     return [{"model": cid, "qos": from_fixed(q)} for q, cid in rows]
 
 
-def check_experts(store: ContentStore, refs: tuple[str, ...]) -> None:
+def check_experts(store: ContentStore, refs: tuple[str, ...]) -> list[dict[str, Any]]:
     """422 naming ``experts[i]`` unless each is a canonical CID of a model bundle in the store
     that passes ``check_model_bundle`` (its two files, a ``drlaas-model/1`` card, safetensors
-    weights); 503 while the store is down."""
-    for i, ref in enumerate(refs):
-        _check_model(store, ref, ("body", "experts", i), "expert")
+    weights); 503 while the store is down. Returns their cards, in order."""
+    return [
+        _check_model(store, ref, ("body", "experts", i), "expert") for i, ref in enumerate(refs)
+    ]
 
 
-def check_walls_cae(store: ContentStore, ref: str | None, grid: tuple[int, int], size: int) -> None:
+def expert_specs(spec: Any, cards: list[dict[str, Any]]) -> list[tuple[Any, Any]]:
+    """The (EnvSpec, ObservationSpec) of each expert a run of ``spec`` loads (QoS > 0), from
+    their ``cards`` (:func:`check_experts`), for the resource estimate; 422 naming
+    ``experts[i]`` for a card that does not describe them."""
+    demo = spec.demonstration()
+    loaded = set(demo.experts) if demo is not None else set()
+    out = []
+    for i, (ref, card) in enumerate(zip(spec.experts, cards, strict=True)):
+        if ref not in loaded:
+            continue
+        try:
+            out.append(card_specs(card))
+        except (ValueError, TypeError, KeyError) as exc:  # SpecError is a ValueError
+            field_error(("body", "experts", i), f"{ref} is not a usable model: {exc}",
+                        "expert_invalid")
+    return out
+
+
+def check_walls_cae(
+    store: ContentStore, ref: str | None, grid: tuple[int, int], size: int
+) -> dict[str, Any] | None:
     """The same for a spec's walls CAE (``observation.walls_embedding``, Ch. 4), whose card
     must be a CAE's (kind ``cae``) for this grid with embedding size ``size``
     (``observation.walls_embedding_size``): a worker could not use any other, so the job would
-    fail only after it was paid for. Codes ``walls_cae_*``."""
+    fail only after it was paid for. Codes ``walls_cae_*``. Returns the card (None: no CAE)."""
     if ref is None:
-        return
+        return None
     loc = ("body", "observation", "walls_embedding")
     card = _check_model(store, ref, loc, "walls_cae")
+    try:  # what a worker rebuilds (and the resource estimate sizes) the encoder from
+        check_cae_fields(card)
+    except ValueError as exc:
+        field_error(loc, f"{ref} is not a usable walls CAE: {exc}", "walls_cae_invalid")
     cae_grid = card.get("grid")
     if cae_grid != list(grid):
         field_error(
@@ -100,6 +127,7 @@ def check_walls_cae(store: ContentStore, ref: str | None, grid: tuple[int, int],
             f"the spec says walls_embedding_size = {size}",
             "walls_cae_size_mismatch",
         )
+    return card
 
 
 def _grid(g: Any) -> str:

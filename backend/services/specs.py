@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import json
 import re
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -63,10 +64,17 @@ def field_loc(field: str) -> tuple[str | int, ...]:
 
 
 def check_limits(
-    spec: Any, *, num_workers: int, max_memory_bytes: int, max_worker_hours: float
+    spec: Any,
+    *,
+    num_workers: int,
+    max_memory_bytes: int,
+    max_worker_hours: float,
+    experts: Sequence[tuple[Any, Any]] = (),
+    walls_cae: dict[str, Any] | None = None,
 ) -> ResourceEstimate:
-    """The resource estimate of ``spec``, or :class:`SpecLimitExceeded` naming the limit."""
-    est = estimate(spec)
+    """The resource estimate of ``spec`` (with its experts' and walls CAE's nets when their
+    cards are given), or :class:`SpecLimitExceeded` naming the limit."""
+    est = estimate(spec, experts=experts, walls_cae=walls_cae)
     if est.memory_bytes > max_memory_bytes:
         raise SpecLimitExceeded(
             "spec_exceeds_memory_limit",

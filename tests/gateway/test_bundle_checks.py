@@ -38,7 +38,8 @@ assert GOOD_WEIGHTS[:8] == struct.pack("<Q", 128)
 
 
 def card(**over: Any) -> bytes:
-    doc = {"format": "drlaas-model/1", "env": validate_env(ENV).to_dict(), "name": "m"}
+    doc = {"format": "drlaas-model/1", "env": validate_env(ENV).to_dict(), "name": "m",
+           "observation": {"kind": "odmtl", "window": 3}}
     return canonical_json(doc | over)
 
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import re
+from pathlib import Path
 from typing import Any
 
 from fastapi.testclient import TestClient
@@ -142,8 +143,10 @@ def test_a_named_walls_cae_must_be_a_cae_bundle_in_the_store(
     register(client, login, ["user1"], {"user3": {}})
     store = client.app.state.store  # type: ignore[attr-defined]
 
-    def cae_bundle(grid: list[int]) -> str:
+    def cae_bundle(grid: list[int], channels: Any = (4, 8)) -> str:
         card = {"format": "drlaas-model/1", "kind": "cae", "grid": grid, "embedding": 8}
+        if channels is not None:
+            card["architecture"] = {"channels": list(channels)}
         return add_bundle(
             store, {"model.safetensors": weights_of("c"), "model.json": json.dumps(card).encode()}
         )
@@ -164,6 +167,8 @@ def test_a_named_walls_cae_must_be_a_cae_bundle_in_the_store(
         absent: "walls_cae_not_found",
         policy: "walls_cae_invalid",
         other_grid: "walls_cae_grid_mismatch",
+        cae_bundle([ENV["rows"], ENV["cols"]], channels=None): "walls_cae_invalid",
+        cae_bundle([ENV["rows"], ENV["cols"]], channels=[0]): "walls_cae_invalid",
     }.items():
         r = post(ref)
         assert r.status_code == 422, (ref, r.text)
@@ -207,3 +212,35 @@ def test_an_allocation_of_more_models_than_a_task_can_use_is_named(
                                          "domain": 0, "env": ENV2}, headers=login("user3"))
     assert r.status_code == 422 and r.json()["detail"][0]["loc"] == ["body", "description"]
     assert "U+0000" in r.json()["detail"][0]["msg"]
+
+
+def test_the_platform_memory_limit_counts_the_experts_nets(
+    client: TestClient, login: Login, service: ChainService
+) -> None:
+    """A belief-map expert on a walled 30 x 30 task holds a gain table per env in the worker
+    (2 x 900 x 900 float32): 2,048 envs fit the 8 GiB limit alone (~0.7 GiB) and not with it
+    (~14 GiB). Refused before anything is sent, naming the experts as the largest part."""
+    register(client, login, ["user1"], {"user3": {}})
+    store = client.app.state.store  # type: ignore[attr-defined]
+    zoo = Path(__file__).resolve().parents[2] / "models" / "ch4-a3w3-belief-30x30"
+    files = ("model.safetensors", "model.json")
+    cid = add_bundle(store, {n: (zoo / n).read_bytes() for n in files})
+    body = task_body(
+        env={"rows": 30, "cols": 30, "agents": 3, "walls": [1, 3]},
+        observation={"kind": "odmtl", "window": 7},
+        algorithm={"ppo": {"num_envs": 2048}},
+    )
+    before = service.block_number()
+    r = client.post(f"{P}/tasks", json=body | {"experts": [cid]}, headers=login("user1"))
+    assert r.status_code == 422, r.text
+    detail = r.json()["detail"]
+    assert detail["rule"] == "spec_exceeds_memory_limit"
+    assert "largest part: experts" in detail["msg"]
+    assert service.block_number() == before
+    # an expert of QoS 0 is never loaded, so it costs nothing: beside a small one, it fits
+    small = add_bundle(
+        store, {"model.safetensors": weights_of("s"), "model.json": card_of(ENV2, "s")}
+    )
+    zero = body | {"experts": [{"model": cid, "qos": 0.0}, {"model": small, "qos": 1.0}]}
+    r = client.post(f"{P}/tasks", json=zero, headers=login("user1"))
+    assert r.status_code == 201, r.text

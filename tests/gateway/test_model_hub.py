@@ -41,7 +41,8 @@ HELDOUT = {
 
 
 def card_bytes(env: dict, **sections: Any) -> bytes:
-    card = {"format": "drlaas-model/1", "env": validate_env(env).to_dict(), **sections}
+    card = {"format": "drlaas-model/1", "env": validate_env(env).to_dict(),
+            "observation": {"kind": "odmtl", "window": 3}, **sections}
     return json.dumps(card).encode()  # NaN allowed on purpose: a card is anyone's file
 
 

@@ -24,6 +24,7 @@ def card_of(env: dict, text: str) -> bytes:
     card = {
         "format": "drlaas-model/1",
         "env": validate_env(env).to_dict(),
+        "observation": {"kind": "odmtl", "window": 3},  # what an expert is sized by
         "metrics": {"success": 0.9},
         "name": text,
     }

@@ -115,16 +115,13 @@ def check_expert_card(
     on chain after acceptance. The weights are fetched and checked after acceptance. Returns
     the expert's (EnvSpec, ObservationSpec): the resource model sizes its nets from them."""
     from workers.mdrl.experts import expert_misfit
-    from workers.mdrl.modelio import card_observation
-    from workers.mdrl.observations import ObservationSpec
-    from workers.mdrl.trainingspec import parse_env
+    from workers.mdrl.modelio import card_specs
 
     with tempfile.TemporaryDirectory(prefix="drlaas-card-") as tmp:
         _download(store, ref, Path(tmp), max_weights, only=("model.json",))
         card = check_card(Path(tmp) / "model.json", ref)
     try:
-        env = parse_env(card["env"], "env")
-        obs = ObservationSpec.from_dict(card_observation(card))
+        env, obs = card_specs(card)
     except (ValueError, TypeError, KeyError) as exc:  # SpecError is a ValueError
         raise ExpertFetchError(ref, f"model.json: {exc}") from None
     if task is not None:
@@ -232,26 +229,13 @@ def check_card(path: Path, ref: str) -> dict[str, Any]:
 
 def check_cae_card(path: Path, ref: str) -> dict[str, Any]:
     """The card of a walls CAE (``cae.save_cae``) with the fields its encoder is rebuilt from."""
-    from workers.mdrl.cae import CARD, load_cae_card
+    from workers.mdrl.cae import CARD, check_cae_fields, load_cae_card
 
     try:
         card = load_cae_card(path.parent)
         if path.name != CARD:
             raise ValueError(f"expected {CARD}")
-        grid, d = card["grid"], card["embedding"]
-        channels = card["architecture"]["channels"]
-        ok = (
-            isinstance(grid, list)
-            and len(grid) == 2
-            and all(isinstance(g, int) and 2 <= g <= 1024 for g in grid)
-            and isinstance(d, int)
-            and 1 <= d <= 1024
-            and isinstance(channels, list)
-            and 1 <= len(channels) <= 8
-            and all(isinstance(c, int) and 1 <= c <= 1024 for c in channels)
-        )
-        if not ok:
-            raise ValueError("grid, embedding or architecture.channels out of range")
+        check_cae_fields(card)
     except (KeyError, TypeError, ValueError, RecursionError) as exc:
         raise ExpertFetchError(ref, f"model.json is not a walls CAE card ({exc})") from None
     return card

@@ -349,6 +349,32 @@ def load_cae_card(path: str | Path) -> dict[str, Any]:
     return card
 
 
+MAX_CAE_GRID, MAX_CAE_EMBEDDING, MAX_CAE_LAYERS, MAX_CAE_CHANNELS = 1024, 1024, 8, 1024
+
+
+def check_cae_fields(card: dict[str, Any]) -> None:
+    """ValueError unless ``card`` has the fields an encoder is rebuilt (and sized) from, in
+    bounds: grid (two ints), embedding d and architecture.channels (a worker's check and the
+    gateway's, before anything is allocated from them)."""
+    try:
+        grid, d = card["grid"], card["embedding"]
+        channels = card["architecture"]["channels"]
+    except (KeyError, TypeError) as exc:
+        raise ValueError(f"no grid, embedding or architecture.channels ({exc})") from None
+    ok = (
+        isinstance(grid, list)
+        and len(grid) == 2
+        and all(isinstance(g, int) and 2 <= g <= MAX_CAE_GRID for g in grid)
+        and isinstance(d, int)
+        and 1 <= d <= MAX_CAE_EMBEDDING
+        and isinstance(channels, list)
+        and 1 <= len(channels) <= MAX_CAE_LAYERS
+        and all(isinstance(c, int) and 1 <= c <= MAX_CAE_CHANNELS for c in channels)
+    )
+    if not ok:
+        raise ValueError("grid, embedding or architecture.channels out of range")
+
+
 def load_cae(path: str | Path) -> WallsCAE:
     """Rebuild a CAE from its directory (safetensors + JSON card only; never unpickles).
     A damaged directory (card fields missing or of the wrong type, weights truncated, of other

@@ -252,6 +252,16 @@ def card_observation(card: dict[str, Any]) -> dict[str, Any]:
     return {k: v for k, v in card["observation"].items() if k not in SHAPE_KEYS}
 
 
+def card_specs(card: dict[str, Any]) -> tuple[Any, Any]:
+    """The (EnvSpec, ObservationSpec) a policy card describes, checked against the task-spec
+    bounds (what ``resources.expert_bytes`` sizes an expert by); ValueError (SpecError is
+    one), TypeError or KeyError for a card that does not describe them."""
+    from workers.mdrl.observations import ObservationSpec
+    from workers.mdrl.trainingspec import parse_env
+
+    return parse_env(card["env"], "env"), ObservationSpec.from_dict(card_observation(card))
+
+
 def load_model(path: str | Path) -> GreedyPolicy:
     """Rebuild the greedy policy of a model directory (safetensors + JSON, no pickle)."""
     from workers.mdrl.networks import ActorCritic

@@ -15,6 +15,7 @@ from backend.api.experts import (
     allocation_experts,
     check_experts,
     check_walls_cae,
+    expert_specs,
     task_experts,
 )
 from backend.api.pagecache import cached_page
@@ -200,13 +201,25 @@ def create_task(
         experts = allocation_experts(session, body.expert_allocation, user.address)
     spec = build_spec(body, settings, experts)
     check_outcome_key(spec, user.address)
-    check_experts(store, spec.experts)
-    check_walls_cae(
+    cards = check_experts(store, spec.experts)
+    cae_card = check_walls_cae(
         store,
         spec.observation.walls_embedding,
         (spec.env.rows, spec.env.cols),
         spec.observation.walls_embedding_size,
     )
+    if cards or cae_card is not None:  # the limits again, with the nets a worker loads too
+        try:
+            check_limits(
+                spec,
+                num_workers=body.num_workers,
+                max_memory_bytes=int(settings.max_job_memory_gb * 2**30),
+                max_worker_hours=settings.max_task_worker_hours,
+                experts=expert_specs(spec, cards),
+                walls_cae=cae_card,
+            )
+        except SpecLimitExceeded as exc:
+            raise RuleError(422, exc.rule, exc.msg) from None
     check_duration(chain, body.deadline_s)
     check_min_reward(chain, body.payment_wei, body.deadline_s)
     check_requester_can_escrow(chain, user.address, body.payment_wei * body.num_workers)
