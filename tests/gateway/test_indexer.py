@@ -117,6 +117,40 @@ def test_rows_match_chain_state(service: ChainService, sessions: sessionmaker[Se
         assert t is not None and t.offered == 2 and t.reward_wei == str(10**12)
 
 
+def test_the_index_follows_offers_taken_back(
+    service: ChainService, sessions: sessionmaker[Session]
+) -> None:
+    """Offers of a task no worker accepted leave A of Eq. 17 when it is cancelled (UMC
+    WITHDRAWN): the counters go down, and the index and its Eq. 19 reputation follow."""
+    from backend.chain.platform import TaskStatus
+    from backend.chain.qos import reputation_fixed
+
+    _activity(service, 1)
+    p, indexer = service.platform, Indexer(service, sessions)
+    indexer.poll()
+    offered = [w for (t, w) in _offers(sessions) if t == 1]
+    assert len(offered) == 2  # the task's two slots
+    with sessions() as s:
+        assert all(s.get(m.WorkerRow, w).assigned == 1 for w in offered)  # type: ignore[union-attr]
+    req = service.demo_keys.address("user1")  # type: ignore[union-attr]
+    with service.lock:
+        for w in offered:
+            p.tmc.transact("declineOffer", 1, sender=w)
+        p.tmc.transact("updateTaskStatus", 1, TaskStatus.CANCELLED.value, sender=req)
+    indexer.poll()
+    with sessions() as s:
+        for w in offered:
+            row = s.get(m.WorkerRow, w)
+            assert row is not None and p.umc.counters(w, 0, 0)["assigned"] == 0
+            assert (row.assigned, row.accepted, row.completed) == (0, 0, 0)
+            assert row.reputation == reputation_fixed(0, 0, 0)
+
+
+def _offers(sessions: sessionmaker[Session]) -> list[tuple[int, str]]:
+    with sessions() as s:
+        return [tuple(r) for r in s.execute(select(m.OfferRow.task_id, m.OfferRow.worker))]
+
+
 def test_index_lists_only_active_requesters(
     service: ChainService, sessions: sessionmaker[Session]
 ) -> None:
