@@ -244,3 +244,22 @@ def test_the_platform_memory_limit_counts_the_experts_nets(
     zero = body | {"experts": [{"model": cid, "qos": 0.0}, {"model": small, "qos": 1.0}]}
     r = client.post(f"{P}/tasks", json=zero, headers=login("user1"))
     assert r.status_code == 201, r.text
+
+
+def test_an_expert_that_cannot_be_laid_on_the_task_grid_is_422_not_500(
+    client: TestClient, login: Login, service: ChainService
+) -> None:
+    """Sizing an expert lays its env on the task's grid: 16 agents do not fit a 4 x 4 one."""
+    register(client, login, ["user1"], {"user3": {}})
+    store = client.app.state.store  # type: ignore[attr-defined]
+    crowd = add_bundle(store, {
+        "model.safetensors": weights_of("c"),
+        "model.json": card_of({"rows": 8, "cols": 8, "agents": 16, "max_steps": 50}, "c"),
+    })
+    before = service.block_number()
+    body = task_body(env={"rows": 4, "cols": 4, "agents": 2, "max_steps": 50}, experts=[crowd])
+    r = client.post(f"{P}/tasks", json=body, headers=login("user1"))
+    assert r.status_code == 422, r.text
+    issue = r.json()["detail"][0]
+    assert issue["type"] == "expert_misfit" and issue["loc"] == ["body", "experts"]
+    assert service.block_number() == before
