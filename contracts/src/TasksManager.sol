@@ -481,6 +481,7 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
     function updateTaskStatus(uint256 taskId, TaskStatus status) external {
         Task storage t = _tasks[taskId];
         if (t.status == TaskStatus.None) revert TasksUnknownTask(taskId);
+        uint8[] memory counted = new uint8[](0); // per offeree: UMC flags, moved once settled
         if (status == TaskStatus.Cancelled) {
             _checkRequester(t, taskId);
             _checkOpen(t, taskId);
@@ -491,7 +492,7 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
                 if (live != 0) revert TasksHasLiveOffers(taskId);
                 t.liveOffers = 0;
             }
-            if (!t.taken) _withdrawOffers(taskId);
+            if (!t.taken) counted = _withdrawn(taskId);
         } else if (status == TaskStatus.Closed) {
             if (
                 t.requester != msg.sender && _offers[taskId][msg.sender].state == OfferState.None
@@ -499,7 +500,7 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
             ) revert TasksNotParticipant(taskId, msg.sender);
             if (t.status != TaskStatus.Open) revert TasksNotOpen(taskId, t.status);
             if (block.timestamp <= t.deadline) revert TasksDeadlineNotPassed(taskId, t.deadline);
-            _settleOffers(taskId, t);
+            counted = _settleOffers(taskId, t);
         } else {
             revert TasksBadStatus(status);
         }
@@ -508,6 +509,7 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
         t.settled = t.numWorkers;
         if (unsettled != 0) _credit(t.requester, taskId, unsettled * _reqs[taskId].reward);
         emit TaskStatusUpdated(taskId, status);
+        _count(taskId, counted); // interactions last: every state change is written
     }
 
     /**
@@ -532,12 +534,12 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
         t.liveOffers = uint8(live);
         emit SlotsCancelled(taskId, uint8(cancelled), left);
         _credit(t.requester, taskId, cancelled * _reqs[taskId].reward);
-        if (left == 0 && !t.taken) _withdrawOffers(taskId);
         if (left == 0 || t.settled == left) {
             TaskStatus s = left == 0 ? TaskStatus.Cancelled : TaskStatus.Completed;
             t.status = s;
             emit TaskStatusUpdated(taskId, s);
         }
+        if (left == 0 && !t.taken) _count(taskId, _withdrawn(taskId)); // interactions last
     }
 
     // ---------------------------------------------------------------------------- worker
@@ -792,12 +794,14 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
     /// @dev At close: pay unreviewed outcomes (after the review window; they count as
     /// completed), fail the accepted offers without outcome (rated 0: holding a slot to the
     /// deadline costs more than declining or {abandonOffer}), expire the rest; with no worker
-    /// ever accepting, take every offer back from A of Eq. 17. Bounded by MAX_OFFERS.
-    function _settleOffers(uint256 taskId, Task storage t) internal {
+    /// ever accepting, take every offer back from A of Eq. 17. Returns the UMC flags per
+    /// offeree for {_count} (state only here). Bounded by MAX_OFFERS.
+    function _settleOffers(uint256 taskId, Task storage t) internal returns (uint8[] memory counted) {
+        if (!t.taken) counted = _withdrawn(taskId); // then no offer was accepted or submitted
         address[] storage list = _offerees[taskId];
         uint256 m = list.length;
+        if (counted.length == 0) counted = new uint8[](m);
         uint256 reward = _reqs[taskId].reward;
-        uint32 domain = _reqs[taskId].domain;
         uint256 reviewEnd = uint256(t.deadline) + reviewWindow;
         for (uint256 j; j < m; ++j) {
             address a = list[j];
@@ -809,11 +813,11 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
                 o.paid = true;
                 t.settled += 1;
                 _credit(a, taskId, reward);
-                umc.updateInfo(a, domain, TRAINING, COMPLETED, 0);
+                counted[j] = COMPLETED;
                 emit OutcomeReviewed(taskId, a, 0, true);
             } else if (s == OfferState.Accepted) {
                 o.state = OfferState.Failed;
-                umc.updateInfo(a, domain, TRAINING, REVIEWED, 0);
+                counted[j] = REVIEWED; // with review 0
                 emit OfferFailed(taskId, a);
             } else if (s == OfferState.Offered) {
                 o.state = OfferState.Expired;
@@ -821,20 +825,29 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
             }
         }
         t.liveOffers = 0;
-        if (!t.taken) _withdrawOffers(taskId);
     }
 
     /// @dev The end of a task no worker ever accepted (cancelled, or closed at the deadline):
-    /// all its offers were declined or expired, and each is taken back from A of Eq. 17. A
-    /// requester's offers then cost the workers it offered nothing unless the task found a
-    /// worker, so offers made only to be refused cannot lower anyone's reputation
-    /// (docs/chain.md, "Offers that count"). Bounded by MAX_OFFERS.
-    function _withdrawOffers(uint256 taskId) internal {
+    /// all its offers were declined or expired, and each is taken back from A of Eq. 17 (a
+    /// WITHDRAWN flag per offeree for {_count}). A requester's offers then cost the workers
+    /// it offered nothing unless the task found a worker, so offers made only to be refused
+    /// cannot lower anyone's reputation (docs/chain.md, "Offers that count").
+    function _withdrawn(uint256 taskId) internal view returns (uint8[] memory counted) {
+        counted = new uint8[](_offerees[taskId].length);
+        for (uint256 j; j < counted.length; ++j) {
+            counted[j] = WITHDRAWN;
+        }
+    }
+
+    /// @dev Moves the UMC counters of the task's offerees by `counted` (0: none), after the
+    /// caller wrote every state change (the UMC is the platform registry set at
+    /// construction and makes no external call). Bounded by MAX_OFFERS.
+    function _count(uint256 taskId, uint8[] memory counted) internal {
         address[] storage list = _offerees[taskId];
-        uint256 m = list.length;
         uint32 domain = _reqs[taskId].domain;
-        for (uint256 j; j < m; ++j) {
-            umc.updateInfo(list[j], domain, TRAINING, WITHDRAWN, 0);
+        for (uint256 j; j < counted.length; ++j) {
+            uint8 flags = counted[j];
+            if (flags != 0) umc.updateInfo(list[j], domain, TRAINING, flags, 0);
         }
     }
 
