@@ -8,6 +8,7 @@ build their own app, so each test has its own database."""
 from __future__ import annotations
 
 import datetime as dt
+import hmac
 from collections.abc import Callable, Iterator
 from typing import Annotated
 
@@ -83,6 +84,22 @@ def get_current_user(
 
 
 CurrentUser = Annotated[User, Depends(get_current_user)]
+
+
+def require_metrics_token(request: Request, settings: SettingsDep) -> None:
+    """``GET /metrics`` with ``DRLAAS_METRICS_TOKEN`` set: 401 unless the request sends it as
+    a bearer token (the whole header compared in constant time)."""
+    want = settings.metrics_token
+    if want is None:
+        return
+    sent = request.headers.get("authorization", "").encode()
+    if not hmac.compare_digest(sent, b"Bearer " + want.get_secret_value().encode()):
+        raise RuleError(
+            401,
+            "metrics_token_required",
+            "send 'Authorization: Bearer <DRLAAS_METRICS_TOKEN>' to read /metrics",
+            headers={"WWW-Authenticate": 'Bearer realm="drlaas-metrics"'},
+        )
 
 
 # -- platform services (set by create_app's lifespan; absent when the chain is disabled) --------

@@ -15,10 +15,11 @@ import logging
 from collections.abc import AsyncIterator, Callable
 from contextlib import asynccontextmanager
 
-from fastapi import FastAPI, Request
+from fastapi import Depends, FastAPI, Request
 from fastapi.responses import JSONResponse
 from starlette.concurrency import run_in_threadpool
 
+from backend.api.deps import require_metrics_token
 from backend.api.errors import document_shared_responses, install_error_handlers
 from backend.api.frontend import mount_docs_redirects, mount_frontend
 from backend.api.limits import BodyLimits
@@ -141,7 +142,8 @@ def create_app(
         max_depth=settings.max_json_depth,
         timeout_s=settings.body_timeout_s,
     )
-    install_metrics(app, settings)  # GET /metrics, HTTP latency and errors (Prometheus)
+    # GET /metrics, HTTP latency and errors (Prometheus), behind DRLAAS_METRICS_TOKEN if set
+    install_metrics(app, settings, guards=[Depends(require_metrics_token)])
     app.add_middleware(SecurityHeaders)  # outermost: the shedder's and limits' answers too
 
     @app.exception_handler(SignLocally)

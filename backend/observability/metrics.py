@@ -15,16 +15,15 @@ Each app owns its registry (tests and ``drlaas up`` build several apps in one pr
 
 from __future__ import annotations
 
-import hmac
 import logging
 import re
 import sqlite3
 import time
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
-from fastapi import FastAPI, Request
+from fastapi import FastAPI
 from fastapi.responses import Response
 from prometheus_client import CollectorRegistry, Counter, Histogram, generate_latest
 from prometheus_client.core import GaugeMetricFamily, Metric
@@ -35,7 +34,6 @@ from starlette.types import ASGIApp, Message, Receive, Scope, Send
 from web3 import Web3
 from web3.middleware import Web3Middleware
 
-from backend.api.errors import RuleError
 from backend.db import models as m
 from backend.observability.logs import task_context
 from backend.settings import Settings
@@ -227,28 +225,23 @@ class MetricsMiddleware:
             )
 
 
-def install_metrics(app: FastAPI, settings: Settings) -> GatewayMetrics:
-    """``app.state.metrics``, the timing middleware and ``GET /metrics`` on ``app``."""
+def install_metrics(
+    app: FastAPI, settings: Settings, guards: Sequence[Any] = ()
+) -> GatewayMetrics:
+    """``app.state.metrics``, the timing middleware and ``GET /metrics`` on ``app``, behind
+    the FastAPI dependencies ``guards`` (the gateway's token check)."""
     broker = settings.data_dir / "broker.sqlite" if settings.broker_service.embedded else None
     metrics = GatewayMetrics(app.state.sessions, broker)
     app.state.metrics = metrics
     app.add_middleware(MetricsMiddleware, metrics=metrics)
 
-    want = settings.metrics_token
 
-    def scrape(request: Request) -> Response:
-        if want is not None:  # constant-time comparison of the whole header
-            sent = request.headers.get("authorization", "").encode()
-            if not hmac.compare_digest(sent, b"Bearer " + want.get_secret_value().encode()):
-                raise RuleError(
-                    401,
-                    "metrics_token_required",
-                    "send 'Authorization: Bearer <DRLAAS_METRICS_TOKEN>' to read /metrics",
-                    headers={"WWW-Authenticate": 'Bearer realm="drlaas-metrics"'},
-                )
+    def scrape() -> Response:
         return Response(metrics.exposition(), media_type=CONTENT_TYPE)
 
-    app.add_api_route("/metrics", scrape, methods=["GET"], include_in_schema=False)
+    app.add_api_route(
+        "/metrics", scrape, methods=["GET"], include_in_schema=False, dependencies=guards
+    )
     return metrics
 
 
