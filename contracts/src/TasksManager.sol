@@ -435,9 +435,9 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
      * @dev The requester reviews a submitted outcome once: `review` in [0, 5] feeds the
      * worker's rating; `accepted` releases the slot's reward to the worker and counts the
      * task as completed (E of Eq. 18, N of Eq. 16), otherwise the reward is refunded and the
-     * task does not count as completed. Requirements: caller is the task's requester; the worker's outcome is
-     * submitted and not yet reviewed; now <= deadline + reviewWindow (afterwards the outcome
-     * is the worker's: paid at close); review <= 5.
+     * task does not count as completed. Requirements: caller is the task's requester; the
+     * worker's outcome is submitted and not yet reviewed; now <= deadline + reviewWindow
+     * (afterwards the outcome is the worker's: paid at close); review <= 5.
      * Emits {OutcomeReviewed}, {PaymentCredited} and, on the last slot, {TaskStatusUpdated}.
      */
     function reviewOutcome(uint256 taskId, address worker, uint8 review, bool accepted) external {
@@ -601,8 +601,8 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
     /**
      * @dev An assigned worker submits the outcome's IPFS CID before the deadline. It counts
      * as a completed task (E of Eq. 18, N of Eq. 16) only once accepted ({reviewOutcome}) or
-     * paid at close unreviewed: a rejected outcome is not a completed task. The CID is recorded as this
-     * worker's outcome of this task ({outcomeOf}); a CID is an outcome once on this chain,
+     * paid at close unreviewed: a rejected outcome is not a completed task. The CID is
+     * recorded as this worker's outcome of this task ({outcomeOf}); a CID is an outcome once on this chain,
      * so no worker can hand in a model already submitted (by itself or anyone else) for
      * another task or slot, nor one already listed on the MMC ({setModels}): a shared model
      * handed in as an outcome would be someone else's work, and its outcome record would
