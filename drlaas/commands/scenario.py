@@ -7,7 +7,8 @@ content store and its CID on chain; the requester reviews it; reputations change
 owner shares it and it shows in the listing; a second requester asks for experts (a
 model-sharing task), receives that model's CID and trains a second task with it as the
 expert (MEDC, thesis Alg. 5.1: the outcome's card lists the expert and the episodes it
-guided), then reviews the expert, which moves its reputation on chain. Finally the workers
+guided), then accepts that outcome and reviews the expert, which moves its reputation on
+chain. Finally the workers
 publish the model zoo (``models/``: one trained model per thesis row, uploaded with its card),
 so the listing shows what the platform sells.
 
