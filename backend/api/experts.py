@@ -28,6 +28,7 @@ from backend.db import models as m
 from backend.schemas.common import from_fixed
 from backend.store import CID, ContentStore, InvalidCID, NotFound, StoreError, StoreUnavailable
 from workers.mdrl.cae import check_cae_fields
+from workers.mdrl.experts import expert_misfit
 from workers.mdrl.modelio import card_specs
 from workers.mdrl.trainingspec import MAX_EXPERTS
 
@@ -82,18 +83,24 @@ def check_experts(store: ContentStore, refs: tuple[str, ...]) -> list[dict[str, 
 def expert_specs(spec: Any, cards: list[dict[str, Any]]) -> list[tuple[Any, Any]]:
     """The (EnvSpec, ObservationSpec) of each expert a run of ``spec`` loads (QoS > 0), from
     their ``cards`` (:func:`check_experts`), for the resource estimate; 422 naming
-    ``experts[i]`` for a card that does not describe them."""
+    ``experts[i]`` for a card that does not describe them (``expert_invalid``) or an expert
+    that cannot serve the task's env (``expert_misfit``: the check a worker runs before it
+    accepts, so such a task would only collect declines)."""
     demo = spec.demonstration()
     loaded = set(demo.experts) if demo is not None else set()
     out = []
     for i, (ref, card) in enumerate(zip(spec.experts, cards, strict=True)):
         if ref not in loaded:
             continue
+        loc = ("body", "experts", i)
         try:
-            out.append(card_specs(card))
+            env, obs = card_specs(card)
         except (ValueError, TypeError, KeyError) as exc:  # SpecError is a ValueError
-            field_error(("body", "experts", i), f"{ref} is not a usable model: {exc}",
-                        "expert_invalid")
+            field_error(loc, f"{ref} is not a usable model: {exc}", "expert_invalid")
+        why = expert_misfit(env, obs.kind, bool(obs.walls_embedding), spec.env)
+        if why is not None:
+            field_error(loc, f"{ref} cannot serve this task: {why}", "expert_misfit")
+        out.append((env, obs))
     return out
 
 

@@ -4,7 +4,7 @@ as JSON, and read-your-writes indexing."""
 from __future__ import annotations
 
 import logging
-from typing import Any
+from typing import Any, NoReturn
 
 from fastapi.exceptions import RequestValidationError
 
@@ -15,7 +15,7 @@ from backend.indexer.indexer import jsonable
 log = logging.getLogger(__name__)
 
 
-def field_error(loc: tuple[str | int, ...], msg: str, type_: str = "value_error") -> None:
+def field_error(loc: tuple[str | int, ...], msg: str, type_: str = "value_error") -> NoReturn:
     """Raise a 422 in the validation shape, ``loc`` naming the bad field."""
     raise RequestValidationError([{"loc": loc, "msg": msg, "type": type_}])
 

@@ -12,7 +12,7 @@ from typing import Any
 from fastapi.testclient import TestClient
 
 from backend.services.chain import ChainService
-from backend.store.bundle import add_bundle
+from backend.store.bundle import add_bundle, canonical_json
 
 from .conftest import ENV, Login, P, addr, register, task_body
 from .test_models import ENV2, ENV3, _share, card_of, weights_of
@@ -249,7 +249,10 @@ def test_the_platform_memory_limit_counts_the_experts_nets(
 def test_an_expert_that_cannot_be_laid_on_the_task_grid_is_422_not_500(
     client: TestClient, login: Login, service: ChainService
 ) -> None:
-    """Sizing an expert lays its env on the task's grid: 16 agents do not fit a 4 x 4 one."""
+    """The adapter lays an expert's env on the task's grid with the expert's own team: 16
+    agents do not fit a 4 x 4 one. The gateway runs the worker's card check
+    (``expert_misfit``), so the task is refused before it is posted instead of collecting
+    declines (or, as before, a 500 from the resource estimate)."""
     register(client, login, ["user1"], {"user3": {}})
     store = client.app.state.store  # type: ignore[attr-defined]
     crowd = add_bundle(store, {
@@ -261,5 +264,34 @@ def test_an_expert_that_cannot_be_laid_on_the_task_grid_is_422_not_500(
     r = client.post(f"{P}/tasks", json=body, headers=login("user1"))
     assert r.status_code == 422, r.text
     issue = r.json()["detail"][0]
-    assert issue["type"] == "expert_misfit" and issue["loc"] == ["body", "experts"]
+    assert issue["type"] == "expert_misfit" and issue["loc"] == ["body", "experts", 0]
+    assert "16 agents and a target do not fit on 4x4" in issue["msg"] and crowd in issue["msg"]
     assert service.block_number() == before
+
+
+def test_an_expert_reading_full_maps_of_another_grid_is_422(
+    client: TestClient, login: Login, service: ChainService
+) -> None:
+    """A DMTL expert reads whole maps of its own grid: it cannot serve a task on another
+    grid, which every worker would decline. The gateway says so, naming the expert's index
+    (the second here: the first, ODMTL, serves any grid)."""
+    register(client, login, ["user1"], {"user3": {}})
+    store = client.app.state.store  # type: ignore[attr-defined]
+    env = {"rows": 8, "cols": 8, "agents": 2, "max_steps": 50}
+    odmtl = add_bundle(store, {"model.safetensors": weights_of("o"),
+                               "model.json": card_of(env, "o")})
+    card = json.loads(card_of(env, "d")) | {"observation": {"kind": "dmtl"}}
+    dmtl = add_bundle(store, {"model.safetensors": weights_of("d"),
+                              "model.json": canonical_json(card)})
+    before = service.block_number()
+    body = task_body(env={"rows": 6, "cols": 6, "agents": 2, "max_steps": 50},
+                     experts=[odmtl, dmtl])
+    r = client.post(f"{P}/tasks", json=body, headers=login("user1"))
+    assert r.status_code == 422, r.text
+    issue = r.json()["detail"][0]
+    assert issue["type"] == "expert_misfit" and issue["loc"] == ["body", "experts", 1]
+    assert "DMTL reads full 8x8 maps" in issue["msg"]
+    assert service.block_number() == before
+    on_grid = task_body(env=env, experts=[odmtl, dmtl])  # on the experts' own grid: fine
+    r = client.post(f"{P}/tasks", json=on_grid, headers=login("user1"))
+    assert r.status_code == 201, r.text

@@ -526,6 +526,26 @@ def test_adapters_refuse_what_they_cannot_serve(models):
     np.testing.assert_allclose(np.exp(s).sum(-1), 1.0, rtol=1e-5)
 
 
+def test_an_expert_whose_team_does_not_fit_the_task_grid_is_refused():
+    """The adapter lays the expert's env on the task's grid with the expert's own team (its
+    actor's channels): 10 agents and a target do not fit 3 x 3. ``expert_misfit``, the check
+    a worker and the gateway run on the card alone, names it, and loading the expert raises
+    the ExpertError a run reports, not a bare ValueError from deep in the observer."""
+    from workers.mdrl.experts import expert_misfit
+
+    path = "models/odmtl-10a"  # ODMTL: serves any grid, as long as its team fits on it
+    exp = load_model(path).env_spec
+    small = EnvSpec(rows=3, cols=3, agents=2)
+    why = expert_misfit(exp, "odmtl", False, small)
+    assert why is not None and "laid on the task's 3x3 grid" in why
+    assert "10 agents and a target do not fit on 3x3" in why
+    with pytest.raises(ExpertError, match="10 agents and a target do not fit on 3x3"):
+        load_expert(path, small)
+    assert expert_misfit(exp, "odmtl", False, EnvSpec(rows=4, cols=4, agents=2)) is None
+    assert load_expert(path, EnvSpec(rows=4, cols=4, agents=2)).scores(
+        stepped_env(EnvSpec(rows=4, cols=4, agents=2), envs=2), np.arange(2)).shape == (2, 2, 5)
+
+
 def test_moves_are_matched_by_direction():
     four_on_eight = action_map(4, 8)  # idle, up, down, left, right -> idle, N, S, W, E
     assert four_on_eight.tolist() == [0, 3, 7, 5, 1]

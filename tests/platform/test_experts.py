@@ -203,12 +203,18 @@ def test_an_expert_whose_card_no_worker_can_use_is_declined_not_failed(
     h = OfferHandler(account=p.chain._keys[p.chain.accounts[2]], platform=p, store=store,
                      data_dir=tmp_path / "w")
     full_maps = upload_model(store, EXPERT.parent / "dmtl-3a")  # reads 10x10 maps only
-    for cid, bound, why in ((no_observation, h.max_expert_bytes, "model.json: "),
-                            (upload_model(store, EXPERT), 1000, "more than the bound of 1000"),
-                            (full_maps, h.max_expert_bytes, "cannot serve the task: DMTL")):
+    crowd = bundle(store, **{"model.json": json.dumps(  # 16 agents do not fit a 4 x 4 grid
+        card | {"env": card["env"] | {"agents": 16}}).encode()})
+    tiny = {"rows": 4, "cols": 4, "agents": 2}
+    for cid, bound, why, task in (
+        (no_observation, h.max_expert_bytes, "model.json: ", TINY_SPEC["env"]),
+        (upload_model(store, EXPERT), 1000, "more than the bound of 1000", TINY_SPEC["env"]),
+        (full_maps, h.max_expert_bytes, "cannot serve the task: DMTL", TINY_SPEC["env"]),
+        (crowd, h.max_expert_bytes, "16 agents and a target do not fit on 4x4", tiny),
+    ):
         h.max_expert_bytes = bound
         task_id, offered, _ = post_task(p, store, actors.requester, spec={
-            **TINY_SPEC, "experts": [cid]})
+            **TINY_SPEC, "env": task, "experts": [cid]})
         assert offered == [h.address]
         out = h.handle(task_id, offered[0])
         assert out["status"] == "declined" and f"expert {cid}" in out["reason"], out

@@ -366,10 +366,9 @@ class OfferHandler:
         if len(busy) >= self.max_jobs:
             return "at capacity"
         share = self.memory_bytes // max(1, self.max_jobs)
-        try:  # integer arithmetic: nothing is allocated; the experts' and CAE's nets included
-            need = estimate(spec, experts=guides, walls_cae=cae_card).memory_bytes
-        except ValueError as exc:  # an expert whose env cannot be laid on the task's grid
-            return f"experts: cannot size them on this task: {exc}"
+        # integer arithmetic: nothing is allocated; the experts' and CAE's nets included (each
+        # expert already passed expert_misfit, so each can be laid on the task's grid)
+        need = estimate(spec, experts=guides, walls_cae=cae_card).memory_bytes
         if need > share:
             extra = f" with its {len(guides)} expert(s)" if guides else ""
             return (

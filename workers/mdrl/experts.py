@@ -272,7 +272,19 @@ def expert_misfit(exp: Any, kind: str, walls_encoder: bool, task: Any) -> str | 
     if walls_encoder and grid != task_grid:
         return (f"its walls encoder reads {grid[0]}x{grid[1]} maps, so it cannot serve a "
                 f"{task_grid[0]}x{task_grid[1]} task")
+    try:  # what the adapter builds: the task's env, and its own agent count on that grid
+        dataclasses.replace(laid_on_task(exp, task), agents=exp.agents)
+    except ValueError as exc:
+        return f"its env cannot be laid on the task's {task_grid[0]}x{task_grid[1]} grid: {exc}"
     return None
+
+
+def laid_on_task(exp: Any, task: Any) -> Any:
+    """The expert's EnvSpec ``exp`` moved onto the task's EnvSpec ``task``: the task's grid,
+    walls, agents and move set, the expert's physics (what its readings are scaled by). The
+    adapter's observer and the resource model's sizing both start from it."""
+    return dataclasses.replace(exp, rows=task.rows, cols=task.cols, agents=task.agents,
+                               walls=task.walls, wall_length=task.wall_length, moves=task.moves)
 
 
 class ModelExpert:
@@ -297,9 +309,7 @@ class ModelExpert:
         if why is not None:
             raise ExpertError(f"{what}: {why}")
         self.joint = kind == "cmtl"
-        on_task = dataclasses.replace(exp, rows=task.rows, cols=task.cols, agents=task.agents,
-                                      walls=task.walls, wall_length=task.wall_length,
-                                      moves=task.moves)
+        on_task = laid_on_task(exp, task)
         self.observer = make_observer(on_task, obs, getattr(policy.observer, "embedder", None),
                                       any_window=True)
         want = channel_layout(dataclasses.replace(on_task, agents=exp.agents), obs).actor

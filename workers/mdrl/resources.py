@@ -35,6 +35,7 @@ from functools import cache
 from typing import Any
 
 from workers.mdrl.env import HISTORY
+from workers.mdrl.experts import laid_on_task
 from workers.mdrl.observations import ROUTE_CELLS, channel_layout
 from workers.mdrl.trainingspec import JOB_EVAL_EPISODES, TrainingSpec
 
@@ -128,9 +129,7 @@ def expert_bytes(task: Any, env: Any, obs: Any, num_envs: int) -> tuple[int, int
     EnvSpec ``task`` on ``num_envs`` envs: (held for the whole run: its actor and critic
     weights and the observer the adapter builds for it on the task's grid; one forward pass of
     its actor over every env's agents: the layer outputs, inference keeps no gradients)."""
-    on_task = dataclasses.replace(env, rows=task.rows, cols=task.cols, agents=task.agents,
-                                  walls=task.walls, wall_length=task.wall_length,
-                                  moves=task.moves)
+    on_task = laid_on_task(env, task)
     own = dataclasses.replace(on_task, agents=env.agents, moves=env.moves)
     layout = channel_layout(own, obs)
     samples, outputs = _policy_outputs(env, obs)

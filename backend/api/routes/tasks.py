@@ -220,9 +220,6 @@ def create_task(
             )
         except SpecLimitExceeded as exc:
             raise RuleError(422, exc.rule, exc.msg) from None
-        except ValueError as exc:  # an expert whose env cannot be laid on the task's grid
-            field_error(("body", "experts"), f"an expert cannot serve this task: {exc}",
-                        "expert_misfit")
     check_duration(chain, body.deadline_s)
     check_min_reward(chain, body.payment_wei, body.deadline_s)
     check_requester_can_escrow(chain, user.address, body.payment_wei * body.num_workers)
