@@ -168,24 +168,94 @@ def env(chain: Chain, store: EmbeddedStore):
     chain.revert(snap)
 
 
-def test_an_expert_failing_verification_fails_the_job_on_chain(env, store, tmp_path) -> None:
+def _bad_models(store: EmbeddedStore, tmp_path: Path) -> dict[str, tuple[dict, str]]:
+    """{case: (task spec, what the decline must say)}: bundles whose manifest and card pass
+    the card checks, with a defect only fetching and loading them shows."""
+    from backend.store.bundle import BUNDLE_FORMAT, canonical_json
+    from backend.store.dag import compute_cid
+
+    weights, card = (EXPERT / "model.safetensors").read_bytes(), (EXPERT / "model.json")
+    card_json = json.loads(card.read_text())
+
+    def manifest(entry: dict) -> str:  # a bundle whose weights entry says what we want
+        return store.add(canonical_json({"format": BUNDLE_FORMAT, "files": {
+            "model.json": {"cid": store.add(card.read_bytes()), "size": card.stat().st_size},
+            "model.safetensors": entry}}))
+
+    local = walls_cae(tmp_path)
+    cae_card = json.loads((local / "model.json").read_text())
+    cae_weights = (local / "model.safetensors").read_bytes()
+
+    def cae(card: dict) -> str:
+        return add_bundle(store, {"model.safetensors": cae_weights,
+                                  "model.json": json.dumps(card).encode()})
+
+    shape = card_json | {"observation": card_json["observation"] | {"actor_shape": [1, 2, 3]}}
+    no_digest = {k: v for k, v in cae_card.items() if k != "encoder_digest"}
+    experts = {
+        "pickled weights": (bundle(store, **{"model.safetensors": pickle.dumps({"w": [1.0]})}),
+                            "model.safetensors is a pickle"),
+        "weights not in the store": (manifest({"cid": compute_cid(weights + b" "),
+                                               "size": len(weights) + 1}),
+                                     "is not in the store"),
+        "weights of another size": (manifest({"cid": store.add(weights), "size": 100}),
+                                    "failed verification"),
+        "a card's input shape the task cannot give": (
+            bundle(store, **{"model.json": json.dumps(shape).encode()}),
+            "the adapter builds inputs of shape (8, 5, 5)"),
+        "a CAE card as an expert": (bundle(store, **{"model.json": json.dumps(
+            card_json | {"kind": "cae"}).encode()}), "not a policy"),
+    }
+    cases = {k: ({**TINY_SPEC, "experts": [cid]}, why) for k, (cid, why) in experts.items()}
+    cases["a walls CAE of another d"] = (cae_spec(cae(cae_card), d=32),
+                                         "observation.walls_embedding_size = 32")
+    cases["a walls CAE without its encoder digest"] = (cae_spec(cae(no_digest)),
+                                                       "encoder_digest")
+    cases["a walls CAE whose weights are not its card's"] = (
+        cae_spec(cae(cae_card | {"embedding": 32}), d=32), "tensors the weights do not hold")
+    return cases
+
+
+def test_a_model_no_run_could_use_is_declined_before_acceptance(env, store, tmp_path) -> None:
+    """Before it accepts, the worker fetches each expert and walls CAE, verified against its
+    CID, and loads it as the job would: weights missing from the store, weights not as the
+    manifest says, a pickle, a card whose input shape or embedding size contradicts the
+    weights or the task. Each is a decline naming the CID, not an accepted job failed on
+    chain (which lowers the worker's reputation, Eq. 18), and nothing of it stays on disk;
+    the redelivered offer is not retried."""
     p, actors = env
-    cid = bundle(store, **{"model.safetensors": pickle.dumps({"w": [1.0]})})
-    spec = {**TINY_SPEC, "experts": [cid]}
+    for case, (spec, why) in _bad_models(store, tmp_path).items():
+        task_id, offered, _ = post_task(p, store, actors.requester, spec=spec)
+        h = OfferHandler(account=p.chain._keys[offered[0]], platform=p, store=store,
+                         data_dir=tmp_path / "w")
+        out = h.handle(task_id, offered[0])
+        assert out["status"] == "declined", (case, out)
+        assert why in out["reason"] and "expert bafk" in out["reason"], (case, out["reason"])
+        assert str(tmp_path) not in out["reason"], case  # the model named, not the worker's disk
+        assert p.tmc.offer(task_id, offered[0])["state"] == OfferState.DECLINED, case
+        job = h.job_dir(task_id)
+        assert not (job / "experts").exists() and not (job / "cae").exists(), case
+        assert h.handle(task_id, offered[0])["status"] == "offer declined", case
+
+
+def test_the_models_checked_before_acceptance_are_not_fetched_again(
+    env, store, tmp_path, monkeypatch
+) -> None:
+    """What the worker fetched and verified to decide is what the job trains with: after the
+    offer is accepted nothing is read from the store again."""
+    p, actors = env
+    cid = upload_model(store, EXPERT)
+    spec = {**TINY_SPEC, "experts": [cid], "budget": {"steps": 200}}
     task_id, offered, _ = post_task(p, store, actors.requester, spec=spec)
-    h = OfferHandler(
-        account=p.chain._keys[offered[0]],
-        platform=p,
-        store=store,
-        data_dir=tmp_path / "w",
-    )
+    h = OfferHandler(account=p.chain._keys[offered[0]], platform=p, store=store,
+                     data_dir=tmp_path / "w")
+    reads: list[str] = []
+    real = store.get_to_file
+    monkeypatch.setattr(store, "get_to_file", lambda c, *a, **k: (reads.append(
+        h._state(task_id).get("phase", "")), real(c, *a, **k))[1])
     out = h.handle(task_id, offered[0])
-    assert out["status"] == "failed" and out["offer"] == "failed"
-    assert f"expert {cid}: model.safetensors is a pickle" in out["reason"]
-    assert p.tmc.offer(task_id, offered[0])["state"] == OfferState.FAILED
-    assert not (jobs.run_dir(h.job_dir(task_id)) / "checkpoint").exists()  # never trained
-    again = h.handle(task_id, offered[0])  # redelivered: no crash loop, nothing retried
-    assert again["status"] == "offer failed"
+    assert out["status"] == "submitted", out
+    assert len(reads) >= 2 and set(reads) == {""}, reads  # all before accepting
 
 
 def test_an_expert_whose_card_no_worker_can_use_is_declined_not_failed(

@@ -29,7 +29,14 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-from backend.store import CID, ContentStore, InvalidCID, StoreError, StoreUnavailable
+from backend.store import (
+    CID,
+    ContentStore,
+    InvalidCID,
+    NotFound,
+    StoreError,
+    StoreUnavailable,
+)
 from backend.store.bundle import MAX_CARD_BYTES, MODEL_FILES, read_bundle
 from workers.mdrl.weightsfile import MAX_WEIGHTS_BYTES, WeightsFileError, check_weights_file
 
@@ -137,10 +144,12 @@ def check_walls_cae_card(
     *,
     max_weights: int = MAX_WEIGHTS_BYTES,
     grid: tuple[int, int] | None = None,
+    embedding: int | None = None,
 ) -> dict[str, Any]:
     """``check_expert_card`` for a task's walls CAE (``observation.walls_embedding``): its
-    manifest and card, and that it reads the task's ``grid`` (rows, cols), before a worker
-    accepts the offer."""
+    manifest and card, and that it reads the task's ``grid`` (rows, cols) into the spec's
+    ``embedding`` size (``observation.walls_embedding_size``), before a worker accepts the
+    offer."""
     with tempfile.TemporaryDirectory(prefix="drlaas-card-") as tmp:
         _download(store, ref, Path(tmp), max_weights, only=("model.json",))
         card = check_cae_card(Path(tmp) / "model.json", ref)
@@ -149,6 +158,11 @@ def check_walls_cae_card(
         raise ExpertFetchError(
             ref, f"this walls CAE reads {rows}x{cols} maps; the task's grid is "
             f"{grid[0]}x{grid[1]}"
+        )
+    if embedding is not None and card["embedding"] != embedding:
+        raise ExpertFetchError(
+            ref, f"this walls CAE has d = {card['embedding']}; the task's spec says "
+            f"observation.walls_embedding_size = {embedding}"
         )
     return card
 
@@ -185,6 +199,8 @@ def _download(
             got = store.get_to_file(file_cid, dest / name, max_size=max(size, 1))
         except StoreUnavailable:
             raise
+        except NotFound:
+            raise ExpertFetchError(ref, f"{name} ({file_cid}) is not in the store") from None
         except StoreError as exc:
             raise ExpertFetchError(ref, f"{name} ({file_cid}) failed verification: {exc}") from None
         if got != size:
@@ -249,7 +265,14 @@ def load_walls_encoder(ref: str, directory: Path) -> Any:
     try:
         return WallsEmbedder(load_cae(directory).encoder, ref)
     except Exception as exc:  # noqa: BLE001 - weights that do not fit their card
-        raise ExpertFetchError(ref, f"cannot load the walls CAE: {exc}") from None
+        why = _named_by_cid(exc, directory, ref)
+        raise ExpertFetchError(ref, f"cannot load the walls CAE: {why}") from None
+
+
+def _named_by_cid(exc: Exception, directory: Path, ref: str) -> str:
+    """``exc``'s message with this worker's path of the model replaced by the model's CID:
+    a reason goes to the requester, who needs the model named, not the worker's disk."""
+    return str(exc).replace(str(directory), ref)
 
 
 def load_job_experts(
@@ -265,5 +288,6 @@ def load_job_experts(
         try:
             experts.append(load_expert_at(ref, dirs[ref], task, seed + i))
         except Exception as exc:  # noqa: BLE001 - a model that cannot serve the task
-            raise ExpertFetchError(ref, f"cannot guide this task: {exc}") from None
+            why = _named_by_cid(exc, dirs[ref], ref)
+            raise ExpertFetchError(ref, f"cannot guide this task: {why}") from None
     return experts

@@ -51,6 +51,8 @@ from backend.store.staged import StagedUpload
 from workers.daemon import job as jobs
 from workers.daemon.capabilities import ram_bytes
 from workers.daemon.experts import (
+    CAE_DIR,
+    EXPERTS_DIR,
     MAX_WEIGHTS_BYTES,
     ExpertFetchError,
     check_expert_card,
@@ -352,6 +354,7 @@ class OfferHandler:
                     spec.observation.walls_embedding,
                     max_weights=self.max_expert_bytes,
                     grid=(spec.env.rows, spec.env.cols),
+                    embedding=spec.observation.walls_embedding_size,
                 )
             demo = spec.demonstration()
             for ref in demo.experts if demo is not None else ():
@@ -386,6 +389,33 @@ class OfferHandler:
             TargetLocalizationEnv(spec.env, 1, seed=spec.seed)
         except ValueError as exc:  # LayoutError, or an env rule the spec check does not mirror
             return f"env: {exc}"
+        return self._models_unusable(task_id, spec)
+
+    def _models_unusable(self, task_id: int, spec: TrainingSpec) -> str | None:
+        """Why the experts or walls CAE of ``spec`` cannot run (None: they can), found by
+        doing now what the job would do after acceptance: fetch each, verified against its CID
+        (into the job directory, where the job finds them and fetches nothing again), and load
+        it as the run will (``job.check_job_models``). A bundle whose weights the store lacks,
+        differ from the manifest or contradict the card, or a card whose input shape or
+        embedding size the task cannot give, is a decline, not a job failed on chain at this
+        worker's reputation. Last of the checks: the memory check counted these nets first."""
+        demo = spec.demonstration()
+        cae = spec.observation.walls_embedding
+        if demo is None and cae is None:
+            return None
+        job = self.job_dir(task_id)
+        try:
+            experts = fetch_experts(self.store, demo.experts if demo is not None else (), job,
+                                    max_weights=self.max_expert_bytes)
+            walls = (fetch_walls_cae(self.store, cae, job, max_weights=self.max_expert_bytes)
+                     if cae is not None else None)
+            jobs.check_job_models(spec, experts, walls)
+        except ExpertFetchError as exc:
+            for sub in (EXPERTS_DIR, CAE_DIR):  # nothing of a declined task stays on disk
+                shutil.rmtree(job / sub, ignore_errors=True)
+            return str(exc)
+        except StoreUnavailable as exc:
+            raise Transient(f"cannot fetch the task's expert models: {exc}") from exc
         return None
 
     def give_up(self, task_id: int, reason: str) -> dict[str, Any]:

@@ -23,7 +23,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any, cast
 
-from workers.daemon.experts import load_job_experts, load_walls_encoder
+from workers.daemon.experts import ExpertFetchError, load_job_experts, load_walls_encoder
 from workers.mdrl.curve import attach_curve
 from workers.mdrl.train import RunConfig, Trainer
 from workers.mdrl.trainingspec import TrainingSpec
@@ -147,6 +147,30 @@ def make_selector(spec: TrainingSpec, experts: dict[str, Path] | None) -> Any:
         raise ValueError(f"experts {missing} were not fetched for this job")
     loaded = load_job_experts(demo.experts, experts or {}, spec.env, spec.seed)
     return DemonstrationSelector.from_config(demo, spec.env, seed=spec.seed, experts=loaded)
+
+
+def check_job_models(
+    spec: TrainingSpec, experts: dict[str, Path] | None, walls_cae: Path | None
+) -> None:
+    """Load the models a job of ``spec`` loads besides its own nets, as :func:`make_trainer`
+    does, and drop them: each expert through its adapter onto the task (its card's input
+    shape, its weights against its card), the walls encoder against the task's grid and
+    ``walls_embedding_size``. ExpertFetchError names the CID. A worker runs this before it
+    accepts an offer: a model no run could use is then a decline, not a job failed on chain."""
+    make_selector(spec, experts)
+    ref = spec.observation.walls_embedding
+    if ref is None:
+        return
+    if walls_cae is None:
+        raise ValueError(f"walls CAE {ref} was not fetched for this job")
+    from workers.mdrl.observations import make_observer
+
+    try:  # the observer checks the encoder's grid and d, as the trainer's does
+        make_observer(spec.env, spec.observation, load_walls_encoder(ref, walls_cae))
+    except ValueError as exc:
+        if isinstance(exc, ExpertFetchError):
+            raise
+        raise ExpertFetchError(ref, f"cannot serve this task: {exc}") from None
 
 
 def make_trainer(
