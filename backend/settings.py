@@ -184,6 +184,13 @@ class Settings(BaseSettings):
     max_downloads_per_client: int = Field(default=4, ge=1, le=1000)
     """Streamed downloads at once for one client (IP address); beyond that 429
     ``downloads_per_client`` + Retry-After."""
+    max_store_reads: int = Field(default=24, ge=1, le=10_000)
+    """Requests reading the content store at once over all clients; beyond that 503
+    ``store_reads_busy`` + Retry-After. Keep it below the 40 threads sync routes share: a read
+    of absent content waits for the node's find timeout in one of them."""
+    max_store_reads_per_client: int = Field(default=8, ge=1, le=1000)
+    """Requests reading the content store at once for one client (IP address); beyond that
+    429 ``store_reads_per_client`` + Retry-After."""
     download_idle_timeout_s: float = Field(default=30.0, gt=0, le=3600)
     """Seconds a download may wait on a client that reads nothing; then it is given up and
     its connection closed."""

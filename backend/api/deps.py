@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import datetime as dt
 import hmac
-from collections.abc import Callable, Iterator
+from collections.abc import AsyncIterator, Callable, Iterator
 from typing import Annotated
 
 from fastapi import Depends, Request
@@ -17,6 +17,7 @@ from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from sqlalchemy.orm import Session
 
 from backend.api.errors import RuleError
+from backend.api.storereads import StoreReads
 from backend.auth import User, decode_token
 from backend.indexer import Indexer
 from backend.services.chain import ChainService
@@ -120,11 +121,20 @@ def get_indexer(request: Request) -> Indexer | None:
 IndexerDep = Annotated[Indexer | None, Depends(get_indexer)]
 
 
-def get_store(request: Request) -> ContentStore:
+async def get_store(request: Request) -> AsyncIterator[ContentStore]:
+    """The content store, holding one of the store-read slots (``storereads.StoreReads``)
+    until the route returns. An async dependency: taking and giving back a slot never waits
+    for a thread of the pool the slots protect."""
     store: ContentStore | None = getattr(request.app.state, "store", None)
     if store is None:
         raise RuleError(503, "store_unavailable", "the gateway has no content store")
-    return store
+    reads: StoreReads = request.app.state.store_reads
+    client = request.client.host if request.client else "unknown"
+    reads.enter(client)
+    try:
+        yield store
+    finally:
+        reads.leave(client)
 
 
 StoreDep = Annotated[ContentStore, Depends(get_store)]

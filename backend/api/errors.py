@@ -24,6 +24,7 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from backend import errors as domain
 from backend.errors import DomainError
+from backend.store import StoreUnavailable
 
 log = logging.getLogger(__name__)
 
@@ -262,6 +263,18 @@ def install_error_handlers(app: FastAPI) -> None:
                 }
             },
             headers={"Retry-After": str(DB_BUSY_RETRY_AFTER_S)},
+        )
+
+    @app.exception_handler(StoreUnavailable)
+    async def _store_down(request: Request, exc: StoreUnavailable) -> JSONResponse:
+        # the node is down or slow: any route that reads the store says so, not "internal"
+        log.warning("content store unavailable on %s %s: %s", request.method,
+                    request.url.path, exc.reason)
+        return JSONResponse(
+            status_code=503,
+            content={"detail": {"rule": "store_unavailable",
+                                "msg": "the content store is unavailable; retry later"}},
+            headers={"Retry-After": str(max(1, math.ceil(exc.retry_after)))},
         )
 
     @app.exception_handler(Exception)

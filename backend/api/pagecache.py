@@ -3,12 +3,13 @@
 ``GET /api/models`` and ``GET /api/tasks`` read only rows the indexer writes, and the indexer
 writes them in the same transaction as its cursor (``index_cursor``). So a page built for one
 query at one cursor position is the answer to that query until the cursor moves: the cache key
-is the request's path and query string, and an entry is valid while the cursor is where it was
-(one indexed read per request instead of the count, the page query and the encoding). Pages
-are built from plain column rows and encoded once with pydantic-core's encoder (the routes'
-``*Public`` models still document the shape in the OpenAPI, without re-validating it). Entries
+is the request's path and the query parameters its route declares, and an entry is valid while
+the cursor is where it was (one indexed read per request instead of the count, the page query
+and the encoding). Pages are built from plain column rows and encoded once with pydantic-core's
+encoder (the routes' ``*Public`` models still document the shape in the OpenAPI, without
+re-validating it). Entries
 also expire after ``ttl_s`` as a bound on anything written beside the indexer, and the cache
-keeps at most ``max_entries`` pages (least recently used go first).
+keeps at most ``max_entries`` pages and ``max_bytes`` of them (least recently used go first).
 """
 
 from __future__ import annotations
@@ -31,9 +32,13 @@ from backend.db import models as m
 class PageCache:
     """Encoded JSON pages by (key, index version), thread-safe, bounded, with a TTL."""
 
-    def __init__(self, ttl_s: float = 2.0, max_entries: int = 512) -> None:
+    def __init__(
+        self, ttl_s: float = 2.0, max_entries: int = 512, max_bytes: int = 32 * 2**20
+    ) -> None:
         self.ttl_s = ttl_s
         self.max_entries = max_entries
+        self.max_bytes = max_bytes  # a 500-row page is ~240 KB: entries alone do not bound it
+        self.size = 0  # bytes of the pages kept
         self._pages: OrderedDict[Hashable, tuple[Any, float, bytes]] = OrderedDict()
         self._lock = threading.Lock()
         self.hits = 0
@@ -51,11 +56,17 @@ class PageCache:
             return entry[2]
 
     def put(self, key: Hashable, version: Any, body: bytes) -> None:
+        if len(body) > self.max_bytes:
+            return
         with self._lock:
+            old = self._pages.pop(key, None)
+            if old is not None:
+                self.size -= len(old[2])
             self._pages[key] = (version, time.monotonic(), body)
-            self._pages.move_to_end(key)
-            while len(self._pages) > self.max_entries:
-                self._pages.popitem(last=False)
+            self.size += len(body)
+            while len(self._pages) > self.max_entries or self.size > self.max_bytes:
+                _, (_, _, dropped) = self._pages.popitem(last=False)
+                self.size -= len(dropped)
 
 
 def index_version(session: Session) -> tuple[Any, ...]:
@@ -77,10 +88,21 @@ def cached_page(request: Request, session: Session, build: Callable[[], Any]) ->
     cache: PageCache | None = getattr(request.app.state, "page_cache", None)
     if cache is None:
         return Response(to_json(build()), media_type="application/json")
-    key = (request.url.path, request.url.query)
+    key = (request.url.path, _declared_query(request))
     version = index_version(session)
     body = cache.get(key, version)
     if body is None:
         body = to_json(build())
         cache.put(key, version, body)
     return Response(body, media_type="application/json")
+
+
+def _declared_query(request: Request) -> tuple[tuple[str, str], ...]:
+    """The query parameters the route declares, sorted: parameters it ignores (``?junk=1``,
+    ``?junk=2``, ...) must not make new cache keys that evict every real page."""
+    route = request.scope.get("route")
+    dependant = getattr(route, "dependant", None)
+    if dependant is None:
+        return tuple(sorted(request.query_params.multi_items()))
+    names = {p.alias for p in dependant.query_params}
+    return tuple(sorted((k, v) for k, v in request.query_params.multi_items() if k in names))

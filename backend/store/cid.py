@@ -67,8 +67,14 @@ def _b32encode(data: bytes) -> str:
 
 
 def _b32decode(text: str) -> bytes:
+    """The bytes of unpadded lowercase base32 ``text``; ValueError for a text no byte string
+    encodes to (a length RFC 4648 never produces, or unused low bits of the last character
+    set): those would let four texts name one CID, and the chain compares CID texts."""
     pad = "=" * (-len(text) % 8)
-    return base64.b32decode(text.upper() + pad)
+    raw = base64.b32decode(text.upper() + pad)
+    if _b32encode(raw) != text:
+        raise ValueError("not canonical base32 (a length or trailing bits no encoder writes)")
+    return raw
 
 
 def _b58encode(data: bytes) -> str:

@@ -10,8 +10,15 @@ that the store gives the same CIDs.
 
 from __future__ import annotations
 
+import json
+import os
+from pathlib import Path
+
 from .dag import compute_cid
 from .errors import CIDMismatch
+
+#: The file of a saved upload listing its pieces' CIDs, in order; written last.
+ORDER_FILE = "order.json"
 
 
 class StagedUpload:
@@ -38,3 +45,42 @@ class StagedUpload:
             got = store.add(data)  # type: ignore[attr-defined]
             if got != cid:
                 raise CIDMismatch(cid, got, "the store's add options differ from compute_cid's")
+
+    def save(self, directory: str | os.PathLike[str]) -> None:
+        """Write the staged pieces to ``directory`` (each under its CID, the order file last
+        and atomically), so a process killed between committing a CID and publishing it
+        publishes the same bytes after a restart: a sealed bundle is encrypted with a fresh
+        key, so sealing again would give another CID and need another commitment."""
+        d = Path(directory)
+        d.mkdir(parents=True, exist_ok=True)
+        for cid, data in self._pieces.items():
+            _write_atomic(d / cid, data)
+        _write_atomic(d / ORDER_FILE, json.dumps(list(self._pieces)).encode())
+
+    @classmethod
+    def load(cls, directory: str | os.PathLike[str]) -> StagedUpload:
+        """The upload :meth:`save` wrote to ``directory``, every piece checked against its
+        CID; ValueError (naming what is wrong) if it is incomplete or damaged."""
+        d = Path(directory)
+        try:
+            order = json.loads((d / ORDER_FILE).read_bytes())
+            if not isinstance(order, list) or not all(isinstance(c, str) for c in order):
+                raise ValueError(f"{ORDER_FILE} is not a list of CIDs")
+            staged = cls()
+            for cid in order:
+                data = (d / Path(cid).name).read_bytes()
+                if compute_cid(data) != cid:
+                    raise ValueError(f"piece {cid} does not match its CID")
+                staged._pieces[cid] = data
+        except (OSError, RecursionError) as exc:
+            raise ValueError(f"saved upload in {d} is incomplete: {exc}") from None
+        return staged
+
+
+def _write_atomic(path: Path, data: bytes) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    with tmp.open("wb") as fh:
+        fh.write(data)
+        fh.flush()
+        os.fsync(fh.fileno())
+    os.replace(tmp, path)

@@ -15,6 +15,7 @@ from fastapi.testclient import TestClient
 from backend.api.main import create_app
 from backend.api.shedding import LoadShedder
 from backend.settings import Settings
+from backend.store import StoreUnavailable
 
 from .conftest import P
 
@@ -109,3 +110,81 @@ def test_exhausted_database_pool_is_503_database_busy(tmp_path: Path) -> None:
         finally:
             held.close()
         assert client.get(f"{P}/models").status_code == 200
+
+
+class _SlowStore:
+    """The gateway's store, with reads of blocks that wait for ``release`` (a kubo node
+    looking for content nobody holds waits its find timeout, 10 s) or fail as a node that is
+    down does (``down``)."""
+
+    def __init__(self, store: object) -> None:
+        self.store = store
+        self.release = threading.Event()
+        self.down = False
+
+    def get_block(self, cid: str, *, max_bytes: int) -> bytes:
+        if self.down:
+            raise StoreUnavailable("http://kubo:5001", "connection refused", retry_after=7)
+        assert self.release.wait(60), "the test never released the store"
+        return self.store.get_block(cid, max_bytes=max_bytes)  # type: ignore[attr-defined]
+
+    def close(self) -> None:
+        pass
+
+
+def test_slow_store_reads_are_bounded_per_client_and_overall(tmp_path: Path) -> None:
+    """Requests waiting on the store hold a slot each: a client past its share gets 429
+    ``store_reads_per_client``, everyone past the total 503 ``store_reads_busy``, at once and
+    with Retry-After, while routes that do not read the store still answer. Slots come back
+    when the reads finish."""
+    from backend.store import EmbeddedStore
+
+    app = create_app(
+        Settings(data_dir=tmp_path, max_store_reads=3, max_store_reads_per_client=2,
+                 retry_after_s=2),
+        chain=False,
+        indexer_interval=None,
+    )
+    real = EmbeddedStore(tmp_path / "ipfs")
+    cid = real.add(b"a block")
+    slow = app.state.store = _SlowStore(real)
+    reads = app.state.store_reads
+
+    async def scenario() -> None:
+        def client(ip: str) -> httpx.AsyncClient:
+            transport = httpx.ASGITransport(app=app, client=(ip, 4000))
+            return httpx.AsyncClient(transport=transport, base_url="http://gw")
+
+        async def until(total: int) -> None:
+            for _ in range(2000):
+                if reads.total == total:
+                    return
+                await asyncio.sleep(0.005)
+            raise AssertionError(f"{reads.total} store reads in flight, expected {total}")
+
+        async with client("10.0.0.1") as a, client("10.0.0.2") as b, client("10.0.0.3") as c:
+            held = [asyncio.create_task(a.get(f"{P}/blocks/{cid}")) for _ in range(2)]
+            await until(2)
+            mine = await a.get(f"{P}/blocks/{cid}")
+            assert mine.status_code == 429, mine.text
+            assert mine.json()["detail"]["rule"] == "store_reads_per_client"
+            assert mine.headers["retry-after"] == "2"
+            held.append(asyncio.create_task(b.get(f"{P}/blocks/{cid}")))
+            await until(3)
+            full = await c.get(f"{P}/blocks/{cid}")
+            assert full.status_code == 503 and full.headers["retry-after"] == "2"
+            assert full.json()["detail"]["rule"] == "store_reads_busy"
+            assert (await c.get(f"{P}/health")).status_code == 200  # no store: not held up
+            slow.release.set()
+            done = [await t for t in held]
+            assert [r.status_code for r in done] == [200, 200, 200]
+            assert done[0].content == b"a block"
+            assert reads.total == 0 and reads.by_client == {}
+            assert (await c.get(f"{P}/blocks/{cid}")).status_code == 200
+            slow.down = True  # a node that is down: 503 naming the store, not a 500
+            down = await c.get(f"{P}/blocks/{cid}")
+            assert down.status_code == 503 and down.headers["retry-after"] == "7"
+            assert down.json()["detail"]["rule"] == "store_unavailable"
+            assert reads.total == 0  # the failed read gave its slot back
+
+    run_in_fresh_loop(scenario)

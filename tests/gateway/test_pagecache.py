@@ -29,6 +29,33 @@ def test_entries_follow_version_ttl_and_size(monkeypatch: pytest.MonkeyPatch) ->
     assert cache.get("b", (1,)) is None and cache.get("a", (1,)) == b"a"
 
 
+def test_the_cache_is_bounded_in_bytes_too() -> None:
+    """A 500-row page is ~240 KB: 512 of them would hold ~120 MB, so bytes are bounded too,
+    least recently used out first, and a page larger than the whole bound is not kept."""
+    cache = PageCache(max_entries=100, max_bytes=10)
+    cache.put("a", (1,), b"aaaa")
+    cache.put("b", (1,), b"bbbb")
+    cache.put("a", (1,), b"aaaa")  # replaced: counted once
+    assert cache.size == 8
+    cache.put("c", (1,), b"cccc")  # 12 > 10: b, the least recently used, goes
+    assert cache.get("b", (1,)) is None and cache.get("a", (1,)) == b"aaaa"
+    assert cache.size == 8
+    cache.put("huge", (1,), b"x" * 11)
+    assert cache.get("huge", (1,)) is None and cache.size == 8
+
+
+def test_parameters_the_route_ignores_make_no_new_pages(tmp_path: Path) -> None:
+    """``?junk=1``, ``?junk=2``, ...: one page, not one per junk value evicting real ones."""
+    app = create_app(Settings(data_dir=tmp_path), chain=False, indexer_interval=None)
+    with TestClient(app) as client:
+        cache: PageCache = app.state.page_cache
+        for i in range(20):
+            assert client.get("/api/tasks", params={"limit": 7, "junk": i}).status_code == 200
+        assert len(cache._pages) == 1 and cache.hits == 19
+        client.get("/api/tasks", params={"limit": 8})  # a declared parameter: its own page
+        assert len(cache._pages) == 2
+
+
 def _model(i: int, owner: str) -> m.ModelRow:
     return m.ModelRow(
         id=i,

@@ -48,6 +48,26 @@ def test_approval_and_removal(client: TestClient, login: Login, service: ChainSe
     assert client.get(f"{P}/workers/{me}").json()["status"] == "removed"
 
 
+def test_an_approval_answers_the_status_the_chain_holds(
+    client: TestClient, login: Login, service: ChainService
+) -> None:
+    """A worker that went idle, changed its capabilities (back to pending) and is approved
+    again is Idle on chain: the answer says so, as the worker's page does."""
+    umc = service.platform.umc
+    umc.set_approval_required(service.platform.admin, True)
+    r = client.post(f"{P}/users/workers", json={"domains": [0]} | CAPS, headers=login("user5"))
+    me = addr(service, "user5")
+    assert client.post(f"{P}/users/workers/{me}/approval", headers=login("admin")).json()[
+        "status"] == "active"
+    service.send(me, umc, "updateStatus", 2)  # idle, with its own key (as the daemon does)
+    r = client.post(f"{P}/users/workers", json={"domains": [0]} | CAPS | {"cpu_cores": 8},
+                    headers=login("user5"))
+    assert r.json()["status"] == "pending", r.text  # updated: sent back for approval
+    r = client.post(f"{P}/users/workers/{me}/approval", headers=login("admin"))
+    assert r.status_code == 200 and r.json()["status"] == "idle", r.text
+    assert client.get(f"{P}/workers/{me}").json()["status"] == "idle"
+
+
 def test_capabilities_are_integers_not_booleans_or_floats(client: TestClient, login: Login) -> None:
     """JSON ``true`` is not one CPU core, nor ``2.5`` a count of anything."""
     for bad in ({"cpu_cores": True}, {"cpu_cores": 2.5}, {"ram_gb": False}, {"gpu_series": 1.5}):

@@ -563,3 +563,29 @@ def test_an_expert_that_cannot_serve_the_task_is_named(store, tmp_path: Path) ->
     dirs = fetch_experts(store, spec.experts, tmp_path / "job")
     with pytest.raises(ExpertFetchError, match=f"expert {cid}: cannot guide this task: .*10x10"):
         jobs.make_selector(spec, dirs)
+
+
+def test_an_offer_that_expires_during_the_checks_is_not_accepted(
+    env, store, tmp_path, monkeypatch
+) -> None:
+    """Fetching and loading the experts takes time: when the acceptance window closed
+    meanwhile, the worker does not send an acceptOffer the chain would revert; it records
+    the offer as expired and holds no job."""
+    p, actors = env
+    cid = upload_model(store, EXPERT)
+    task_id, offered, _ = post_task(p, store, actors.requester, spec={**TINY_SPEC,
+                                                                       "experts": [cid]})
+    h = OfferHandler(account=p.chain._keys[offered[0]], platform=p, store=store,
+                     data_dir=tmp_path / "w")
+    slow = jobs.check_job_models
+
+    def slow_check(*args, **kw):  # noqa: ANN002, ANN003 - the job's own check, then time passes
+        slow(*args, **kw)
+        p.chain.advance_time(3600)
+
+    monkeypatch.setattr(jobs, "check_job_models", slow_check)
+    out = h.handle(task_id, offered[0])
+    assert out["status"] == "offer expired", out
+    assert p.tmc.offer(task_id, offered[0])["state"] == OfferState.OFFERED  # never accepted
+    assert h._state(task_id)["phase"] == "closed" and h.active_jobs(exclude=-1) == []
+    assert not (h.job_dir(task_id) / "experts").exists()  # pruned with the job

@@ -106,15 +106,20 @@ def test_the_outcome_cid_is_committed_before_anyone_can_read_it(
     assert committed[-1]["args"]["commitment"] == cid_commitment(out["cid"], offered[0])
 
 
+@pytest.mark.parametrize("sealed", [False, True])
 def test_a_store_outage_after_the_commitment_keeps_its_priority(
-    env, tmp_path: Path, monkeypatch
+    env, tmp_path: Path, monkeypatch, sealed: bool
 ) -> None:
     """The store fails between the commitment and the upload: the job is retried (Transient),
-    commits the same CID again (no second commitment: the first block stands) and submits."""
+    commits the same CID again (no second commitment: the first block stands) and submits.
+    Also for an outcome sealed to the requester, which is encrypted with a fresh key: the
+    retry publishes the bundle staged before the commitment instead of sealing anew."""
     from backend.store.staged import StagedUpload
 
     p, actors, store = env
-    task_id, offered, _ = post_task(p, store, actors.requester)
+    key = public_key_hex(bytes(p.chain._keys[actors.requester].key))
+    spec = {**TINY_SPEC, "outcome_key": key} if sealed else TINY_SPEC
+    task_id, offered, _ = post_task(p, store, actors.requester, spec=spec)
     h = handler_for(p, offered[0], store, tmp_path)
     h._post_progress = lambda tid, point: None  # type: ignore[method-assign]
     real = StagedUpload.publish
@@ -132,6 +137,7 @@ def test_a_store_outage_after_the_commitment_keeps_its_priority(
     assert out["status"] == "submitted"
     assert p.tmc.contract.events.CidCommitted().get_logs(from_block=0) == first
     assert first[0]["args"]["commitment"] == cid_commitment(out["cid"], offered[0])
+    assert not (h.job_dir(task_id) / "outbox").exists()  # published: not kept twice
 
 
 def test_a_crashed_job_resumes_from_its_checkpoint(env, tmp_path: Path) -> None:

@@ -142,10 +142,46 @@ def test_progress_points_wait_for_the_gateway_index_and_keep_their_order(tmp_pat
     gw = LaggingGateway()
     h = OfferHandler(account=None, platform=None, store=None, data_dir=tmp_path, gateway=gw)  # type: ignore[arg-type]
     h._post_progress(7, {"step": 1})  # refused: queued
-    assert gw.got == [] and h._pending[7] == [{"step": 1}]
+    assert gw.got == [] and list(h._pending[7]) == [{"step": 1}]
     h._post_progress(7, {"step": 2})  # refused again, then 1 goes; 2 is a duplicate: dropped
     h._post_progress(7, {"step": 3})
-    assert gw.got == [1, 3] and h._pending[7] == []
+    assert gw.got == [1, 3] and list(h._pending[7]) == []
+
+
+def test_progress_points_queued_through_an_outage_are_bounded(tmp_path: Path) -> None:
+    """While the gateway is down every point waits in a queue of at most MAX_PENDING_POINTS
+    (the oldest dropped: progress.jsonl keeps them all); when it is back, each update sends
+    at most POINTS_PER_UPDATE of the backlog, oldest first, so training never waits on the
+    whole backlog; a finished job's queue is dropped."""
+    from workers.daemon import handler as hd
+
+    class Gateway:
+        def __init__(self) -> None:
+            self.up, self.got = False, []
+
+        def post(self, path: str, json: dict, auth: bool) -> None:  # noqa: A002
+            if not self.up:
+                raise ConnectionError("gateway down")
+            self.got.append(json["step"])
+
+    from types import SimpleNamespace
+
+    gw = Gateway()
+    chain = SimpleNamespace(identity="chain-1")  # only the job directories' key is read
+    h = hd.OfferHandler(account=None, platform=chain, store=None, data_dir=tmp_path, gateway=gw)  # type: ignore[arg-type]
+    n = hd.MAX_PENDING_POINTS + 100
+    for step in range(n):
+        h._post_progress(7, {"step": step})
+    assert len(h._pending[7]) == hd.MAX_PENDING_POINTS and h._pending[7][0]["step"] == 100
+    gw.up = True
+    h._post_progress(7, {"step": n})  # queued last (100 drops out), then the 16 oldest go
+    assert gw.got == list(range(101, 101 + hd.POINTS_PER_UPDATE))
+    h._flush_progress(7, wait_s=1.0)  # before submitting: the rest, in order
+    assert gw.got == list(range(101, n + 1)) and not h._pending[7]
+    gw.up = False
+    h._post_progress(7, {"step": n + 1})
+    h._close(7, phase="failed")
+    assert 7 not in h._pending
 
 
 def test_give_up_abandons_only_a_job_in_hand(tmp_path: Path) -> None:

@@ -30,6 +30,7 @@ import logging
 import os
 import shutil
 import time
+from collections import deque
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -69,6 +70,8 @@ from workers.mdrl.trainingspec import MAX_SPEC_BYTES, SpecError, TrainingSpec
 
 log = logging.getLogger(__name__)
 
+#: Where a job keeps its staged outcome bundle until it is published (``_staged_outcome``).
+OUTBOX_DIR = "outbox"
 #: Seconds kept free before the task deadline for upload and submitOutcome.
 DEADLINE_MARGIN_S = 30.0
 #: Phases a job goes through, in order (``state.json``).
@@ -83,7 +86,13 @@ FINISHED = ("submitted", "declined", "closed", "failed")
 MAX_STARTS_WITHOUT_PROGRESS = 3
 #: What a finished job no longer needs (``_prune``): the delivered model, metrics.csv and
 #: progress.jsonl stay (``drlaas worker share`` reads the model).
-PRUNED = ("run/checkpoint", "experts", "cae")
+PRUNED = ("run/checkpoint", "experts", "cae", "outbox")
+#: Progress points queued for the gateway per job while it is unreachable: the oldest are
+#: dropped beyond this (progress.jsonl keeps every point; the curve on the gateway thins).
+MAX_PENDING_POINTS = 512
+#: Points sent per training update at most: a backlog after an outage is sent over the next
+#: updates, never all at once inside one (each post is a request, training waits on it).
+POINTS_PER_UPDATE = 16
 
 
 class Transient(RuntimeError):
@@ -135,7 +144,7 @@ class OfferHandler:
     clock: Callable[[], float] = time.time
     on_first_step: Callable[[int, int], None] | None = None
     progress_errors: int = field(default=0, init=False)
-    _pending: dict[int, list[dict[str, Any]]] = field(default_factory=dict, init=False)
+    _pending: dict[int, deque[dict[str, Any]]] = field(default_factory=dict, init=False)
 
     @property
     def address(self) -> str:
@@ -272,6 +281,11 @@ class OfferHandler:
                 self._transact("declineOffer", task_id)
                 self._save(task_id, phase="declined", reason=reason)
                 return {"task_id": task_id, "status": "declined", "reason": reason}
+            with chain_call(f"reading the clock for task {task_id}"):
+                late = int(offer["expiry"]) < self.platform.chain.now()
+            if late:  # the checks (fetching the experts) outlasted the acceptance window
+                self._close(task_id, phase="closed", reason="the offer expired during the checks")
+                return {"task_id": task_id, "status": "offer expired"}
             self._save(task_id, phase="accepting")
             self._transact("acceptOffer", task_id)
             self._save(task_id, phase="accepted", accepted_at=self.clock())
@@ -297,18 +311,14 @@ class OfferHandler:
             # killed after training, before this record: the finished model, not more updates
             finished = jobs.finished_training(self.job_dir(task_id), spec)
             model_dir = finished or self._train(task_id, spec, deadline=int(task["deadline"]))
-            st = self._save(  # model | best
-                task_id, phase="trained", model=model_dir.name, starts_without_progress=0
+            st = self._save(  # model | best; a bundle staged from an earlier model is stale
+                task_id, phase="trained", model=model_dir.name, starts_without_progress=0,
+                staged_cid=None,
             )
         if st.get("phase") != "uploaded" or not st.get("cid"):
             # commit-reveal: the CID is committed on chain before anyone can read it in the
             # store, so nobody can hand it in ahead of us (TMC.commitCid, docs/chain.md)
-            staged = StagedUpload()
-            cid = (
-                seal_model(staged, model_dir, parse_public_key(spec.outcome_key))
-                if spec.outcome_key is not None
-                else upload_model(staged, model_dir)
-            )
+            staged, cid = self._staged_outcome(task_id, spec, model_dir, st)
             with chain_call(f"committing the outcome CID of task {task_id}"):
                 self.platform.tmc.commit_cid(self.address, cid)
             try:
@@ -317,6 +327,7 @@ class OfferHandler:
             except StoreUnavailable as exc:
                 raise Transient(str(exc)) from exc
             st = self._save(task_id, phase="uploaded", cid=cid, files=files)
+            shutil.rmtree(self.job_dir(task_id) / OUTBOX_DIR, ignore_errors=True)  # published
         cid = st["cid"]
         self._flush_progress(task_id, wait_s=5.0)  # the curve is complete before the outcome
         try:
@@ -331,6 +342,29 @@ class OfferHandler:
             return {"task_id": task_id, "status": "submitted", "cid": cid}
         self._close(task_id, phase="submitted", tx=rc.tx_hash, submitted_at=self.clock())
         return {"task_id": task_id, "status": "submitted", "cid": cid, "tx": rc.tx_hash}
+
+    def _staged_outcome(
+        self, task_id: int, spec: TrainingSpec, model_dir: Path, st: dict[str, Any]
+    ) -> tuple[StagedUpload, str]:
+        """The outcome bundle, staged (its CID known, nothing published) and saved in the job
+        directory before its CID is committed: a retry after a store outage or a kill
+        publishes those same bytes under the committed CID. Sealing again would encrypt with
+        a fresh key, giving another CID, another commitment, and an orphaned first bundle."""
+        outbox = self.job_dir(task_id) / OUTBOX_DIR
+        if st.get("staged_cid"):
+            try:
+                return StagedUpload.load(outbox), str(st["staged_cid"])
+            except ValueError as exc:  # killed while saving it: nothing was committed yet
+                log.warning("task %s: staging the outcome again: %s", task_id, exc)
+        staged = StagedUpload()
+        cid = (
+            seal_model(staged, model_dir, parse_public_key(spec.outcome_key))
+            if spec.outcome_key is not None
+            else upload_model(staged, model_dir)
+        )
+        staged.save(outbox)
+        self._save(task_id, staged_cid=cid)
+        return staged, cid
 
     # -- capacity and failure --------------------------------------------------------------
     def _cannot_take(
@@ -435,6 +469,7 @@ class OfferHandler:
         """Save a finished phase (FINISHED) and prune what the job no longer needs."""
         state = self._save(task_id, **changes)
         self._prune(task_id)
+        self._pending.pop(task_id, None)  # points a finished job never sent
         return state
 
     def _prune(self, task_id: int) -> None:
@@ -675,17 +710,21 @@ class OfferHandler:
         yet (the indexer polls the chain): the points wait for the next try."""
         if self.gateway is None:
             return
-        queue = self._pending.setdefault(task_id, [])
+        queue = self._pending.setdefault(task_id, deque(maxlen=MAX_PENDING_POINTS))
         queue.append(point)
-        self._flush_progress(task_id)
+        self._flush_progress(task_id, at_most=POINTS_PER_UPDATE)
 
-    def _flush_progress(self, task_id: int, wait_s: float = 0.0) -> None:
-        """Send queued points; keep trying up to ``wait_s`` while the gateway lags."""
+    def _flush_progress(
+        self, task_id: int, wait_s: float = 0.0, at_most: int | None = None
+    ) -> None:
+        """Send queued points (``at_most`` of them); keep trying up to ``wait_s`` while the
+        gateway lags."""
         if self.gateway is None:
             return
-        queue = self._pending.get(task_id, [])
+        queue = self._pending.get(task_id, deque())
         deadline = time.monotonic() + wait_s
-        while queue:
+        sent = 0
+        while queue and (at_most is None or sent < at_most):
             try:
                 self.gateway.post(f"/tasks/{task_id}/progress", json=queue[0], auth=True)
             except GatewayError as exc:
@@ -699,7 +738,8 @@ class OfferHandler:
             except Exception as exc:  # noqa: BLE001 - best effort: training goes on
                 self._progress_warning(task_id, exc)  # connection down, a point not JSON ...
                 return
-            queue.pop(0)
+            queue.popleft()
+            sent += 1
 
     def _progress_warning(self, task_id: int, exc: Exception) -> None:
         self.progress_errors += 1

@@ -520,8 +520,11 @@ def download_outcome(
     settings: SettingsDep,
     file: BundleFile = "model.safetensors",
 ) -> StreamingResponse:
-    """A task's outcome (the bundle a worker submitted), for the task's requester or that
-    worker only, whether or not it was shared; verified as ``/models/{id}/download``."""
+    """A task's outcome (the bundle a worker submitted), streamed to the task's requester or
+    that worker, whether or not it was shared; verified as ``/models/{id}/download``. This
+    route is theirs; the content is not secret unless sealed: an outcome CID is on chain and
+    its blocks are served to anyone (``/blocks``). Only a spec's ``outcome_key`` keeps the
+    weights to the requester (docs/chain.md)."""
     task = session.get(m.TaskRow, task_id)
     if task is None:
         raise RuleError(404, "task_not_found", f"no task {task_id} (or not indexed yet)")
@@ -529,8 +532,10 @@ def download_outcome(
         raise RuleError(
             403,
             "not_task_requester",
-            f"task {task_id}'s outcomes are for its requester {task.requester} (and each "
-            f"worker its own) until shared",
+            f"this route streams task {task_id}'s outcomes to its requester "
+            f"{task.requester} and each worker its own. An outcome is public content unless "
+            "the task's spec sealed it to the requester (outcome_key): fetch a shared one as a "
+            "model, or any by its CID block by block (/api/blocks)",
         )
     outcome = session.get(m.OutcomeRow, (task_id, worker))
     if outcome is None:
@@ -762,12 +767,17 @@ def share_model(
     ``model_already_listed``, and the MMC's provenance rule (403 ``models_not_outcome_owner``,
     409 ``models_outcome_not_accepted``)."""
     declared = _env_spec(body.env, ("body", "env"))
-    _check_card_env(store, body.cid, declared)
-    _check_published(store, body.cid)
-    _check_bundle(store, body.cid)
+    # the chain's cheap refusals before the store is read (the bundle check fetches up to
+    # 64 MiB of weights): anyone can sign in and name any CID
+    if not int(chain.call(chain.platform.umc, "workerId", user.address)):
+        raise RuleError(403, "models_not_worker", f"{user.address} is not a registered worker: "
+                        "register first (POST /users/workers)")
     listed = int(chain.call(chain.platform.mmc, "modelOfCid", cid_hash(body.cid)))
     if listed:
         raise RuleError(409, "model_already_listed", f"{body.cid} is listed as model {listed}")
+    _check_card_env(store, body.cid, declared)
+    _check_published(store, body.cid)
+    _check_bundle(store, body.cid)
     attrs = env_attributes(declared)
     _ensure_committed(chain, user.address, body.cid)
     rc = chain.send(

@@ -201,6 +201,8 @@ def create_task(
         experts = allocation_experts(session, body.expert_allocation, user.address)
     spec = build_spec(body, settings, experts)
     check_outcome_key(spec, user.address)
+    # who may post, before the store is read for up to 8 experts and a CAE
+    check_requester_can_escrow(chain, user.address, body.payment_wei * body.num_workers)
     cards = check_experts(store, spec.experts)
     cae_card = check_walls_cae(
         store,
@@ -222,7 +224,6 @@ def create_task(
             raise RuleError(422, exc.rule, exc.msg) from None
     check_duration(chain, body.deadline_s)
     check_min_reward(chain, body.payment_wei, body.deadline_s)
-    check_requester_can_escrow(chain, user.address, body.payment_wei * body.num_workers)
     spec_cid = store.add(canonical_json(spec.to_dict()))
     tmc = chain.platform.tmc
     params = (

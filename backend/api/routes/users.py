@@ -55,7 +55,7 @@ def approve_requester(
     """UMC.approveRequester by a consortium admin: the pending requester may post tasks (403
     ``users_not_admin`` for anyone else, 409 ``users_requester_not_pending`` if it is not
     pending)."""
-    return _act_on(chain, indexer, user.address, "approveRequester", address, "requester", "active")
+    return _act_on(chain, indexer, user.address, "approveRequester", address, "requester")
 
 
 @router.delete(
@@ -69,7 +69,7 @@ def remove_requester(
     """UMC.removeRequester by the requester itself or an admin: no new task or model request
     from it; its tasks already posted run to their end (403 ``users_not_self_or_admin`` for
     anyone else, 409 ``users_requester_not_registered`` if it is not pending or active)."""
-    return _act_on(chain, indexer, user.address, "removeRequester", address, "requester", "removed")
+    return _act_on(chain, indexer, user.address, "removeRequester", address, "requester")
 
 
 @router.post(
@@ -138,7 +138,7 @@ def approve_worker(
 ) -> RegistrationPublic:
     """UMC.approveWorker by a consortium admin: the pending worker becomes a candidate (403
     ``users_not_admin`` for anyone else, 409 ``users_not_pending`` if it is not pending)."""
-    return _act_on(chain, indexer, user.address, "approveWorker", address, "worker", "active")
+    return _act_on(chain, indexer, user.address, "approveWorker", address, "worker")
 
 
 @router.delete(
@@ -151,15 +151,18 @@ def remove_worker(
 ) -> RegistrationPublic:
     """UMC.removeWorker by the worker itself or an admin: it is never offered a task or a
     model again (403 ``users_not_self_or_admin`` for anyone else)."""
-    return _act_on(chain, indexer, user.address, "removeWorker", address, "worker", "removed")
+    return _act_on(chain, indexer, user.address, "removeWorker", address, "worker")
 
 
 def _act_on(
-    chain: ChainDep, indexer: IndexerDep, sender: str, fn: str, address: str, role: str, status: str
+    chain: ChainDep, indexer: IndexerDep, sender: str, fn: str, address: str, role: str
 ) -> RegistrationPublic:
-    """One UMC call by ``sender`` about another account (approval, removal) and its answer."""
+    """One UMC call by ``sender`` about another account (approval, removal) and its answer,
+    with the status the chain now holds (an approved worker that had gone idle is Idle
+    again, not Active)."""
     rc = chain.send(sender, chain.platform.umc, fn, address)
     catch_up(indexer)
+    status = _status(chain, address) if role == "worker" else _requester_status(chain, address)
     return RegistrationPublic(
         address=address, role=role, tx_hash=rc.tx_hash, created=False, status=status
     )
