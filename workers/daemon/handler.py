@@ -45,7 +45,7 @@ from web3.exceptions import TimeExhausted
 from backend.chain.addresses import checksum
 from backend.chain.errors import ContractError
 from backend.chain.platform import OfferState, Platform, TaskStatus, Verdict
-from backend.store import ContentStore, StoreError, StoreUnavailable
+from backend.store import ContentStore, NotFound, StoreError, StoreUnavailable
 from backend.store.bundle import read_bundle, upload_model
 from backend.store.sealed import address_of, parse_public_key, publish_model, seal_model
 from backend.store.staged import StagedUpload
@@ -93,6 +93,12 @@ MAX_PENDING_POINTS = 512
 #: Points sent per training update at most: a backlog after an outage is sent over the next
 #: updates, never all at once inside one (each post is a request, training waits on it).
 POINTS_PER_UPDATE = 16
+
+
+class SpecNotFound(SpecError):
+    """The task's spec could not be read from the store (a node reports content it cannot
+    find in time as not found): a reason to decline an offer, but only a Transient failure
+    for a job already accepted, whose spec the worker read when it accepted."""
 
 
 class Transient(RuntimeError):
@@ -289,6 +295,8 @@ class OfferHandler:
             self._save(task_id, phase="accepting")
             self._transact("acceptOffer", task_id)
             self._save(task_id, phase="accepted", accepted_at=self.clock())
+        elif isinstance(spec, SpecNotFound):  # read when accepted: the node is slow, retry
+            raise Transient(str(spec))
         elif isinstance(spec, SpecError):  # accepted earlier, spec cannot be trained: give up
             return self._fail(task_id, f"task spec: {spec}")
 
@@ -616,7 +624,9 @@ class OfferHandler:
             raw = self.store.get(cid, max_size=MAX_SPEC_BYTES)
         except StoreUnavailable as exc:
             raise Transient(f"cannot fetch task spec {cid}: {exc}") from exc
-        except StoreError as exc:  # bad CID, not found, mismatch, too large, garbled answer
+        except NotFound as exc:
+            return SpecNotFound("spec", f"task spec {cid!r}: {exc}")
+        except StoreError as exc:  # bad CID, mismatch, too large, garbled answer
             return SpecError("spec", f"task spec {cid!r}: {exc}")
         except Exception as exc:  # noqa: BLE001 - a store's own bug: the offer is still answered
             log.exception("task %s: reading task spec %s failed", task_id, cid)
