@@ -128,7 +128,7 @@ class Settings(BaseSettings):
     """Blocks to wait before trusting an event on a real chain (embedded: always 0)."""
     accept_window_s: int = Field(default=600, ge=1, le=2**32 - 1)
     """Default TMC acceptance window: an offer not accepted within it goes back to recruitment."""
-    review_window_s: int = Field(default=86_400, ge=1, le=2**32 - 1)
+    review_window_s: int = Field(default=86_400, ge=1, le=90 * 86_400)  # TMC.MAX_REVIEW_WINDOW
     """Default TMC review window: an outcome left unreviewed past it counts as accepted."""
     max_upload_bytes: int = Field(default=256 * 2**20, gt=0)
     """Largest model/content upload the gateway and store accept."""

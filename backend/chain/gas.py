@@ -11,6 +11,8 @@ Allocation is measured over a pool of ``workers`` candidates and its growth over
 
 from __future__ import annotations
 
+import base64
+import hashlib
 import random
 from collections.abc import Sequence
 from typing import Any
@@ -43,13 +45,12 @@ CID = "bafkreidot3j5vvbthwtydmn3ny2pq2ckibhbuj5sech6wpzsxokrkqntsy"
 OUTCOME_CID = "bafkreigh2akiscaildcqabsyg3dfr6chu3fgpregiymsck7e7aqa4s52zy"  # not a listed one
 
 
-def _base32_letters(n: int) -> str:
-    """``n`` in the letters a-z: a suffix that keeps a CID text canonical and distinct."""
-    out = "a"
-    while n:
-        n, digit = divmod(n, 26)
-        out += chr(ord("a") + digit)
-    return out
+def _model_cid(n: int) -> str:
+    """The ``n``-th distinct model CID text, canonical for the contracts' CidText: a
+    sha2-256 CIDv1 (raw) of some bytes in lowercase base32, the length of :data:`CID` (a suffix
+    appended to a CID is no RFC 4648 encoding, which CidText refuses)."""
+    digest = hashlib.sha256(f"gas-model-{n}".encode()).digest()
+    return "b" + base64.b32encode(bytes.fromhex("01551220") + digest).decode().lower().rstrip("=")
 
 
 def intrinsic_gas(calldata: bytes, create: bool = False) -> int:
@@ -84,7 +85,7 @@ def _grow_pool(p: Platform, rng: random.Random, target: int, workers: list[str])
         )
         env = [rng.randint(1, 10), rng.randint(0, 10)]
         # a CID is listed once, in lowercase base32 (the contracts' CidText)
-        p.mmc.add_model(acct, CID + _base32_letters(len(workers)), DOMAIN, env, "ppo")
+        p.mmc.add_model(acct, _model_cid(len(workers)), DOMAIN, env, "ppo")
         workers.append(acct)
     return rc
 

@@ -264,9 +264,16 @@ class TasksManager(ContractHandle):
             "settled",
             "offer_count",
             "deadline",
-            "taken",
         )
-        keys_r = ("domain", "min_reputation", "min_rating", "min_cpu_cores", "min_ram_gb", "reward")
+        keys_r = (
+            "domain",
+            "min_reputation",
+            "min_rating",
+            "min_cpu_cores",
+            "min_ram_gb",
+            "reward",
+            "review_end",
+        )
         out = dict(zip(keys_t, t, strict=True)) | dict(zip(keys_r, r, strict=True))
         out["status"] = TaskStatus(out["status"])
         return out

@@ -51,8 +51,9 @@ Precision (fixed vs float, in [0, 1] units; checked by tests/contracts/test_qos_
 Decisions where the thesis is vague (also in the issue report)
 ------------------------------------------------------------------
 1. Counters are kept per (domain, task type) -- :class:`Counters`: ``assigned`` (A, offers
-   made to the worker, including offers that later expired or were declined, except those of
-   a task no worker ever accepted, which are taken back when it ends), ``accepted`` (Ac,
+   made to the worker that count: an accepted offer when accepted; one declined or expired
+   when its task ends, and only if some worker held a slot of it then; never while the task
+   runs, nor for a task nobody held at its end), ``accepted`` (Ac,
    offers accepted within the acceptance window), ``completed`` (E, outcomes submitted before
    the deadline and then accepted, or paid unreviewed at close; also N in Eq. 16),
    ``rating_sum`` / ``rating_count`` (requester reviews; an accepted offer without outcome at

@@ -25,14 +25,21 @@ import {CidText} from "./CidText.sol";
  * Anti-spam: a consortium admin sets {minRewardPerHour}, the least reward per worker-hour a
  * task may offer ({addTask} reverts below it). A task always pays at least 1 wei per worker,
  * even with no minimum set: a zero-reward task costs its requester nothing (the escrow comes
- * back at close) yet its offers count in every offered worker's reputation (docs/chain.md,
- * "Offers a worker can take").
+ * back at close) yet could make offers to any worker (docs/chain.md, "Offers a worker can
+ * take").
  *
- * Offers a worker can take (anti-griefing): an offer counts as assigned (A of Eq. 17) when it
- * is made, so no offer may be made that the worker could not accept and complete. {addTask}
- * requires duration >= acceptWindow + {minWorkTime}, and {allocateTask} refuses once
- * now + acceptWindow + minWorkTime > deadline: a worker accepting at the very end of its
- * window still has minWorkTime to train.
+ * Offers a worker can take (anti-griefing): no offer may be made that the worker could not
+ * accept and complete. {addTask} requires duration >= acceptWindow + {minWorkTime}, and
+ * {allocateTask} refuses once now + acceptWindow + minWorkTime > deadline: a worker accepting
+ * at the very end of its window still has minWorkTime to train.
+ *
+ * Offers that count (A of Eq. 17): an offer counts as assigned only once it is known whether
+ * it should. An accepted offer counts at {acceptOffer} (assigned and accepted at once); an
+ * offer never accepted (declined or expired) counts when its task ends (closed, cancelled or
+ * completed), and only if some worker still held a slot of the task then (`filled` != 0: the
+ * task was worth taking, the offeree lost it to someone else). Offers of a task still running,
+ * or of one nobody held at its end, never lower anyone's reputation: a requester cannot make
+ * decoy offers a weapon (docs/chain.md, "Offers that count").
  *
  * Bounded escrow: duration <= {maxDuration} (admin-set), and the requester may cancel the
  * slots nobody holds at any time ({cancelOpenSlots}); only the slots of workers who accepted
@@ -42,8 +49,10 @@ import {CidText} from "./CidText.sol";
  * back with {abandonOffer}, and at close the slot is refunded and the worker's reputation
  * drops (accepted, never completed).
  *
- * Reviews: the requester reviews each outcome until deadline + reviewWindow; after that the
- * outcome is the worker's (paid at close) and {reviewOutcome} reverts.
+ * Reviews: the requester reviews each outcome until the task's review end, deadline +
+ * reviewWindow as configured when the task was posted ({Reqs.reviewEnd}: a later
+ * {setConfig} changes no posted task); after that the outcome is the worker's (paid at
+ * close) and {reviewOutcome} reverts. reviewWindow <= {MAX_REVIEW_WINDOW}.
  *
  * Sealed outcomes: an outcome CID is public once submitted, before the requester pays; with
  * the spec's outcome_key the worker uploads the weights only sealed to the requester's key,
@@ -82,12 +91,14 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
     uint8 internal constant ACCEPTED = 2;
     uint8 internal constant COMPLETED = 4;
     uint8 internal constant REVIEWED = 8;
-    uint8 internal constant WITHDRAWN = 16;
     uint256 public constant MAX_WORKERS = 16; // NW fits uint8 and keeps the top-k array tiny
     uint256 public constant MAX_OFFERS = 64; // bounds the per-task offer loops
     uint256 internal constant ELIGIBLE = 1 << 255;
     uint32 public constant DEFAULT_MIN_WORK_TIME = 60; // a floor; the consortium sets its own
     uint40 public constant DEFAULT_MAX_DURATION = 30 days;
+    /// Longest review window {setConfig} accepts: bounds how long a worker's pay for an
+    /// unreviewed outcome can wait after the deadline.
+    uint32 public constant MAX_REVIEW_WINDOW = 90 days;
     uint256 internal constant ID_MASK = (1 << 32) - 1;
 
     enum TaskStatus {
@@ -115,21 +126,23 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
         TaskStatus status;
         uint8 numWorkers;
         uint8 liveOffers; // offers not yet accepted, declined or expired
-        uint8 filled; // workers who accepted
+        uint8 filled; // workers holding a slot: accepted, not given back ({abandonOffer})
         uint8 settled; // slots paid or refunded
         uint8 offerCount; // offers ever made (<= MAX_OFFERS)
         uint40 deadline;
-        bool taken; // a worker accepted an offer of this task at some point
     }
 
-    /// One slot: the requirements of 7.5.1 and the reward per worker.
+    /// One slot: the requirements of 7.5.1, the reward per worker and the review end.
+    /// Domain (<= 47) and thresholds (<= 1e6) are stored narrower than {TaskParams} takes them
+    /// (both checked by {addTask}) to leave room for `reviewEnd`.
     struct Reqs {
-        uint32 domain;
-        uint32 minReputation;
-        uint32 minRating;
+        uint8 domain;
+        uint24 minReputation;
+        uint24 minRating;
         uint32 minCpuCores;
         uint32 minRamGb;
         uint96 reward;
+        uint40 reviewEnd; // deadline + reviewWindow when posted: reviews until, pay after
     }
 
     struct Offer {
@@ -272,8 +285,11 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
 
     /**
      * @dev Sets w1 (Eq. 20, scaled by 1e6, in [1, 1e12]) and the acceptance and review
-     * windows (seconds, > 0). Requirements: caller is a consortium admin;
-     * acceptWindow + minWorkTime <= maxDuration. Emits a {ConfigUpdated} event.
+     * windows (seconds, > 0). The review window applies to tasks posted afterwards: each task
+     * keeps the review end fixed when it was posted, so an admin can neither shorten a running
+     * task's review nor hold its workers' pay longer. Requirements: caller is a consortium
+     * admin; acceptWindow + minWorkTime <= maxDuration; reviewWindow <= {MAX_REVIEW_WINDOW}.
+     * Emits a {ConfigUpdated} event.
      */
     function setConfig(uint64 w1_, uint32 acceptWindow_, uint32 reviewWindow_) external {
         _checkAdmin();
@@ -341,7 +357,8 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
      * thresholds <= 1e6; acceptWindow + minWorkTime <= duration <= maxDuration (s);
      * msg.value a multiple of numWorkers; the reward per worker at least
      * {minRewardForDuration}(duration), i.e. minRewardPerHour per hour of the task's duration
-     * (deadline - now), rounded up to the wei, and at least 1 wei.
+     * (deadline - now), rounded up to the wei, and at least 1 wei. The task's review end is
+     * fixed here (deadline + the current reviewWindow; {getTask}'s `reviewEnd`).
      * Emits a {TaskAdded} event.
      */
     function addTask(TaskParams calldata p) external payable returns (uint256 taskId) {
@@ -364,9 +381,16 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
         if (reward < minimum) revert TasksRewardBelowMinimum(reward, minimum);
         taskId = ++taskCount;
         uint40 deadline = uint40(block.timestamp) + p.duration;
-        _tasks[taskId] = Task(msg.sender, TaskStatus.Open, p.numWorkers, 0, 0, 0, 0, deadline, false);
-        _reqs[taskId] =
-            Reqs(p.domain, p.minReputation, p.minRating, p.minCpuCores, p.minRamGb, uint96(reward));
+        _tasks[taskId] = Task(msg.sender, TaskStatus.Open, p.numWorkers, 0, 0, 0, 0, deadline);
+        _reqs[taskId] = Reqs(
+            uint8(p.domain),
+            uint24(p.minReputation),
+            uint24(p.minRating),
+            p.minCpuCores,
+            p.minRamGb,
+            uint96(reward),
+            deadline + reviewWindow
+        );
         _domainTasks[p.domain].push(taskId);
         emit TaskAdded(
             taskId,
@@ -394,6 +418,8 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
      * Requirements: caller is the task's requester or an admin; task open;
      * now + acceptWindow + minWorkTime <= deadline (an offered worker can accept and still
      * has minWorkTime to train); at least one open slot; fewer than MAX_OFFERS offers made.
+     * No counter moves: an offer counts in A of Eq. 17 once accepted, or at the task's end
+     * (docs/chain.md, "Offers that count").
      * Emits {OfferExpired}, {TaskOffered} per offer and one {TaskAllocated} event.
      */
     function allocateTask(uint256 taskId) external returns (uint256 offered) {
@@ -419,10 +445,6 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
             address a = w.addr();
             _offers[taskId][a] = Offer(OfferState.Offered, expiry, w.id(), false);
             _offerees[taskId].push(a);
-            // The UMC is the immutable platform registry set at construction; updateInfo makes no
-            // external call, so no re-entry can observe the offers written in this loop.
-            // slither-disable-next-line reentrancy-no-eth
-            umc.updateInfo(a, r.domain, TRAINING, ASSIGNED, 0);
             emit TaskOffered(taskId, a, qs[i] >> 32, expiry);
         }
         t.liveOffers = uint8(live + count);
@@ -435,9 +457,11 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
      * @dev The requester reviews a submitted outcome once: `review` in [0, 5] feeds the
      * worker's rating; `accepted` releases the slot's reward to the worker and counts the
      * task as completed (E of Eq. 18, N of Eq. 16), otherwise the reward is refunded and the
-     * task does not count as completed. Requirements: caller is the task's requester; the
-     * worker's outcome is submitted and not yet reviewed; now <= deadline + reviewWindow
-     * (afterwards the outcome is the worker's: paid at close); review <= 5.
+     * task does not count as completed. The review of the last slot completes the task: its
+     * offers never accepted then count as assigned (the task found workers).
+     * Requirements: caller is the task's requester; the worker's outcome is submitted and not
+     * yet reviewed; now <= the task's review end (deadline + the reviewWindow of when it was
+     * posted; afterwards the outcome is the worker's: paid at close); review <= 5.
      * Emits {OutcomeReviewed}, {PaymentCredited} and, on the last slot, {TaskStatusUpdated}.
      */
     function reviewOutcome(uint256 taskId, address worker, uint8 review, bool accepted) external {
@@ -445,22 +469,26 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
         _checkRequester(t, taskId);
         Offer storage o = _offers[taskId][worker];
         if (o.state != OfferState.Submitted) revert TasksNotSubmitted(taskId, worker);
-        uint256 reviewEnd = uint256(t.deadline) + reviewWindow;
+        Reqs storage r = _reqs[taskId];
+        uint256 reviewEnd = r.reviewEnd;
         if (block.timestamp > reviewEnd) revert TasksReviewWindowClosed(taskId, reviewEnd);
         if (review > QoSMath.REVIEW_MAX) revert TasksBadReview(review);
         o.state = OfferState.Reviewed;
         o.paid = accepted;
-        Reqs storage r = _reqs[taskId];
         _credit(accepted ? worker : t.requester, taskId, r.reward);
         uint8 settled = t.settled + 1;
         t.settled = settled;
+        uint8[] memory counted = new uint8[](0);
         if (settled == t.numWorkers) {
             t.status = TaskStatus.Completed;
             emit TaskStatusUpdated(taskId, TaskStatus.Completed);
+            counted = _unaccepted(taskId, t); // this worker holds a slot: filled != 0
         }
+        // interactions last: every state change is written
         // a rejected outcome is rated but not completed (E of Eq. 18, N of Eq. 16)
         umc.updateInfo(worker, r.domain, TRAINING, accepted ? COMPLETED | REVIEWED : REVIEWED, review);
         emit OutcomeReviewed(taskId, worker, review, accepted);
+        _count(taskId, counted);
     }
 
     /**
@@ -474,8 +502,9 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
      *   task. Outcomes submitted but not reviewed are paid and count as completed (if the
      *   review window is over; otherwise the call reverts), accepted offers without outcome
      *   become Failed and are rated 0, pending offers Expired, and the unsettled slots are
-     *   refunded to the requester.
-     * - Either way, a task no worker ever accepted takes its offers back from A of Eq. 17.
+     *   refunded to the requester. The offers never accepted (declined, expired) then count
+     *   as assigned (A of Eq. 17) if a worker still held a slot ({Task.filled} != 0).
+     * - A cancel moves no counter: no worker holds a slot, so its offers never count.
      * Emits {TaskStatusUpdated}, {PaymentCredited} and per-offer events.
      */
     function updateTaskStatus(uint256 taskId, TaskStatus status) external {
@@ -492,7 +521,6 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
                 if (live != 0) revert TasksHasLiveOffers(taskId);
                 t.liveOffers = 0;
             }
-            if (!t.taken) counted = _withdrawn(taskId);
         } else if (status == TaskStatus.Closed) {
             if (
                 t.requester != msg.sender && _offers[taskId][msg.sender].state == OfferState.None
@@ -517,7 +545,8 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
      * expire, then every slot neither accepted nor inside a live offer is removed from the
      * task (numWorkers shrinks) and its reward refunded. Workers who accepted keep their
      * slots and rewards. With no slot left the task is Cancelled; with every remaining slot
-     * reviewed it is Completed.
+     * reviewed it is Completed, and its offers never accepted then count as assigned (A of
+     * Eq. 17; a Cancelled task counts none: nobody holds a slot).
      * Requirements: caller is the task's requester; task open; before the deadline; at least
      * one slot neither accepted nor offered. Emits {OfferExpired} per stale offer, a
      * {SlotsCancelled}, a {PaymentCredited} and possibly a {TaskStatusUpdated} event.
@@ -534,18 +563,22 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
         t.liveOffers = uint8(live);
         emit SlotsCancelled(taskId, uint8(cancelled), left);
         _credit(t.requester, taskId, cancelled * _reqs[taskId].reward);
-        if (left == 0 || t.settled == left) {
-            TaskStatus s = left == 0 ? TaskStatus.Cancelled : TaskStatus.Completed;
-            t.status = s;
-            emit TaskStatusUpdated(taskId, s);
+        if (left == 0) {
+            t.status = TaskStatus.Cancelled;
+            emit TaskStatusUpdated(taskId, TaskStatus.Cancelled);
+        } else if (t.settled == left) {
+            // every slot left is reviewed, so held (filled == left): the unaccepted offers count
+            t.status = TaskStatus.Completed;
+            emit TaskStatusUpdated(taskId, TaskStatus.Completed);
+            _count(taskId, _unaccepted(taskId, t)); // interactions last
         }
-        if (left == 0 && !t.taken) _count(taskId, _withdrawn(taskId)); // interactions last
     }
 
     // ---------------------------------------------------------------------------- worker
 
     /**
-     * @dev The offered worker accepts within the acceptance window.
+     * @dev The offered worker accepts within the acceptance window; the offer counts as
+     * assigned and accepted (A and Ac of Eq. 17) now, in one UMC update.
      * Requirements: task open; caller holds a live offer; now <= expiry.
      * Emits an {OfferAccepted} event.
      */
@@ -558,14 +591,14 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
         o.state = OfferState.Accepted;
         t.liveOffers -= 1;
         t.filled += 1;
-        t.taken = true;
-        umc.updateInfo(msg.sender, _reqs[taskId].domain, TRAINING, ACCEPTED, 0);
+        umc.updateInfo(msg.sender, _reqs[taskId].domain, TRAINING, ASSIGNED | ACCEPTED, 0);
         emit OfferAccepted(taskId, msg.sender);
     }
 
     /**
      * @dev The offered worker declines; the slot goes to the next best at the next
-     * {allocateTask}. Requirements: caller holds a live offer on an open task.
+     * {allocateTask}. No counter moves now: the offer counts as assigned at the task's end if
+     * a worker holds a slot then. Requirements: caller holds a live offer on an open task.
      * Emits an {OfferDeclined} event.
      */
     function declineOffer(uint256 taskId) external {
@@ -582,7 +615,8 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
      * @dev An assigned worker gives the task back (its job failed: out of memory, a crash,
      * a spec it cannot train after all) instead of holding the slot until the deadline. The
      * offer becomes Failed (it stays counted as accepted and never completed, so Eq. 18
-     * lowers the worker's reputation as a missed deadline would) and the slot opens again:
+     * lowers the worker's reputation as a missed deadline would) and the slot opens again
+     * (`filled` - 1: a slot given back is not held at the task's end):
      * the requester may {allocateTask} it to the next best worker (this one stays excluded)
      * or, with no other worker holding the task, cancel it and take the escrow back.
      * Requirements: task open; caller accepted the task and has not submitted.
@@ -639,10 +673,19 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
      * hides the CID and binds it to the caller (a copied commitment reveals nothing for the
      * copier). Committing the same commitment again keeps the first block and emits nothing,
      * so a worker that retries after a crash loses no priority.
-     * Requirements: caller is a registered worker. Emits a {CidCommitted} event.
+     * Requirements: caller is an approved worker (Active or Idle), or a worker that accepted
+     * a training task here at some point (a worker sent back to Pending by a change of
+     * capabilities, or removed, may still hold an accepted job and must be able to submit
+     * it); otherwise {TasksNotWorker}. A stranger's registration (Pending, never approved,
+     * never offered anything) does not let it write commitment slots.
+     * Emits a {CidCommitted} event.
      */
     function commitCid(bytes32 commitment) external {
-        if (umc.workerId(msg.sender) == 0) revert TasksNotWorker(msg.sender);
+        (uint32 id, uint256 word) = umc.workerRecord(msg.sender);
+        uint256 status = word.status();
+        if (id == 0 || (status != Packed.ACTIVE && status != Packed.IDLE && !_acceptedBefore(id, word))) {
+            revert TasksNotWorker(msg.sender);
+        }
         if (cidCommits[commitment] != 0) return;
         cidCommits[commitment] = block.number;
         emit CidCommitted(msg.sender, commitment);
@@ -793,16 +836,18 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
 
     /// @dev At close: pay unreviewed outcomes (after the review window; they count as
     /// completed), fail the accepted offers without outcome (rated 0: holding a slot to the
-    /// deadline costs more than declining or {abandonOffer}), expire the rest; with no worker
-    /// ever accepting, take every offer back from A of Eq. 17. Returns the UMC flags per
-    /// offeree for {_count} (state only here). Bounded by MAX_OFFERS.
+    /// deadline costs more than declining or {abandonOffer}), expire the rest; the offers
+    /// never accepted count as assigned if a worker held a slot at the deadline
+    /// (`filled` != 0). Returns the UMC flags per offeree for {_count} (state only here).
+    /// Bounded by MAX_OFFERS.
     function _settleOffers(uint256 taskId, Task storage t) internal returns (uint8[] memory counted) {
-        if (!t.taken) counted = _withdrawn(taskId); // then no offer was accepted or submitted
         address[] storage list = _offerees[taskId];
         uint256 m = list.length;
-        if (counted.length == 0) counted = new uint8[](m);
-        uint256 reward = _reqs[taskId].reward;
-        uint256 reviewEnd = uint256(t.deadline) + reviewWindow;
+        counted = new uint8[](m);
+        uint8 missed = t.filled != 0 ? ASSIGNED : 0;
+        Reqs storage r = _reqs[taskId];
+        uint256 reward = r.reward;
+        uint256 reviewEnd = r.reviewEnd;
         for (uint256 j; j < m; ++j) {
             address a = list[j];
             Offer storage o = _offers[taskId][a];
@@ -821,22 +866,48 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
                 emit OfferFailed(taskId, a);
             } else if (s == OfferState.Offered) {
                 o.state = OfferState.Expired;
+                counted[j] = missed;
                 emit OfferExpired(taskId, a);
+            } else if (s == OfferState.Declined || s == OfferState.Expired) {
+                counted[j] = missed;
             }
         }
         t.liveOffers = 0;
     }
 
-    /// @dev The end of a task no worker ever accepted (cancelled, or closed at the deadline):
-    /// all its offers were declined or expired, and each is taken back from A of Eq. 17 (a
-    /// WITHDRAWN flag per offeree for {_count}). A requester's offers then cost the workers
-    /// it offered nothing unless the task found a worker, so offers made only to be refused
-    /// cannot lower anyone's reputation (docs/chain.md, "Offers that count").
-    function _withdrawn(uint256 taskId) internal view returns (uint8[] memory counted) {
-        counted = new uint8[](_offerees[taskId].length);
-        for (uint256 j; j < counted.length; ++j) {
-            counted[j] = WITHDRAWN;
+    /// @dev The end of a task some worker held a slot of (completed by its last review or by
+    /// {cancelOpenSlots}): ASSIGNED for each offer never accepted (declined or expired), the
+    /// UMC flags per offeree for {_count}. The offeree lost a task that found workers, which is
+    /// what Eq. 17 measures; a task that ends with no slot held counts none of these
+    /// (docs/chain.md, "Offers that count"). Bounded by MAX_OFFERS.
+    function _unaccepted(uint256 taskId, Task storage t) internal view returns (uint8[] memory counted) {
+        address[] storage list = _offerees[taskId];
+        uint256 m = list.length;
+        counted = new uint8[](m);
+        if (t.filled == 0) return counted;
+        for (uint256 j; j < m; ++j) {
+            OfferState s = _offers[taskId][list[j]].state;
+            if (s == OfferState.Declined || s == OfferState.Expired) counted[j] = ASSIGNED;
         }
+    }
+
+    /// @dev Whether worker `id` (UMC word `word`) accepted a training task in one of its
+    /// domains (Ac > 0): only an approved worker is ever offered one. At most
+    /// UMC.MAX_WORKER_DOMAINS (4) calls; only for callers neither Active nor Idle.
+    function _acceptedBefore(uint32 id, uint256 word) internal view returns (bool) {
+        uint32[] memory ids = new uint32[](1);
+        ids[0] = id;
+        uint256 domains = uint48(word >> 208);
+        for (uint32 d; domains != 0; ++d) {
+            if (domains & 1 == 1) {
+                // only the counters are needed: the worker word came with {IUsersManager.workerRecord}
+                // slither-disable-next-line unused-return
+                (, uint256[] memory stats) = umc.profiles(ids, d, TRAINING);
+                if (stats[0].accepted() != 0) return true;
+            }
+            domains >>= 1;
+        }
+        return false;
     }
 
     /// @dev Moves the UMC counters of the task's offerees by `counted` (0: none), after the
@@ -852,13 +923,18 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
     }
 
     function _credit(address account, uint256 taskId, uint256 amount) internal {
+        // A zero credit is skipped, not a balance test: slither's taint from block.timestamp
+        // reaches `amount` only through the task's Reqs word, whose reviewEnd is a time.
+        // slither-disable-next-line incorrect-equality
         if (amount == 0) return;
         credits[account] += amount;
         emit PaymentCredited(account, taskId, amount);
     }
 
     function _setConfig(uint64 w1_, uint32 acceptWindow_, uint32 reviewWindow_) internal {
-        if (w1_ == 0 || w1_ > 1e12 || acceptWindow_ == 0 || reviewWindow_ == 0) revert TasksBadConfig();
+        if (w1_ == 0 || w1_ > 1e12 || acceptWindow_ == 0 || reviewWindow_ == 0 || reviewWindow_ > MAX_REVIEW_WINDOW) {
+            revert TasksBadConfig();
+        }
         _checkLimits(acceptWindow_, minWorkTime, maxDuration);
         (w1, acceptWindow, reviewWindow) = (w1_, acceptWindow_, reviewWindow_);
         emit ConfigUpdated(w1_, acceptWindow_, reviewWindow_);

@@ -57,9 +57,6 @@ contract UsersManager {
     uint8 public constant ACCEPTED = 2;
     uint8 public constant COMPLETED = 4;
     uint8 public constant REVIEWED = 8;
-    /// On its own, not combined: one assignment is taken back (its task ended before any
-    /// worker accepted it, so its unanswered offers do not count in A of Eq. 17).
-    uint8 public constant WITHDRAWN = 16;
 
     uint256 internal constant REVIEW_MAX = 5;
     uint256 internal constant MEMBER_BIT = 1 << 255;
@@ -415,10 +412,11 @@ contract UsersManager {
 
     /**
      * @dev Performance details after a platform event (thesis updateInfo): increments the
-     * counters selected by `flags` (ASSIGNED, ACCEPTED, COMPLETED, REVIEWED with `review`), or
-     * with `flags` == WITHDRAWN alone takes one assignment back (assigned - 1).
-     * Requirements: caller is a platform contract (TMC, MMC); `worker` is a worker; taskType
-     * TRAINING or SHARING; review <= 5; completed <= accepted <= assigned afterwards.
+     * counters selected by `flags` (ASSIGNED, ACCEPTED, COMPLETED, REVIEWED with `review`);
+     * counters only grow (the TMC counts an offer once it is known to count, so none is ever
+     * taken back). Requirements: caller is a platform contract (TMC, MMC); `worker` is a
+     * worker; taskType TRAINING or SHARING; flags in 1..15; review <= 5;
+     * completed <= accepted <= assigned afterwards.
      * Emits a {WorkerInfoUpdated} event with the new counters.
      */
     function updateInfo(address worker, uint32 domain, uint8 taskType, uint8 flags, uint8 review)
@@ -662,13 +660,8 @@ contract UsersManager {
         internal
     {
         if (taskType > SHARING) revert UsersBadTaskType(taskType);
-        if (flags == 0 || (flags > 15 && flags != WITHDRAWN)) revert UsersBadFlags(flags);
+        if (flags == 0 || flags > 15) revert UsersBadFlags(flags);
         Counters memory c = _counters[_key(id, domain, taskType)];
-        if (flags == WITHDRAWN) {
-            // only an assignment never accepted can be taken back (assigned > accepted)
-            if (c.assigned == c.accepted) revert UsersCountersInconsistent(worker, domain, taskType);
-            --c.assigned;
-        }
         unchecked {
             // uint48 counters: 2.8e14 events per worker before wrapping.
             if (flags & ASSIGNED != 0) ++c.assigned;

@@ -116,23 +116,35 @@ contract ModelsManagerFuzzTest is Fixture {
         vm.expectRevert(ModelsManager.ModelsEmptyCid.selector);
         mmc.addModel("", "d", DOMAIN, _env(1, 1));
         // one CID, one text: other encodings of a CID (a re-encoded copy) and junk are refused
-        string[6] memory variants = [
+        string[11] memory variants = [
             "BAFKREIDOT3J5VVBTHWTYDMN3NY2PQ2CKIBHBUJ5SECH6WPZSXOKRKQNTSY",
             "QmYwAPJzv5CZsnA625s3Xf2nemtYgPpHdWEz79ojWnPbdG",
             "bafkreidot3j5vvbthwtydmn3ny2pq2ckibhbuj5sech6wpzsxokrkqnts1",
             "x",
             "b",
-            "b/../../etc"
+            "b/../../etc",
+            // base32 spellings of one CID (bafkrei...yeq) with unused low bits set in the last
+            // character, and a body length no bytes encode to
+            "bafkreibm6jg3ux5qumhcn2b3flc3tyu6dmlb4xa7u5bf44yegnrjhc4yer",
+            "bafkreibm6jg3ux5qumhcn2b3flc3tyu6dmlb4xa7u5bf44yegnrjhc4yes",
+            "bafkreibm6jg3ux5qumhcn2b3flc3tyu6dmlb4xa7u5bf44yegnrjhc4yet",
+            "bafkreibm6jg3ux5qumhcn2b3flc3tyu6dmlb4xa7u5bf44yegnrjhc4ye",
+            "baaa"
         ];
         for (uint256 i; i < variants.length; ++i) {
             vm.expectRevert(abi.encodeWithSelector(ModelsManager.ModelsCidNotCanonical.selector, variants[i]));
             mmc.addModel(variants[i], "d", DOMAIN, _env(1, 1));
         }
+        vm.stopPrank();
+        _commit(owner, "bafkreibm6jg3ux5qumhcn2b3flc3tyu6dmlb4xa7u5bf44yegnrjhc4yeq");
+        vm.prank(owner); // the RFC 4648 spelling itself is listed
+        mmc.addModel("bafkreibm6jg3ux5qumhcn2b3flc3tyu6dmlb4xa7u5bf44yegnrjhc4yeq", "d", DOMAIN, _env(1, 1));
+        vm.startPrank(owner);
         uint256 len = _bound(extra, mmc.MAX_ENV_DIMS() + 1, 200);
         vm.expectRevert(abi.encodeWithSelector(ModelsManager.ModelsBadEnv.selector, len));
         mmc.addModel(cidFor("c"), "d", DOMAIN, new uint32[](len));
         vm.stopPrank();
-        for (uint256 i; i < mmc.maxModelsPerOwner(); ++i) {
+        for (uint256 i = 1; i < mmc.maxModelsPerOwner(); ++i) { // the first: the spelling above
             _model(owner, cidFor(abi.encodePacked("cid", i)), 1, 1);
         }
         vm.startPrank(owner);
@@ -172,18 +184,18 @@ contract ModelsManagerFuzzTest is Fixture {
         address other = w == owner ? owner2 : owner;
         vm.prank(w);
         tmc.acceptOffer(id);
-        _commit(w, "bafyoutcome");
+        _commit(w, cidFor("outcome"));
         vm.prank(w);
-        tmc.submitOutcome(id, "bafyoutcome");
-        _commit(other, "bafyoutcome"); // a commitment does not outweigh the outcome record
+        tmc.submitOutcome(id, cidFor("outcome"));
+        _commit(other, cidFor("outcome")); // a commitment does not outweigh the outcome record
         vm.expectRevert(abi.encodeWithSelector(ModelsManager.ModelsNotOutcomeOwner.selector, id, w));
         vm.prank(other);
-        mmc.addModel("bafyoutcome", "desc", DOMAIN, _env(1, 1));
+        mmc.addModel(cidFor("outcome"), "desc", DOMAIN, _env(1, 1));
         vm.expectRevert(
             abi.encodeWithSelector(ModelsManager.ModelsOutcomeNotAccepted.selector, id, ITasksOutcomes.Verdict.Pending)
         );
         vm.prank(w);
-        mmc.addModel("bafyoutcome", "desc", DOMAIN, _env(1, 1));
+        mmc.addModel(cidFor("outcome"), "desc", DOMAIN, _env(1, 1));
         vm.prank(requester);
         tmc.reviewOutcome(id, w, uint8(_bound(review, 0, 5)), accept);
         if (!accept) {
@@ -192,7 +204,7 @@ contract ModelsManagerFuzzTest is Fixture {
             );
         }
         vm.prank(w); // its own accepted outcome needs no new commitment (spent by submitOutcome)
-        mmc.addModel("bafyoutcome", "desc", DOMAIN, _env(1, 1));
+        mmc.addModel(cidFor("outcome"), "desc", DOMAIN, _env(1, 1));
     }
 
     // ------------------------------------------------------------------ allocateModel

@@ -5,6 +5,7 @@ import {cidFor} from "./utils/CidFor.sol";
 import {Fixture} from "./utils/Fixture.sol";
 import {TasksManager} from "../src/TasksManager.sol";
 import {IModelsListing} from "../src/IModelsListing.sol";
+import {UsersManager} from "../src/UsersManager.sol";
 
 /// @dev Fuzz tests of every external state-changing function of the TMC: valid path (state,
 /// money, event) and wrong-role / bad-input reverts with the exact custom error.
@@ -48,7 +49,7 @@ contract TasksManagerFuzzTest is Fixture {
     function testFuzz_setConfig(uint64 w1, uint32 aw, uint32 rw, address caller) public {
         w1 = uint64(_bound(w1, 1, 1e12));
         aw = uint32(_bound(aw, 1, 30 days - 60));
-        rw = uint32(_bound(rw, 1, type(uint32).max));
+        rw = uint32(_bound(rw, 1, tmc.MAX_REVIEW_WINDOW()));
         vm.expectEmit(address(tmc));
         emit TasksManager.ConfigUpdated(w1, aw, rw);
         vm.prank(admin);
@@ -62,6 +63,13 @@ contract TasksManagerFuzzTest is Fixture {
         vm.expectRevert(TasksManager.TasksBadConfig.selector);
         vm.prank(admin);
         tmc.setConfig(w1, 30 days, rw); // + minWorkTime > maxDuration
+        uint32 tooLong = uint32(_bound(rw, uint256(tmc.MAX_REVIEW_WINDOW()) + 1, type(uint32).max));
+        vm.expectRevert(TasksManager.TasksBadConfig.selector);
+        vm.prank(admin);
+        tmc.setConfig(w1, aw, tooLong); // would hold a worker's pay for an unreviewed outcome
+        vm.expectRevert(TasksManager.TasksBadConfig.selector);
+        vm.prank(admin);
+        tmc.setConfig(w1, aw, 0);
         vm.assume(caller != admin);
         vm.expectRevert(abi.encodeWithSelector(TasksManager.TasksNotAdmin.selector, caller));
         vm.prank(caller);
@@ -140,6 +148,8 @@ contract TasksManagerFuzzTest is Fixture {
         vm.assertEq(uint256(t.status), uint256(TasksManager.TaskStatus.Open), "open");
         vm.assertEq(t.numWorkers, nw, "NW");
         vm.assertEq(q.reward, r, "reward");
+        vm.assertEq(q.domain, DOMAIN, "domain");
+        vm.assertEq(q.reviewEnd, uint256(t.deadline) + REVIEW_WINDOW, "review end fixed at posting");
         vm.assertEq(tmc.domainTasks(DOMAIN).length, 1, "domain list");
     }
 
@@ -208,7 +218,8 @@ contract TasksManagerFuzzTest is Fixture {
         // best QoS first: more cores -> higher CC (Eq. 20); all other terms equal (new workers)
         for (uint256 i; i < list.length; ++i) {
             vm.assertEq(list[i], workers[workers.length - 1 - i], "greedy order");
-            vm.assertEq(umc.counters(list[i], DOMAIN, 0).assigned, 1, "assigned counted");
+            // an offer counts once accepted or at the task's end, not when made
+            vm.assertEq(umc.counters(list[i], DOMAIN, 0).assigned, 0, "nothing counted yet");
             TasksManager.Offer memory o = tmc.getOffer(id, list[i]);
             vm.assertEq(uint256(o.state), uint256(TasksManager.OfferState.Offered), "offered");
             vm.assertEq(o.expiry, block.timestamp + ACCEPT_WINDOW, "expiry");
@@ -259,6 +270,8 @@ contract TasksManagerFuzzTest is Fixture {
         vm.assertEq(task.filled, 1, "filled");
         vm.assertEq(task.liveOffers, 1, "live");
         vm.assertEq(umc.counters(offered[0], DOMAIN, 0).accepted, 1, "accepted counted");
+        vm.assertEq(umc.counters(offered[0], DOMAIN, 0).assigned, 1, "assigned with it");
+        vm.assertEq(umc.counters(offered[1], DOMAIN, 0).assigned, 0, "live offer not counted");
         vm.expectRevert(abi.encodeWithSelector(TasksManager.TasksNotOfferedWorker.selector, id, offered[0]));
         vm.prank(offered[0]);
         tmc.acceptOffer(id);
@@ -340,6 +353,38 @@ contract TasksManagerFuzzTest is Fixture {
         tmc.submitOutcome(id2, string(upper));
     }
 
+    /// @dev One spelling per CID within base32 too: the CID of some bytes is accepted, and the
+    /// three texts that differ only in the 2 unused low bits of its last character (which a
+    /// decoder ignores, so the same CID) are refused, as are body lengths no bytes encode to.
+    function testFuzz_submitOutcome_oneSpellingPerCid(uint8 pick) public {
+        string memory cid = "bafkreibm6jg3ux5qumhcn2b3flc3tyu6dmlb4xa7u5bf44yegnrjhc4yeq";
+        string[3] memory variants = [
+            "bafkreibm6jg3ux5qumhcn2b3flc3tyu6dmlb4xa7u5bf44yegnrjhc4yer",
+            "bafkreibm6jg3ux5qumhcn2b3flc3tyu6dmlb4xa7u5bf44yegnrjhc4yes",
+            "bafkreibm6jg3ux5qumhcn2b3flc3tyu6dmlb4xa7u5bf44yegnrjhc4yet"
+        ];
+        string[3] memory badLengths = ["ba", "baaa", "baaaaaa"]; // body % 8 = 1, 3, 6
+        (uint256 id, address w) = _accepted(1e9);
+        string memory bad = pick % 2 == 0 ? variants[pick % 3] : badLengths[pick % 3];
+        _commit(w, bad); // committed: only the spelling refuses it
+        vm.expectRevert(abi.encodeWithSelector(TasksManager.TasksCidNotCanonical.selector, bad));
+        vm.prank(w);
+        tmc.submitOutcome(id, bad);
+        for (uint256 i; i < 3; ++i) {
+            vm.expectRevert(abi.encodeWithSelector(TasksManager.TasksCidNotCanonical.selector, variants[i]));
+            vm.prank(w);
+            tmc.submitOutcome(id, variants[i]);
+            vm.expectRevert(abi.encodeWithSelector(TasksManager.TasksCidNotCanonical.selector, badLengths[i]));
+            vm.prank(w);
+            tmc.submitOutcome(id, badLengths[i]);
+        }
+        _commit(w, cid);
+        vm.prank(w);
+        tmc.submitOutcome(id, cid);
+        (address who,,) = tmc.outcomeOf(keccak256(bytes(cid)));
+        vm.assertEq(who, w, "the one spelling recorded");
+    }
+
     function testFuzz_submitOutcome_listedModelRefused(string calldata cidSeed) public {
         string memory cid = cidFor(bytes(cidSeed));
         vm.assume(bytes(cid).length != 0);
@@ -381,6 +426,42 @@ contract TasksManagerFuzzTest is Fixture {
         vm.assertEq(vm.getRecordedLogs().length, 0, "no event for a repeated commitment");
         vm.assertEq(tmc.cidCommits(commitment), first, "first block kept");
         vm.assertTrue(tmc.committedBefore(commitment), "committed before this block");
+    }
+
+    /// @dev Who may write a commitment slot: not a stranger's fresh registration (Pending,
+    /// never approved), nor an approved worker sent back to Pending that never took a task;
+    /// an Idle worker may; and a worker holding an accepted job still may after going back to
+    /// Pending (capabilities changed) or being removed, so it can submit that job.
+    function testFuzz_commitCid_whoMay(bytes32 commitment, bool removeIt) public {
+        address pending = _actor("pending");
+        vm.prank(pending);
+        umc.addWorker(1 << DOMAIN, 64, 64, 1); // approval is on: Pending
+        vm.expectRevert(abi.encodeWithSelector(TasksManager.TasksNotWorker.selector, pending));
+        vm.prank(pending);
+        tmc.commitCid(commitment);
+        address idle = workers[0];
+        vm.prank(idle);
+        umc.updateCapabilities(5, 32, 1); // approved, never took a task: Pending again
+        vm.expectRevert(abi.encodeWithSelector(TasksManager.TasksNotWorker.selector, idle));
+        vm.prank(idle);
+        tmc.commitCid(commitment);
+        vm.prank(admin);
+        umc.approveWorker(idle);
+        vm.prank(idle);
+        umc.updateStatus(UsersManager.Status.Idle);
+        vm.prank(idle);
+        tmc.commitCid(commitment); // Idle: approved
+        // an accepted job, then a change of capabilities (or removal): it can still submit
+        (uint256 id, address w) = _accepted(1e9);
+        vm.prank(w);
+        if (removeIt) umc.removeWorker(w);
+        else umc.updateCapabilities(99, 99, 1);
+        string memory cid = cidFor("pending again");
+        _commit(w, cid);
+        vm.prank(w);
+        tmc.submitOutcome(id, cid);
+        (address who,,) = tmc.outcomeOf(keccak256(bytes(cid)));
+        vm.assertEq(who, w, "submitted");
     }
 
     function testFuzz_submitOutcome_needsEarlierCommit(string calldata cidSeed) public {
@@ -458,7 +539,7 @@ contract TasksManagerFuzzTest is Fixture {
 
     function testFuzz_reviewOutcome(uint8 review, bool accepted, address stranger_) public {
         uint256 reward = 1e9;
-        (uint256 id, address w) = _submitted(reward, "bafyreview");
+        (uint256 id, address w) = _submitted(reward, cidFor("review"));
         vm.assume(stranger_ != requester);
         uint8 r = uint8(_bound(review, 0, 5));
         vm.expectRevert(abi.encodeWithSelector(TasksManager.TasksNotTaskRequester.selector, id, stranger_));
@@ -485,7 +566,7 @@ contract TasksManagerFuzzTest is Fixture {
     }
 
     function testFuzz_reviewOutcome_windowCloses(uint32 late) public {
-        (uint256 id, address w) = _submitted(1e9, "bafylate");
+        (uint256 id, address w) = _submitted(1e9, cidFor("late"));
         (TasksManager.Task memory t,) = tmc.getTask(id);
         uint256 end = uint256(t.deadline) + REVIEW_WINDOW;
         vm.warp(_bound(late, end + 1, end + 1e9));
@@ -496,6 +577,42 @@ contract TasksManagerFuzzTest is Fixture {
         vm.prank(w);
         tmc.updateTaskStatus(id, TasksManager.TaskStatus.Closed);
         vm.assertEq(tmc.credits(w), 1e9, "paid unreviewed");
+    }
+
+    /// @dev The review end is the task's, fixed when it was posted: an admin lowering the
+    /// window cannot let an offeree close early and be paid an outcome the requester had not
+    /// reviewed yet; raising it cannot hold the worker's pay past the end it was promised.
+    function testFuzz_reviewWindowFixedAtPosting(uint32 newWindow, bool lower) public {
+        (uint256 id, address w) = _submitted(1e9, cidFor("window"));
+        (TasksManager.Task memory t, TasksManager.Reqs memory q) = tmc.getTask(id);
+        uint256 end = uint256(t.deadline) + REVIEW_WINDOW;
+        vm.assertEq(q.reviewEnd, end, "recorded");
+        uint32 rw = lower
+            ? uint32(_bound(newWindow, 1, REVIEW_WINDOW - 1))
+            : uint32(_bound(newWindow, REVIEW_WINDOW + 1, tmc.MAX_REVIEW_WINDOW()));
+        vm.prank(admin);
+        tmc.setConfig(W1, ACCEPT_WINDOW, rw);
+        vm.warp(end); // past deadline + the new (lower) window, at the task's own end
+        vm.expectRevert(abi.encodeWithSelector(TasksManager.TasksReviewWindowOpen.selector, id, end));
+        vm.prank(w);
+        tmc.updateTaskStatus(id, TasksManager.TaskStatus.Closed);
+        if (lower) {
+            vm.prank(requester); // still inside the task's window
+            tmc.reviewOutcome(id, w, 1, false);
+            vm.assertEq(tmc.credits(requester), 1e9, "the requester's review stands");
+        } else {
+            vm.warp(end + 1);
+            vm.expectRevert(abi.encodeWithSelector(TasksManager.TasksReviewWindowClosed.selector, id, end));
+            vm.prank(requester);
+            tmc.reviewOutcome(id, w, 0, false);
+            vm.prank(w);
+            tmc.updateTaskStatus(id, TasksManager.TaskStatus.Closed);
+            vm.assertEq(tmc.credits(w), 1e9, "paid at the end it was promised");
+        }
+        // a task posted now gets the new window
+        (, TasksManager.Reqs memory later) = tmc.getTask(_task(1, 1e9));
+        (TasksManager.Task memory lt,) = tmc.getTask(tmc.taskCount());
+        vm.assertEq(later.reviewEnd, uint256(lt.deadline) + rw, "new tasks, new window");
     }
 
     // ------------------------------------------------------------------ updateTaskStatus
@@ -555,7 +672,7 @@ contract TasksManagerFuzzTest is Fixture {
             vm.assertEq(
                 uint256(tmc.getOffer(id, offered[i]).state), uint256(TasksManager.OfferState.Expired), "expired"
             );
-            vm.assertEq(umc.counters(offered[i], DOMAIN, 0).assigned, 0, "offer taken back");
+            vm.assertEq(umc.counters(offered[i], DOMAIN, 0).assigned, 0, "never counted");
         }
     }
 
@@ -564,9 +681,9 @@ contract TasksManagerFuzzTest is Fixture {
         (uint256 id, address[] memory offered) = _allocated(3, reward);
         vm.prank(offered[0]);
         tmc.acceptOffer(id);
-        _commit(offered[0], "bafyclose");
+        _commit(offered[0], cidFor("close"));
         vm.prank(offered[0]);
-        tmc.submitOutcome(id, "bafyclose");
+        tmc.submitOutcome(id, cidFor("close"));
         vm.prank(offered[1]);
         tmc.acceptOffer(id); // accepted, never submits -> Failed at close
         (TasksManager.Task memory t,) = tmc.getTask(id);
@@ -610,18 +727,16 @@ contract TasksManagerFuzzTest is Fixture {
         vm.assertEq(umc.counters(w, DOMAIN, 0).ratingCount, rated, "rating count");
     }
 
-    /// @dev The audit's attack: a requester makes offers only to have them refused (declined,
-    /// or left to expire), then cancels or lets the tasks run out and closes them. With no
-    /// worker ever accepting, every offer is taken back: the victims' counters, hence their
-    /// reputations, end where they started, whichever way each task ends.
-    function testFuzz_offersOfUntakenTasksAreWithdrawn(uint8 n, uint256 seed) public {
+    /// @dev The first audit's attack: a requester makes offers only to have them refused
+    /// (declined, or left to expire), then cancels or lets the tasks run out and closes them.
+    /// With no worker holding a slot at the end, no offer ever counts: the victims' counters,
+    /// hence their reputations, never move, whichever way each task ends.
+    function testFuzz_offersOfTasksNobodyHeldNeverCount(uint8 n, uint256 seed) public {
         uint256 tasks = _bound(n, 1, 6);
-        address victim;
         uint256[] memory ids = new uint256[](tasks);
         for (uint256 i; i < tasks; ++i) {
             address[] memory offered;
             (ids[i], offered) = _allocated(uint8(1 + (seed >> i) % 3), 1e9);
-            victim = offered[0];
             if ((seed >> (8 + i)) & 1 == 1) {
                 for (uint256 j; j < offered.length; ++j) {
                     vm.prank(offered[j]);
@@ -629,7 +744,7 @@ contract TasksManagerFuzzTest is Fixture {
                 }
             }
         }
-        vm.assertTrue(umc.counters(victim, DOMAIN, 0).assigned > 0, "offers count while live");
+        for (uint256 k; k < workers.length; ++k) _assertCounters(workers[k], 0, 0, 0, 0);
         vm.warp(block.timestamp + ACCEPT_WINDOW + 1);
         for (uint256 i; i < tasks; ++i) {
             uint256 how = (seed >> (16 + 2 * i)) % 3;
@@ -642,7 +757,7 @@ contract TasksManagerFuzzTest is Fixture {
         vm.warp(uint256(last.deadline) + 1);
         for (uint256 i; i < tasks; ++i) {
             (TasksManager.Task memory t,) = tmc.getTask(ids[i]);
-            vm.assertFalse(t.taken, "never taken");
+            vm.assertEq(t.filled, 0, "nobody held a slot");
             if (t.status != TasksManager.TaskStatus.Open) continue;
             vm.prank(requester);
             tmc.updateTaskStatus(ids[i], TasksManager.TaskStatus.Closed);
@@ -651,9 +766,46 @@ contract TasksManagerFuzzTest is Fixture {
         vm.assertTrue(tmc.credits(requester) > 0, "escrow refunded");
     }
 
-    /// @dev A task that found a worker keeps every offer it made in A of Eq. 17, also when
-    /// that worker gave the slot back ({abandonOffer}) before the requester cancelled.
-    function testFuzz_offersOfTakenTasksCount(bool viaSlots) public {
+    /// @dev The decoy (audit of the decoy offers): a long task only the victim qualifies for,
+    /// declined, never cancelled. While the task runs the decline costs the victim nothing: its
+    /// reputation stays at a new worker's 0.5, so a task asking for minReputation 0.5 still
+    /// offers it work; and at the task's end, with no slot held, it never counts.
+    function testFuzz_decoyOfferOfOpenTaskDoesNotCount(uint32 wait, bool closeIt) public {
+        address victim = workers[workers.length - 1];
+        TasksManager.TaskParams memory p = _params(1);
+        p.minCpuCores = 44; // only the victim (44 cores) qualifies
+        p.duration = 30 days;
+        vm.prank(requester);
+        uint256 decoy = tmc.addTask{value: 1e9}(p);
+        vm.prank(requester);
+        tmc.allocateTask(decoy);
+        vm.assertEq(tmc.offerees(decoy)[0], victim, "only the victim offered");
+        vm.prank(victim);
+        tmc.declineOffer(decoy);
+        (TasksManager.Task memory t,) = tmc.getTask(decoy);
+        vm.warp(_bound(wait, block.timestamp, t.deadline - ACCEPT_WINDOW - 60));
+        _assertCounters(victim, 0, 0, 0, 0);
+        p.minCpuCores = 44;
+        p.minReputation = 500_000;
+        p.duration = 1 days;
+        vm.prank(requester);
+        uint256 honest = tmc.addTask{value: 1e9}(p);
+        vm.prank(requester);
+        vm.assertEq(tmc.allocateTask(honest), 1, "the victim still qualifies");
+        vm.assertEq(tmc.offerees(honest)[0], victim, "offered to the victim");
+        vm.warp(uint256(t.deadline) + 1);
+        if (closeIt) {
+            vm.prank(requester);
+            tmc.updateTaskStatus(decoy, TasksManager.TaskStatus.Closed);
+        }
+        _assertCounters(victim, 0, 0, 0, 0);
+    }
+
+    /// @dev The accomplice (second finding): a worker accepts a slot and gives it back at once
+    /// ({abandonOffer}, never rated); the requester then cancels. Nobody holds a slot at the
+    /// end, so the victim's declined offer never counts; the accomplice keeps its own count
+    /// (assigned and accepted, not completed).
+    function testFuzz_acceptThenAbandonDoesNotCountOthers(bool viaSlots) public {
         (uint256 id, address[] memory offered) = _allocated(2, 1e9);
         vm.prank(offered[1]);
         tmc.declineOffer(id);
@@ -666,9 +818,52 @@ contract TasksManagerFuzzTest is Fixture {
         else tmc.updateTaskStatus(id, TasksManager.TaskStatus.Cancelled);
         (TasksManager.Task memory t,) = tmc.getTask(id);
         vm.assertEq(uint256(t.status), uint256(TasksManager.TaskStatus.Cancelled), "cancelled");
-        vm.assertTrue(t.taken, "taken once");
         _assertCounters(offered[0], 1, 1, 0, 0); // gave it back: no rating, not completed
+        _assertCounters(offered[1], 0, 0, 0, 0); // declined a task nobody held at its end
+    }
+
+    /// @dev A task some worker held to its end counts the offers it made that were never
+    /// accepted (declined, or expired) in A of Eq. 17, whichever way it ends: its last review
+    /// (Completed), {cancelOpenSlots} with every slot left reviewed (Completed), or the close.
+    /// Nothing counts before the end.
+    function testFuzz_offersOfHeldTasksCountAtTheEnd(uint8 how, bool accept) public {
+        uint8 end = uint8(_bound(how, 0, 2));
+        (uint256 id, address[] memory offered) = _allocated(3, 1e9);
+        vm.prank(offered[0]);
+        tmc.acceptOffer(id);
+        vm.prank(offered[1]);
+        tmc.declineOffer(id); // offered[2] lets its offer expire
+        _commit(offered[0], cidFor("held"));
+        vm.prank(offered[0]);
+        tmc.submitOutcome(id, cidFor("held"));
+        vm.warp(block.timestamp + ACCEPT_WINDOW + 1);
+        if (end == 0) {
+            // the requester gives up the two open slots first: one slot left, then reviewed
+            vm.prank(requester);
+            tmc.cancelOpenSlots(id);
+        }
+        _assertCounters(offered[1], 0, 0, 0, 0);
+        _assertCounters(offered[2], 0, 0, 0, 0);
+        if (end == 0 || end == 1) {
+            vm.prank(requester);
+            tmc.reviewOutcome(id, offered[0], 5, accept);
+            if (end == 1) {
+                vm.prank(requester); // the two open slots go: only the reviewed one is left
+                tmc.cancelOpenSlots(id);
+            }
+            (TasksManager.Task memory t,) = tmc.getTask(id);
+            vm.assertEq(uint256(t.status), uint256(TasksManager.TaskStatus.Completed), "completed");
+        } else {
+            (TasksManager.Task memory t, TasksManager.Reqs memory q) = tmc.getTask(id);
+            vm.warp(uint256(q.reviewEnd) + 1);
+            vm.prank(requester);
+            tmc.updateTaskStatus(id, TasksManager.TaskStatus.Closed);
+            vm.assertEq(t.filled, 1, "held at the end");
+        }
         _assertCounters(offered[1], 1, 0, 0, 0); // declined a task that found a worker
+        _assertCounters(offered[2], 1, 0, 0, 0); // let it expire
+        vm.assertEq(umc.counters(offered[0], DOMAIN, 0).assigned, 1, "counted once, at accept");
+        vm.assertEq(umc.counters(offered[0], DOMAIN, 0).accepted, 1, "accepted");
     }
 
     // ------------------------------------------------------------------ cancelOpenSlots

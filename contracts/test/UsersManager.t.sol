@@ -495,7 +495,7 @@ contract UsersManagerFuzzTest is Fixture {
         uint8 badType = uint8(_bound(taskType, 2, 255));
         vm.expectRevert(abi.encodeWithSelector(UsersManager.UsersBadTaskType.selector, badType));
         umc.updateInfo(w, DOMAIN, badType, 1, 0);
-        uint8 badFlags = flags > 15 && flags != umc.WITHDRAWN() ? flags : 0; // WITHDRAWN alone is valid
+        uint8 badFlags = flags > 15 ? flags : 0;
         vm.expectRevert(abi.encodeWithSelector(UsersManager.UsersBadFlags.selector, badFlags));
         umc.updateInfo(w, DOMAIN, 0, badFlags, 0);
         uint8 badReview = uint8(_bound(review, 6, 255));
@@ -507,30 +507,22 @@ contract UsersManagerFuzzTest is Fixture {
         vm.stopPrank();
     }
 
-    /// WITHDRAWN takes back one assignment never accepted, and only that: not combined with
-    /// another flag, not below the accepted count.
-    function testFuzz_updateInfo_withdrawn(uint8 assigned, uint8 accepted) public {
+    /// Counters only grow: no flag takes an assignment back (the old WITHDRAWN = 16, alone or
+    /// combined, is refused like any flag above 15), whatever the counters hold.
+    function testFuzz_updateInfo_countersOnlyGrow(uint8 assigned, uint8 accepted, uint8 flags) public {
         address w = _actor("worker");
         _worker(w, 1 << DOMAIN, 8);
-        uint8 withdrawn = umc.WITHDRAWN();
         uint256 a = _bound(assigned, 0, 6);
         uint256 ac = _bound(accepted, 0, a);
         vm.startPrank(address(tmc));
         for (uint256 i; i < a; ++i) umc.updateInfo(w, DOMAIN, 0, i < ac ? 1 | 2 : 1, 0);
-        for (uint256 f = withdrawn + 1; f < withdrawn + 16; ++f) {
-            vm.expectRevert(abi.encodeWithSelector(UsersManager.UsersBadFlags.selector, uint8(f)));
-            umc.updateInfo(w, DOMAIN, 0, uint8(f), 0);
-        }
-        for (uint256 left = a; left > ac; --left) {
-            vm.expectEmit(true, true, true, true, address(umc));
-            emit UsersManager.WorkerInfoUpdated(w, DOMAIN, 0, uint48(left - 1), uint48(ac), 0, 0, 0);
-            umc.updateInfo(w, DOMAIN, 0, withdrawn, 0);
-        }
-        // every assignment left was accepted: none can be taken back
-        vm.expectRevert(abi.encodeWithSelector(UsersManager.UsersCountersInconsistent.selector, w, DOMAIN, 0));
-        umc.updateInfo(w, DOMAIN, 0, withdrawn, 0);
+        uint8 f = uint8(_bound(flags, 16, 255));
+        vm.expectRevert(abi.encodeWithSelector(UsersManager.UsersBadFlags.selector, f));
+        umc.updateInfo(w, DOMAIN, 0, f, 0);
+        vm.expectRevert(abi.encodeWithSelector(UsersManager.UsersBadFlags.selector, uint8(16)));
+        umc.updateInfo(w, DOMAIN, 0, 16, 0);
         vm.stopPrank();
-        vm.assertEq(umc.counters(w, DOMAIN, 0).assigned, ac, "assigned down to accepted");
+        vm.assertEq(umc.counters(w, DOMAIN, 0).assigned, a, "assigned untouched");
         vm.assertEq(umc.counters(w, DOMAIN, 0).accepted, ac, "accepted untouched");
     }
 
@@ -577,7 +569,7 @@ contract UsersManagerFuzzTest is Fixture {
         (two[0], two[1]) = (ids[0], bad);
         vm.expectRevert(abi.encodeWithSelector(UsersManager.UsersNotWorkerId.selector, bad));
         umc.updateInfoBatch(two, DOMAIN, 0, 1, 0);
-        uint8 badFlags = flags > 15 && flags != umc.WITHDRAWN() ? flags : 0; // WITHDRAWN alone is valid
+        uint8 badFlags = flags > 15 ? flags : 0;
         vm.expectRevert(abi.encodeWithSelector(UsersManager.UsersBadFlags.selector, badFlags));
         umc.updateInfoBatch(ids, DOMAIN, 0, badFlags, 0);
         vm.stopPrank();

@@ -13,7 +13,7 @@ from backend.chain.client import Chain
 from backend.chain.platform import Platform, TaskStatus
 
 from .conftest import DOMAIN, actors_of, anvil_binary, make_platform
-from .helpers import CID
+from .helpers import CID, cid_for
 
 REWARD = 10**16
 
@@ -43,7 +43,7 @@ def world(request: pytest.FixtureRequest) -> dict[str, Any]:
     assert offered == [w1, w2]
     p.tmc.transact("acceptOffer", tid, sender=w1)
     p.tmc.submit_outcome(w1, tid, CID)
-    mid, _ = p.mmc.add_model(w1, CID + "own", DOMAIN, [1, 2])  # an own upload, no outcome
+    mid, _ = p.mmc.add_model(w1, cid_for("own"), DOMAIN, [1, 2])  # an own upload, no outcome
     alloc, ids, _ = p.mmc.allocate(r, domain=DOMAIN, num_models=1, env=[1, 2], price=REWARD)
     assert ids == [mid]
     roles = {

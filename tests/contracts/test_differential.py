@@ -167,6 +167,10 @@ def test_allocate_task_matches_reference(fp, pool, nw, min_rep, min_rating, min_
         if offered:  # the first offeree declines: the next best (by current counters) follows
             p.tmc.transact("declineOffer", tid, sender=offered[0])
             now = [_chain_worker(p, a, w) for a, w in zip(addrs, ref_workers, strict=True)]
+            # the reference rule of the counters (docs/chain.md, "Offers that count"): offers
+            # of a task still running count for nobody, declined or live, so the next best is
+            # ranked on the counters registered above
+            assert [w.counters for w in now] == [w.counters for w in ref_workers]
             refill = qos.recruit_training(
                 now,
                 dataclasses.replace(task, num_workers=1),

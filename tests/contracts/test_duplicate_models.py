@@ -11,7 +11,7 @@ import pytest
 from backend.chain.platform import Metric
 
 from .conftest import DOMAIN
-from .helpers import CID, reverts
+from .helpers import CID, cid_for, reverts
 
 PRICE = 10**12
 
@@ -51,8 +51,8 @@ def test_a_lone_model_fills_one_slot_and_is_paid_once(setup, metric) -> None:
 def test_allocations_never_repeat_a_model(setup, metric) -> None:
     """Several models of one owner and one of another, more slots than models: every id once."""
     p, r, ws = setup
-    mine = [p.mmc.add_model(ws[0], f"{CID}{c}", DOMAIN, [2, 2])[0] for c in "abc"]
-    theirs, _ = p.mmc.add_model(ws[1], CID + "z", DOMAIN, [2, 3])
+    mine = [p.mmc.add_model(ws[0], cid_for(c), DOMAIN, [2, 2])[0] for c in "abc"]
+    theirs, _ = p.mmc.add_model(ws[1], cid_for("z"), DOMAIN, [2, 3])
     _, ids, _ = p.mmc.allocate(
         r, domain=DOMAIN, num_models=8, env=[2, 2], price=PRICE, metric=metric
     )

@@ -9,6 +9,7 @@ from backend.chain.client import Chain
 from backend.chain.platform import Metric, OfferState, TaskStatus, WorkerStatus
 
 from .conftest import ACCEPT_WINDOW, DOMAIN, REVIEW_WINDOW, actors_of, make_platform
+from .helpers import cid_for
 
 CID = "bafkreidot3j5vvbthwtydmn3ny2pq2ckibhbuj5sech6wpzsxokrkqntsy"
 REWARD = 3 * 10**17
@@ -58,8 +59,8 @@ def test_training_and_sharing_flows_conserve_payments(any_chain: Chain) -> None:
     assert offered == [w[1]]
     p.tmc.transact("acceptOffer", tid, sender=w[1])
     p.tmc.submit_outcome(w[4], tid, CID)
-    rc = p.tmc.submit_outcome(w[1], tid, CID + "x")
-    assert rc.one("OutcomeSubmitted").args["cid"] == CID + "x"
+    rc = p.tmc.submit_outcome(w[1], tid, cid_for("x"))
+    assert rc.one("OutcomeSubmitted").args["cid"] == cid_for("x")
     p.tmc.transact("reviewOutcome", tid, w[4], 5, True, sender=act.requester)
     rc = p.tmc.transact("reviewOutcome", tid, w[1], 1, False, sender=act.requester)
     assert rc.one("TaskStatusUpdated").args["status"] == TaskStatus.COMPLETED
@@ -96,7 +97,7 @@ def test_training_and_sharing_flows_conserve_payments(any_chain: Chain) -> None:
     assert offered == [w[4], w[3], w[2]]
     p.tmc.transact("acceptOffer", close_id, sender=w[4])
     p.tmc.transact("acceptOffer", close_id, sender=w[3])
-    p.tmc.submit_outcome(w[4], close_id, CID + "c")  # never reviewed
+    p.tmc.submit_outcome(w[4], close_id, cid_for("c"))  # never reviewed
     chain.advance_time(2 * ACCEPT_WINDOW + 1)
     try:
         p.tmc.transact("updateTaskStatus", close_id, int(TaskStatus.CLOSED), sender=w[4])
@@ -112,9 +113,9 @@ def test_training_and_sharing_flows_conserve_payments(any_chain: Chain) -> None:
 
     # -- model sharing: both metrics, reviews ----------------------------------------------
     p.umc.update_status(w[0], WorkerStatus.ACTIVE)
-    m1, _ = p.mmc.add_model(w[0], CID + "mq", DOMAIN, [3, 3], "3A3W")
-    m2, _ = p.mmc.add_model(w[1], CID + "m2", DOMAIN, [1, 0], "1A0W")
-    m3, _ = p.mmc.add_model(w[2], CID + "m3", DOMAIN, [2, 2], "2A2W")
+    m1, _ = p.mmc.add_model(w[0], cid_for("mq"), DOMAIN, [3, 3], "3A3W")
+    m2, _ = p.mmc.add_model(w[1], cid_for("m2"), DOMAIN, [1, 0], "1A0W")
+    m3, _ = p.mmc.add_model(w[2], cid_for("m3"), DOMAIN, [2, 2], "2A2W")
     alloc, ids, _ = p.mmc.allocate(
         act.requester, domain=DOMAIN, num_models=2, env=[3, 3], price=REWARD, metric=Metric.SHARING
     )

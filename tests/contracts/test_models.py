@@ -8,7 +8,7 @@ from backend.chain import qos
 from backend.chain.platform import Metric
 
 from .conftest import DOMAIN
-from .helpers import CID, reverts
+from .helpers import CID, cid_for, reverts
 
 PRICE = 10**15
 
@@ -50,9 +50,9 @@ def test_add_model_stores_and_validates(setup, actors) -> None:
 
 def test_allocate_pays_owners_refunds_rest(setup) -> None:
     p, r, ws = setup
-    m1, _ = p.mmc.add_model(ws[0], CID + "q", DOMAIN, [2, 2])
-    m2, _ = p.mmc.add_model(ws[1], CID + "2", DOMAIN, [5, 5])
-    p.mmc.add_model(ws[2], CID + "3", DOMAIN, [1, 1, 1])  # other attribute count: never eligible
+    m1, _ = p.mmc.add_model(ws[0], cid_for("q"), DOMAIN, [2, 2])
+    m2, _ = p.mmc.add_model(ws[1], cid_for("2"), DOMAIN, [5, 5])
+    p.mmc.add_model(ws[2], cid_for("3"), DOMAIN, [1, 1, 1])  # other attribute count: never eligible
     alloc, ids, rc = p.mmc.allocate(
         r,
         domain=DOMAIN,
@@ -125,8 +125,8 @@ def test_review_once_updates_reputations(setup) -> None:
 def test_requester_never_gets_its_own_model(setup) -> None:
     p, r, ws = setup
     p.umc.add_worker(r, [DOMAIN], 4, 16, 1)
-    p.mmc.add_model(r, CID + "r", DOMAIN, [2, 2])  # identical environment: would rank first
-    other, _ = p.mmc.add_model(ws[0], CID + "w", DOMAIN, [9, 9])
+    p.mmc.add_model(r, cid_for("r"), DOMAIN, [2, 2])  # identical environment: would rank first
+    other, _ = p.mmc.add_model(ws[0], cid_for("w"), DOMAIN, [9, 9])
     for metric in (Metric.SHARING, Metric.MODEL):
         _, ids, _ = p.mmc.allocate(r, domain=DOMAIN, num_models=2, env=[2, 2], metric=metric)
         assert ids == [other]

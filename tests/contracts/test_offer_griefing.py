@@ -1,8 +1,10 @@
 """Issue 8, finding 2: no offer the worker cannot accept and complete, and no free tasks.
 
-An offer counts as assigned (A of Eq. 17) the moment it is made, so an offer made too close
+An offer counted as assigned (A of Eq. 17) the moment it was made, so an offer made too close
 to the deadline (or past it, once the acceptance window is counted) lowered the worker's
-reputation with nothing it could do about it; with zero-reward tasks the attack was free."""
+reputation with nothing it could do about it; with zero-reward tasks the attack was free.
+Offers now count only once accepted or at their task's end (docs/chain.md, "Offers that
+count"); the timing rule stays: every offer made can still be accepted and worked on."""
 
 from __future__ import annotations
 

@@ -9,7 +9,7 @@ import pytest
 from backend.chain.platform import TaskStatus, Verdict, cid_hash
 
 from .conftest import ACCEPT_WINDOW, DOMAIN, REVIEW_WINDOW
-from .helpers import CID, reverts, two_accepted
+from .helpers import CID, cid_for, reverts, two_accepted
 
 REWARD = 10**15
 ZERO = "0x" + "00" * 20
@@ -26,12 +26,12 @@ def submitted(p, actors):
 def test_outcome_is_recorded_with_worker_task_and_verdict(submitted, actors) -> None:
     p, tid, (w0, w1), _ = submitted
     assert p.tmc.outcome_of(CID) == (w0, tid, Verdict.PENDING)
-    assert p.tmc.outcome_of(CID + "never") == (ZERO, 0, Verdict.NONE)
-    p.tmc.submit_outcome(w1, tid, CID + "b")
+    assert p.tmc.outcome_of(cid_for("never")) == (ZERO, 0, Verdict.NONE)
+    p.tmc.submit_outcome(w1, tid, cid_for("b"))
     p.tmc.transact("reviewOutcome", tid, w0, 4, True, sender=actors.requester)
     p.tmc.transact("reviewOutcome", tid, w1, 1, False, sender=actors.requester)
     assert p.tmc.outcome_of(CID)[2] == Verdict.ACCEPTED
-    assert p.tmc.outcome_of(CID + "b") == (w1, tid, Verdict.REJECTED)
+    assert p.tmc.outcome_of(cid_for("b")) == (w1, tid, Verdict.REJECTED)
     assert p.tmc.offer(tid, w0)["paid"] and not p.tmc.offer(tid, w1)["paid"]
 
 
@@ -58,9 +58,9 @@ def test_pending_and_rejected_outcomes_are_not_shared(submitted, actors) -> None
     p, tid, (w0, w1), _ = submitted
     err = reverts("ModelsOutcomeNotAccepted", p.mmc.add_model, w0, CID, DOMAIN, [1])
     assert err.args_dict == {"taskId": tid, "verdict": Verdict.PENDING}
-    p.tmc.submit_outcome(w1, tid, CID + "b")
+    p.tmc.submit_outcome(w1, tid, cid_for("b"))
     p.tmc.transact("reviewOutcome", tid, w1, 0, False, sender=actors.requester)
-    err = reverts("ModelsOutcomeNotAccepted", p.mmc.add_model, w1, CID + "b", DOMAIN, [1])
+    err = reverts("ModelsOutcomeNotAccepted", p.mmc.add_model, w1, cid_for("b"), DOMAIN, [1])
     assert err.args_dict["verdict"] == Verdict.REJECTED
     assert p.mmc.call("modelCount") == 0
 
@@ -82,4 +82,4 @@ def test_a_cid_is_listed_once(p, actors) -> None:
         err = reverts("ModelsDuplicateModel", p.mmc.add_model, w, CID, DOMAIN, [1, 2])
         assert err.args_dict == {"modelId": mid}
     assert p.mmc.call("domainModels", DOMAIN) == [mid]
-    assert p.mmc.model_of_cid(CID) == mid and p.mmc.call("modelOfCid", cid_hash(CID + "x")) == 0
+    assert p.mmc.model_of_cid(CID) == mid and p.mmc.call("modelOfCid", cid_hash(cid_for("x"))) == 0

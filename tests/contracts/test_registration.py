@@ -152,12 +152,12 @@ def test_models_per_owner_are_bounded(p, actors) -> None:
     reverts("ModelsBadLimit", p.mmc.set_max_models_per_owner, admin, 0)
     reverts("ModelsBadLimit", p.mmc.set_max_models_per_owner, admin, 17)
     p.mmc.set_max_models_per_owner(admin, 2)
-    p.mmc.add_model(w, f"{CID}a", DOMAIN, [1])
-    p.mmc.add_model(w, f"{CID}b", DOMAIN + 1, [1])  # the limit counts every domain
-    err = reverts("ModelsOwnerLimit", p.mmc.add_model, w, f"{CID}c", DOMAIN, [1])
+    p.mmc.add_model(w, cid_for("a"), DOMAIN, [1])
+    p.mmc.add_model(w, cid_for("b"), DOMAIN + 1, [1])  # the limit counts every domain
+    err = reverts("ModelsOwnerLimit", p.mmc.add_model, w, cid_for("c"), DOMAIN, [1])
     assert err.args_dict["limit"] == 2
-    reverts("ModelsOwnerNotInDomain", p.mmc.add_model, w, f"{CID}d", DOMAIN + 2, [1])
-    reverts("ModelsNotWorker", p.mmc.add_model, other, f"{CID}e", DOMAIN, [1])
+    reverts("ModelsOwnerNotInDomain", p.mmc.add_model, w, cid_for("d"), DOMAIN + 2, [1])
+    reverts("ModelsNotWorker", p.mmc.add_model, other, cid_for("e"), DOMAIN, [1])
 
 
 def test_pool_is_the_head_of_the_active_queue(p, actors) -> None:

@@ -102,7 +102,7 @@ def test_update_info_counters_and_checks(p, actors) -> None:
     )
     reverts("UsersBadReview", p.umc.transact, "updateInfo", w, DOMAIN, 0, REVIEWED, 6, sender=admin)
     reverts("UsersBadFlags", p.umc.transact, "updateInfo", w, DOMAIN, 0, 0, 0, sender=admin)
-    for bad in (17, 31, 32, 255):  # WITHDRAWN (16) combined with another flag, or unknown
+    for bad in (16, 17, 31, 32, 255):  # counters only grow: no flag above 15 (the old WITHDRAWN)
         reverts("UsersBadFlags", p.umc.transact, "updateInfo", w, DOMAIN, 0, bad, 0, sender=admin)
     reverts(
         "UsersBadTaskType", p.umc.transact, "updateInfo", w, DOMAIN, 2, ASSIGNED, 0, sender=admin

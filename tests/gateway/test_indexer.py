@@ -117,11 +117,12 @@ def test_rows_match_chain_state(service: ChainService, sessions: sessionmaker[Se
         assert t is not None and t.offered == 2 and t.reward_wei == str(10**12)
 
 
-def test_the_index_follows_offers_taken_back(
+def test_the_index_follows_offers_counted_at_the_end(
     service: ChainService, sessions: sessionmaker[Session]
 ) -> None:
-    """Offers of a task no worker accepted leave A of Eq. 17 when it is cancelled (UMC
-    WITHDRAWN): the counters go down, and the index and its Eq. 19 reputation follow."""
+    """An offer enters A of Eq. 17 once accepted, or at its task's end if a worker held a slot
+    (docs/chain.md, "Offers that count"): nothing while the task runs, then the UMC's
+    WorkerInfoUpdated events move the index and its Eq. 19 reputation with the chain."""
     from backend.chain.platform import TaskStatus
     from backend.chain.qos import reputation_fixed
 
@@ -131,19 +132,38 @@ def test_the_index_follows_offers_taken_back(
     offered = [w for (t, w) in _offers(sessions) if t == 1]
     assert len(offered) == 2  # the task's two slots
     with sessions() as s:
-        assert all(s.get(m.WorkerRow, w).assigned == 1 for w in offered)  # type: ignore[union-attr]
+        assert all(s.get(m.WorkerRow, w).assigned == 0 for w in offered)  # type: ignore[union-attr]
     req = service.demo_keys.address("user1")  # type: ignore[union-attr]
+    worker, decliner = offered
+    cid = "bafkreibm6jg3ux5qumhcn2b3flc3tyu6dmlb4xa7u5bf44yegnrjhc4yeq"
     with service.lock:
-        for w in offered:
-            p.tmc.transact("declineOffer", 1, sender=w)
-        p.tmc.transact("updateTaskStatus", 1, TaskStatus.CANCELLED.value, sender=req)
+        p.tmc.transact("acceptOffer", 1, sender=worker)
+        p.tmc.transact("declineOffer", 1, sender=decliner)
+        p.tmc.submit_outcome(worker, 1, cid)
+        p.tmc.transact("reviewOutcome", 1, worker, 5, True, sender=req)
     indexer.poll()
     with sessions() as s:
-        for w in offered:
+        row = s.get(m.WorkerRow, decliner)
+        assert row is not None and (row.assigned, row.accepted) == (0, 0)  # task still open
+    with service.lock:  # the open slot goes: only the reviewed one is left, Completed
+        p.tmc.cancel_open_slots(req, 1)
+    assert p.tmc.task(1)["status"] == TaskStatus.COMPLETED
+    indexer.poll()
+    with sessions() as s:
+        for w, counts in ((worker, (1, 1, 1)), (decliner, (1, 0, 0))):
             row = s.get(m.WorkerRow, w)
-            assert row is not None and p.umc.counters(w, 0, 0)["assigned"] == 0
-            assert (row.assigned, row.accepted, row.completed) == (0, 0, 0)
-            assert row.reputation == reputation_fixed(0, 0, 0)
+            chain_c = p.umc.counters(w, 0, 0)
+            assert row is not None
+            assert (
+                (row.assigned, row.accepted, row.completed)
+                == counts
+                == (
+                    chain_c["assigned"],
+                    chain_c["accepted"],
+                    chain_c["completed"],
+                )
+            )
+            assert row.reputation == reputation_fixed(*counts)
 
 
 def _offers(sessions: sessionmaker[Session]) -> list[tuple[int, str]]:

@@ -15,6 +15,9 @@ from backend.chain.errors import ContractError
 from backend.chain.platform import TasksManager, UsersManager, cid_commitment
 from backend.services.chain import ChainService
 from backend.settings import Settings
+from backend.store.cid import CID, RAW
+
+REVEAL_CID = str(CID.for_block(b"revealed", RAW))  # a canonical text: the chain refuses others
 
 
 def test_chain_rpc_through_the_gateway(gateway: str, service: ChainService) -> None:
@@ -81,15 +84,15 @@ def test_commit_then_reveal_through_the_gateway(gateway: str, service: ChainServ
     )
     assert tmc.allocate(requester.address, task_id)[0] == [worker.address]
     tmc.transact("acceptOffer", task_id, sender=worker.address)
-    commit = tmc.transact("commitCid", cid_commitment("bafyreveal", worker.address),
+    commit = tmc.transact("commitCid", cid_commitment(REVEAL_CID, worker.address),
                           sender=worker.address)
     assert remote.w3.eth.block_number == commit.block_number  # nothing mined since
     assert tmc.contract.functions.committedBefore(
-        cid_commitment("bafyreveal", worker.address)
+        cid_commitment(REVEAL_CID, worker.address)
     ).call(block_identifier="pending") is True  # the next block's view
-    reveal = tmc.transact("submitOutcome", task_id, "bafyreveal", sender=worker.address)
+    reveal = tmc.transact("submitOutcome", task_id, REVEAL_CID, sender=worker.address)
     assert reveal.block_number == commit.block_number + 1
-    assert tmc.outcome_of("bafyreveal")[0] == worker.address
+    assert tmc.outcome_of(REVEAL_CID)[0] == worker.address
 
 
 def test_rpc_refuses_node_signing_and_bad_requests(gateway: str) -> None:
