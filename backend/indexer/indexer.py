@@ -422,6 +422,13 @@ class Indexer:
         if o is not None:
             o.review, o.accepted = int(a["review"]), bool(a["accepted"])
 
+    def _on_OutcomePaidUnreviewed(self, s: Session, a: dict[str, Any], block: int) -> None:
+        """Paid at close, never reviewed: accepted, with no review (not a review of 0)."""
+        self._set_offer(s, a, block, OfferState.REVIEWED)
+        o = s.get(m.OutcomeRow, (int(a["taskId"]), a["worker"]))
+        if o is not None:
+            o.review, o.accepted = None, True
+
     def _on_SlotsCancelled(self, s: Session, a: dict[str, Any], block: int) -> None:
         t = s.get(m.TaskRow, int(a["taskId"]))
         if t is not None:

@@ -229,6 +229,9 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
     event OfferFailed(uint256 indexed taskId, address indexed worker);
     event OutcomeSubmitted(uint256 indexed taskId, address indexed worker, string cid);
     event OutcomeReviewed(uint256 indexed taskId, address indexed worker, uint8 review, bool accepted);
+    /// An outcome the requester did not review within the task's review window, paid to its
+    /// worker at close: completed, with no review (not a review of 0).
+    event OutcomePaidUnreviewed(uint256 indexed taskId, address indexed worker);
     event TaskStatusUpdated(uint256 indexed taskId, TaskStatus status);
     event PaymentCredited(address indexed account, uint256 indexed taskId, uint256 amount);
     event Withdrawn(address indexed account, uint256 amount);
@@ -859,7 +862,7 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
                 t.settled += 1;
                 _credit(a, taskId, reward);
                 counted[j] = COMPLETED;
-                emit OutcomeReviewed(taskId, a, 0, true);
+                emit OutcomePaidUnreviewed(taskId, a);
             } else if (s == OfferState.Accepted) {
                 o.state = OfferState.Failed;
                 counted[j] = REVIEWED; // with review 0

@@ -573,10 +573,14 @@ contract TasksManagerFuzzTest is Fixture {
         vm.expectRevert(abi.encodeWithSelector(TasksManager.TasksReviewWindowClosed.selector, id, end));
         vm.prank(requester);
         tmc.reviewOutcome(id, w, 0, false);
-        // the outcome is the worker's: paid at close
+        // the outcome is the worker's: paid at close, with no review (not a review of 0)
+        vm.expectEmit(address(tmc));
+        emit TasksManager.OutcomePaidUnreviewed(id, w);
         vm.prank(w);
         tmc.updateTaskStatus(id, TasksManager.TaskStatus.Closed);
         vm.assertEq(tmc.credits(w), 1e9, "paid unreviewed");
+        vm.assertEq(umc.counters(w, DOMAIN, 0).ratingCount, 0, "no rating");
+        vm.assertEq(umc.counters(w, DOMAIN, 0).completed, 1, "completed");
     }
 
     /// @dev The review end is the task's, fixed when it was posted: an admin lowering the

@@ -148,6 +148,7 @@ OFFER_EVENTS = {
     "OfferFailed": OfferState.FAILED,
     "OutcomeSubmitted": OfferState.SUBMITTED,
     "OutcomeReviewed": OfferState.REVIEWED,
+    "OutcomePaidUnreviewed": OfferState.REVIEWED,
 }
 
 

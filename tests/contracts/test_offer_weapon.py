@@ -201,7 +201,8 @@ def test_completed_means_accepted_or_paid(setup) -> None:
     assert (c["completed"], c["rating_sum"], c["rating_count"]) == (1, 5 + 2, 2)
     p.chain.advance_time(DURATION + REVIEW_WINDOW + 30)
     rc = p.tmc.transact("updateTaskStatus", unreviewed, TaskStatus.CLOSED.value, sender=victim)
-    assert rc.one("OutcomeReviewed").args["accepted"] is True
+    assert rc.one("OutcomePaidUnreviewed").args["worker"] == victim  # paid, no review
+    assert rc.named("OutcomeReviewed") == []  # not a review of 0
     c = p.umc.counters(victim, DOMAIN, 0)
     assert (c["assigned"], c["accepted"], c["completed"], c["rating_count"]) == (3, 3, 2, 2)
     assert p.tmc.call("credits", victim) == 2 * REWARD  # the history task and the unreviewed one

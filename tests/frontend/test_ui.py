@@ -10,7 +10,7 @@ import httpx
 import pytest
 
 from tests.frontend.conftest import LiveServer, screenshot, sign_in_as_alice
-from tests.frontend.fake_api import ALICE, CID_A, XSS, FakeState
+from tests.frontend.fake_api import ALICE, CID_A, CID_B, XSS, FakeState
 
 expect = pytest.importorskip("playwright.sync_api", reason="pip install playwright").expect
 
@@ -369,6 +369,13 @@ def test_task_page_shows_timeline_offers_outcomes_and_live_curve(
     expect(page.locator("#task-status")).to_have_text("completed", timeout=5000)
     expect(page.locator("#outcomes-table tbody tr")).to_have_count(1)
     expect(page.locator("#outcomes-table a")).to_have_attribute("href", f"/models?q={CID_A}")
+    # an outcome the requester left unreviewed and the close paid: no review of 0/5 shown
+    t["outcomes"].append(
+        {"worker": t["offers"][1]["worker"], "cid": CID_B, "review": None, "accepted": True}
+    )
+    paid = page.locator(f'#outcomes-table tr[data-worker="{t["offers"][1]["worker"]}"]')
+    expect(paid).to_contain_text("not reviewed: paid at close", timeout=5000)
+    expect(paid.locator("button")).to_have_count(0)
     expect(page.locator("#task-summary")).to_contain_text("the final policy")
     expect(page.locator("#task-selection")).to_have_count(0)
     # a task whose spec keeps the best evaluated policy says so (spec selection.keep_best)

@@ -166,6 +166,38 @@ def test_the_index_follows_offers_counted_at_the_end(
             assert row.reputation == reputation_fixed(*counts)
 
 
+def test_an_outcome_paid_unreviewed_at_close_is_indexed_without_a_review(
+    service: ChainService, sessions: sessionmaker[Session]
+) -> None:
+    """Past the review window the close pays an unreviewed outcome (OutcomePaidUnreviewed):
+    the index records it accepted with no review, not as a review of 0/5, while a reviewed
+    outcome of the same task keeps its review."""
+    from backend.chain.platform import OfferState, TaskStatus
+
+    _activity(service, 1)
+    p, indexer = service.platform, Indexer(service, sessions)
+    indexer.poll()
+    req = service.demo_keys.address("user1")  # type: ignore[union-attr]
+    reviewed, unreviewed = [w for (t, w) in _offers(sessions) if t == 1]
+    cids = {reviewed: "bafkreibm6jg3ux5qumhcn2b3flc3tyu6dmlb4xa7u5bf44yegnrjhc4yeq",
+            unreviewed: "bafkreiaqp2sovkmc3jqqi2ykiq5a3xt6ayzphuqzxzyduol4ve6ixfogje"}
+    with service.lock:
+        for w in (reviewed, unreviewed):
+            p.tmc.transact("acceptOffer", 1, sender=w)
+            p.tmc.submit_outcome(w, 1, cids[w])
+        p.tmc.transact("reviewOutcome", 1, reviewed, 0, True, sender=req)  # a real 0/5
+        p.chain.advance_time(3_600 + p.tmc.call("reviewWindow") + 1)
+        p.tmc.transact("updateTaskStatus", 1, TaskStatus.CLOSED.value, sender=unreviewed)
+    indexer.poll()
+    with sessions() as s:
+        got = {w: s.get(m.OutcomeRow, (1, w)) for w in (reviewed, unreviewed)}
+        assert (got[reviewed].review, got[reviewed].accepted) == (0, True)  # type: ignore[union-attr]
+        assert (got[unreviewed].review, got[unreviewed].accepted) == (None, True)  # type: ignore[union-attr]
+        offer = s.get(m.OfferRow, (1, unreviewed))
+        assert offer is not None and offer.state == OfferState.REVIEWED.name.lower()
+    assert p.umc.counters(unreviewed, 0, 0)["completed"] == 1
+
+
 def _offers(sessions: sessionmaker[Session]) -> list[tuple[int, str]]:
     with sessions() as s:
         return [tuple(r) for r in s.execute(select(m.OfferRow.task_id, m.OfferRow.worker))]

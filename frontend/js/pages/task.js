@@ -148,8 +148,9 @@ export async function render(main, [id], ctx) {
         h("thead", {}, h("tr", {}, ["Worker", "Model CID", "Review", ""].map((c) => h("th", {}, c)))),
         h("tbody", {}, outcomes.map((o) => {
           const reviewed = o.review !== undefined && o.review !== null;
+          const paid = !reviewed && o.accepted === true; // left unreviewed, paid at close
           let cell = null;
-          if (isRequester && !reviewed) {
+          if (isRequester && !reviewed && !paid) {
             const sel = h("select", { "aria-label": "Review 0-5" }, [5, 4, 3, 2, 1, 0].map((v) => h("option", { value: String(v) }, `${v}/5`)));
             cell = h("span", {}, sel, h("button", { type: "button", class: "small", onclick: () =>
               act("Review", `/tasks/${encodeURIComponent(id)}/reviews`, { worker: o.worker, review: Number(sel.value) }) }, "Review"));
@@ -159,7 +160,8 @@ export async function render(main, [id], ctx) {
             h("td", {}, o.model_id !== undefined && o.model_id !== null
               ? link(`/models/${o.model_id}`, shortCid(o.cid))
               : (o.cid ? link(`/models?q=${encodeURIComponent(o.cid)}`, shortCid(o.cid)) : shortCid(o.cid))),
-            h("td", {}, reviewed ? `${o.review}/5${o.accepted === false ? " (rejected)" : ""}` : h("span", { class: "muted" }, "not reviewed")),
+            h("td", {}, reviewed ? `${o.review}/5${o.accepted === false ? " (rejected)" : ""}`
+              : h("span", { class: "muted" }, paid ? "not reviewed: paid at close" : "not reviewed")),
             h("td", {}, cell));
         })))
       : h("p", { class: "muted" }, "No outcome submitted yet."));
