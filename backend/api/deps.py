@@ -17,7 +17,7 @@ from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from sqlalchemy.orm import Session
 
 from backend.api.errors import RuleError
-from backend.api.storereads import StoreReads
+from backend.api.slots import ClientSlots
 from backend.auth import User, decode_token
 from backend.indexer import Indexer
 from backend.services.chain import ChainService
@@ -122,19 +122,31 @@ IndexerDep = Annotated[Indexer | None, Depends(get_indexer)]
 
 
 async def get_store(request: Request) -> AsyncIterator[ContentStore]:
-    """The content store, holding one of the store-read slots (``storereads.StoreReads``)
-    until the route returns. An async dependency: taking and giving back a slot never waits
-    for a thread of the pool the slots protect."""
+    """The content store, holding one of the store-read slots (``app.state.store_reads``,
+    ``max_store_reads`` overall, ``max_store_reads_per_client`` per client address) until
+    the route returns: a read of content the node cannot find waits its find timeout in one
+    of the threads every sync route shares. Past a bound: 429 ``store_reads_per_client`` /
+    503 ``store_reads_busy`` at once, with Retry-After. An async dependency: taking and
+    giving back a slot never waits for a thread of the pool the slots protect."""
     store: ContentStore | None = getattr(request.app.state, "store", None)
     if store is None:
         raise RuleError(503, "store_unavailable", "the gateway has no content store")
-    reads: StoreReads = request.app.state.store_reads
+    reads: ClientSlots = request.app.state.store_reads
+    retry = {"Retry-After": str(request.app.state.settings.retry_after_s)}
     client = request.client.host if request.client else "unknown"
-    reads.enter(client)
+    full = reads.take(client)
+    if full == "client":
+        raise RuleError(429, "store_reads_per_client", f"at most {reads.per_client} requests "
+                        "reading the content store at once per client "
+                        "(max_store_reads_per_client); wait for one to finish", headers=retry)
+    if full == "total":
+        raise RuleError(503, "store_reads_busy", f"the gateway is at its limit of {reads.limit} "
+                        "requests reading the content store at once (max_store_reads); retry "
+                        f"after {retry['Retry-After']} s", headers=retry)
     try:
         yield store
     finally:
-        reads.leave(client)
+        reads.release(client)
 
 
 StoreDep = Annotated[ContentStore, Depends(get_store)]

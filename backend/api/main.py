@@ -27,7 +27,7 @@ from backend.api.pagecache import PageCache
 from backend.api.routes import api_router, blocks, local, models, rpc, tasks, tx, users, workers
 from backend.api.security_headers import SecurityHeaders
 from backend.api.shedding import LoadShedder
-from backend.api.storereads import StoreReads
+from backend.api.slots import ClientSlots
 from backend.api.version import VERSION
 from backend.db import make_engine, make_sessionmaker, upgrade, utcnow
 from backend.db.engine import pool_options
@@ -129,9 +129,11 @@ def create_app(
     app.state.faucet = None
     app.state.store = None
     app.state.page_cache = PageCache()  # list pages while the index stands still
-    app.state.store_reads = StoreReads(  # requests using the store at once (a slow node)
-        settings.max_store_reads, settings.max_store_reads_per_client, settings.retry_after_s
+    # requests reading the store (a slow node) and streamed downloads (a slow client) at once
+    app.state.store_reads = ClientSlots(
+        settings.max_store_reads, settings.max_store_reads_per_client
     )
+    app.state.download_pool = ClientSlots(settings.max_downloads, settings.max_downloads_per_client)
     app.state.nonce_budget = GasBudget(settings.auth_nonces_per_minute)  # one per sign-in msg
     install_error_handlers(app)
     # added later = further out. A request counts as in flight once its body is read: bodies

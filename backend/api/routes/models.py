@@ -27,6 +27,7 @@ from backend.api.errors import RuleError, rule_responses
 from backend.api.limits import json_depth_exceeds
 from backend.api.pagecache import cached_page
 from backend.api.schemas import Address
+from backend.api.slots import ClientSlots
 from backend.api.writes import catch_up, field_error, receipt_public
 from backend.chain.platform import Metric, cid_commitment, cid_hash
 from backend.chain.qos import mmc_reputation_fixed
@@ -551,30 +552,6 @@ class _DownloadStalled(Exception):
     """The client read nothing of a download for ``download_idle_timeout_s``."""
 
 
-class _DownloadPool:
-    """Streamed downloads in progress, overall and per client address. Used on the event loop
-    only (a response's ``__call__``), so it needs no lock."""
-
-    def __init__(self) -> None:
-        self.total = 0
-        self.by_client: dict[str, int] = {}
-
-    def release(self, client: str) -> None:
-        self.total -= 1
-        left = self.by_client[client] - 1
-        if left:
-            self.by_client[client] = left
-        else:
-            del self.by_client[client]
-
-
-def _download_pool(app: Any) -> _DownloadPool:
-    pool = getattr(app.state, "download_pool", None)
-    if pool is None:
-        pool = app.state.download_pool = _DownloadPool()
-    return pool
-
-
 class _Download(StreamingResponse):
     """A bundle file streamed to its client, within bounds that hold however slowly the client
     reads: ``max_downloads_per_client`` at once per client address (429
@@ -585,8 +562,6 @@ class _Download(StreamingResponse):
 
     def __init__(self, content: Iterator[bytes], *, settings: Any, what: str, **kw: Any) -> None:
         super().__init__(content, **kw)
-        self.per_client = int(settings.max_downloads_per_client)
-        self.max_total = int(settings.max_downloads)
         self.idle_s = float(settings.download_idle_timeout_s)
         self.retry_after = int(settings.retry_after_s)
         self.what = what
@@ -599,27 +574,26 @@ class _Download(StreamingResponse):
         )
 
     async def __call__(self, scope: Any, receive: Any, send: Any) -> None:
-        pool = _download_pool(scope["app"])
+        pool: ClientSlots = scope["app"].state.download_pool
         peer = scope.get("client")
         client = str(peer[0]) if peer else "unknown"
-        if pool.by_client.get(client, 0) >= self.per_client:
+        full = pool.take(client)
+        if full == "client":
             await self._refusal(
                 429,
                 "downloads_per_client",
-                f"at most {self.per_client} downloads at once per client "
+                f"at most {pool.per_client} downloads at once per client "
                 "(max_downloads_per_client); finish one first",
             )(scope, receive, send)
             return
-        if pool.total >= self.max_total:
+        if full == "total":
             await self._refusal(
                 503,
                 "downloads_busy",
-                f"the gateway is at its limit of {self.max_total} downloads at once "
+                f"the gateway is at its limit of {pool.limit} downloads at once "
                 f"(max_downloads); retry after {self.retry_after} s",
             )(scope, receive, send)
             return
-        pool.total += 1
-        pool.by_client[client] = pool.by_client.get(client, 0) + 1
 
         async def send_or_give_up(message: Any) -> None:
             try:  # a send waits while the client's buffers are full, i.e. it reads nothing
