@@ -149,28 +149,41 @@ def make_selector(spec: TrainingSpec, experts: dict[str, Path] | None) -> Any:
     return DemonstrationSelector.from_config(demo, spec.env, seed=spec.seed, experts=loaded)
 
 
+def load_job_models(
+    spec: TrainingSpec, experts: dict[str, Path] | None, walls_cae: Path | None
+) -> tuple[Any, Any]:
+    """What a job of ``spec`` loads besides its own nets: (its DC / MEDC selector with the
+    experts, :func:`make_selector`; the walls encoder of ``observation.walls_embedding``,
+    from its verified directory ``walls_cae``), None for what the spec does not name."""
+    selector = make_selector(spec, experts)
+    ref = spec.observation.walls_embedding
+    if ref is None:
+        return selector, None
+    if walls_cae is None:
+        raise ValueError(f"walls CAE {ref} was not fetched for this job")
+    return selector, load_walls_encoder(ref, walls_cae)
+
+
 def check_job_models(
     spec: TrainingSpec, experts: dict[str, Path] | None, walls_cae: Path | None
 ) -> None:
-    """Load the models a job of ``spec`` loads besides its own nets, as :func:`make_trainer`
-    does, and drop them: each expert through its adapter onto the task (its card's input
-    shape, its weights against its card), the walls encoder against the task's grid and
-    ``walls_embedding_size``. ExpertFetchError names the CID. A worker runs this before it
-    accepts an offer: a model no run could use is then a decline, not a job failed on chain."""
-    make_selector(spec, experts)
-    ref = spec.observation.walls_embedding
-    if ref is None:
+    """Load what :func:`make_trainer` loads besides the job's own nets and drop it: each
+    expert through its adapter onto the task (its card's input shape, its weights against
+    its card), the walls encoder against the task's grid and ``walls_embedding_size`` (the
+    observer the trainer builds checks them). ExpertFetchError names the CID. A worker runs
+    this before it accepts an offer: a model no run could use is then a decline, not a job
+    failed on chain."""
+    _, encoder = load_job_models(spec, experts, walls_cae)
+    if encoder is None:
         return
-    if walls_cae is None:
-        raise ValueError(f"walls CAE {ref} was not fetched for this job")
     from workers.mdrl.observations import make_observer
 
-    try:  # the observer checks the encoder's grid and d, as the trainer's does
-        make_observer(spec.env, spec.observation, load_walls_encoder(ref, walls_cae))
+    try:
+        make_observer(spec.env, spec.observation, encoder)
     except ValueError as exc:
-        if isinstance(exc, ExpertFetchError):
-            raise
-        raise ExpertFetchError(ref, f"cannot serve this task: {exc}") from None
+        raise ExpertFetchError(
+            str(spec.observation.walls_embedding), f"cannot serve this task: {exc}"
+        ) from None
 
 
 def make_trainer(
@@ -189,14 +202,7 @@ def make_trainer(
     budget becomes the training time so far plus that, within the spec's;
     ``experts`` maps the spec's expert CIDs to their verified directories; ``walls_cae`` is
     the verified directory of the spec's ``observation.walls_embedding`` CID."""
-    selector = make_selector(spec, experts)
-    encoder = None
-    if spec.observation.walls_embedding is not None:
-        if walls_cae is None:
-            raise ValueError(
-                f"walls CAE {spec.observation.walls_embedding} was not fetched for this job"
-            )
-        encoder = load_walls_encoder(spec.observation.walls_embedding, walls_cae)
+    selector, encoder = load_job_models(spec, experts, walls_cae)
     out = run_dir(job_dir)
     budget_minutes = spec.minutes if minutes is None else minutes
     run = spec.run_config(
