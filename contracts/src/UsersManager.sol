@@ -8,8 +8,10 @@ import {Math} from "@openzeppelin/contracts/utils/math/Math.sol";
  * @dev Registers workers and requesters and keeps, per worker, domain and task type, the
  * counters the recruitment QoS needs (Eq. 16-19 and the rating): offers assigned (A),
  * accepted (Ac), completed (E), review sum and review count. Only platform contracts (the
- * TMC and the MMC, set by an admin) update counters. The consortium admins are kept here and
- * the TMC/MMC ask `isAdmin`. A two-mapping role set instead of OpenZeppelin AccessControl:
+ * TMC and the MMC, set by the admins) update counters. The consortium admins are kept here and
+ * the TMC/MMC ask `isAdmin`. Who is an admin and which contracts may write counters change
+ * only by a majority of the admins ({setAdmin}, {setPlatform}, {quorum}): no single member
+ * can remove the others or let a contract of its own rewrite reputations. A two-mapping role set instead of OpenZeppelin AccessControl:
  * AccessControl (role admins, ERC-165, renounce) added ~1.2 kB of runtime, i.e. ~250k deploy
  * gas, for features this consortium does not use.
  *
@@ -58,6 +60,10 @@ contract UsersManager {
     uint8 public constant COMPLETED = 4;
     uint8 public constant REVIEWED = 8;
 
+    // kinds of change that need a majority of the admins ({changeProposal})
+    uint8 public constant ADMIN_CHANGE = 0;
+    uint8 public constant PLATFORM_CHANGE = 1;
+
     uint256 internal constant REVIEW_MAX = 5;
     uint256 internal constant MEMBER_BIT = 1 << 255;
     uint256 public constant MAX_DOMAIN = 47;
@@ -101,6 +107,7 @@ contract UsersManager {
     error UsersNotAdmin(address account);
     error UsersNotPlatform(address account);
     error UsersLastAdmin(address account);
+    error UsersAlreadyVoted(address admin, bytes32 proposal);
     error UsersAlreadyRegistered(address account);
     error UsersNotWorker(address account);
     error UsersNotWorkerId(uint32 id);
@@ -121,6 +128,9 @@ contract UsersManager {
 
     event AdminUpdated(address indexed account, bool isAdmin);
     event PlatformUpdated(address indexed account, bool isPlatform);
+    event ChangeVoted(
+        bytes32 indexed proposal, address indexed admin, uint8 kind, address account, bool on, uint256 votes, uint256 quorum
+    );
     event WorkerAdded(
         address indexed worker, uint32 indexed id, uint256 domains, uint16 cpuCores, uint16 ramGb, uint8 gpuSeries
     );
@@ -162,6 +172,14 @@ contract UsersManager {
     mapping(address => bool) public isPlatform;
     uint256 public adminCount;
 
+    /// Votes on changes of the admin set and the platform set ({setAdmin}, {setPlatform}):
+    /// proposal ({changeProposal}) -> admins that asked for it, and who did. A proposal names
+    /// {changeNonce}, which every applied change advances, so votes cast before any change of
+    /// either set lapse (the quorum and the voters they counted on may have changed).
+    mapping(bytes32 => uint256) public changeVotes;
+    mapping(bytes32 => mapping(address => bool)) public hasVoted;
+    uint256 public changeNonce;
+
     /// New workers wait for an admin's approval (Pending) while true. Admin setting.
     bool public approvalRequired;
     /// Candidates per domain: the first `poolSize` workers of the domain's Active queue.
@@ -195,25 +213,47 @@ contract UsersManager {
     // ---------------------------------------------------------------------------- admin
 
     /**
-     * @dev Adds or removes a consortium admin.
-     * Requirements: caller is an admin; the last admin cannot be removed.
-     * Emits an {AdminUpdated} event.
+     * @dev Votes to add or remove a consortium admin; the change happens when a majority of
+     * the admins ({quorum}) voted for it, so no single admin can remove the others and hold
+     * the registry alone. One admin (a new consortium, a development chain) decides alone; an
+     * admin that removes itself needs no votes. No change (already so): no vote.
+     * Requirements: caller is an admin that has not voted for this proposal; the last admin
+     * cannot be removed. Emits a {ChangeVoted} event for a vote that does not yet reach the
+     * quorum, an {AdminUpdated} event for the change.
      */
     function setAdmin(address account, bool on) external onlyAdmin {
         if (isAdmin[account] == on) return;
         if (!on && adminCount == 1) revert UsersLastAdmin(account);
+        if (!(account == msg.sender || _voteCarries(ADMIN_CHANGE, account, on))) return;
         isAdmin[account] = on;
         adminCount = on ? adminCount + 1 : adminCount - 1;
+        ++changeNonce;
         emit AdminUpdated(account, on);
     }
 
     /**
-     * @dev Allows or forbids a platform contract (TMC, MMC) to call {updateInfo}.
-     * Requirements: caller is an admin. Emits a {PlatformUpdated} event.
+     * @dev Votes to allow or forbid a platform contract (TMC, MMC) to call {updateInfo}; as
+     * {setAdmin}, the change needs a majority of the admins: a contract allowed here can
+     * rewrite every worker's counters, i.e. its reputation.
+     * Requirements: caller is an admin that has not voted for this proposal. Emits a
+     * {ChangeVoted} event before the quorum, a {PlatformUpdated} event for the change.
      */
     function setPlatform(address account, bool on) external onlyAdmin {
+        if (isPlatform[account] == on) return;
+        if (!_voteCarries(PLATFORM_CHANGE, account, on)) return;
         isPlatform[account] = on;
+        ++changeNonce;
         emit PlatformUpdated(account, on);
+    }
+
+    /// @dev Votes a change of the admin or platform set needs: a majority of the admins.
+    function quorum() public view returns (uint256) {
+        return adminCount / 2 + 1;
+    }
+
+    /// @dev The proposal a vote of {setAdmin} (`kind` 0) or {setPlatform} (1) counts for.
+    function changeProposal(uint8 kind, address account, bool on) public view returns (bytes32) {
+        return keccak256(abi.encode(kind, account, on, changeNonce));
     }
 
     /**
@@ -678,6 +718,20 @@ contract UsersManager {
         }
         _counters[_key(id, domain, taskType)] = c;
         emit WorkerInfoUpdated(worker, domain, taskType, c.assigned, c.accepted, c.completed, c.ratingSum, c.ratingCount);
+    }
+
+    /// @dev Records the caller's vote for the change; whether it now has the quorum. With
+    /// one admin nothing is stored: its vote is the quorum.
+    function _voteCarries(uint8 kind, address account, bool on) internal returns (bool) {
+        uint256 needed = quorum();
+        if (needed == 1) return true;
+        bytes32 proposal = changeProposal(kind, account, on);
+        if (hasVoted[proposal][msg.sender]) revert UsersAlreadyVoted(msg.sender, proposal);
+        hasVoted[proposal][msg.sender] = true;
+        uint256 votes = changeVotes[proposal] + 1;
+        changeVotes[proposal] = votes;
+        emit ChangeVoted(proposal, msg.sender, kind, account, on, votes, needed);
+        return votes >= needed;
     }
 
     function _checkAdmin() internal view {

@@ -26,13 +26,63 @@ contract UsersManagerFuzzTest is Fixture {
         umc.setAdmin(a, true);
         vm.assertTrue(umc.isAdmin(a), "added");
         vm.assertEq(umc.adminCount(), 2, "count up");
-        vm.prank(a);
-        umc.setAdmin(admin, false);
+        vm.prank(admin);
+        umc.setAdmin(admin, false); // an admin removes itself alone
         vm.assertFalse(umc.isAdmin(admin), "removed");
         vm.assertEq(umc.adminCount(), 1, "count down");
         vm.expectRevert(abi.encodeWithSelector(UsersManager.UsersLastAdmin.selector, a));
         vm.prank(a);
         umc.setAdmin(a, false);
+    }
+
+    /// One admin of two or three cannot remove another nor allow a platform contract: the
+    /// change waits for a majority, then happens; votes cast before another change lapse.
+    function testFuzz_adminAndPlatformChangesNeedAMajority(address b, address c, address rogue) public {
+        vm.assume(b != admin && c != admin && b != c && rogue != admin && rogue != b && rogue != c);
+        vm.assume(rogue != address(tmc) && rogue != address(mmc));
+        vm.prank(admin);
+        umc.setAdmin(b, true); // one admin: decides alone
+        vm.assertEq(umc.quorum(), 2, "two admins: both");
+        bytes32 proposal = umc.changeProposal(umc.ADMIN_CHANGE(), admin, false);
+        vm.expectEmit(address(umc));
+        emit UsersManager.ChangeVoted(proposal, b, 0, admin, false, 1, 2);
+        vm.prank(b);
+        umc.setAdmin(admin, false);
+        vm.assertTrue(umc.isAdmin(admin), "one vote of two removes nobody");
+        vm.expectRevert(abi.encodeWithSelector(UsersManager.UsersAlreadyVoted.selector, b, proposal));
+        vm.prank(b);
+        umc.setAdmin(admin, false);
+        vm.prank(b);
+        umc.setPlatform(rogue, true);
+        vm.assertFalse(umc.isPlatform(rogue), "one vote of two allows no contract");
+        // a third admin (both vote); the pending votes lapse with the change
+        vm.prank(admin);
+        umc.setAdmin(c, true);
+        vm.assertFalse(umc.isAdmin(c), "needs the second vote");
+        vm.expectEmit(address(umc));
+        emit UsersManager.AdminUpdated(c, true);
+        vm.prank(b);
+        umc.setAdmin(c, true);
+        vm.assertEq(umc.adminCount(), 3, "three admins");
+        vm.assertEq(umc.quorum(), 2, "two of three");
+        vm.prank(c);
+        umc.setPlatform(rogue, true);
+        vm.assertFalse(umc.isPlatform(rogue), "b's vote before c joined lapsed");
+        vm.prank(b);
+        umc.setPlatform(rogue, true);
+        vm.assertTrue(umc.isPlatform(rogue), "two of three allow it");
+        // two of three remove the third
+        vm.prank(b);
+        umc.setAdmin(admin, false);
+        vm.assertTrue(umc.isAdmin(admin), "one of three");
+        vm.expectEmit(address(umc));
+        emit UsersManager.AdminUpdated(admin, false);
+        vm.prank(c);
+        umc.setAdmin(admin, false);
+        vm.assertFalse(umc.isAdmin(admin), "two of three remove");
+        vm.expectRevert(abi.encodeWithSelector(UsersManager.UsersNotAdmin.selector, admin));
+        vm.prank(admin);
+        umc.setPlatform(rogue, false);
     }
 
     function testFuzz_setAdmin_onlyAdmin(address caller, address a, bool on) public {
@@ -45,6 +95,7 @@ contract UsersManagerFuzzTest is Fixture {
     // ------------------------------------------------------------------ setPlatform
 
     function testFuzz_setPlatform(address caller, address a, bool on) public {
+        vm.assume(umc.isPlatform(a) != on); // no change: no event
         vm.expectEmit(address(umc));
         emit UsersManager.PlatformUpdated(a, on);
         vm.prank(admin);

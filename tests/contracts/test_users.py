@@ -126,7 +126,14 @@ def test_admin_set_management(p, actors) -> None:
     rc = p.umc.transact("setAdmin", other, True, sender=admin)
     assert rc.one("AdminUpdated").args == {"account": other, "isAdmin": True}
     assert p.umc.call("adminCount") == 2
-    p.umc.transact("setAdmin", admin, False, sender=other)
+    # one admin of two cannot remove the other: its vote waits for a majority (2 of 2)
+    rc = p.umc.transact("setAdmin", admin, False, sender=other)
+    vote = rc.one("ChangeVoted").args
+    assert (vote["account"], vote["on"], vote["votes"], vote["quorum"]) == (admin, False, 1, 2)
+    assert p.umc.call("isAdmin", admin)
+    reverts("UsersAlreadyVoted", p.umc.transact, "setAdmin", admin, False, sender=other)
+    # an admin may leave alone
+    p.umc.transact("setAdmin", admin, False, sender=admin)
     assert not p.umc.call("isAdmin", admin)
     reverts("UsersNotAdmin", p.umc.transact, "setPlatform", admin, True, sender=admin)
 

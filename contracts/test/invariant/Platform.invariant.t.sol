@@ -19,8 +19,8 @@ contract PlatformInvariantTest is Fixture {
         vm.prank(admin);
         umc.setAdmin(address(handler), true); // lets the handler approve workers in init()
         handler.init();
-        vm.prank(admin);
-        umc.setAdmin(address(handler), false);
+        vm.prank(address(handler));
+        umc.setAdmin(address(handler), false); // renounces (removing another needs both)
         _target(address(handler), handler.selectors());
     }
 
@@ -60,7 +60,7 @@ contract PlatformHandlerPathsTest is Fixture {
         vm.prank(admin);
         umc.setAdmin(address(h), true);
         h.init();
-        vm.prank(admin);
+        vm.prank(address(h));
         umc.setAdmin(address(h), false);
         h.addTask(0, 1, 5, 7, 0); // task 1, 2 slots
         h.allocateTask(0, false);
