@@ -157,7 +157,8 @@ class Settings(BaseSettings):
     address that sends its gas money away does not qualify again and again."""
     rpc_gas_cap: int = Field(default=8_000_000, ge=100_000, le=2**40)
     """Embedded ``/rpc``: most gas one ``eth_call`` / ``eth_estimateGas`` execution may use
-    (geth's ``RPCGasCap``; a larger ``gas`` is clamped to it)."""
+    (geth's ``RPCGasCap``; a larger ``gas`` is clamped to it). Also the largest gas limit a
+    transaction relayed by ``POST /api/tx`` may carry (on any chain; refused above it)."""
     rpc_gas_per_minute: int = Field(default=40_000_000, ge=100_000, le=2**50)
     """Embedded ``/rpc``: execution gas one client (address) may use a minute; past it
     JSON-RPC -32005 with the seconds to wait (backend.services.rpc_budget). At py-evm's ~3M gas

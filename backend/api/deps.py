@@ -11,6 +11,7 @@ import datetime as dt
 import hmac
 from collections.abc import AsyncIterator, Callable, Iterator
 from typing import Annotated
+from urllib.parse import urlsplit
 
 from fastapi import Depends, Request
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
@@ -156,6 +157,25 @@ LOOPBACK = frozenset({"127.0.0.1", "::1", "localhost"})
 
 
 def is_loopback(request: Request) -> bool:
-    """The request comes from this machine (what development-only conveniences are limited to:
-    ``drlaas up --host 0.0.0.0`` must not hand them to the network)."""
-    return (request.client.host if request.client else "") in LOOPBACK
+    """The request comes from this machine and from no web page of another site (what
+    development-only conveniences are limited to: ``drlaas up --host 0.0.0.0`` must not hand
+    them to the network). A browser on this machine is a loopback client for every site it
+    visits, so the peer address alone is not enough: after DNS rebinding a page of
+    ``attacker.example`` reaches this gateway with its own name in ``Host``, and a page that
+    posts across sites sends its ``Origin``. Both must name this machine too."""
+    if (request.client.host if request.client else "") not in LOOPBACK:
+        return False
+    if _hostname(request.headers.get("host", "")) not in LOOPBACK:
+        return False
+    origin = request.headers.get("origin")
+    if origin is None:
+        return True
+    return _hostname(urlsplit(origin).netloc) in LOOPBACK
+
+
+def _hostname(authority: str) -> str:
+    """``host[:port]`` or ``[v6][:port]`` -> the host, lower case, without brackets."""
+    authority = authority.strip().lower()
+    if authority.startswith("["):
+        return authority[1:].split("]", 1)[0]
+    return authority.rsplit(":", 1)[0] if authority.count(":") == 1 else authority

@@ -42,6 +42,15 @@ UNRESTRICTED = ("/api/docs",)
 """Paths whose page needs a CDN script and an inline one (Swagger UI): no policy there."""
 
 
+def headers_for(path: str) -> dict[str, str]:
+    """The headers :class:`SecurityHeaders` adds on ``path``, for answers made outside it
+    (Starlette answers an unhandled exception's 500 outside every middleware)."""
+    out = {k.decode(): v.decode() for k, v in HEADERS}
+    if not path.startswith(UNRESTRICTED):
+        out["content-security-policy"] = CONTENT_SECURITY_POLICY
+    return out
+
+
 class SecurityHeaders:
     """ASGI middleware (pure, so streamed downloads stay streamed) adding ``HEADERS`` and the
     ``CONTENT_SECURITY_POLICY`` to every HTTP response that does not set them itself."""

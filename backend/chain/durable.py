@@ -50,6 +50,10 @@ ACCOUNTS_META = "accounts"  # meta key: hex private keys of the genesis-funded a
 _DELETED = None
 
 
+class ChainNotWritten(RuntimeError):
+    """A mined block could not be written to the chain file (disk full, I/O error)."""
+
+
 class SQLiteKV(BaseDB):
     """A py-evm key-value database: a dict for reads, SQLite for durability (see module doc)."""
 
@@ -62,7 +66,10 @@ class SQLiteKV(BaseDB):
         # ``with self._db:`` is one transaction: committed on success, rolled back on error
         self._db = sqlite3.connect(self.path, check_same_thread=False)
         self._db.execute("PRAGMA journal_mode=WAL")
-        self._db.execute("PRAGMA synchronous=NORMAL")  # WAL + NORMAL: survives process death
+        # FULL: each block is on disk when its transaction is answered. NORMAL survived a
+        # process's death but not the machine's: the chain could come back behind the index and
+        # the workers' state files, which are fsynced, and it is their source of truth.
+        self._db.execute("PRAGMA synchronous=FULL")
         self._db.execute("CREATE TABLE IF NOT EXISTS kv (k BLOB PRIMARY KEY, v BLOB NOT NULL)")
         self._db.execute("CREATE TABLE IF NOT EXISTS meta (k TEXT PRIMARY KEY, v TEXT NOT NULL)")
         self._kv: dict[bytes, bytes] = dict(self._db.execute("SELECT k, v FROM kv"))
@@ -95,15 +102,19 @@ class SQLiteKV(BaseDB):
         return not self._kv
 
     def commit(self) -> int:
-        """Write every change since the last commit in one SQLite transaction; returns how many."""
+        """Write every change since the last commit in one SQLite transaction; returns how many.
+        The changes are forgotten only once written: after a failed write (disk full) they are
+        written with the next commit, instead of the file missing the trie nodes of a block the
+        process goes on serving (a chain with holes, found only after a restart)."""
         if not self._dirty:
             return 0
-        dirty, self._dirty = self._dirty, {}
+        dirty = self._dirty
         puts = [(k, v) for k, v in dirty.items() if v is not _DELETED]
         dels = [(k,) for k, v in dirty.items() if v is _DELETED]
         with self._db:
             self._db.executemany("INSERT OR REPLACE INTO kv (k, v) VALUES (?, ?)", puts)
             self._db.executemany("DELETE FROM kv WHERE k = ?", dels)
+        self._dirty = {}
         return len(dirty)
 
     def get_meta(self, key: str) -> Any:
@@ -190,7 +201,14 @@ class DurableBackend(PyEVMBackend):
     def mine_blocks(self, num_blocks: int = 1, coinbase: Any = None) -> tuple[bytes, ...]:
         kwargs = {} if coinbase is None else {"coinbase": coinbase}
         hashes = super().mine_blocks(num_blocks, **kwargs)
-        self.kv.commit()
+        try:
+            self.kv.commit()
+        except sqlite3.Error as exc:
+            raise ChainNotWritten(
+                f"the embedded chain mined block(s) {[h.hex() for h in hashes]} but could not "
+                f"write them to {self.kv.path}: {exc}. They stay in memory and are written with "
+                "the next block; if this process stops first they are lost. Free disk space."
+            ) from exc
         return hashes
 
     def revert_to_snapshot(self, snapshot: Any) -> None:

@@ -18,7 +18,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, Field, ValidationError, field_validator, model_validator
 
-from .common import CID_PATTERN
+from .common import CID_PATTERN, VisibleText
 
 log = logging.getLogger(__name__)
 
@@ -102,7 +102,7 @@ class TrainedPublic(BaseModel):
 
 
 class CardExpertRef(BaseModel):
-    ref: str = Field(min_length=1, max_length=200)
+    ref: VisibleText = Field(min_length=1, max_length=200)
 
 
 class ExpertUsagePublic(BaseModel):
@@ -128,7 +128,7 @@ class ExpertUsagePublic(BaseModel):
 class CardView(BaseModel):
     """The validated parts of a card the model page shows."""
 
-    name: str | None = Field(default=None, max_length=100)
+    name: VisibleText | None = Field(default=None, max_length=100)
     kind: str | None = Field(default=None, max_length=16, description="ODMTL, DMTL or CMTL")
     curve: list[CurvePointPublic] = Field(default_factory=list)
     curve_updates: int | None = Field(default=None, ge=0, le=10**9)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import unicodedata
 from typing import Annotated, Any, Generic, TypeVar
 
 from pydantic import AfterValidator, BaseModel, BeforeValidator, Field
@@ -217,3 +218,18 @@ PlainText = Annotated[
     str, AfterValidator(_printable), Field(json_schema_extra={"pattern": PLAIN_TEXT_PATTERN})
 ]
 """Free text of an API request (a model's description): control characters refused."""
+
+
+def _visible(v: str) -> str:
+    """:func:`_printable`, and no format character (Unicode Cf: bidi overrides such as U+202E,
+    zero-width ones): in a line the page shows next to its own labels, an override reorders
+    the label too (a card's expert ref posed as chain-backed provenance; audit of 2026-12-03)."""
+    _printable(v)
+    bad = sorted({f"U+{ord(c):04X}" for c in v if unicodedata.category(c) == "Cf"})
+    if bad:
+        raise ValueError(f"invisible format characters are not allowed: {', '.join(bad[:5])}")
+    return v
+
+
+VisibleText = Annotated[str, AfterValidator(_visible)]
+"""Short text shown inline beside the page's own words (names, references)."""

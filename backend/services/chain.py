@@ -387,9 +387,12 @@ class ChainService:
         )
         return _jsonable_tx(dict(tx))
 
-    def relay_raw(self, raw: bytes, expected_sender: str) -> Receipt:
+    def relay_raw(self, raw: bytes, expected_sender: str, gas_cap: int | None = None) -> Receipt:
         """Relay a transaction the client signed: its recovered sender must be the caller
-        (403 ``tx_sender_mismatch``), its target one of the platform contracts."""
+        (403 ``tx_sender_mismatch``), its target one of the platform contracts, its gas limit
+        at most ``gas_cap`` (422 ``tx_gas_cap``: the embedded chain executes under the
+        platform's lock, so one relayed transaction must not hold it longer than an ``/rpc``
+        call may)."""
         try:
             sender = Account.recover_transaction(raw)
         except Exception:  # eth_account raises several types for malformed transactions
@@ -404,6 +407,13 @@ class ChainService:
             check_chain(tx, self.chain.chain_id)
         except RawTxError as exc:
             raise Invalid("tx_invalid", str(exc)) from None
+        if gas_cap is not None and tx.gas > gas_cap:
+            raise Invalid(
+                "tx_gas_cap",
+                f"the transaction's gas limit is {tx.gas}; this gateway relays at most "
+                f"{gas_cap} gas per transaction (every platform call needs far less): sign it "
+                f"again with a gas limit from eth_estimateGas",
+            )
         to = tx.to
         targets = {h.address for h in self.platform.contracts}
         if to not in targets:

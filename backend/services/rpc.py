@@ -29,8 +29,13 @@ from backend.chain.client import Chain
 from backend.chain.rawtx import RawTx, check_chain, decode_raw_tx
 from backend.services.rpc_budget import GasBudget
 from backend.services.rpc_call import ExecutionFailed, OutOfGas, bounded_estimate, unpriced_call
-from backend.services.rpc_params import InvalidParams, is_unpriced, normalize
-from backend.services.rpc_results import fee_history, shape
+from backend.services.rpc_params import InvalidParams, is_unpriced, normalize, quantity
+from backend.services.rpc_results import (
+    MAX_FEE_HISTORY_BLOCKS,
+    MAX_REWARD_BLOCKS,
+    fee_history,
+    shape,
+)
 
 log = logging.getLogger(__name__)
 
@@ -85,6 +90,14 @@ MAX_LOG_BLOCKS = 500
 chain lock (~10 ms a block here), so the whole history of a long chain would hold it for
 minutes. Providers bound it the same way (Alchemy: 2,000 blocks); the REST API's index of
 events is the way to read history."""
+LOG_BLOCK_GAS = 50_000
+"""What reading one block's receipts costs a remote client's gas budget (``eth_getLogs``,
+``eth_feeHistory`` with rewards): ~10-25 ms under the chain lock, what 30k-75k gas of execution
+takes. Reads and executions hold the same lock, so they draw on the same bucket: a client
+that may execute 40M gas a minute may read ~800 blocks of logs a minute, not unboundedly many
+(four parallel 500-block reads held the lock 37 s in the audit of 2026-12-03)."""
+HEADER_GAS = 5_000
+"""What reading one block header costs (``eth_feeHistory`` without rewards: ~2 ms a block)."""
 
 
 def _quantities(value: Any, key: str | None = None) -> Any:
@@ -208,6 +221,8 @@ class EmbeddedRpc:
         if method in ("eth_call", "eth_estimateGas"):
             return self._execute(method, params, client)
         if method == "eth_feeHistory":
+            if client not in UNMETERED:
+                self._charge_reads(client, self._fee_history_cost(params))
             return fee_history(self.tester, params)
         if method == "eth_sendRawTransaction":
             tx = self._check_replay_protected(params[0])
@@ -218,7 +233,8 @@ class EmbeddedRpc:
             if params[0] is None:
                 return []
             if client not in UNMETERED:
-                self._check_log_span(params[0], log_blocks or [MAX_LOG_BLOCKS])
+                span = self._check_log_span(params[0], log_blocks or [MAX_LOG_BLOCKS])
+                self._charge_reads(client, span * LOG_BLOCK_GAS)
         response = self._request(method, params)
         if "error" in response:
             err = response["error"]
@@ -300,9 +316,30 @@ class EmbeddedRpc:
             if wait:
                 raise _gas_used_up(self.budget, wait)
 
-    def _check_log_span(self, flt: dict[str, Any], left: list[int]) -> None:
+    def _charge_reads(self, client: str, gas: int) -> None:
+        """Draw what a read will hold the chain lock for from the client's gas budget, before
+        reading (-32005 with the seconds to wait when the bucket does not hold it)."""
+        if self.budget is not None and gas > 0:
+            wait = self.budget.take(client, gas)
+            if wait:
+                raise _gas_used_up(self.budget, wait)
+
+    @staticmethod
+    def _fee_history_cost(params: list[Any]) -> int:
+        """Gas-equivalent of an ``eth_feeHistory`` read (0 when its block count is invalid:
+        :func:`fee_history` refuses it without reading)."""
+        try:
+            count = quantity(params[0], "blockCount")
+        except InvalidParams:
+            return 0
+        rewards = len(params) > 2 and params[2] is not None
+        if not 1 <= count <= (MAX_REWARD_BLOCKS if rewards else MAX_FEE_HISTORY_BLOCKS):
+            return 0
+        return count * (LOG_BLOCK_GAS if rewards else HEADER_GAS)
+
+    def _check_log_span(self, flt: dict[str, Any], left: list[int]) -> int:
         """Refuse a filter spanning more blocks than ``left[0]`` (the request's remaining span
-        of MAX_LOG_BLOCKS); take its span off otherwise."""
+        of MAX_LOG_BLOCKS); take its span off otherwise and return it."""
         head = int(self.tester.get_block_by_number("latest")["number"])
 
         def number(at: Any) -> int:
@@ -318,6 +355,7 @@ class EmbeddedRpc:
                 "from the REST API's index)",
             )
         left[0] -= span
+        return span
 
     def _up_to_head(self, flt: dict[str, Any]) -> dict[str, Any] | None:
         """A log filter with block numbers past the head clamped to it (geth's rule); None if
@@ -346,8 +384,8 @@ class _RpcFailure(Exception):
 def _gas_used_up(budget: GasBudget, wait: int) -> _RpcFailure:
     return _RpcFailure(
         LIMIT_EXCEEDED,
-        f"execution gas of this client used up ({budget.per_minute} gas a minute): retry in "
-        f"{wait} s",
+        f"execution gas of this client used up ({budget.per_minute} gas a minute, block reads "
+        f"included): retry in {wait} s",
     )
 
 

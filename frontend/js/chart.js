@@ -5,17 +5,26 @@ import { h, s } from "./dom.js";
 const W = 480, H = 240, M = { top: 14, right: 16, bottom: 38, left: 56 };
 export const COLORS = ["#2563eb", "#dc2626", "#16a34a", "#9333ea", "#ea580c", "#0891b2", "#4b5563"];
 
-/** About n "nice" ticks (1, 2, 5 x 10^k steps) covering [lo, hi]. */
+/** Smallest span an axis gets around `v`: well above float resolution, so that a step of
+ * it moves a tick (two values one ulp apart made `t += step` stand still for ever). */
+function minSpan(v) {
+  return Math.max(Math.abs(v) * 1e-9, 1e-12);
+}
+
+/** About n "nice" ticks (1, 2, 5 x 10^k steps) covering [lo, hi]; at most 4n + 2 of them. */
 export function niceTicks(lo, hi, n = 5) {
-  if (!(hi > lo)) return [lo];
-  const raw = (hi - lo) / n;
+  if (!Number.isFinite(lo) || !Number.isFinite(hi) || !(hi > lo)) return [lo];
+  const raw = Math.max(hi - lo, minSpan(hi)) / n;
   const mag = 10 ** Math.floor(Math.log10(raw));
   const step = [1, 2, 5, 10].map((m) => m * mag).find((st) => st >= raw) || 10 * mag;
+  const first = Math.ceil(lo / step) * step;
   const ticks = [];
-  for (let t = Math.ceil(lo / step) * step; t <= hi + step * 1e-9; t += step) {
+  for (let i = 0; i <= 4 * n + 1; i++) {
+    const t = first + i * step; // not accumulated: each tick is computed, never stuck
+    if (t > hi + step * 1e-9) break;
     ticks.push(Number(t.toPrecision(12)));
   }
-  return ticks;
+  return ticks.length ? ticks : [lo];
 }
 
 function fmtTick(v) {
@@ -49,8 +58,8 @@ export function lineChart({ title, series, xLabel = "environment steps", yLabel 
   let [x0, x1] = [Math.min(...xs), Math.max(...xs)];
   let [y0, y1] = yDomain || [Math.min(...ys), Math.max(...ys)];
   if (yDomain) { y0 = Math.min(y0, ...ys); y1 = Math.max(y1, ...ys); }
-  if (x1 === x0) { x0 -= 1; x1 += 1; }
-  if (y1 === y0) { y0 -= 0.5; y1 += 0.5; }
+  if (x1 - x0 < minSpan(x1)) { const pad = Math.max(1, Math.abs(x1) * 1e-6); x0 -= pad; x1 += pad; }
+  if (y1 - y0 < minSpan(y1)) { const pad = Math.max(0.5, Math.abs(y1) * 1e-6); y0 -= pad; y1 += pad; }
   const pw = W - M.left - M.right, ph = H - M.top - M.bottom;
   const sx = (x) => M.left + ((x - x0) / (x1 - x0)) * pw;
   const sy = (y) => M.top + ph - ((y - y0) / (y1 - y0)) * ph;

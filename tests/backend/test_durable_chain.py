@@ -5,13 +5,16 @@ from __future__ import annotations
 
 import os
 import signal
+import sqlite3
 import subprocess
 import sys
 import textwrap
 from pathlib import Path
 
+import pytest
+
 from backend.chain.client import Chain
-from backend.chain.durable import CHAIN_FILE, DurableBackend
+from backend.chain.durable import CHAIN_FILE, ChainNotWritten, DurableBackend
 from backend.locks import AlreadyHeld
 from backend.services.chain import ChainService
 from backend.settings import load_settings
@@ -164,3 +167,48 @@ def test_a_new_data_dir_has_its_own_random_keys_kept_across_restarts(tmp_path: P
     again.platform.umc.add_requester(again.chain.accounts[2])
     assert again.platform.umc.call("isRequester", again.chain.accounts[2]) is True
     again.chain.close()
+
+
+class _DiskFullOnce:
+    """The chain file's connection, whose next write fails as on a full disk."""
+
+    def __init__(self, db: sqlite3.Connection) -> None:
+        self.db, self.armed = db, True
+
+    def executemany(self, *args: object) -> object:
+        if self.armed:
+            self.armed = False
+            raise sqlite3.OperationalError("database or disk is full")
+        return self.db.executemany(*args)
+
+    def __getattr__(self, name: str) -> object:
+        return getattr(self.db, name)
+
+    def __enter__(self) -> object:
+        return self.db.__enter__()
+
+    def __exit__(self, *exc: object) -> object:
+        return self.db.__exit__(*exc)
+
+
+def test_a_failed_write_is_written_with_the_next_block(tmp_path: Path) -> None:
+    """A block whose write failed (disk full) stays pending, not forgotten: the file once
+    missed its trie nodes, and the reopened chain raised MissingStorageTrieNode for ever."""
+    settings = load_settings(data_dir=tmp_path)
+    service = ChainService.embedded(settings)
+    umc, chain = service.platform.umc, service.chain
+    kv = chain._tester.backend.kv
+    umc.add_requester(chain.accounts[1])
+    kv._db = _DiskFullOnce(kv._db)
+    with pytest.raises(ChainNotWritten, match="could not write them"):
+        umc.add_requester(chain.accounts[2])
+    kv._db = kv._db.db  # room on the disk again
+    umc.add_requester(chain.accounts[3])
+    assert not kv._dirty
+    head = chain.w3.eth.block_number
+    chain.close()
+    reopened = ChainService.embedded(settings)
+    assert reopened.chain.w3.eth.block_number == head
+    for i in (1, 2, 3):
+        assert reopened.platform.umc.requester_status(reopened.chain.accounts[i]).name == "ACTIVE"
+    reopened.platform.umc.add_requester(reopened.chain.accounts[4])

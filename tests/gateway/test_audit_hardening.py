@@ -129,6 +129,13 @@ def test_relayed_nonce_gap_is_refused_before_sending(
     r = client.post(f"{P}/tx", json={"raw": raw}, headers=headers)
     assert r.status_code == 422 and r.json()["detail"]["rule"] == "fee_too_low", r.text
     assert service.block_number() == block
+    # a gas limit above the relay's cap (the embedded chain executes under the platform lock)
+    greedy = {**unsigned, "gas": settings.rpc_gas_cap + 1}
+    raw = "0x" + bytes(me.sign_transaction(greedy).raw_transaction).hex()
+    r = client.post(f"{P}/tx", json={"raw": raw}, headers=headers)
+    assert r.status_code == 422 and r.json()["detail"]["rule"] == "tx_gas_cap", r.text
+    assert str(settings.rpc_gas_cap) in r.json()["detail"]["msg"]
+    assert service.block_number() == block
     # the receipt that does not come in time: 504 tx_pending with the hash, not a 500
     w3 = service.chain.w3
 

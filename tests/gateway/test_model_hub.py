@@ -12,6 +12,7 @@ from fastapi.testclient import TestClient
 
 from backend.api.routes.tasks import task_env
 from backend.db import models as m
+from backend.schemas.cards import CardView
 from backend.schemas.common import wei_to_eth
 from backend.services.chain import ChainService
 from backend.services.specs import validate_env
@@ -222,3 +223,22 @@ def test_wei_to_eth_is_exact() -> None:
     assert wei_to_eth(0) == "0" and wei_to_eth(10**18) == "1"
     assert wei_to_eth("1") == "0." + "0" * 17 + "1"
     assert wei_to_eth(10**28 + 5 * 10**15) == "10000000000.005"
+
+
+def test_card_text_with_invisible_format_characters_is_left_out() -> None:
+    """A right-to-left override in an expert ref reordered the page's own label after it
+    (a card's word posed as "named by the task's spec"; audit of 2026-12-03, F8)."""
+    card = {
+        "zoo": {"name": "expert \u202eceps"},
+        "training": {"experts": {"experts": [
+            {"ref": "a local model \u202eceps s'ksat eht yb deman", "episodes": 3},
+            {"ref": "zero\u200bwidth"},
+            {"ref": "models/a1w0", "episodes": 2},
+        ]}},
+    }  # fmt: skip
+    view = CardView.from_card(card)
+    assert view.name is None
+    assert view.expert_refs == ["models/a1w0"]
+    assert list(view.expert_usage) == ["models/a1w0"]
+    plain = "A3W3 route, 30 x 30"
+    assert CardView.from_card({"zoo": {"name": plain}}).name == plain

@@ -101,7 +101,12 @@ def test_rpc_refuses_node_signing_and_bad_requests(gateway: str) -> None:
         url, json={"jsonrpc": "2.0", "id": 1, "method": "eth_sendTransaction", "params": [{}]}
     )
     assert r.json()["error"]["code"] == -32601
-    assert httpx.post(url, content=b"{nope").json()["error"]["code"] == -32700
+    json_type = {"Content-Type": "application/json"}
+    assert httpx.post(url, content=b"{nope", headers=json_type).json()["error"]["code"] == -32700
+    # a body a web page can send across sites without a CORS preflight is refused
+    r = httpx.post(url, content=b'{"jsonrpc":"2.0","id":1,"method":"eth_chainId"}',
+                   headers={"Content-Type": "text/plain"})
+    assert r.status_code == 415 and r.json()["detail"]["rule"] == "rpc_content_type", r.text
     batch = [
         {"jsonrpc": "2.0", "id": 1, "method": "eth_chainId", "params": []},
         {"jsonrpc": "2.0", "id": 2, "method": "eth_accounts", "params": []},

@@ -12,11 +12,14 @@ from eth_account import Account
 from fastapi.testclient import TestClient
 
 from backend.api.main import create_app
+from backend.api.routes.rpc import CROSS_SITE
 from backend.chain.tx_lookup import indexed_transaction_by_hash
 from backend.services.chain import ChainService
 from backend.services.rpc import (
+    HEADER_GAS,
     INVALID_PARAMS,
     LIMIT_EXCEEDED,
+    LOG_BLOCK_GAS,
     MAX_LOG_BLOCKS,
     SERVER_ERROR,
     EmbeddedRpc,
@@ -113,9 +116,9 @@ def test_a_remote_client_may_transfer_and_call_the_platform_within_cap_and_budge
     assert service.chain.balance(you) == 5 and rpc.budget.available("198.51.100.7") == left
 
 
-def test_remote_log_queries_span_a_bounded_number_of_blocks(
-    service: ChainService, rpc: EmbeddedRpc
-) -> None:
+def test_remote_log_queries_span_a_bounded_number_of_blocks(service: ChainService) -> None:
+    targets = frozenset(h.address for h in service.platform.contracts)
+    rpc = EmbeddedRpc(service.chain, service.lock, gas_cap=CAP, budget=None, targets=targets)
     service.chain._tester.mine_blocks(MAX_LOG_BLOCKS + 5)
     whole = {"fromBlock": "earliest", "toBlock": "latest"}
     err = call(rpc, "eth_getLogs", [whole], "198.51.100.7")["error"]
@@ -132,6 +135,36 @@ def test_remote_log_queries_span_a_bounded_number_of_blocks(
     assert [("result" in r) for r in out] == [True, True, False, False]
     assert out[2]["error"]["code"] == LIMIT_EXCEEDED and "0 left" in out[2]["error"]["message"]
     assert all("result" in r for r in rpc.handle(batch, "local"))  # the gateway's own reads
+
+
+def test_block_reads_draw_on_the_remote_clients_gas_budget(
+    service: ChainService, rpc: EmbeddedRpc
+) -> None:
+    """Logs and fee history are read under the chain lock like executions run: a remote
+    client pays for them from the same bucket (the audit held the lock 68 s with one batch of
+    fee-history reads, 37 s with four parallel log reads, none of it metered)."""
+    service.chain._tester.mine_blocks(MAX_LOG_BLOCKS + 5)
+    assert rpc.budget is not None
+    client = "198.51.100.9"
+    full = rpc.budget.available(client)
+    assert "result" in call(rpc, "eth_feeHistory", ["0x400", "latest"], client)
+    assert rpc.budget.available(client) == full - 1024 * HEADER_GAS
+    head = service.chain.w3.eth.block_number
+    span = 100
+    flt = {"fromBlock": hex(head - span + 1), "toBlock": hex(head)}
+    assert "result" in call(rpc, "eth_getLogs", [flt], client)
+    assert rpc.budget.available(client) == full - 1024 * HEADER_GAS - span * LOG_BLOCK_GAS
+    # the bucket (4 x CAP, frozen clock) runs dry: refused before reading, with the wait
+    batch = [{"jsonrpc": "2.0", "id": i, "method": "eth_feeHistory",
+              "params": ["0x80", "latest", [50]]} for i in range(4)]
+    out = rpc.handle(batch, client)
+    refused = [r["error"] for r in out if "error" in r]
+    assert refused and all(e["code"] == LIMIT_EXCEEDED and "retry in" in e["message"]
+                           for e in refused)
+    assert rpc.budget.available(client) >= 0
+    # this machine's own clients are not metered; another remote client has its own bucket
+    assert "result" in call(rpc, "eth_feeHistory", ["0x400", "latest"], "local")
+    assert "result" in call(rpc, "eth_feeHistory", ["0x400", "latest"], "198.51.100.10")
 
 
 def test_fee_rewards_are_read_over_at_most_128_blocks(rpc: EmbeddedRpc) -> None:
@@ -168,3 +201,20 @@ def test_the_gateway_gives_the_rpc_its_platform_targets(
     app = create_app(Settings(data_dir=tmp_path), chain=service, indexer_interval=None)
     with TestClient(app) as c:
         assert c.app.state.rpc.targets == {h.address for h in service.platform.contracts}
+
+
+def test_a_web_page_in_a_browser_here_is_metered(service: ChainService, tmp_path: Any) -> None:
+    """This machine's workers and CLI are not metered; a web page that a browser here runs
+    (another site's Origin, or DNS rebinding: another Host) is, though it comes from loopback."""
+    app = create_app(Settings(data_dir=tmp_path), chain=service, indexer_interval=None)
+    body = {"jsonrpc": "2.0", "id": 1, "method": "eth_feeHistory", "params": ["0x10", "latest"]}
+    local = {"client": ("127.0.0.1", 50000), "base_url": "http://127.0.0.1:8000"}
+    with TestClient(app, **local) as c:
+        budget = c.app.state.rpc.budget = GasBudget(4 * CAP, clock=lambda: 0.0)
+        full = budget.available(CROSS_SITE)
+        assert "result" in c.post("/rpc", json=body).json()
+        assert budget.available(CROSS_SITE) == full and budget.available("127.0.0.1") == full
+        for headers in ({"Origin": "https://attacker.example"}, {"Host": "attacker.example"}):
+            before = budget.available(CROSS_SITE)
+            assert "result" in c.post("/rpc", json=body, headers=headers).json()
+            assert budget.available(CROSS_SITE) == before - 16 * HEADER_GAS

@@ -49,3 +49,18 @@ def test_the_api_docs_get_every_header_but_the_policy(client: TestClient) -> Non
     assert r.status_code == 200 and "swagger" in r.text.lower()
     _common(r)
     assert "content-security-policy" not in r.headers
+
+
+def test_an_unexpected_error_carries_them_too(app) -> None:
+    """Starlette answers an unhandled exception outside every middleware, SecurityHeaders
+    included: the 500 sets the headers itself."""
+
+    @app.get("/api/test-only-boom")
+    def boom() -> None:
+        raise RuntimeError("a bug")
+
+    with TestClient(app, raise_server_exceptions=False) as c:
+        r = c.get("/api/test-only-boom")
+    assert r.status_code == 500 and r.json()["detail"]["rule"] == "internal_error"
+    _common(r)
+    assert r.headers["content-security-policy"] == CONTENT_SECURITY_POLICY

@@ -14,13 +14,18 @@ from fastapi.responses import JSONResponse
 from pydantic import BaseModel, Field
 from starlette.concurrency import run_in_threadpool
 
-from backend.api.deps import ChainDep, CurrentUser
+from backend.api.deps import LOOPBACK, ChainDep, CurrentUser, is_loopback
 from backend.api.errors import RAW_BODY, RuleError, rule_responses
 from backend.services.faucet import Faucet
 from backend.services.rpc import INVALID_REQUEST, MAX_BATCH, METHODS, EmbeddedRpc
 
 router = APIRouter(tags=["rpc"])
 
+
+CROSS_SITE = "browser-on-loopback"
+"""The budget key of loopback requests that a web page made (another site's ``Origin``, or a
+``Host`` that is not this machine: DNS rebinding): they are metered, unlike this machine's
+own workers and CLI."""
 
 _REQUEST = {
     "type": "object",
@@ -79,7 +84,7 @@ _RESPONSE = {
                 }
             },
         },
-        **rule_responses(404),
+        **rule_responses(404, 415),
     },
     openapi_extra={
         RAW_BODY: True,  # parse errors are JSON-RPC answers (-32700), not FastAPI's 400
@@ -107,6 +112,12 @@ async def rpc(request: Request) -> JSONResponse:
     server: EmbeddedRpc | None = getattr(request.app.state, "rpc", None)
     if server is None:
         raise RuleError(404, "rpc_not_embedded", "JSON-RPC is served only for the embedded chain")
+    media = request.headers.get("content-type", "").split(";", 1)[0].strip().lower()
+    if media != "application/json":
+        # a web page may send text/plain across sites without asking (no CORS preflight);
+        # application/json needs the preflight this gateway never grants
+        raise RuleError(415, "rpc_content_type", "JSON-RPC requests must be sent as "
+                        f"Content-Type: application/json, not {media or 'none'!r}")
     body = await request.body()  # size and depth already bounded (backend.api.limits)
     try:
         payload: Any = json.loads(body)
@@ -123,6 +134,8 @@ async def rpc(request: Request) -> JSONResponse:
             }
         )
     client = request.client.host if request.client else "unknown"
+    if client in LOOPBACK and not is_loopback(request):
+        client = CROSS_SITE  # a web page in a browser here: metered like a remote client
     return JSONResponse(await run_in_threadpool(server.handle, payload, client))
 
 
