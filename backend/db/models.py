@@ -1,5 +1,6 @@
-"""Tables of the platform: sign-in nonces, the indexer cursor (0001) and the indexed chain state
-(0002); each table here has its migration in ``migrations/versions``."""
+"""Tables of the platform: sign-in nonces, the indexer cursor (0001), the indexed chain state
+(0002) and its uint32-wide columns, event errors and indexed block hashes (0003); each table here
+has its migration in ``migrations/versions``."""
 
 from __future__ import annotations
 
@@ -10,6 +11,12 @@ from sqlalchemy import JSON, BigInteger, Float, ForeignKey, Index, Integer, Stri
 from sqlalchemy.orm import Mapped, mapped_column
 
 from .base import Base, UTCDateTime, utcnow
+
+#: A chain uint32 (or any value up to int64): BIGINT, since PostgreSQL's INTEGER is int32 and one
+#: event with a larger value stopped the indexer; SQLite's INTEGER already holds 64 bits, so
+#: there the column keeps its type (0003 alters PostgreSQL only: a SQLite ALTER copies the table,
+#: and dropping a parent table cascades to its children's rows).
+UINT32 = BigInteger().with_variant(Integer(), "sqlite")
 
 
 class AuthNonce(Base):
@@ -41,7 +48,9 @@ class IndexCursor(Base):
 # -- indexed chain state (migration 0002) --------------------------------------------------------
 # Everything below is derived from contract events by ``backend.indexer`` and can be rebuilt
 # from the chain at any time; amounts in wei are decimal strings (uint96/uint256 overflow
-# BIGINT), QoS values are the contracts' fixed point (ONE = 1e6, backend.chain.qos).
+# BIGINT), QoS values are the contracts' fixed point (ONE = 1e6, backend.chain.qos). Every integer
+# column holds what its event type allows (uint32 and below as they are; ids are the contracts'
+# counters; a uint256 QoS beyond int64 is clamped by the indexer, the event's args keep it).
 
 
 class IndexMeta(Base):
@@ -74,6 +83,19 @@ class ChainEvent(Base):
     model_id: Mapped[int | None] = mapped_column(BigInteger, index=True, default=None)
     alloc_id: Mapped[int | None] = mapped_column(BigInteger, index=True, default=None)
     account: Mapped[str | None] = mapped_column(String(42), index=True, default=None)
+    error: Mapped[str | None] = mapped_column(String(512), default=None)
+    """Why the event's rows could not be stored (the index went on without them), else None."""
+
+
+class IndexBlock(Base):
+    """Hash of a recently indexed block (the cursor's and those with events): a chain whose block
+    at that height differs (a reorg, an embedded chain that lost its last blocks) is re-indexed
+    from the last block that still matches."""
+
+    __tablename__ = "index_blocks"
+
+    block_number: Mapped[int] = mapped_column(BigInteger, primary_key=True, autoincrement=False)
+    hash: Mapped[str] = mapped_column(String(66))
 
 
 class Requester(Base):
@@ -90,7 +112,7 @@ class WorkerRow(Base):
     __tablename__ = "workers"
 
     address: Mapped[str] = mapped_column(String(42), primary_key=True)
-    worker_id: Mapped[int] = mapped_column(Integer)
+    worker_id: Mapped[int] = mapped_column(UINT32)
     domain_mask: Mapped[str] = mapped_column(String(80))
     cpu_cores: Mapped[int] = mapped_column(BigInteger)
     ram_gb: Mapped[int] = mapped_column(BigInteger)
@@ -125,7 +147,7 @@ class WorkerCounters(Base):
     address: Mapped[str] = mapped_column(
         String(42), ForeignKey("workers.address", ondelete="CASCADE"), primary_key=True
     )
-    domain: Mapped[int] = mapped_column(Integer, primary_key=True)
+    domain: Mapped[int] = mapped_column(UINT32, primary_key=True)
     task_type: Mapped[int] = mapped_column(Integer, primary_key=True)
     assigned: Mapped[int] = mapped_column(BigInteger)
     accepted: Mapped[int] = mapped_column(BigInteger)
@@ -139,7 +161,7 @@ class TaskRow(Base):
 
     id: Mapped[int] = mapped_column(BigInteger, primary_key=True, autoincrement=False)
     requester: Mapped[str] = mapped_column(String(42), index=True)
-    domain: Mapped[int] = mapped_column(Integer, index=True)
+    domain: Mapped[int] = mapped_column(UINT32, index=True)
     num_workers: Mapped[int] = mapped_column(Integer)
     reward_wei: Mapped[str] = mapped_column(String(80))
     deadline: Mapped[int] = mapped_column(BigInteger)
@@ -209,13 +231,13 @@ class ModelRow(Base):
 
     id: Mapped[int] = mapped_column(BigInteger, primary_key=True, autoincrement=False)
     owner: Mapped[str] = mapped_column(String(42), index=True)
-    domain: Mapped[int] = mapped_column(Integer, index=True)
+    domain: Mapped[int] = mapped_column(UINT32, index=True)
     cid: Mapped[str] = mapped_column(String(512))
     description: Mapped[str] = mapped_column(String(2048))
     env: Mapped[list[int]] = mapped_column(JSON)
-    agents: Mapped[int | None] = mapped_column(Integer, index=True, default=None)
-    walls_min: Mapped[int | None] = mapped_column(Integer, default=None)
-    walls_max: Mapped[int | None] = mapped_column(Integer, default=None)
+    agents: Mapped[int | None] = mapped_column(UINT32, index=True, default=None)
+    walls_min: Mapped[int | None] = mapped_column(UINT32, default=None)
+    walls_max: Mapped[int | None] = mapped_column(UINT32, default=None)
     alloc_count: Mapped[int] = mapped_column(BigInteger, default=0)
     total_review: Mapped[int] = mapped_column(BigInteger, default=0)
     reputation: Mapped[int] = mapped_column(BigInteger, index=True)
@@ -227,7 +249,7 @@ class AllocationRow(Base):
 
     id: Mapped[int] = mapped_column(BigInteger, primary_key=True, autoincrement=False)
     requester: Mapped[str] = mapped_column(String(42), index=True)
-    domain: Mapped[int] = mapped_column(Integer)
+    domain: Mapped[int] = mapped_column(UINT32)
     metric: Mapped[int] = mapped_column(Integer)
     num_models: Mapped[int] = mapped_column(Integer)
     price_wei: Mapped[str] = mapped_column(String(80))

@@ -11,9 +11,17 @@ Guarantees:
 * ``confirmations`` blocks are left unprocessed at the head (real nodes may reorganise);
 * ``on_offer(task_id, worker)`` is called for every ``TaskOffered`` before the batch commits:
   at-least-once (a crash after the hook repeats it; the job key ``offer:<task>:<worker>``
-  makes the job idempotent), never lost. A failing hook rolls the batch back for a retry;
+  makes the job idempotent), never lost. A failing hook rolls the batch back for a retry, and
+  so does a content store that cannot be reached while a task's spec is read;
+* one event's rows that the database cannot hold (a value out of a column's range, a row that
+  violates a constraint) never stop the index: each event is applied in a SAVEPOINT, and such
+  an event is kept in ``chain_events`` with its ``error``, without its rows;
 * a different chain (another ``anchor``: hash of the UMC's deployment block, e.g. a restarted
-  embedded chain) wipes the indexed tables instead of mixing two histories.
+  embedded chain) wipes the indexed tables instead of mixing two histories;
+* a chain that went back under the cursor (a reorg deeper than ``confirmations``, an embedded
+  chain file that lost its last blocks in a power cut) is noticed by the hashes of the indexed
+  blocks (``index_blocks``): the index is rebuilt, and the offers of the blocks that are still
+  the chain's are not handed to ``on_offer`` again.
 """
 
 from __future__ import annotations
@@ -26,14 +34,16 @@ from typing import Any, cast
 
 from hexbytes import HexBytes
 from sqlalchemy import delete, select
+from sqlalchemy.exc import DataError, IntegrityError
 from sqlalchemy.orm import Session, sessionmaker
+from web3.exceptions import BlockNotFound
 
 from backend.chain.platform import OfferState, TaskStatus, WorkerStatus
 from backend.chain.qos import mmc_reputation_fixed, rating_fixed, reputation_fixed
 from backend.db import models as m
 from backend.services.chain import ChainService
 from backend.services.specs import load_json_doc, summarize_env
-from backend.store import ContentStore
+from backend.store import ContentStore, StoreUnavailable
 from workers.mdrl.trainingspec import MAX_SPEC_BYTES, TRAINING_SPEC_FORMAT, TrainingSpec
 
 log = logging.getLogger(__name__)
@@ -55,8 +65,16 @@ INDEXED_TABLES = (
     m.Requester,
     m.ChainEvent,
     m.IndexCursor,
+    m.IndexBlock,
 )
 TASK_TYPE_TRAINING, TASK_TYPE_SHARING = 0, 1
+KEPT_BLOCK_HASHES = 256  # how far back a chain that went back can be followed block by block
+HANDED_OVER = "offers_handed_over"  # IndexMeta: offers up to this block reached on_offer
+INT64_MAX = 2**63 - 1
+UNSTORABLE = (DataError, IntegrityError, ValueError, TypeError, KeyError, ArithmeticError)
+"""What an event's own data can make a handler raise, directly or as the ``orig`` of a
+SQLAlchemy error (deterministic: retrying never helps); anything else (the database or the store
+unreachable, a lock timeout) rolls the batch back."""
 
 
 def _noop(task_id: int, worker: str) -> None:
@@ -125,10 +143,58 @@ class Indexer:
                 log.warning("indexer: chain anchor changed (%s); rebuilding the index", anchor)
             for table in INDEXED_TABLES:
                 s.execute(delete(table))
+            s.execute(delete(m.IndexMeta).where(m.IndexMeta.key == HANDED_OVER))
             s.merge(m.IndexMeta(key="anchor", value=anchor))
             s.commit()
         self._checked_anchor = True
         return wiped
+
+    def _block_hash(self, number: int) -> str | None:
+        """The chain's hash of block ``number``, None past its head."""
+        try:
+            with self.service.lock:
+                block = self.service.chain.w3.eth.get_block(number)
+        except BlockNotFound:
+            return None
+        return "0x" + bytes(block["hash"]).hex()
+
+    def check_continuity(self) -> int | None:
+        """Rebuild the index if the chain went back under the cursor (its block there is another
+        one, or there is none): returns the last indexed block still on the chain (whose offers
+        are not handed over again), None if the chain did not go back."""
+        newest_first = select(m.IndexBlock.block_number, m.IndexBlock.hash).order_by(
+            m.IndexBlock.block_number.desc()
+        )
+        with self.sessions() as s:
+            cursor_block = s.execute(newest_first.limit(1)).first()
+            if cursor_block is None or self._block_hash(cursor_block[0]) == cursor_block[1]:
+                return None
+            known = s.execute(newest_first).all()
+        kept = next(
+            (n for n, h in known[1:] if self._block_hash(n) == h), self.service.deploy_block - 1
+        )
+        log.warning(
+            "indexer: the chain went back: block %d is not the one indexed (chain head %d); "
+            "rebuilding the index, blocks up to %d unchanged",
+            known[0][0],
+            self.service.block_number(),
+            kept,
+        )
+        with self.sessions() as s:
+            lost_tasks = select(m.ChainEvent.task_id).where(
+                m.ChainEvent.name == "TaskAdded", m.ChainEvent.block_number > kept
+            )
+            s.execute(delete(m.ProgressPoint).where(m.ProgressPoint.task_id.in_(lost_tasks)))
+            for table in INDEXED_TABLES:
+                if table is not m.ProgressPoint:  # the curves of tasks still on the chain stay
+                    s.execute(delete(table))
+            s.merge(m.IndexMeta(key=HANDED_OVER, value=str(kept)))
+            s.commit()
+        return kept
+
+    def _handed_over(self, s: Session) -> int:
+        row = s.get(m.IndexMeta, HANDED_OVER)
+        return int(row.value) if row is not None else -1
 
     def cursor(self) -> tuple[int, int]:
         """(last fully processed block, last applied log index in it); before any poll the
@@ -140,13 +206,24 @@ class Indexer:
             return min((r.block_number, r.log_index) for r in mine)
         return self.service.deploy_block - 1, -1
 
-    def _save_cursor(self, s: Session, block: int, log_index: int) -> None:
+    def _save_cursor(self, s: Session, block: int, log_index: int, hashes: dict[int, str]) -> None:
         for address, name in self._names.items():
             s.merge(
                 m.IndexCursor(
                     contract=name, address=address, block_number=block, log_index=log_index
                 )
             )
+        for number, block_hash in hashes.items():
+            s.merge(m.IndexBlock(block_number=number, hash=block_hash))
+        s.flush()
+        oldest_kept = s.scalar(
+            select(m.IndexBlock.block_number)
+            .order_by(m.IndexBlock.block_number.desc())
+            .offset(KEPT_BLOCK_HASHES - 1)
+            .limit(1)
+        )
+        if oldest_kept is not None:
+            s.execute(delete(m.IndexBlock).where(m.IndexBlock.block_number < oldest_kept))
 
     # -- polling --------------------------------------------------------------------------------
     def head(self) -> int:
@@ -157,6 +234,7 @@ class Indexer:
         with self._poll_lock:
             if not self._checked_anchor:
                 self.check_anchor()
+            self.check_continuity()
             applied = 0
             start, _ = self.cursor()
             head = self.head()
@@ -166,7 +244,11 @@ class Indexer:
                 start = to
             return applied
 
-    def _fetch(self, from_block: int, to_block: int) -> list[tuple[dict[str, Any], Any]]:
+    def _fetch(
+        self, from_block: int, to_block: int
+    ) -> tuple[list[tuple[dict[str, Any], Any]], dict[int, str]]:
+        """The decoded events of the range, and the hashes of their blocks and of ``to_block``
+        (read in the same lock: a log and the block it is checked against agree)."""
         chain = self.service.chain
         with self.service.lock:
             raw = chain.w3.eth.get_logs(
@@ -175,22 +257,26 @@ class Indexer:
             raw = sorted(raw, key=lambda lg: (lg["blockNumber"], lg["logIndex"]))
             out = []
             times: dict[int, int] = {}
+            hashes: dict[int, str] = {}
             for lg in raw:
                 decoded = chain._decode_logs([lg])
                 if not decoded:
                     continue
                 b = lg["blockNumber"]
                 if b not in times:
-                    times[b] = int(chain.w3.eth.get_block(b)["timestamp"])
+                    block = chain.w3.eth.get_block(b)
+                    times[b], hashes[b] = int(block["timestamp"]), "0x" + bytes(block["hash"]).hex()
                 out.append((dict(lg) | {"_time": times[b]}, decoded[0]))
-        return out
+            hashes[to_block] = "0x" + bytes(chain.w3.eth.get_block(to_block)["hash"]).hex()
+        return out, hashes
 
     def _batch(self, from_block: int, to_block: int) -> int:
-        events = self._fetch(from_block, to_block)
+        events, hashes = self._fetch(from_block, to_block)
         offers: list[tuple[int, str]] = []
         applied = 0
         last_index = -1
         with self.sessions() as s:
+            handed_over = self._handed_over(s)
             for raw, ev in events:
                 block, index = int(raw["blockNumber"]), int(raw["logIndex"])
                 if block == to_block:
@@ -203,23 +289,52 @@ class Indexer:
                 if exists is not None:
                     continue
                 args = dict(ev.args)
-                self._record(s, raw, ev.contract, ev.name, args)
+                event = self._record(s, raw, ev.contract, ev.name, args)
                 handler = getattr(self, f"_on_{ev.name}", None)
                 if handler is not None:
-                    handler(s, args, block)
-                if ev.name == "TaskOffered":
+                    self._apply(s, event, handler, args, block)
+                if ev.name == "TaskOffered" and block > handed_over:
                     offers.append((int(args["taskId"]), str(args["worker"])))
                 applied += 1
-            self._save_cursor(s, to_block, last_index)
+            self._save_cursor(s, to_block, last_index, hashes)
             s.flush()
             for task_id, worker in offers:
                 self.on_offer(task_id, worker)  # raising rolls the batch back (retried)
             s.commit()
         return applied
 
+    def _apply(
+        self,
+        s: Session,
+        event: m.ChainEvent,
+        handler: Callable[[Session, dict[str, Any], int], None],
+        args: dict[str, Any],
+        block: int,
+    ) -> None:
+        """Run ``handler`` in a SAVEPOINT: rows the database cannot hold are dropped with the
+        reason on the event (retrying would fail the same way for ever), any other failure
+        rolls the batch back."""
+        s.flush()  # the event row itself: its failure (two pollers) is the batch's
+        try:
+            with s.begin_nested():
+                handler(s, args, block)
+        except Exception as exc:
+            orig = getattr(exc, "orig", None)
+            if not isinstance(exc, UNSTORABLE) and not isinstance(orig, UNSTORABLE):
+                raise
+            reason = str(orig if orig is not None else exc).splitlines()[0]
+            event.error = _text(f"{type(exc).__name__}: {reason}", 512)
+            log.warning(
+                "indexer: event %s at block %d log %d kept without its rows: %s",
+                event.name,
+                event.block_number,
+                event.log_index,
+                event.error,
+            )
+
     def _record(
         self, s: Session, raw: dict[str, Any], contract: str, name: str, args: dict
-    ) -> None:
+    ) -> m.ChainEvent:
         alloc_id = args.get("allocId")
         task_id = args.get("taskId")
         if name == "PaymentCredited" and contract == "ModelsManager":
@@ -228,21 +343,21 @@ class Indexer:
         account = next(
             (args[k] for k in ("worker", "requester", "owner", "account") if k in args), None
         )
-        s.add(
-            m.ChainEvent(
-                block_number=int(raw["blockNumber"]),
-                log_index=int(raw["logIndex"]),
-                tx_hash="0x" + bytes(raw["transactionHash"]).hex(),
-                contract=contract,
-                name=name,
-                args=jsonable(args),
-                block_time=raw["_time"],
-                task_id=int(task_id) if task_id is not None else None,
-                model_id=int(args["modelId"]) if "modelId" in args else None,
-                alloc_id=int(alloc_id) if alloc_id is not None else None,
-                account=account,
-            )
+        event = m.ChainEvent(
+            block_number=int(raw["blockNumber"]),
+            log_index=int(raw["logIndex"]),
+            tx_hash="0x" + bytes(raw["transactionHash"]).hex(),
+            contract=contract,
+            name=name,
+            args=jsonable(args),
+            block_time=raw["_time"],
+            task_id=_int64_or_none(task_id),
+            model_id=_int64_or_none(args.get("modelId")),
+            alloc_id=_int64_or_none(alloc_id),
+            account=account,
         )
+        s.add(event)
+        return event
 
     # -- UMC ------------------------------------------------------------------------------------
     def _on_WorkerAdded(self, s: Session, a: dict[str, Any], block: int) -> None:
@@ -362,6 +477,8 @@ class Indexer:
             doc = load_json_doc(self.store, cid, max_size=MAX_SPEC_BYTES, fmt=TRAINING_SPEC_FORMAT)
             TrainingSpec.from_dict(doc)
             return cast(dict[str, Any], _json_safe(doc))
+        except (StoreUnavailable, TimeoutError, ConnectionError):
+            raise  # the store is down, the spec may be fine: roll the batch back, retry later
         except Exception as exc:  # not a CID, not stored here, not a spec: keep the raw text
             log.info("indexer: task description %r is not a readable task spec: %s", cid, exc)
             return None
@@ -376,7 +493,7 @@ class Indexer:
                 task_id=task_id,
                 worker=a["worker"],
                 state=OfferState.OFFERED.name.lower(),
-                qos=int(a["qos"]),
+                qos=_clamp64(a["qos"]),
                 expiry=int(a["expiry"]),
                 block_number=block,
                 updated_block=block,
@@ -482,7 +599,7 @@ class Indexer:
                 alloc_id=int(a["allocId"]),
                 model_id=int(a["modelId"]),
                 owner=a["owner"],
-                qos=int(a["qos"]),
+                qos=_clamp64(a["qos"]),
             )
         )
         model = s.get(m.ModelRow, int(a["modelId"]))
@@ -535,6 +652,17 @@ class IndexerThread:
     def stop(self, timeout: float = 10.0) -> None:
         self._stop.set()
         self._thread.join(timeout)
+
+
+def _clamp64(value: Any) -> int:
+    """A uint256 a BIGINT column can hold: larger values (no contract emits them today) are
+    clamped, so they still sort last; the event's args keep the exact value."""
+    return min(int(value), INT64_MAX)
+
+
+def _int64_or_none(value: Any) -> int | None:
+    """An id a BIGINT column can hold, else None (the event's args keep it)."""
+    return int(value) if value is not None and 0 <= int(value) <= INT64_MAX else None
 
 
 def _text(value: Any, limit: int) -> str:

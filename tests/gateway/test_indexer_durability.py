@@ -1,0 +1,275 @@
+"""Indexer durability: no event stops the index (values as wide as the contracts allow, an
+unstorable event kept with its error), a store that is down is not "no spec", and a chain that
+went back under the cursor (embedded rollback, reorg on a node) is re-indexed."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import socket
+import subprocess
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+from sqlalchemy import select
+from sqlalchemy.orm import Session, sessionmaker
+
+from backend.db import models as m
+from backend.indexer import Indexer
+from backend.indexer import indexer as indexer_module
+from backend.services.chain import ChainService
+from backend.store import EmbeddedStore, StoreUnavailable
+from tests.gateway.test_indexer import _activity, _chain_events, _indexed, any_sessions, sessions
+
+__all__ = ["any_sessions", "sessions"]  # fixtures shared with test_indexer
+
+SPEC = {"format": "drlaas-task/1", "env": {"rows": 6, "cols": 6}, "budget": {"steps": 100}}
+
+
+def _tasks(sessions: sessionmaker[Session]) -> dict[int, m.TaskRow]:
+    with sessions() as s:
+        return {t.id: t for t in s.scalars(select(m.TaskRow))}
+
+
+def _offer_rows(sessions: sessionmaker[Session]) -> list[tuple[int, str]]:
+    with sessions() as s:
+        return sorted(tuple(r) for r in s.execute(select(m.OfferRow.task_id, m.OfferRow.worker)))
+
+
+def test_no_model_event_stops_the_index(
+    service: ChainService,
+    any_sessions: sessionmaker[Session],
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """A listed model with an env value of 2^32 - 1 (a valid uint32; PostgreSQL's INTEGER is
+    int32) is indexed as it is, and a model whose rows the database refuses (here a summary
+    value beyond any integer column) is kept in the timeline with its error, without its row:
+    the task posted after them is indexed and its offer reaches the worker (either event
+    stopped the indexer at its block for good)."""
+    real_summary = indexer_module.summarize_env
+
+    def summary(env: list[int]) -> Any:
+        got = real_summary(env)
+        return dataclasses.replace(got, walls_max=2**64) if env[3] == 5 else got
+
+    monkeypatch.setattr(indexer_module, "summarize_env", summary)
+    store = EmbeddedStore(tmp_path / "ipfs")
+    p, keys = service.platform, service.demo_keys
+    assert keys is not None
+    req, worker = keys.address("user1"), keys.address("user2")
+    with service.lock:
+        p.umc.add_requester(req)
+        p.umc.add_worker(worker, [0], 4, 8, 0)
+        wide, _ = p.mmc.add_model(worker, store.add(b"wide"), 0, [8, 8, 2**32 - 1, 4, 0, 0])
+        refused, _ = p.mmc.add_model(worker, store.add(b"refused"), 0, [8, 8, 2, 5, 0, 0])
+        task_id, _ = p.tmc.add_task(req, domain=0, num_workers=1, reward=10**12, duration=3_600)
+        offered, _ = p.tmc.allocate(req, task_id)
+    hooked: list[tuple[int, str]] = []
+    Indexer(service, any_sessions, on_offer=lambda t, w: hooked.append((t, w))).poll()
+
+    assert _indexed(any_sessions) == _chain_events(service)
+    with any_sessions() as s:
+        row = s.get(m.ModelRow, wide)
+        assert row is not None and row.agents == 2**32 - 1 and row.env[2] == 2**32 - 1
+        assert s.get(m.ModelRow, refused) is None
+        errors = {e.model_id: e.error for e in s.scalars(select(m.ChainEvent))}
+    assert errors[wide] is None and errors[refused]
+    assert task_id in _tasks(any_sessions)
+    assert hooked == _offer_rows(any_sessions) == [(task_id, offered[0])]
+
+
+class FlakyStore:
+    """``inner``, unreachable for the first ``down`` reads (an IPFS node restarting)."""
+
+    def __init__(self, inner: EmbeddedStore, down: int) -> None:
+        self.inner, self.down = inner, down
+
+    def get(self, *args: Any, **kwargs: Any) -> bytes:
+        if self.down > 0:
+            self.down -= 1
+            raise StoreUnavailable("http://ipfs:5001", "connection refused (node restarting)")
+        return self.inner.get(*args, **kwargs)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.inner, name)
+
+
+def test_a_store_that_is_down_is_not_taken_for_no_spec(
+    service: ChainService, sessions: sessionmaker[Session], tmp_path: Path
+) -> None:
+    """A task's spec read while the store is unreachable: the batch is rolled back and retried,
+    so the task gets its spec once the store is back (it was indexed with none, for good)."""
+    inner = EmbeddedStore(tmp_path / "ipfs")
+    cid = inner.add(json.dumps(SPEC).encode())
+    p, keys = service.platform, service.demo_keys
+    assert keys is not None
+    req = keys.address("user1")
+    with service.lock:
+        p.umc.add_requester(req)
+        task_id, _ = p.tmc.add_task(
+            req, domain=0, num_workers=1, reward=10**12, duration=3_600, description=cid
+        )
+    idx = Indexer(service, sessions, store=FlakyStore(inner, down=1))  # type: ignore[arg-type]
+    with pytest.raises(StoreUnavailable):
+        idx.poll()
+    assert _indexed(sessions) == []  # nothing half-indexed: the cursor did not move
+    idx.poll()
+    assert _tasks(sessions)[task_id].spec == SPEC
+    assert _indexed(sessions) == _chain_events(service)
+
+
+def _tx_hashes(sessions: sessionmaker[Session]) -> set[str]:
+    with sessions() as s:
+        return set(s.scalars(select(m.ChainEvent.tx_hash)))
+
+
+def _chain_tx_hashes(service: ChainService) -> set[str]:
+    with service.lock:
+        logs = service.chain.w3.eth.get_logs(
+            {
+                "address": [h.address for h in service.platform.contracts],
+                "fromBlock": service.deploy_block,
+                "toBlock": "latest",
+            }
+        )
+    return {"0x" + bytes(lg["transactionHash"]).hex() for lg in logs}
+
+
+def test_a_chain_that_went_back_is_reindexed(
+    service: ChainService, sessions: sessionmaker[Session]
+) -> None:
+    """The embedded chain loses its last blocks (its file is not fsynced per block, the index
+    is): the index drops what the chain no longer has, and indexes the task later mined at
+    those heights, whose offer reaches its worker; offers of the blocks that stayed are not
+    handed over again."""
+    p, keys = service.platform, service.demo_keys
+    assert keys is not None
+    hooked: list[tuple[int, str]] = []
+    idx = Indexer(service, sessions, on_offer=lambda t, w: hooked.append((t, w)))
+    _activity(service, 1)  # task 1, two offers
+    idx.poll()
+    kept_offers = _offer_rows(sessions)
+    req = keys.address("user1")
+    power_cut = service.chain.snapshot()
+    with service.lock:
+        lost, _ = p.tmc.add_task(
+            req, domain=0, num_workers=2, reward=10**12, duration=3_600, description="LOST"
+        )
+        p.tmc.allocate(req, lost)
+    idx.poll()
+    assert _tasks(sessions)[lost].description == "LOST" and len(hooked) == 4
+    cursor_before = idx.cursor()[0]
+
+    service.chain.revert(power_cut)  # the chain is now behind the index
+    assert service.block_number() < cursor_before
+    idx.poll()
+    assert lost not in _tasks(sessions) and _offer_rows(sessions) == kept_offers
+    assert _indexed(sessions) == _chain_events(service)
+
+    with service.lock:
+        again, _ = p.tmc.add_task(
+            req, domain=0, num_workers=1, reward=9 * 10**12, duration=3_600, description="AFTER"
+        )
+        offered, _ = p.tmc.allocate(req, again)
+    assert again == lost and service.block_number() == cursor_before  # the same heights
+    idx.poll()
+    task = _tasks(sessions)[again]
+    assert (task.description, task.num_workers, task.reward_wei) == ("AFTER", 1, str(9 * 10**12))
+    assert _offer_rows(sessions) == sorted([*kept_offers, (again, offered[0])])
+    assert _indexed(sessions) == _chain_events(service)
+    assert _tx_hashes(sessions) == _chain_tx_hashes(service)  # no event of the lost blocks
+    assert hooked[4:] == [(again, offered[0])]  # task 1's offers were not handed over again
+
+
+@pytest.fixture
+def anvil() -> Iterator[str]:
+    """A fresh anvil node (anvil_reorg rewrites its history, so never the session's)."""
+    from tests.contracts.conftest import _free_port, anvil_binary
+
+    binary = anvil_binary()
+    if binary is None:
+        pytest.skip("anvil binary missing: run `npm ci` in contracts/ (@foundry-rs/anvil)")
+    port = _free_port()
+    proc = subprocess.Popen(
+        [
+            binary,
+            "--host",
+            "127.0.0.1",
+            "--port",
+            str(port),
+            "--chain-id",
+            "31337",
+            "--gas-limit",
+            "30000000",
+            "--block-base-fee-per-gas",
+            "0",
+            "--accounts",
+            "24",
+            "--silent",
+        ],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    url = f"http://127.0.0.1:{port}"
+    try:
+        deadline = time.monotonic() + 20
+        while True:
+            try:
+                with socket.create_connection(("127.0.0.1", port), timeout=0.2):
+                    break
+            except OSError:
+                assert proc.poll() is None and time.monotonic() < deadline, "anvil did not start"
+                time.sleep(0.05)
+        yield url
+    finally:
+        proc.terminate()
+        proc.wait(timeout=10)
+
+
+def test_a_reorg_deeper_than_the_confirmations_is_reindexed(
+    anvil: str, sessions: sessionmaker[Session]
+) -> None:
+    """A node replaces blocks the indexer had confirmed (anvil_reorg deeper than
+    ``confirmations``): the orphaned task and offers leave the index, the new fork's task is
+    indexed and its offer handed over."""
+    from backend.chain.client import Chain
+    from backend.chain.platform import deploy_platform
+    from backend.services.chain import ALL_GPU_SERIES
+
+    chain = Chain.rpc(anvil, n_dev_accounts=24)
+    p = deploy_platform(chain, accepted_gpus=ALL_GPU_SERIES, worker_approval=False)
+    service = ChainService(chain, p, p.deployed_at)
+    req, workers = chain.accounts[1], chain.accounts[2:5]
+    p.umc.add_requester(req)
+    for i, w in enumerate(workers):
+        p.umc.add_worker(w, [0], 2 + 4 * i, 8, 0)
+    hooked: list[tuple[int, str]] = []
+    idx = Indexer(service, sessions, confirmations=2, on_offer=lambda t, w: hooked.append((t, w)))
+    fork = chain.w3.eth.block_number
+    orphan, _ = p.tmc.add_task(
+        req, domain=0, num_workers=2, reward=10**12, duration=7_200, description="ORPHANED"
+    )
+    p.tmc.allocate(req, orphan)
+    for _ in range(3):
+        chain.w3.provider.make_request("evm_mine", [])  # type: ignore[arg-type]
+    idx.poll()
+    assert _tasks(sessions)[orphan].description == "ORPHANED" and len(hooked) == 2
+
+    depth = chain.w3.eth.block_number - fork
+    assert "error" not in chain.w3.provider.make_request("anvil_reorg", [depth, []])  # type: ignore[arg-type]
+    task_id, _ = p.tmc.add_task(
+        req, domain=0, num_workers=1, reward=5 * 10**12, duration=7_200, description="NEW FORK"
+    )
+    offered, _ = p.tmc.allocate(req, task_id)
+    for _ in range(3):
+        chain.w3.provider.make_request("evm_mine", [])  # type: ignore[arg-type]
+    idx.poll()
+    task = _tasks(sessions)[task_id]
+    assert (task.description, task.num_workers) == ("NEW FORK", 1)
+    assert _offer_rows(sessions) == [(task_id, offered[0])]
+    assert _tx_hashes(sessions) == _chain_tx_hashes(service)
+    assert hooked[2:] == [(task_id, offered[0])]
