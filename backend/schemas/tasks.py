@@ -122,6 +122,11 @@ class TaskCreatedPublic(BaseModel):
     spec_cid: str
     offered: list[str]
     tx_hashes: list[str]
+    allocation_error: str | None = Field(
+        default=None,
+        description="set when the task was posted (its escrow held) but allocateTask failed: "
+        "retry with POST /tasks/{task_id}/allocate, do not post the task again",
+    )
 
 
 class IntensityPublic(BaseModel):

@@ -439,3 +439,33 @@ def test_a_progress_point_names_a_non_finite_number(field: str, value: str) -> N
         ProgressCreate.model_validate_json(f'{{"step": 1, "{field}": {value}}}')
     [err] = bad.value.errors()
     assert (err["loc"], err["type"]) == ((field,), "finite_number")
+
+
+def test_a_posted_task_whose_allocation_fails_is_answered_with_its_id(
+    client: TestClient, login: Login, service: ChainService, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """addTask mined, allocateTask failed (a node that does not mine in time, a gateway
+    stopped between the two): the answer names the task, so the client allocates it again
+    instead of posting (and paying for) a second task (durability audit of 2026-12-03, F5)."""
+    register(client, login, ["user1"], WORKERS)
+    real_send = ChainService.send
+
+    def send(self: ChainService, sender: str, handle: Any, fn: str, *args: Any, **kw: Any) -> Any:
+        if fn == "allocateTask":
+            raise TimeoutError("the allocation's receipt did not come in time")
+        return real_send(self, sender, handle, fn, *args, **kw)
+
+    monkeypatch.setattr(ChainService, "send", send)
+    r = client.post(f"{P}/tasks", json=task_body(), headers=login("user1"))
+    assert r.status_code == 201, r.text
+    created = r.json()
+    assert created["offered"] == [] and len(created["tx_hashes"]) == 1
+    assert "allocation" in created["allocation_error"]
+    assert "Traceback" not in created["allocation_error"]
+    task_id = created["task_id"]
+    assert service.platform.tmc.task(task_id)["offer_count"] == 0
+    monkeypatch.setattr(ChainService, "send", real_send)
+    r = client.post(f"{P}/tasks/{task_id}/allocate", headers=login("user1"))
+    assert r.status_code == 200, r.text
+    assert service.platform.tmc.task(task_id)["offer_count"] == 2
+    assert service.platform.tmc.call("taskCount") == task_id  # one task, not two

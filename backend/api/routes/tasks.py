@@ -3,6 +3,7 @@ timeline/offers/outcomes/progress, progress points from assigned workers, review
 
 from __future__ import annotations
 
+import logging
 from typing import Annotated, Any, Literal
 
 from fastapi import APIRouter, Path, Query, Request, status
@@ -57,6 +58,8 @@ from backend.settings import Settings
 from backend.store.bundle import canonical_json
 from backend.store.sealed import address_of, parse_public_key
 from workers.mdrl.trainingspec import TrainingSpec
+
+log = logging.getLogger(__name__)
 
 router = APIRouter(prefix="/tasks", tags=["tasks"])
 TaskId = Annotated[int, Path(ge=1, le=MAX_ID), ID_DIGITS]
@@ -245,7 +248,20 @@ def create_task(
         description="TasksManager.addTask",
     )
     task_id = int(rc.one("TaskAdded").args["taskId"])
-    rc2 = chain.send(user.address, tmc, "allocateTask", task_id)
+    try:
+        rc2 = chain.send(user.address, tmc, "allocateTask", task_id)
+    except Exception as exc:  # noqa: BLE001 - the task exists: answer it, whatever failed
+        # addTask was mined and holds the escrow: an error without the task id made clients
+        # post (and pay for) the task again while this one waited, allocated by nobody
+        log.warning("task %d posted but not allocated: %r", task_id, exc)
+        catch_up(indexer)
+        return TaskCreatedPublic(
+            task_id=task_id,
+            spec_cid=spec_cid,
+            offered=[],
+            tx_hashes=[rc.tx_hash],
+            allocation_error=_reason(exc),
+        )
     catch_up(indexer)
     return TaskCreatedPublic(
         task_id=task_id,
@@ -253,6 +269,14 @@ def create_task(
         offered=[e.args["worker"] for e in rc2.named("TaskOffered")],
         tx_hashes=[rc.tx_hash, rc2.tx_hash],
     )
+
+
+def _reason(exc: Exception) -> str:
+    """A failure's rule and message for a client (never a Python traceback)."""
+    rule, msg = getattr(exc, "rule", None), getattr(exc, "msg", None)
+    if isinstance(rule, str) and isinstance(msg, str):
+        return f"{rule}: {msg}"[:500]
+    return f"{type(exc).__name__}: the allocation transaction failed"
 
 
 def _task(session: SessionDep, task_id: int) -> m.TaskRow:

@@ -286,13 +286,20 @@ def task_submit(
                 out["expert_allocation"] = expert_allocation
         except (GatewayError, LookupError) as exc:
             fail(exc)
-        emit(
-            out,
-            as_json,
-            lambda d: typer.echo(
-                f"task {d['task_id']} submitted (spec {d['spec_cid']}); offered to: "
-                + (", ".join(d.get("offered") or []) or "nobody yet")
-            ),
+        emit(out, as_json, _submitted)
+
+
+def _submitted(d: dict[str, Any]) -> None:
+    typer.echo(
+        f"task {d['task_id']} submitted (spec {d['spec_cid']}); offered to: "
+        + (", ".join(d.get("offered") or []) or "nobody yet")
+    )
+    if d.get("allocation_error"):
+        typer.echo(
+            f"task {d['task_id']} is posted (its payment escrowed) but was not allocated: "
+            f"{d['allocation_error']}; allocate it with `drlaas task allocate {d['task_id']}` "
+            "rather than submitting it again",
+            err=True,
         )
 
 
@@ -305,7 +312,11 @@ def submit(gw: Gateway, body: dict[str, Any]) -> dict[str, Any]:
         return out
     task_id = int(event_arg(out, "TaskAdded", "taskId"))
     spec_cid = str(event_arg(out, "TaskAdded", "description"))
-    alloc = write(gw, "POST", f"/tasks/{task_id}/allocate")
+    try:
+        alloc = write(gw, "POST", f"/tasks/{task_id}/allocate")
+    except GatewayError as exc:  # the task is posted and holds its escrow: say which it is
+        return {"task_id": task_id, "spec_cid": spec_cid, "offered": [],
+                "tx_hashes": [out["tx_hash"]], "allocation_error": str(exc)}
     return {
         "task_id": task_id,
         "spec_cid": spec_cid,
@@ -449,6 +460,23 @@ def task_review(
         except GatewayError as exc:
             fail(exc)
     emit(out, as_json, lambda d: typer.echo(f"reviewed {worker} on task {task_id}: {review}/5"))
+
+
+@task_app.command("allocate")
+def task_allocate(
+    task_id: int,
+    key: KeyOpt,
+    gateway: GatewayOpt = DEFAULT_GATEWAY,
+    as_json: JsonOpt = False,
+) -> None:
+    """Offer the task's open slots to the best workers again (TMC.allocateTask): after a
+    submit whose allocation failed, or once offers expired or were declined."""
+    with connect_funded(gateway, key) as gw:
+        try:
+            out = write(gw, "POST", f"/tasks/{task_id}/allocate")
+        except GatewayError as exc:
+            fail(exc)
+    emit(out, as_json, lambda d: typer.echo(f"task {task_id} allocated ({d['tx_hash']})"))
 
 
 @task_app.command("wait")
