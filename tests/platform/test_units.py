@@ -95,6 +95,9 @@ def test_celery_job_retries_transient_errors_only(tmp_path: Path) -> None:
             self.calls += 1
             raise self.exc
 
+        def delivery_time_left(self, task_id: int) -> float | None:
+            return None  # no trained model: given back once the retries ran out
+
         def give_up(self, task_id: int, reason: str) -> dict:
             self.given_up = reason
             return {"task_id": task_id, "status": "failed", "reason": reason}

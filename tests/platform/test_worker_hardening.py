@@ -37,13 +37,14 @@ class FakeTMC:
     def __init__(self, state: OfferState = OfferState.OFFERED, expiry: float | None = None):
         self.state, self.calls = state, []  # type: ignore[var-annotated]
         self.expiry = int(time.time()) + 3600 if expiry is None else int(expiry)
+        self.deadline = int(time.time()) + 86400  # fixed: the job records its task's
 
     def offer(self, tid: int, addr: str) -> dict[str, Any]:
         return {"state": self.state, "expiry": self.expiry}
 
     def task(self, tid: int) -> dict[str, Any]:
         return {"status": TaskStatus.OPEN, "requester": "0x" + "11" * 20,
-                "deadline": int(time.time()) + 86400, "domain": 0}
+                "deadline": self.deadline, "domain": 0}
 
     def transact(self, fn: str, *args: Any, sender: str | None = None) -> Any:
         self.calls.append(fn)

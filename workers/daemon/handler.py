@@ -2,10 +2,12 @@
 
 ``OfferHandler.handle(task_id, worker)`` is idempotent: it reads the offer's state on chain and
 the job's state in ``<worker data>/jobs/<chain identity>/<task_id>/state.json`` and continues
-from where a previous attempt stopped (offered -> accepted -> trained -> uploaded ->
-submitted). A spec with an ``outcome_key`` gets its weights sealed to the requester
-(``backend.store.sealed``): the chain gets the plaintext bundle's CID, the store only the card
-and the ciphertext. Transient failures (content store or chain node unreachable) raise
+from where a previous attempt stopped (offered -> accepting -> accepted -> trained -> uploaded
+-> submitted). The state records the task it was made for (requester, deadline, spec CID):
+a directory of another task under the same id (the chain lost blocks and gave the id again)
+is moved aside, never resumed. A spec with an ``outcome_key`` gets its weights sealed to the
+requester (``backend.store.sealed``): the chain gets the plaintext bundle's CID, the store only
+the card and the ciphertext. Transient failures (content store or chain node unreachable) raise
 :class:`Transient`; the Celery job retries those with backoff.
 
 An offer whose spec cannot be trained here (bad spec, estimated memory beyond this worker's RAM
@@ -18,9 +20,11 @@ names the CID and what is wrong.
 
 A job whose training process dies again and again without its checkpoint moving (killed for
 memory, say) is given back after :data:`MAX_STARTS_WITHOUT_PROGRESS` starts instead of being
-redelivered until the deadline. At daemon start :meth:`OfferHandler.recover` reconciles the
-job directories with the chain (a failure the chain has not heard of is reported, a job still
-accepted is queued again, a finished job's checkpoint and fetched models are removed).
+redelivered until the deadline; a start whose process died with the whole platform (a new
+``drlaas up``, a reboot: :func:`daemon_session` changed) is not counted. At daemon start
+:meth:`OfferHandler.recover` reconciles the job directories with the chain (a failure the
+chain has not heard of is reported, a job still accepted, or offered and being checked, is
+queued again, a finished job's checkpoint and fetched models are removed).
 """
 
 from __future__ import annotations
@@ -79,6 +83,14 @@ PHASES = ("accepted", "trained", "uploaded", "submitted")
 #: Phases of a job in hand: ``accepting`` is saved before the acceptOffer transaction, so a
 #: process killed in between leaves a job that capacity and ``recover`` see.
 IN_HAND = ("accepting", *PHASES[:-1])
+#: Saved first when an offer is handled, before the checks (fetching experts can take
+#: minutes): a daemon killed meanwhile leaves a job ``recover`` queues again while the offer
+#: is live (a broker such as Redis redelivers its message only after hours). Not in hand:
+#: it holds no capacity.
+OFFERED = "offered"
+#: Phases in which the delivered model exists and only its upload or a transaction is missing:
+#: such a job is not given back while its deadline can still be met (``delivery_time_left``).
+DELIVERABLE = ("trained", "uploaded")
 #: Phases after which a job holds nothing on chain (``declined``: never accepted).
 FINISHED = ("submitted", "declined", "closed", "failed")
 #: Training starts in a row that got no further than the last one (the process died before
@@ -134,6 +146,30 @@ class JobKeepsDying(RuntimeError):
     before its checkpoint moved: starting it again would only die again."""
 
 
+def task_record(task: dict[str, Any], spec_cid: str) -> dict[str, Any]:
+    """What tells one task from another under the same id (``state.json`` key ``task``): a
+    chain that lost blocks numbers the next task as it numbered the lost one."""
+    return {"requester": str(task["requester"]), "deadline": int(task["deadline"]),
+            "spec": spec_cid}
+
+
+def daemon_session() -> str:
+    """What a restart of this daemon alone keeps and a restart of the platform changes: the
+    host's boot and the process that started the daemon (``drlaas up`` starts a daemon that
+    died again, under the same parent; a new ``drlaas up`` or a reboot is a new session).
+    Empty parts where /proc does not tell."""
+    try:
+        boot = Path("/proc/sys/kernel/random/boot_id").read_text().strip()
+    except OSError:
+        boot = ""
+    parent = os.getppid()
+    try:  # field 22 (starttime): a parent pid reused by another process is another session
+        started = Path(f"/proc/{parent}/stat").read_text().rsplit(")", 1)[1].split()[19]
+    except (OSError, IndexError):
+        started = ""
+    return f"{boot}:{parent}:{started}"
+
+
 @dataclass
 class OfferHandler:
     account: LocalAccount
@@ -149,6 +185,8 @@ class OfferHandler:
     """Bound on the weights of one expert model fetched for an MEDC job."""
     clock: Callable[[], float] = time.time
     on_first_step: Callable[[int, int], None] | None = None
+    session: str = field(default_factory=daemon_session)
+    """This daemon's :func:`daemon_session`, recorded with each training start."""
     progress_errors: int = field(default=0, init=False)
     _pending: dict[int, deque[dict[str, Any]]] = field(default_factory=dict, init=False)
 
@@ -218,7 +256,7 @@ class OfferHandler:
         held by work nobody can submit."""
         out = []
         for tid, st in self._jobs():
-            if tid == exclude or st.get("phase") in FINISHED:
+            if tid == exclude or st.get("phase") in (*FINISHED, OFFERED):
                 continue
             if self._settle(tid, st) is None:
                 out.append(tid)
@@ -228,9 +266,9 @@ class OfferHandler:
         """A job in hand on disk that the chain no longer holds as accepted is finished:
         ``submitted`` if the chain has its outcome (killed after submitOutcome, before its
         record), else ``closed`` (task cancelled, closed or past its deadline); returns that
-        phase, or None while the chain still holds the job. A job ``accepting`` whose offer is
-        still live (offered, not expired: killed before the acceptOffer transaction was sent)
-        is held too: handling it again accepts it."""
+        phase, or None while the chain still holds the job. A job ``offered`` or ``accepting``
+        whose offer is still live (offered, not expired: killed during the checks, or before
+        the acceptOffer transaction was sent) is held too: handling it again answers it."""
         with chain_call(f"reading the offer of task {task_id}"):
             offer = self.platform.tmc.offer(task_id, self.address)
             task = self.platform.tmc.task(task_id)
@@ -242,7 +280,7 @@ class OfferHandler:
         if (
             live
             and state == OfferState.OFFERED
-            and st.get("phase") == "accepting"
+            and st.get("phase") in (OFFERED, "accepting")
             and int(offer.get("expiry", 0)) >= now
         ):
             return None
@@ -276,9 +314,13 @@ class OfferHandler:
             self._close(task_id, phase="closed", offer=state.name.lower())
             return {"task_id": task_id, "status": f"offer {state.name.lower()}"}
 
+        with chain_call(f"reading the spec CID of task {task_id}"):
+            spec_cid = task_spec_cid(self.platform, task_id)
+        self._claim(task_id, task_record(task, spec_cid),
+                    offer if state == OfferState.OFFERED else None)
         if state == OfferState.ACCEPTED and self._state(task_id).get("phase") == "failed":
             return self._report_failure(task_id)
-        spec = self._fetch_spec(task_id)
+        spec = self._fetch_spec(task_id, spec_cid)
         if state == OfferState.OFFERED:
             reason = self._cannot_take(
                 task_id, spec, str(task["requester"]), deadline=int(task["deadline"])
@@ -307,6 +349,40 @@ class OfferHandler:
         except Exception as exc:  # noqa: BLE001 - any failure of the job releases the worker
             log.exception("task %s: job failed", task_id)
             return self._fail(task_id, f"{type(exc).__name__}: {exc}")
+
+    def _claim(self, task_id: int, record: dict[str, Any], offer: dict[str, Any] | None) -> None:
+        """Make the job directory this task's before anything in it is used: one recorded for
+        another task under this id (the chain lost the blocks of the task it was made for, and
+        numbered a new task the same) is moved aside, so the new task is never answered with
+        the old one's model. Records the task and, for an offer not answered yet, the phase
+        ``offered`` (OFFERED) with its expiry."""
+        st = self._state(task_id)
+        known = st.get("task")
+        if isinstance(known, dict) and any(
+            key in known and known[key] != value for key, value in record.items()
+        ):
+            self._set_aside(task_id, f"made for task {known}, the chain's is {record}")
+            st = {}
+        changes: dict[str, Any] = {}
+        if known != record or not st:
+            changes["task"] = record
+        if offer is not None and st.get("phase") not in IN_HAND:
+            if st.get("phase") != OFFERED or st.get("offer_expiry") != int(offer["expiry"]):
+                changes |= {"phase": OFFERED, "offer_expiry": int(offer["expiry"])}
+        if changes:
+            self._save(task_id, **changes)
+
+    def _set_aside(self, task_id: int, why: str) -> None:
+        """Move the job directory to ``<task id>.replaced-<time>`` (not a task id: no longer a
+        job that recovery or capacity see), kept for inspection."""
+        d = self.job_dir(task_id)
+        kept = d.with_name(f"{d.name}.replaced-{int(self.clock())}")
+        n = 1
+        while kept.exists():
+            kept, n = d.with_name(f"{d.name}.replaced-{int(self.clock())}-{n}"), n + 1
+        os.replace(d, kept)
+        self._pending.pop(task_id, None)
+        log.error("task %s: job directory %s %s: moved aside as %s", task_id, d, why, kept.name)
 
     def _run(self, task_id: int, spec: TrainingSpec, task: dict[str, Any]) -> dict[str, Any]:
         """Train (or resume), upload and submit an accepted job."""
@@ -460,6 +536,27 @@ class OfferHandler:
             raise Transient(f"cannot fetch the task's expert models: {exc}") from exc
         return None
 
+    def delivery_time_left(self, task_id: int) -> float | None:
+        """Seconds left before the deadline less DEADLINE_MARGIN_S for a job in hand whose
+        model is trained (only its upload or a transaction is missing); None for any other job.
+        While this is positive the Celery job keeps retrying a store or node outage instead of
+        giving the job back: that would throw away a model that may still be delivered."""
+        st = self._state(task_id)
+        phase = st.get("phase")
+        if phase not in IN_HAND:
+            return None
+        if phase not in DELIVERABLE and not (self.job_dir(task_id) / jobs.FINISHED_MARK).is_file():
+            return None
+        record = st.get("task")
+        deadline = record.get("deadline") if isinstance(record, dict) else None
+        if not isinstance(deadline, int):  # a job recorded before its task was (or damaged)
+            try:
+                with chain_call(f"reading the deadline of task {task_id}"):
+                    deadline = int(self.platform.tmc.task(task_id)["deadline"])
+            except Transient:
+                return None  # unknown: give up as before
+        return deadline - DEADLINE_MARGIN_S - self.clock()
+
     def give_up(self, task_id: int, reason: str) -> dict[str, Any]:
         """The job's retries ran out (the store or the node stayed down): a job accepted and
         not yet submitted fails and is given back on chain, instead of its offer staying
@@ -485,6 +582,8 @@ class OfferHandler:
         worker's disk does not fill up with jobs it will never resume."""
         for part in PRUNED:
             shutil.rmtree(self.job_dir(task_id) / part, ignore_errors=True)
+        for left in jobs.run_dir(self.job_dir(task_id)).glob("checkpoint.*"):  # set aside, swaps
+            shutil.rmtree(left, ignore_errors=True)
 
     def recover(
         self, enqueue: Callable[[int, str], None] | None = None, only: set[int] | None = None
@@ -495,7 +594,7 @@ class OfferHandler:
         * ``reported``: failed jobs whose ``abandonOffer`` never reached the chain (the node was
           down when the job gave up) are given back now;
         * ``queued``: jobs in hand (accepting, accepted, trained, uploaded) that the chain still
-          holds as accepted (or, for ``accepting``, still offers) go to
+          holds as accepted (or, for ``offered`` and ``accepting``, still offers) go to
           ``enqueue(task_id, worker)`` again: their message may be gone
           (a broker restarted without persistence). A duplicate is harmless: the handler is
           idempotent and the daemon's solo pool runs one job at a time. So does a job whose
@@ -555,7 +654,7 @@ class OfferHandler:
         settled = self._settle(tid, st)
         if settled is not None:
             return settled
-        if phase not in IN_HAND:  # none (rebuilt) or not a phase this daemon writes
+        if phase not in (*IN_HAND, OFFERED):  # none (rebuilt) or not a phase this daemon writes
             self._save(tid, phase="accepted", reason="job state rebuilt from the chain")
         if enqueue is not None:
             enqueue(tid, self.address)
@@ -616,10 +715,8 @@ class OfferHandler:
             "domain": int(self.platform.tmc.task(task_id)["domain"]),
         }
 
-    def _fetch_spec(self, task_id: int) -> TrainingSpec | SpecError:
-        """The verified spec, or the SpecError saying why it cannot be trained."""
-        with chain_call(f"reading the spec CID of task {task_id}"):
-            cid = task_spec_cid(self.platform, task_id)
+    def _fetch_spec(self, task_id: int, cid: str) -> TrainingSpec | SpecError:
+        """The verified spec ``cid``, or the SpecError saying why it cannot be trained."""
         try:
             raw = self.store.get(cid, max_size=MAX_SPEC_BYTES)
         except StoreUnavailable as exc:
@@ -641,15 +738,19 @@ class OfferHandler:
         before the deadline, whichever comes first (the fetches' time comes off the training
         time, not off the margin). A start counts against MAX_STARTS_WITHOUT_PROGRESS before
         the fetches (a process killed for memory while loading experts dies there too), and is
-        taken back when they fail for a store outage: that is not a process dying."""
+        taken back when they fail for a store outage: that is not a process dying. Nor is a
+        start whose process died with the whole platform (``start_session`` differs from this
+        daemon's): only deaths of the job's own daemon count."""
         st = self._state(task_id)
         starts = _count(st, "starts_without_progress")
+        if starts and st.get("start_session", self.session) != self.session:
+            starts -= 1  # the last start died with the platform (new drlaas up, reboot), not alone
         if starts >= MAX_STARTS_WITHOUT_PROGRESS:
             raise JobKeepsDying(
                 f"training was started {starts} times and its process died each time before "
                 f"getting past step {st.get('resumed_from_step', 0)} (killed for memory?)"
             )
-        self._save(task_id, starts_without_progress=starts + 1)
+        self._save(task_id, starts_without_progress=starts + 1, start_session=self.session)
         try:
             experts = self._fetch_experts(task_id, spec)
             walls_cae = self._fetch_walls_cae(task_id, spec)

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import logging
 import math
 import os
 import time
@@ -27,6 +28,8 @@ from workers.daemon.experts import ExpertFetchError, load_job_experts, load_wall
 from workers.mdrl.curve import attach_curve
 from workers.mdrl.train import RunConfig, Trainer
 from workers.mdrl.trainingspec import TrainingSpec
+
+log = logging.getLogger(__name__)
 
 #: Updates between checkpoints: a killed worker loses at most this many updates of work.
 CHECKPOINT_EVERY = 2
@@ -132,6 +135,31 @@ def has_checkpoint(job_dir: str | Path) -> bool:
     return (run_dir(job_dir) / "checkpoint" / "state.json").is_file()
 
 
+def restore_swapped_checkpoint(job_dir: str | Path) -> None:
+    """A process killed between the two renames of ``checkpoint.atomic_dir`` leaves the last
+    checkpoint, whole, as ``checkpoint.old`` and no ``checkpoint``: put it back."""
+    out = run_dir(job_dir)
+    old = out / "checkpoint.old"
+    if not (out / "checkpoint").exists() and (old / "state.json").is_file():
+        os.replace(old, out / "checkpoint")
+        log.warning("%s: resuming from checkpoint.old (killed while saving the next one)", out)
+
+
+def set_checkpoint_aside(job_dir: str | Path, exc: BaseException) -> Path:
+    """Move an unreadable checkpoint to ``checkpoint.unreadable-<time>`` (logged) so the job
+    trains from the start instead of failing: a power cut can damage a checkpoint, and a job
+    given back loses the task, where training again may still meet the deadline."""
+    out = run_dir(job_dir)
+    kept = out / f"checkpoint.unreadable-{int(time.time())}"
+    n = 1
+    while kept.exists():
+        kept, n = out / f"checkpoint.unreadable-{int(time.time())}-{n}", n + 1
+    os.replace(out / "checkpoint", kept)
+    log.error("%s: checkpoint unreadable (%s: %s), set aside as %s; training from the start",
+              out, type(exc).__name__, exc, kept.name)
+    return kept
+
+
 def make_selector(spec: TrainingSpec, experts: dict[str, Path] | None) -> Any:
     """The DC / MEDC selector (Alg. 4.1 / 5.1, ``medc.DemonstrationSelector``) of a spec that
     names experts, its models loaded from ``experts`` ({CID: verified directory}) and named by
@@ -212,15 +240,21 @@ def make_trainer(
         checkpoint_every=checkpoint_every,
         minutes=budget_minutes,
     )
+    restore_swapped_checkpoint(job_dir)
+    trainer: JobTrainer | None = None
     if has_checkpoint(job_dir):  # the spec's run config, also over a checkpoint's older one
-        trainer = cast(
-            JobTrainer,
-            JobTrainer.resume(
-                out, out=out, run_overrides=run.to_dict(), selector=selector,
-                walls_encoder=encoder,
-            ),
-        )
-    else:
+        try:
+            trainer = cast(
+                JobTrainer,
+                JobTrainer.resume(
+                    out, out=out, run_overrides=run.to_dict(), selector=selector,
+                    walls_encoder=encoder,
+                ),
+            )
+        except (OSError, ValueError, KeyError, TypeError) as exc:  # damaged: train afresh
+            set_checkpoint_aside(job_dir, exc)
+            selector, encoder = load_job_models(spec, experts, walls_cae)  # resume used them
+    if trainer is None:
         trainer = JobTrainer(
             spec.env, spec.observation, spec.ppo, run, out=out, selector=selector,
             walls_encoder=encoder,

@@ -1,9 +1,9 @@
 """Prometheus metrics of a worker daemon, served on its own port (``drlaas worker run
 --metrics-port N``; Celery workers have no HTTP server of their own).
 
-* ``drlaas_worker_jobs{phase}``: this worker's jobs by phase (accepted = training, trained,
-  uploaded, submitted, declined, failed, closed), read from the job directories' ``state.json``
-  at scrape time, so a restarted daemon reports its jobs at once;
+* ``drlaas_worker_jobs{phase}``: this worker's jobs by phase (offered = being checked,
+  accepted = training, trained, uploaded, submitted, declined, failed, closed), read from the
+  job directories' ``state.json`` at scrape time, so a restarted daemon reports its jobs at once;
 * ``drlaas_worker_training_steps_per_second{job}`` and ``drlaas_worker_training_step{job}``:
   of each job still training, from the last two points of its ``progress.jsonl``;
 * ``drlaas_chain_request_duration_seconds{method,outcome}``: the daemon's JSON-RPC requests.
@@ -93,6 +93,8 @@ class JobsCollector(Collector):
                 continue
             if not isinstance(doc, dict) or "phase" not in doc:
                 continue  # a trainer checkpoint's state.json, not a job's
+            if not state_file.parent.name.isdigit():
+                continue  # a job directory moved aside (``<task id>.replaced-<time>``)
             phase = str(doc["phase"])
             phases[phase] = phases.get(phase, 0) + 1
             if phase != TRAINING_PHASE:

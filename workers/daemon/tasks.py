@@ -7,7 +7,10 @@ mid-training gets the job again when it comes back, and :class:`OfferHandler` re
 job's checkpoint. Only :class:`~workers.daemon.handler.Transient` errors (store or node down)
 are retried, with capped exponential backoff and jitter (STYLE.md, "Workers"); when the last
 retry fails too, the handler gives the job back (``OfferHandler.give_up``: abandonOffer) rather
-than leave its offer accepted with nobody working on it.
+than leave its offer accepted with nobody working on it. A job whose model is trained (only an
+upload or a transaction is missing) is not given back while its deadline can still be met:
+it is retried past MAX_RETRIES, at most every RETRY_CAP_S and within half the time left
+(``OfferHandler.delivery_time_left``).
 
 The handler of a daemon process is built once from the environment (``runtime_from_env``):
 ``DRLAAS_WORKER_KEY`` (key file), ``DRLAAS_GATEWAY`` (gateway URL), ``DRLAAS_WORKER_DATA``
@@ -139,8 +142,16 @@ def handle_offer(self: Any, task_id: int, worker: str) -> dict[str, Any]:
         with task_context(int(task_id)):  # JSON log lines of this job carry its task id
             return runtime().handle(int(task_id), worker)
     except Transient as exc:
-        if self.request.retries >= self.max_retries:  # the last try: give the job back
-            reason = f"gave up after {self.max_retries} retries: {exc}"
+        retries = self.request.retries
+        if retries >= self.max_retries:  # the last try: give the job back, unless it is trained
+            left = runtime().delivery_time_left(int(task_id))
+            if left is not None and left > 0:
+                countdown = min(retry_delay(retries), left / 2)
+                log.warning("task %s: %s; the trained model is kept, retry %d in %.0f s "
+                            "(%.0f s before the deadline's margin)", task_id, exc, retries + 1,
+                            countdown, left)
+                raise self.retry(exc=exc, countdown=countdown, max_retries=retries + 1) from exc
+            reason = f"gave up after {retries} retries: {exc}"
             log.error("task %s: %s", task_id, reason)
             return runtime().give_up(int(task_id), reason)  # Transient if the node is down too
         raise self.retry(exc=exc, countdown=retry_delay(self.request.retries)) from exc

@@ -118,21 +118,43 @@ def restore_env_state(env: Any, arrays: dict[str, np.ndarray], meta: dict[str, A
 
 
 # ---------------------------------------------------------------- files
+def _fsync(path: Path) -> None:
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def fsync_tree(root: Path) -> None:
+    """fsync every file and directory under ``root`` (``root`` included), deepest first: a
+    rename only makes data durable that is on disk already (after a power cut a renamed file
+    written without fsync can be empty)."""
+    for dirpath, _, files in os.walk(root, topdown=False):
+        for name in files:
+            _fsync(Path(dirpath, name))
+        _fsync(Path(dirpath))
+
+
 @contextmanager
 def atomic_dir(path: str | Path) -> Iterator[Path]:
     """Yield a fresh temp dir beside ``path``; on success swap it in for ``path`` (the old one
-    moves aside first), so a crash leaves the previous directory whole."""
+    moves aside first), so a crash leaves the previous directory whole: ``path``, or
+    ``<path>.old`` when it came between the two renames. Everything is fsynced before the
+    swap and the parent after it, so an OS crash or power cut leaves one of them whole too."""
     path = Path(path)
     tmp, old = path.with_name(path.name + ".tmp"), path.with_name(path.name + ".old")
     if tmp.exists():
         shutil.rmtree(tmp)
     tmp.mkdir(parents=True)
     yield tmp
+    fsync_tree(tmp)
     if path.exists():
         if old.exists():
             shutil.rmtree(old)
         os.replace(path, old)
     os.replace(tmp, path)
+    _fsync(path.parent)
     if old.exists():
         shutil.rmtree(old)
 
