@@ -506,6 +506,8 @@ def make_fake_app(state: FakeState) -> FastAPI:
         walls: int | None = None,
         min_reputation: Annotated[float | None, Query(ge=0, le=1)] = None,
         q: str = "",
+        limit: Annotated[int, Query(ge=1, le=500)] = 100,
+        offset: Annotated[int, Query(ge=0)] = 0,
     ) -> dict:
         out = [
             {k: m[k] for k in LIST_KEYS}
@@ -516,7 +518,7 @@ def make_fake_app(state: FakeState) -> FastAPI:
             and (min_reputation is None or m["reputation"] >= min_reputation)
             and (not q or q.lower() in (m["description"] + m["cid"]).lower())
         ]
-        return {"data": out, "count": len(out)}
+        return {"data": out[offset : offset + limit], "count": len(out)}
 
     @app.get("/api/models/{mid}")
     def model(mid: int) -> dict:
@@ -534,7 +536,11 @@ def make_fake_app(state: FakeState) -> FastAPI:
 
     @app.get("/api/workers")
     def workers(
-        sort: str = "reputation", domain: int | None = None, status: str | None = None
+        sort: str = "reputation",
+        domain: int | None = None,
+        status: str | None = None,
+        limit: Annotated[int, Query(ge=1, le=500)] = 100,
+        offset: Annotated[int, Query(ge=0)] = 0,
     ) -> dict:
         out = [
             w
@@ -542,17 +548,22 @@ def make_fake_app(state: FakeState) -> FastAPI:
             if (status is None or w["status"] == status)
             and (domain is None or domain in w["domains"])
         ]
-        return {"data": out, "count": len(out)}  # unsorted on purpose
+        return {"data": out[offset : offset + limit], "count": len(out)}  # unsorted on purpose
 
     @app.get("/api/tasks")
-    def tasks(status: str | None = None, requester: str | None = None) -> dict:
+    def tasks(
+        status: str | None = None,
+        requester: str | None = None,
+        limit: Annotated[int, Query(ge=1, le=500)] = 100,
+        offset: Annotated[int, Query(ge=0)] = 0,
+    ) -> dict:
         out = [
             {k: t[k] for k in TASK_LIST_KEYS}
             for t in sorted(state.tasks, key=lambda t: -t["id"])  # newest first, like the gateway
             if (status is None or t["status"] == status)
             and (requester is None or t["requester"].lower() == requester.lower())
         ]
-        return {"data": out, "count": len(out)}
+        return {"data": out[offset : offset + limit], "count": len(out)}
 
     @app.get("/api/tasks/{tid}")
     def get_task(tid: int) -> dict:

@@ -63,7 +63,7 @@ def test_models_list_renders_and_filters(page: Any, server: LiveServer, state: F
 
     page.fill('input[name="agents"]', "3")
     wait_for_models(page, [1, 4])
-    assert state.queries("/api/models")[-1] == {"agents": "3"}
+    assert state.queries("/api/models")[-1] == {"agents": "3", "limit": "100"}
     assert page.url.endswith("/models?agents=3")
 
     page.fill('input[name="walls"]', "2")
@@ -71,7 +71,8 @@ def test_models_list_renders_and_filters(page: Any, server: LiveServer, state: F
     page.fill('input[name="walls"]', "")
     page.fill('input[name="min_reputation"]', "0.5")
     wait_for_models(page, [1])
-    assert state.queries("/api/models")[-1] == {"agents": "3", "min_reputation": "0.5"}
+    assert state.queries("/api/models")[-1] == {"agents": "3", "min_reputation": "0.5",
+                                                  "limit": "100"}
 
     page.fill('input[name="q"]', "nothing like this")
     expect(page.locator("#no-models")).to_be_visible()
@@ -82,7 +83,7 @@ def test_models_list_renders_and_filters(page: Any, server: LiveServer, state: F
     page.goto(f"{server.url}/models?domain=3")
     expect(page.locator('input[name="domain"]')).to_have_value("3")
     wait_for_models(page, [1, 4])
-    assert state.queries("/api/models")[-1] == {"domain": "3"}
+    assert state.queries("/api/models")[-1] == {"domain": "3", "limit": "100"}
 
 
 def test_model_descriptions_are_text_not_html(page: Any, server: LiveServer) -> None:
@@ -306,7 +307,7 @@ def test_tasks_list_updates_status_live(page: Any, server: LiveServer, state: Fa
 
     page.select_option("#task-status-filter", "open")
     expect(page.locator("#tasks-table tbody tr")).to_have_count(2)
-    assert state.queries("/api/tasks")[-1] == {"status": "open"}
+    assert state.queries("/api/tasks")[-1] == {"status": "open", "limit": "100"}
 
 
 def test_only_mine_asks_for_the_signed_in_requester(
@@ -316,7 +317,7 @@ def test_only_mine_asks_for_the_signed_in_requester(
     sign_in_as_alice(page)
     page.check("#task-mine")
     page.wait_for_function("() => document.querySelectorAll('#tasks-table tbody tr').length === 2")
-    assert state.queries("/api/tasks")[-1] == {"requester": ALICE}
+    assert state.queries("/api/tasks")[-1] == {"requester": ALICE, "limit": "100"}
     ids = page.locator("#tasks-table tbody tr").evaluate_all("rs => rs.map(r => r.dataset.taskId)")
     assert ids == ["3", "1"]
 
@@ -409,7 +410,8 @@ def test_leaderboard_is_sorted_by_reputation(
 
     page.select_option('select[name="status"]', "idle")
     expect(rows).to_have_count(1)
-    assert state.queries("/api/workers")[-1] == {"status": "idle", "sort": "reputation"}
+    assert state.queries("/api/workers")[-1] == {"status": "idle", "sort": "reputation",
+                                               "limit": "100"}
 
 
 def test_navigation_is_client_side(page: Any, server: LiveServer) -> None:
@@ -430,3 +432,32 @@ def test_navigation_is_client_side(page: Any, server: LiveServer) -> None:
     assert page.evaluate("window.__sameDocument") is True
     page.goto(f"{server.url}/no/such/page")
     expect(page.locator("main h1")).to_have_text("Not found")
+
+
+def test_lists_page_through_more_rows_than_one_answer(
+    page: Any, server: LiveServer, state: FakeState
+) -> None:
+    """The API answers at most 100 rows: the list said "N models" and showed the first 100
+    with no way to the rest (audit of 2026-12-03, F10)."""
+    base = state.models[0]
+    state.models[:] = [{**base, "id": i, "cid": f"{base['cid'][:-4]}{i:04d}"}
+                       for i in range(1, 231)]
+    page.goto(f"{server.url}/models")
+    wait_for_models(page, list(range(1, 101)))
+    expect(page.locator("#models-count")).to_have_text("230 models")
+    expect(page.locator("#models-pager .range")).to_have_text("1–100 of 230")
+    expect(page.locator("#models-pager .prev")).to_be_disabled()
+    page.click("#models-pager .next")
+    wait_for_models(page, list(range(101, 201)))
+    assert page.url.endswith("/models?offset=100")
+    assert state.queries("/api/models")[-1] == {"limit": "100", "offset": "100"}
+    page.click("#models-pager .next")
+    wait_for_models(page, list(range(201, 231)))
+    expect(page.locator("#models-pager .range")).to_have_text("201–230 of 230")
+    expect(page.locator("#models-pager .next")).to_be_disabled()
+    # a shared link opens on its page; a new filter starts again at the first
+    page.goto(f"{server.url}/models?offset=200")
+    wait_for_models(page, list(range(201, 231)))
+    page.fill('input[name="walls"]', "2")
+    page.wait_for_function("() => !location.search.includes('offset')")
+    assert "offset" not in state.queries("/api/models")[-1]

@@ -3,6 +3,7 @@
 
 import { api, asList, query } from "../api.js";
 import { clear, envSummary, errorBox, h, link, num, shortAddr, shortCid } from "../dom.js";
+import { PAGE_SIZE, offsetFromUrl, pager } from "../pager.js";
 
 const FILTERS = [
   { name: "q", label: "Search", type: "search", placeholder: "description or CID" },
@@ -24,16 +25,24 @@ export async function render(main, _params, ctx) {
   const countEl = h("span", { class: "muted", id: "models-count" });
   let timer = null;
   let seq = 0;
+  let offset = offsetFromUrl();
+  let filtersSeen = null;
 
   const load = async () => {
     const mine = ++seq;
     const filters = Object.fromEntries(FILTERS.map((f) => [f.name, form.elements[f.name].value.trim()]));
-    history.replaceState(null, "", `/models${query(filters)}`);
+    const key = JSON.stringify(filters);
+    if (filtersSeen !== null && key !== filtersSeen) offset = 0; // new filters: first page
+    filtersSeen = key;
+    history.replaceState(null, "", `/models${query({ ...filters, offset: offset || "" })}`);
     results.setAttribute("aria-busy", "true");
     try {
-      const { data, count } = asList(await api(`/models${query(filters)}`, { signal: ctx.signal }));
+      const { data, count } = asList(await api(`/models${query({ ...filters, limit: PAGE_SIZE, offset: offset || "" })}`,
+        { signal: ctx.signal }));
       if (mine !== seq) return; // a newer filter answer is on its way
       clear(results).appendChild(table(data));
+      results.appendChild(pager({ id: "models-pager", offset, shown: data.length, count,
+        onPage: (next) => { offset = next; schedule(0); } }));
       countEl.textContent = `${count} model${count === 1 ? "" : "s"}`;
     } catch (err) {
       if (err.name === "AbortError" || mine !== seq) return;

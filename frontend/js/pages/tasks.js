@@ -5,6 +5,7 @@ import { api, asList, query } from "../api.js";
 import {
   clear, envSummary, errorBox, formatTime, formatWei, h, link, shortAddr, shortCid, statusPill,
 } from "../dom.js";
+import { PAGE_SIZE, offsetFromUrl, pager } from "../pager.js";
 
 export const POLL_MS = 2000;
 const STATUSES = ["", "open", "completed", "cancelled", "closed"];
@@ -55,13 +56,18 @@ export async function render(main, _params, ctx) {
   const body = h("div", { id: "tasks-results" });
   let tbody = null;
 
-  const params = () => ({ status: status.value, requester: mine.checked && me ? me : "" });
+  const pages = h("div", { id: "tasks-pages" });
+  let offset = offsetFromUrl();
+  const params = () => ({ status: status.value, requester: mine.checked && me ? me : "",
+    limit: PAGE_SIZE, offset: offset || "" });
   const refresh = async () => {
-    const urlParams = { status: status.value, mine: mine.checked ? "1" : "" };
+    const urlParams = { status: status.value, mine: mine.checked ? "1" : "", offset: offset || "" };
     history.replaceState(null, "", `/tasks${query(urlParams)}`);
     try {
-      const { data } = asList(await api(`/tasks${query(params())}`, { signal: ctx.signal }));
+      const { data, count } = asList(await api(`/tasks${query(params())}`, { signal: ctx.signal }));
       update(data);
+      clear(pages).appendChild(pager({ id: "tasks-pager", offset, shown: data.length, count,
+        onPage: (next) => { offset = next; tbody = null; refresh(); } }));
       updated.textContent = `live · updated ${new Date().toLocaleTimeString("en-GB")}`;
       updated.classList.remove("warn");
     } catch (err) {
@@ -94,7 +100,7 @@ export async function render(main, _params, ctx) {
     while (tbody.children.length > rows.length) tbody.lastChild.remove();
   }
 
-  const restart = () => { tbody = null; refresh(); };
+  const restart = () => { tbody = null; offset = 0; refresh(); };
   status.addEventListener("change", restart);
   mine.addEventListener("change", restart);
 
@@ -104,6 +110,6 @@ export async function render(main, _params, ctx) {
       h("label", {}, h("span", {}, "Status"), status),
       h("label", { class: "inline", title: me ? "" : "sign in to filter your own tasks" }, mine, h("span", {}, "Only mine")),
       link("/submit", "Submit a task →")),
-    body));
+    body, pages));
   await ctx.every(POLL_MS, refresh);
 }

@@ -3,6 +3,7 @@
 
 import { api, asList, query } from "../api.js";
 import { clear, errorBox, h, num, shortAddr, statusPill } from "../dom.js";
+import { PAGE_SIZE, offsetFromUrl, pager } from "../pager.js";
 
 const GPU = { 0: "none" };
 
@@ -41,37 +42,42 @@ export async function render(main, _params, ctx) {
   const status = h("select", { name: "status", value: p.get("status") || "" },
     ["", "active", "idle"].map((s) => h("option", { value: s }, s || "any status")));
 
+  let offset = offsetFromUrl();
   const load = async () => {
     const filters = { domain: domain.value.trim(), status: status.value };
-    history.replaceState(null, "", `/workers${query(filters)}`);
+    history.replaceState(null, "", `/workers${query({ ...filters, offset: offset || "" })}`);
     try {
-      const { data, count } = asList(await api(`/workers${query({ ...filters, sort: "reputation" })}`, { signal: ctx.signal }));
+      const { data, count } = asList(await api(
+        `/workers${query({ ...filters, sort: "reputation", limit: PAGE_SIZE, offset: offset || "" })}`, { signal: ctx.signal }));
       countEl.textContent = `${count} worker${count === 1 ? "" : "s"}`;
-      clear(results).appendChild(data.length ? table(rankWorkers(data))
+      clear(results).appendChild(data.length ? table(rankWorkers(data), offset)
         : h("p", { class: "empty", id: "no-workers" }, "No worker matches."));
+      results.appendChild(pager({ id: "workers-pager", offset, shown: data.length, count,
+        onPage: (next) => { offset = next; load(); } }));
     } catch (err) {
       if (err.name !== "AbortError") clear(results).appendChild(errorBox(err));
     }
   };
-  domain.addEventListener("change", load);
-  status.addEventListener("change", load);
+  const refilter = () => { offset = 0; load(); };
+  domain.addEventListener("change", refilter);
+  status.addEventListener("change", refilter);
 
   main.appendChild(h("section", {},
     h("div", { class: "page-head" }, h("h1", {}, "Workers leaderboard"), countEl),
     h("p", { class: "muted" }, "Reputation and rating come from the chain (reviews of submitted outcomes); "
       + "recruitment offers tasks to the best QoS first."),
-    h("form", { class: "filters", onsubmit: (e) => { e.preventDefault(); load(); } },
+    h("form", { class: "filters", onsubmit: (e) => { e.preventDefault(); refilter(); } },
       h("label", {}, h("span", {}, "Domain"), domain), h("label", {}, h("span", {}, "Status"), status)),
     results));
   await load();
 }
 
-function table(workers) {
+function table(workers, offset = 0) {
   return h("table", { class: "list", id: "workers-table" },
     h("thead", {}, h("tr", {}, ["Rank", "Worker", "Status", "Reputation", "Rating", "Capabilities", "Offers / accepted / completed"]
       .map((c) => h("th", {}, c)))),
     h("tbody", {}, workers.map((w, i) => h("tr", { "data-address": w.address },
-      h("td", { class: "num rank" }, String(i + 1)),
+      h("td", { class: "num rank" }, String(offset + i + 1)),
       h("td", {}, shortAddr(w.address)),
       h("td", {}, statusPill(w.status)),
       h("td", { class: "num reputation" }, num(w.reputation, 3)),
