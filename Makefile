@@ -33,8 +33,14 @@ tests/foundry/node_modules/.installed: tests/foundry/package-lock.json
 	cd tests/foundry && npm ci --no-audit --no-fund --loglevel=error
 	touch $@
 
+# The Swagger UI release /api/docs pins, served to its browser test in place of the CDN
+# (--ignore-scripts: its @scarf/scarf dependency would report the install over the network).
+tests/swagger-ui/node_modules/.installed: tests/swagger-ui/package-lock.json
+	cd tests/swagger-ui && npm ci --ignore-scripts --no-audit --no-fund --loglevel=error
+	touch $@
+
 setup: $(STAMP) contracts/node_modules/.installed tests/ipfs-node/node_modules/.installed \
-	tests/foundry/node_modules/.installed /usr/bin/chromium
+	tests/foundry/node_modules/.installed tests/swagger-ui/node_modules/.installed /usr/bin/chromium
 
 # Main job (embedded default, nothing else to install): start the whole platform on this
 # machine (chain with contracts, content store, broker, database, gateway, 3 worker daemons) and

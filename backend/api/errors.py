@@ -23,7 +23,7 @@ from sqlalchemy.exc import TimeoutError as PoolTimeout
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from backend import errors as domain
-from backend.api.security_headers import headers_for
+from backend.api.security_headers import security_headers
 from backend.errors import DomainError
 from backend.store import StoreUnavailable
 
@@ -284,5 +284,5 @@ def install_error_handlers(app: FastAPI) -> None:
         return JSONResponse(
             status_code=500,
             content={"detail": {"rule": "internal_error", "msg": "internal server error"}},
-            headers=headers_for(request.url.path),  # answered outside SecurityHeaders
+            headers=security_headers(),  # answered outside SecurityHeaders
         )

@@ -16,10 +16,11 @@ from collections.abc import AsyncIterator, Callable
 from contextlib import asynccontextmanager
 
 from fastapi import Depends, FastAPI, Request
-from fastapi.responses import JSONResponse
+from fastapi.responses import HTMLResponse, JSONResponse
 from starlette.concurrency import run_in_threadpool
 
 from backend.api.deps import require_metrics_token
+from backend.api.docs_page import docs_page
 from backend.api.errors import document_shared_responses, install_error_handlers
 from backend.api.frontend import mount_docs_redirects, mount_frontend
 from backend.api.limits import BodyLimits
@@ -115,9 +116,14 @@ def create_app(
         openapi_tags=OPENAPI_TAGS,
         lifespan=lifespan,
         openapi_url=f"{API_PREFIX}/openapi.json",
-        docs_url=f"{API_PREFIX}/docs",
+        docs_url=None,  # backend.api.docs_page: pinned, integrity-checked, under a policy
         redoc_url=None,
     )
+
+    @app.get(f"{API_PREFIX}/docs", include_in_schema=False)
+    def api_docs() -> HTMLResponse:
+        return docs_page(f"{API_PREFIX}/openapi.json", f"{app.title} - API docs")
+
     app.state.settings = settings
     app.state.engine = engine
     app.state.sessions = make_sessionmaker(engine)

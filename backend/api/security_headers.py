@@ -7,8 +7,8 @@ style or frame that the gateway itself did not serve, never guesses a download's
 ``.json`` someone uploaded is not run as HTML), sends no referrer to other sites and lets no
 other site frame the UI (clickjacking a wallet's signature).
 
-The API docs (``/api/docs``) are the exception for the policy: FastAPI's Swagger page loads its
-script from a CDN and starts it with an inline script, so it gets the other headers only.
+The API docs (``/api/docs``) set a policy of their own (``backend.api.docs_page``: Swagger UI's
+pinned CDN files and its inline starter script by hash); a response's own policy is kept.
 """
 
 from __future__ import annotations
@@ -38,16 +38,13 @@ HEADERS = (
 )
 """On every response, the docs included."""
 
-UNRESTRICTED = ("/api/docs",)
-"""Paths whose page needs a CDN script and an inline one (Swagger UI): no policy there."""
 
 
-def headers_for(path: str) -> dict[str, str]:
-    """The headers :class:`SecurityHeaders` adds on ``path``, for answers made outside it
-    (Starlette answers an unhandled exception's 500 outside every middleware)."""
+def security_headers() -> dict[str, str]:
+    """The headers :class:`SecurityHeaders` adds, for answers made outside it (Starlette
+    answers an unhandled exception's 500 outside every middleware)."""
     out = {k.decode(): v.decode() for k, v in HEADERS}
-    if not path.startswith(UNRESTRICTED):
-        out["content-security-policy"] = CONTENT_SECURITY_POLICY
+    out["content-security-policy"] = CONTENT_SECURITY_POLICY
     return out
 
 
@@ -62,10 +59,7 @@ class SecurityHeaders:
         if scope["type"] != "http":
             await self.app(scope, receive, send)
             return
-        path: str = scope.get("path", "")
-        extra = list(HEADERS)
-        if not path.startswith(UNRESTRICTED):
-            extra.append((b"content-security-policy", CONTENT_SECURITY_POLICY.encode()))
+        extra = [*HEADERS, (b"content-security-policy", CONTENT_SECURITY_POLICY.encode())]
 
         async def send_with_headers(message: Message) -> None:
             if message["type"] == "http.response.start":

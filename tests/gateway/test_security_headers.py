@@ -1,14 +1,18 @@
 """Browser security headers on every kind of gateway answer: the UI's pages and scripts, API
-JSON, errors raised by the layers in front of the routes, and the API docs (which get every
-header but the policy: Swagger UI runs an inline script from a CDN). The UI itself runs under
+JSON, errors raised by the layers in front of the routes, and the API docs (their own policy:
+Swagger UI's pinned CDN files and its inline starter script by hash). The UI itself runs under
 this policy in every browser test (``tests/frontend/fake_api.py``), which fails on any script,
 style or frame the policy blocks."""
 
 from __future__ import annotations
 
+import base64
+import hashlib
+
 import pytest
 from fastapi.testclient import TestClient
 
+from backend.api.docs_page import SWAGGER_CSS_SRI, SWAGGER_JS_SRI, SWAGGER_UI_VERSION
 from backend.api.security_headers import CONTENT_SECURITY_POLICY
 
 COMMON = {
@@ -44,11 +48,21 @@ def test_answers_of_the_layers_in_front_of_the_routes_carry_them(client: TestCli
     assert "content-security-policy" in r.headers
 
 
-def test_the_api_docs_get_every_header_but_the_policy(client: TestClient) -> None:
+def test_the_api_docs_have_their_own_policy_and_pinned_files(client: TestClient) -> None:
+    """Swagger UI's page: its files pinned to one release with integrity digests, its inline
+    starter script allowed by hash only, no framing (it had no policy and loaded whatever
+    swagger-ui-dist@5 the CDN served, on the origin that holds the UI's token)."""
     r = client.get("/api/docs")
     assert r.status_code == 200 and "swagger" in r.text.lower()
     _common(r)
-    assert "content-security-policy" not in r.headers
+    policy = dict(d.split(" ", 1) for d in r.headers["content-security-policy"].split("; "))
+    assert policy["frame-ancestors"] == "'none'" and policy["default-src"] == "'none'"
+    assert "unsafe" not in policy["script-src"]  # no inline script but the one hashed, no eval
+    inline = r.text.split("<script>", 1)[1].split("</script>", 1)[0]
+    digest = base64.b64encode(hashlib.sha256(inline.encode()).digest()).decode()
+    assert f"'sha256-{digest}'" in policy["script-src"]
+    assert f"swagger-ui-dist@{SWAGGER_UI_VERSION}/" in r.text and "@5/" not in r.text
+    assert f'integrity="{SWAGGER_JS_SRI}"' in r.text and f'integrity="{SWAGGER_CSS_SRI}"' in r.text
 
 
 def test_an_unexpected_error_carries_them_too(app) -> None:
