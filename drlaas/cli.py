@@ -10,6 +10,7 @@ from __future__ import annotations
 import typer
 
 from backend.chain.commands import app as chain_app
+from backend.chain.pyevm import restore_recursion_limit
 from drlaas.commands.client import model_app, requester_app, task_app, worker_app
 from drlaas.commands.client.models import fetch_model
 from drlaas.commands.deploy import app as deploy_app
@@ -20,6 +21,11 @@ from workers.mdrl.commands.cae import app as cae_app
 from workers.mdrl.commands.evaluate import eval_command
 from workers.mdrl.commands.train import train
 from workers.mdrl.commands.zoo import app as zoo_app
+
+# web3 (through py_ecc) raised the interpreter's recursion limit to 100,000 on import: a
+# deeply nested JSON card or config then overflowed the C stack (a segfault) where the parsers'
+# RecursionError guards expect the normal limit. Every command runs after this line.
+restore_recursion_limit()
 
 app = typer.Typer(
     name="drlaas",

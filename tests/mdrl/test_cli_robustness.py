@@ -480,3 +480,22 @@ def test_env_with_no_room_for_the_team_raises_layout_error():
 
     with pytest.raises(LayoutError, match=f"{MAX_LAYOUT_DRAWS} wall layouts"):
         TargetLocalizationEnv(EnvSpec(rows=5, cols=5, walls=(12, 12)), 4, 0)
+
+
+def test_the_drlaas_command_keeps_the_normal_recursion_limit(tmp_path) -> None:
+    """web3's py_ecc raises the recursion limit to 100,000 on import; with it, a card nested
+    100,000 deep crashed `drlaas eval` with a segfault (exit 139) instead of a usage error."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    repo = Path(__file__).resolve().parents[2]
+    (tmp_path / "model.json").write_text("[" * 100_000 + "]" * 100_000)
+    (tmp_path / "model.safetensors").write_bytes(b"")
+    done = subprocess.run(
+        [sys.executable, "-m", "drlaas", "eval", "--policy", str(tmp_path), "--episodes", "2"],
+        capture_output=True, text=True, timeout=120, cwd=repo,
+        env={**os.environ, "PYTHONPATH": str(repo)},
+    )
+    assert done.returncode == 2, (done.returncode, done.stderr[-500:])
+    assert "not JSON" in done.stderr and "Traceback" not in done.stderr
