@@ -311,5 +311,6 @@ def test_sign_in_messages_are_rate_limited_per_remote_client(
         assert 1 <= int(r.headers["Retry-After"]) <= 60
     with TestClient(app, client=("198.51.100.8", 4000)) as other:  # another client: its own
         assert other.post(f"{P}/auth/nonce", json=body).status_code == 200
-    with TestClient(app, client=("127.0.0.1", 4000)) as local:  # this machine: unmetered
+    local_url = "http://127.0.0.1:8000"  # a loopback peer whose Host is this machine too
+    with TestClient(app, client=("127.0.0.1", 4000), base_url=local_url) as local:  # unmetered
         assert all(local.post(f"{P}/auth/nonce", json=body).status_code == 200 for _ in range(5))

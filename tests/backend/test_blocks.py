@@ -86,7 +86,7 @@ def test_local_services_only_for_this_machine(settings: Settings) -> None:
     with TestClient(app) as remote:  # client host "testclient": not loopback
         r = remote.get("/api/local/services")
         assert r.status_code == 404 and r.json()["detail"]["rule"] == "not_local"
-    with TestClient(app, client=("127.0.0.1", 5000)) as local:
+    with TestClient(app, client=("127.0.0.1", 5000), base_url="http://127.0.0.1:8000") as local:
         doc = local.get("/api/local/services").json()
     assert doc == {
         "data_dir": str(settings.data_dir),

@@ -472,14 +472,21 @@ def test_walls_that_leave_no_room_are_a_usage_error_not_a_hang(args):
     overflowed the stack, before)."""
     r = CliRunner().invoke(make_app(), args)
     assert r.exit_code == 2, r.output
-    assert "wall layouts in a row" in r.output and "--walls" in r.output
+    assert "of the wall layouts" in r.output and "--walls" in r.output
 
 
-def test_env_with_no_room_for_the_team_raises_layout_error():
+def test_env_with_no_room_for_the_team_raises_layout_error(monkeypatch):
+    """Refused at construction by the share of layouts that fit (env.MIN_FIT_RATE); a reset
+    that still meets MAX_LAYOUT_DRAWS misfits in a row gives up naming the walls."""
+    from workers.mdrl import env as env_module
     from workers.mdrl.env import MAX_LAYOUT_DRAWS, LayoutError, TargetLocalizationEnv
 
-    with pytest.raises(LayoutError, match=f"{MAX_LAYOUT_DRAWS} wall layouts"):
-        TargetLocalizationEnv(EnvSpec(rows=5, cols=5, walls=(12, 12)), 4, 0)
+    cramped = EnvSpec(rows=5, cols=5, walls=(12, 12))
+    with pytest.raises(LayoutError, match="only 0% of the wall layouts"):
+        TargetLocalizationEnv(cramped, 4, 0)
+    monkeypatch.setattr(env_module, "MIN_FIT_RATE", 0.0)
+    with pytest.raises(LayoutError, match=f"{MAX_LAYOUT_DRAWS} wall layouts in a row"):
+        TargetLocalizationEnv(cramped, 4, 0)
 
 
 def test_the_drlaas_command_keeps_the_normal_recursion_limit(tmp_path) -> None:

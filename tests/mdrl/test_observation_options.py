@@ -338,3 +338,23 @@ def test_the_belief_of_a_view_of_some_envs_is_theirs():
     whole = BeliefFilter(spec).posterior(env)[rows]
     view = BeliefFilter(spec).posterior(EnvRows(env, rows))
     np.testing.assert_allclose(view, whole, rtol=1e-9, atol=1e-12)
+
+
+def test_walls_embedding_size_is_bounded_and_layouts_must_fit_often() -> None:
+    """Two config values that passed validation and failed later (audit of 2026-12-03): a
+    walls embedding of 10^6 (memory grew to 7-14 GB before any error), and walls that fit the
+    team in 5% of the layouts (a run died mid-way, its checkpoint unable to get past it)."""
+    import pytest
+
+    from workers.mdrl.env import LayoutError, TargetLocalizationEnv
+    from workers.mdrl.observations import MAX_WALLS_EMBEDDING, ObservationSpec
+    from workers.mdrl.spec import EnvSpec
+
+    with pytest.raises(ValueError, match="walls_embedding_size"):
+        ObservationSpec(walls_embedding="cae", walls_embedding_size=MAX_WALLS_EMBEDDING + 1)
+    assert ObservationSpec(walls_embedding="cae", walls_embedding_size=128).walls_embedding_size
+    crowded = EnvSpec(rows=8, cols=8, area_m=(800.0, 800.0), agents=3, walls=(21, 21))
+    with pytest.raises(LayoutError, match="of the wall layouts"):
+        TargetLocalizationEnv(crowded, 4, seed=3)
+    roomy = EnvSpec(rows=8, cols=8, area_m=(800.0, 800.0), agents=3, walls=(1, 3))
+    TargetLocalizationEnv(roomy, 4, seed=3)

@@ -152,3 +152,28 @@ def test_joint_actor_head_round_trip():
     assert jm.shape == (1, 1, 25) and jm.sum() == 20
     assert not jm[0, 0, 2 * 5 + 4]  # (agent 0: down, agent 1: right) is invalid
     np.testing.assert_array_equal(head.env_actions(np.array([[2 * 5 + 3]])), [[2, 3]])
+
+
+def test_invalid_actions_stay_masked_whatever_the_logits() -> None:
+    """Finite logits below the old fill (-1e8) made the masked actions the likely ones:
+    `drlaas eval` of a model with an actor bias of -1e10 picked invalid moves and crashed."""
+    from workers.mdrl.ppo import masked_log_probs
+    from workers.mdrl.rollout import GreedySelector, SampleSelector
+
+    mask = torch.tensor([[True, False, True, False], [False, False, False, True]])
+    for scale in (1.0, 1e10, -1e10):
+        logits = torch.tensor([[0.5, 9.0, -0.5, 3.0], [1.0, 2.0, 3.0, -4.0]]) * scale
+        logp = masked_log_probs(logits - (1e10 if scale < 0 else 0.0), mask)
+        assert torch.isfinite(logp).all()
+        assert torch.allclose(logp.exp().sum(-1), torch.ones(2))
+        assert (logp.exp()[~mask] == 0).all()
+        greedy = GreedySelector().select(logp, mask, None)
+        assert mask.gather(-1, greedy.unsqueeze(-1)).all()
+        sampled = SampleSelector(torch.Generator().manual_seed(0)).select(logp, mask, None)
+        assert mask.gather(-1, sampled.unsqueeze(-1)).all()
+        entropy = -(logp.exp() * logp).sum(-1)
+        assert torch.isfinite(entropy).all()
+    # an ordinary policy is unchanged: the log-softmax over the valid actions alone
+    logits = torch.tensor([[0.5, 9.0, -0.5, 3.0]])
+    expect = torch.log_softmax(torch.tensor([0.5, -0.5]), -1)
+    assert torch.allclose(masked_log_probs(logits, mask[:1])[0, [0, 2]], expect)

@@ -400,3 +400,36 @@ def test_train_command_init_from_a_model_that_does_not_fit_is_a_usage_error(tmp_
     assert res.exit_code == 0, res.output
     card = json.loads((tmp_path / "c" / "model" / "model.json").read_text())
     assert card["training"]["init_from"]["env_steps"] == 64
+
+
+def test_a_finished_run_resumed_keeps_its_card(tmp_path):
+    """A kill after the last checkpoint and before (or while) the model was written: the
+    resumed run has no update left to run, and its card lost every training figure but the
+    evaluation (17 of 20 metrics; train_success null)."""
+    import json
+
+    obs = ObservationSpec(kind="odmtl")
+    done = Trainer(SMALL_ENV, obs, SMALL_PPO, small_run(updates=2), out=tmp_path)
+    final = done.train()
+    card = json.loads((tmp_path / "model" / "model.json").read_text())
+    again = Trainer.resume(tmp_path)
+    assert again.update_idx == 2
+    row = again.train()
+    assert row == final or json.dumps(row, sort_keys=True) == json.dumps(final, sort_keys=True)
+    resumed_card = json.loads((tmp_path / "model" / "model.json").read_text())
+    assert resumed_card["metrics"] == card["metrics"]
+    assert resumed_card["metrics"]["success"] == final["success"]
+
+
+def test_a_run_killed_between_the_checkpoint_renames_resumes(tmp_path):
+    """atomic_dir moves the last checkpoint to checkpoint.old before renaming the new one in:
+    a kill between the two left only checkpoint.old, and --resume said "cannot resume"."""
+    obs = ObservationSpec(kind="odmtl")
+    Trainer(SMALL_ENV, obs, SMALL_PPO, small_run(updates=2), out=tmp_path).train()
+    (tmp_path / "checkpoint").rename(tmp_path / "checkpoint.old")
+    resumed = Trainer.resume(tmp_path, run_overrides={"total_steps": 3 * SMALL_PPO.batch_steps})
+    assert resumed.update_idx == 2
+    assert (tmp_path / "checkpoint" / "state.json").is_file()
+    assert not (tmp_path / "checkpoint.old").exists()
+    resumed.train()
+    assert resumed.update_idx == 3

@@ -645,7 +645,7 @@ def test_walls_that_leave_the_team_no_room_are_declined_not_accepted(env, tmp_pa
     cramped = {**TINY_SPEC, "env": {"rows": 4, "cols": 4, "agents": 8, "walls": [4, 4]}}
     task_id, offered, _ = post_task(p, store, actors.requester, spec=cramped)
     out = handler_for(p, offered[0], store, tmp_path).handle(task_id, offered[0])
-    assert out["status"] == "declined" and "wall layouts in a row" in out["reason"], out
+    assert out["status"] == "declined" and "of the wall layouts" in out["reason"], out
     assert p.tmc.offer(task_id, offered[0])["state"] == OfferState.DECLINED
 
 

@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import Any, cast
 
 from workers.daemon.experts import ExpertFetchError, load_job_experts, load_walls_encoder
+from workers.mdrl.checkpoint import restore_swapped
 from workers.mdrl.curve import attach_curve
 from workers.mdrl.train import RunConfig, Trainer
 from workers.mdrl.trainingspec import TrainingSpec
@@ -135,16 +136,6 @@ def has_checkpoint(job_dir: str | Path) -> bool:
     return (run_dir(job_dir) / "checkpoint" / "state.json").is_file()
 
 
-def restore_swapped_checkpoint(job_dir: str | Path) -> None:
-    """A process killed between the two renames of ``checkpoint.atomic_dir`` leaves the last
-    checkpoint, whole, as ``checkpoint.old`` and no ``checkpoint``: put it back."""
-    out = run_dir(job_dir)
-    old = out / "checkpoint.old"
-    if not (out / "checkpoint").exists() and (old / "state.json").is_file():
-        os.replace(old, out / "checkpoint")
-        log.warning("%s: resuming from checkpoint.old (killed while saving the next one)", out)
-
-
 def set_checkpoint_aside(job_dir: str | Path, exc: BaseException) -> Path:
     """Move an unreadable checkpoint to ``checkpoint.unreadable-<time>`` (logged) so the job
     trains from the start instead of failing: a power cut can damage a checkpoint, and a job
@@ -240,7 +231,8 @@ def make_trainer(
         checkpoint_every=checkpoint_every,
         minutes=budget_minutes,
     )
-    restore_swapped_checkpoint(job_dir)
+    if restore_swapped(run_dir(job_dir) / "checkpoint"):  # killed between atomic_dir's renames
+        log.warning("%s: resuming from checkpoint.old", run_dir(job_dir))
     trainer: JobTrainer | None = None
     if has_checkpoint(job_dir):  # the spec's run config, also over a checkpoint's older one
         try:

@@ -136,6 +136,18 @@ def fsync_tree(root: Path) -> None:
         _fsync(Path(dirpath))
 
 
+def restore_swapped(path: str | Path) -> bool:
+    """Put back ``<path>.old`` as ``path`` when a process was killed between the two renames
+    of :func:`atomic_dir` (the last whole directory is then only the ``.old`` one, which no
+    reader looked at: "cannot resume"). Returns whether it did."""
+    path = Path(path)
+    old = path.with_name(path.name + ".old")
+    if path.exists() or not (old / "state.json").is_file():
+        return False
+    os.replace(old, path)
+    return True
+
+
 @contextmanager
 def atomic_dir(path: str | Path) -> Iterator[Path]:
     """Yield a fresh temp dir beside ``path``; on success swap it in for ``path`` (the old one

@@ -31,6 +31,13 @@ HISTORY = 16
 #: Layout draws in a row that may leave a team no room before reset gives up: a valid spec
 #: needs a handful at most, one whose walls can enclose no area large enough never succeeds.
 MAX_LAYOUT_DRAWS = 100
+#: Layouts drawn once per env construction to measure how often the spec's walls leave the
+#: team room (a fixed stream of its own: the episodes' layout stream is not touched).
+FIT_PROBE_DRAWS = 256
+#: Least share of fitting layouts a spec must have: at 20% a reset fails 100 draws in a row
+#: with probability 0.8^100 = 2e-10; a spec fitting 3.6% of the time passed one reset and then
+#: failed mid-run (2.6% of its resets), its checkpoint unable to get past the failure.
+MIN_FIT_RATE = 0.2
 
 
 class LayoutError(ValueError):
@@ -124,8 +131,29 @@ class TargetLocalizationEnv:
             length = np.hypot(dy, dx)
             with np.errstate(divide="ignore", invalid="ignore"):
                 self._slant_y, self._slant_x = length / np.abs(dy), length / np.abs(dx)
+        self._check_fit_rate()
         self.seed(seed)
         self.reset()
+
+    def _check_fit_rate(self) -> None:
+        """Refuse a spec whose walls leave the team no room too often (LayoutError): decided
+        once, here, not by a reset that gives up in the middle of a run."""
+        spec = self.spec
+        if not spec.walls[1]:
+            return
+        rng = np.random.Generator(np.random.PCG64(FIT_PROBE_DRAWS))
+        walls = self.draw_walls(spec, rng, FIT_PROBE_DRAWS)
+        keys = rng.random((FIT_PROBE_DRAWS, spec.num_cells))
+        keys[walls] = 2.0
+        reachable = self._bfs(keys.argmin(axis=1), walls) < UNREACHABLE
+        rate = float((reachable.sum(1) >= spec.agents + 1).mean())
+        if rate < MIN_FIT_RATE:
+            raise LayoutError(
+                f"only {rate:.0%} of the wall layouts this spec allows leave an area where "
+                f"{spec.agents} agents and a target fit ({spec.rows}x{spec.cols}, walls "
+                f"{spec.walls}, wall_length {spec.wall_length}; at least {MIN_FIT_RATE:.0%} must): "
+                "use fewer or shorter walls or a larger grid"
+            )
 
     # ------------------------------------------------------------------ seeding and state
     def seed(self, seed: int | None) -> None:

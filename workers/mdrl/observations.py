@@ -90,6 +90,12 @@ ROUTE_CELLS = 4
 averages over: one BFS each per env and step (~20-30 us each at 30 x 30 here)."""
 
 
+MAX_WALLS_EMBEDDING = 1024
+"""Largest walls embedding d an observation takes (the thesis: 128; a CAE bundle holds at most
+cae.MAX_CAE_EMBEDDING = 1024): the actor and critic
+inputs grow with d times the grid, and an unbounded d in a config grew memory to 7-14 GB
+before any error (audit of 2026-12-03)."""
+
 @dataclass(frozen=True)
 class ObservationSpec:
     """Which observation model to build (Table 3.1 columns) and its hyperparameters."""
@@ -167,9 +173,11 @@ class ObservationSpec:
             raise ValueError("ObservationSpec.route needs kind='odmtl' and belief=true (it is "
                              "the belief's walking distance, in the ODMTL windows)")
         size = self.walls_embedding_size
-        if isinstance(size, bool) or not isinstance(size, (int, np.integer)) or size < 1:
+        if (isinstance(size, bool) or not isinstance(size, (int, np.integer))
+                or not 1 <= size <= MAX_WALLS_EMBEDDING):
             raise ValueError(
-                f"ObservationSpec.walls_embedding_size must be a positive int, got {size!r}"
+                f"ObservationSpec.walls_embedding_size must be an int in 1..{MAX_WALLS_EMBEDDING}"
+                f", got {size!r}"
             )
 
     def to_dict(self) -> dict[str, Any]:

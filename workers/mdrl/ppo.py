@@ -235,9 +235,17 @@ def ppo_losses(
     return PPOLosses(loss, pg_loss, v_loss, ent, approx_kl, clipfrac)
 
 
+MASKED_LOGP = -1e8
+"""Log-probability given to an invalid action (its probability is exactly 0 in float32)."""
+
+
 def masked_log_probs(logits: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-    """Log-softmax over valid actions; invalid ones get ~-1e8 (mask on logits, never resample)."""
-    return torch.log_softmax(torch.where(mask, logits, torch.full_like(logits, -1e8)), dim=-1)
+    """Log-softmax over the valid actions only; invalid ones get MASKED_LOGP (-1e8: exp is 0,
+    and 0 * -1e8 keeps the entropy finite). The softmax runs with -inf at the invalid actions:
+    a finite fill was no mask for a policy whose valid logits all lie below it (finite weights
+    of -1e10 made `drlaas eval` pick invalid moves), and it is the same for every other one."""
+    logp = torch.log_softmax(logits.masked_fill(~mask, float("-inf")), dim=-1)
+    return torch.where(mask, logp, torch.full_like(logp, MASKED_LOGP))
 
 
 def entropy_from_log_probs(logp_all: torch.Tensor) -> torch.Tensor:

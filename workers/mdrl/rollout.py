@@ -81,7 +81,7 @@ class SampleSelector:
     def select(self, logp: torch.Tensor, mask: torch.Tensor, env: Any) -> torch.Tensor:
         u = torch.rand(logp.shape, generator=self.generator).clamp_(1e-12, 1.0 - 1e-7)
         gumbel = -torch.log(-torch.log(u))
-        return torch.where(mask, logp + gumbel, torch.full_like(logp, -1e9)).argmax(-1)
+        return (logp + gumbel).masked_fill(~mask, float("-inf")).argmax(-1)
 
 
 class GreedySelector:
@@ -91,7 +91,7 @@ class GreedySelector:
         pass
 
     def select(self, logp: torch.Tensor, mask: torch.Tensor, env: Any) -> torch.Tensor:
-        return torch.where(mask, logp, torch.full_like(logp, -1e9)).argmax(-1)
+        return logp.masked_fill(~mask, float("-inf")).argmax(-1)
 
 
 def policy_step(agent: Any, actor_obs: torch.Tensor, mask: torch.Tensor,

@@ -13,6 +13,7 @@ import copy
 import csv
 import dataclasses
 import json
+import logging
 import math
 import numbers
 import time
@@ -39,6 +40,8 @@ from workers.mdrl.rollout import (
     step_weights,
 )
 from workers.mdrl.spec import EnvSpec
+
+log = logging.getLogger(__name__)
 
 
 @dataclass
@@ -619,7 +622,11 @@ class Trainer:
                 "counters": {"update": self.update_idx, "global_step": self.global_step,
                              "episodes": self.episodes, "elapsed": self.elapsed},
                 "last_eval": self.last_eval, "best": self.best, "optimizer": opt_meta,
-                "env_state": env_meta, "init_from": self.init_info}
+                "env_state": env_meta, "init_from": self.init_info,
+                # the card's training figures: a run resumed after its last checkpoint runs
+                # no update, and its card lost 17 of its 20 metrics
+                "last_metrics": {k: v.item() if isinstance(v, np.generic) else v
+                                 for k, v in self.last_metrics.items()}}
         extras = self.checkpoint_extras()
         if extras:  # only that kind of trainer can continue it
             meta |= {**extras, "extras_by": type(self).__name__}
@@ -661,6 +668,8 @@ class Trainer:
         self.update_idx, self.global_step = c["update"], c["global_step"]
         self.episodes, self.elapsed = c["episodes"], c["elapsed"]
         self.last_eval = meta.get("last_eval", {})
+        last = meta.get("last_metrics")
+        self.last_metrics = dict(last) if isinstance(last, dict) else {}
         self.best = meta.get("best")
         best = {k[len("best/"):]: v for k, v in tensors.items() if k.startswith("best/")}
         self._best_weights = best or None
@@ -681,6 +690,9 @@ class Trainer:
         """Rebuild a trainer from a checkpoint dir (or a run dir holding `checkpoint/`).
         ``build``: what a subclass's constructor needs besides the configs (e.g. experts)."""
         path = Path(path)
+        if path.name != "checkpoint" and ckpt.restore_swapped(path / "checkpoint"):
+            log.warning("%s: resuming from checkpoint.old (killed while saving the next one)",
+                        path)
         if (path / "checkpoint").is_dir():
             path = path / "checkpoint"
         tensors, env_arrays, meta = ckpt.load_checkpoint(path)
