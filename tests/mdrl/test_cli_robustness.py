@@ -506,3 +506,24 @@ def test_the_drlaas_command_keeps_the_normal_recursion_limit(tmp_path) -> None:
     )
     assert done.returncode == 2, (done.returncode, done.stderr[-500:])
     assert "not JSON" in done.stderr and "Traceback" not in done.stderr
+
+
+@pytest.mark.parametrize("field,value", [
+    ("area_m", (1e300, 1e300)),  # OverflowError traceback in Eq. 6's distances
+    ("idle_limit", 10**30),  # numba int64 overflow at the first reset
+    ("max_steps", 2**40),
+    ("wall_mu_per_cm", -1.0),  # the message named neither of the two attenuation fields
+])
+def test_env_values_that_failed_later_are_refused_by_name(field, value):
+    with pytest.raises(ValueError, match=field):
+        EnvSpec(**{field: value})
+
+
+@pytest.mark.parametrize("value", ["no", None, 1e30, 0])
+def test_run_switches_take_booleans_only(value):
+    """run.tensorboard "no" was read as true."""
+    from workers.mdrl.train import RunConfigError
+
+    for name in ("tensorboard", "progress"):
+        with pytest.raises(RunConfigError, match=name):
+            RunConfig(**{name: value})

@@ -206,3 +206,18 @@ def test_eval_model_directory_defaults_to_its_card_and_rejects_what_it_cannot_ta
     assert res.exit_code == 2 and "--agents" in res.output
     res = runner.invoke(app, ["eval", "--policy", str(odmtl), "--episodes", "4", "--moves", "8"])
     assert res.exit_code == 2 and "--moves" in res.output
+
+
+def test_the_paired_bootstrap_runs_in_chunks_with_the_same_draws(monkeypatch) -> None:
+    """The bootstrap held (2000, n) indices at once (3.7 GB at 100k episodes); in chunks of
+    rows it draws the same stream, so the intervals are the same, to the bit."""
+    import numpy as np
+
+    import workers.mdrl.evaluate as ev
+
+    num = np.random.default_rng(1).random(3001)
+    den = np.random.default_rng(2).random(3001) + 0.5
+    whole = ev._ratio_ci(num, den, np.random.default_rng(7), 500)
+    for chunk in (1, 3001 * 7, 10**6):
+        monkeypatch.setattr(ev, "BOOTSTRAP_CHUNK", chunk)
+        assert ev._ratio_ci(num, den, np.random.default_rng(7), 500) == whole

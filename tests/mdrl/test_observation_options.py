@@ -358,3 +358,23 @@ def test_walls_embedding_size_is_bounded_and_layouts_must_fit_often() -> None:
         TargetLocalizationEnv(crowded, 4, seed=3)
     roomy = EnvSpec(rows=8, cols=8, area_m=(800.0, 800.0), agents=3, walls=(1, 3))
     TargetLocalizationEnv(roomy, 4, seed=3)
+
+
+def test_a_fixed_scale_whose_unit_is_zero_is_refused() -> None:
+    """intensity 1e-40 made the fixed scale's unit a float32 zero: NaN / inf observations, and
+    training stopped with "diverged: lower the learning rate", naming the wrong cause."""
+    import numpy as np
+    import pytest
+
+    from workers.mdrl.env import TargetLocalizationEnv
+    from workers.mdrl.observations import ObservationSpec, make_observer
+    from workers.mdrl.spec import EnvSpec, IntensitySpec
+
+    fixed = ObservationSpec(kind="odmtl", window=3, scale="fixed")
+    faint = EnvSpec(intensity=IntensitySpec("fixed", (1e-40,)), readings="expected")
+    with pytest.raises(ValueError, match="fixed readings scale"):
+        make_observer(faint, fixed)
+    weak = EnvSpec(intensity=IntensitySpec("fixed", (1e-5,)), readings="expected")
+    env = TargetLocalizationEnv(weak, 2, seed=0)
+    actor, critic = make_observer(weak, fixed).observe(env)[:2]
+    assert np.isfinite(actor).all() and np.isfinite(critic).all()

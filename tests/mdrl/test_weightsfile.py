@@ -56,3 +56,24 @@ def test_pickles_archives_and_broken_files_are_refused_by_name(tmp_path):
     with pytest.raises(WeightsFileError, match="empty") as err:
         check_weights_file(ok)
     assert err.value.rule == "weights_empty"
+
+
+def test_load_weights_checks_size_and_header_before_reading(tmp_path) -> None:
+    """`drlaas eval` read a 256 MB weights file whole (1.25 GB of RAM) before finding it was
+    not the model's; a pickle got past to the safetensors parser's own message."""
+    import pytest
+
+    from workers.mdrl.modelio import load_weights
+    from workers.mdrl.weightsfile import MAX_WEIGHTS_BYTES
+
+    big = tmp_path / "big"
+    big.mkdir()
+    with (big / "model.safetensors").open("wb") as f:  # sparse: nothing is written
+        f.truncate(MAX_WEIGHTS_BYTES + 1)
+    with pytest.raises(ValueError, match="more than a model's weights may be"):
+        load_weights(big)
+    pickled = tmp_path / "pickled"
+    pickled.mkdir()
+    (pickled / "model.safetensors").write_bytes(b"\x80\x04\x95" + b"\x00" * 64)
+    with pytest.raises(ValueError, match="pickle"):
+        load_weights(pickled)

@@ -25,6 +25,7 @@ from safetensors import SafetensorError
 from safetensors.torch import load_file, save_file
 
 from workers.mdrl.rollout import GreedySelector, PolicyHead, policy_step
+from workers.mdrl.weightsfile import MAX_WEIGHTS_BYTES, WeightsFileError, check_weights_file
 
 MAX_CARD_BYTES = 1 << 20
 """Bound on a card read here (``backend.store.bundle.MAX_CARD_BYTES``, the bound wherever one
@@ -231,6 +232,14 @@ def load_weights(path: str | Path) -> dict[str, torch.Tensor]:
     when the file is not readable safetensors or a weight is NaN or infinite (a diverged
     run's model acts on garbage)."""
     file = model_file(path, WEIGHTS)
+    size = file.stat().st_size
+    if size > MAX_WEIGHTS_BYTES:  # read whole before the key check: 256 MB cost 1.25 GB of RAM
+        raise ValueError(f"{file}: {size} bytes, more than a model's weights may be "
+                         f"({MAX_WEIGHTS_BYTES} bytes)")
+    try:
+        check_weights_file(file)  # the header alone: a pickle, a bad dtype, an empty tensor
+    except WeightsFileError as exc:
+        raise ValueError(f"{file}: not a readable safetensors file ({exc})") from None
     try:
         tensors = load_file(str(file))
     except SafetensorError as exc:

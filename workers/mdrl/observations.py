@@ -475,7 +475,15 @@ class Observer:
         self._kept: dict[int, _Kept] = {}
         self._belief = BeliefFilter(env_spec) if obs_spec.belief else None
         if obs_spec.scale == "fixed":
-            self._log_ref = np.float32(np.log1p(reference_count(env_spec)))
+            ref = reference_count(env_spec)
+            self._log_ref = np.float32(np.log1p(ref))
+            if not self._log_ref >= MIN_LOG_REFERENCE:  # the unit of every reading map
+                raise ValueError(
+                    f"the fixed readings scale's unit (the expected count one cell from the "
+                    f"strongest source, Eq. 6) is {ref:.3g} here: readings would divide by "
+                    f"~0 (NaN / inf inputs). Raise env.intensity, env.dwell_min or "
+                    f"env.detector_area_cm2, or use observation.scale 'max'"
+                )
 
     def num_actor_outputs(self, num_actions_per_agent: int) -> int:
         """A for the shared CLDE actor (DMTL/ODMTL), A**N for the joint CMTL actor."""
@@ -870,6 +878,12 @@ def _raise_max(top: np.ndarray, maps: np.ndarray, old: np.ndarray, new: np.ndarr
     np.maximum(top, new.max(1), out=top)
     if len(fell):
         top[fell] = maps[fell].max(1)
+
+
+MIN_LOG_REFERENCE = 1e-30
+"""Least log1p(reference count) the fixed scale divides by: far below any physical setting
+(the thesis' is ~1e-1), far above float32's subnormal floor where the division made NaN and inf
+observations (intensity 1e-40; audit of 2026-12-03)."""
 
 
 def reference_count(env_spec: Any) -> float:

@@ -39,6 +39,11 @@ ACTION_NAMES = {
 }
 
 
+MAX_STEP_COUNT = 2**31 - 1
+"""Largest max_steps / idle_limit: the env's kernels count steps in int64 and compare them."""
+MAX_AREA_M = 1e7
+"""Largest side of the search area (10,000 km): 1e300 m overflowed Eq. 6's distances."""
+
 @dataclass(frozen=True)
 class IntensitySpec:
     """Source intensity in photons/min: one value, a set to draw from, or a uniform range."""
@@ -174,12 +179,12 @@ class EnvSpec:
             )
         if self.readings not in ("poisson", "expected"):
             problems.append(f"readings must be 'poisson' or 'expected', got {self.readings!r}")
-        if self.max_steps < 1:
-            problems.append(f"max_steps must be >= 1, got {self.max_steps}")
-        if self.idle_limit < 1:
-            problems.append(f"idle_limit must be >= 1, got {self.idle_limit}")
-        if min(self.area_m) <= 0:
-            problems.append(f"area_m must be positive, got {self.area_m}")
+        if not 1 <= self.max_steps <= MAX_STEP_COUNT:
+            problems.append(f"max_steps must be in 1..{MAX_STEP_COUNT}, got {self.max_steps}")
+        if not 1 <= self.idle_limit <= MAX_STEP_COUNT:  # int64 kernels: 1e30 overflowed numba
+            problems.append(f"idle_limit must be in 1..{MAX_STEP_COUNT}, got {self.idle_limit}")
+        if min(self.area_m) <= 0 or max(self.area_m) > MAX_AREA_M:
+            problems.append(f"area_m must be in (0, {MAX_AREA_M:g}] m, got {self.area_m}")
         elif self.rows >= 2 and self.cols >= 2 and self.detector_area_cm2 > 0 and \
                 self.dwell_min > 0 and self.peak_expected_count > MAX_EXPECTED_COUNT:
             problems.append(
@@ -191,8 +196,9 @@ class EnvSpec:
         for name in ("detector_area_cm2", "dwell_min"):
             if getattr(self, name) <= 0:
                 problems.append(f"{name} must be positive")
-        if self.wall_mu_per_cm < 0 or self.wall_thickness_cm < 0:
-            problems.append("wall attenuation parameters must be non-negative")
+        for name in ("wall_mu_per_cm", "wall_thickness_cm"):
+            if getattr(self, name) < 0:
+                problems.append(f"{name} must be non-negative, got {getattr(self, name)}")
         if problems:
             raise ValueError("; ".join(problems))
 

@@ -95,6 +95,10 @@ class RunConfig:
             if v < lo or (hi is not None and v > hi):
                 bound = f">= {lo}" if hi is None else f"in [{lo}, {hi}]"
                 raise RunConfigError(name, f"RunConfig.{name} must be {bound}, got {v!r}")
+        for name in ("tensorboard", "progress"):  # "no" or 1e30 read as true
+            if not isinstance(getattr(self, name), bool):
+                raise RunConfigError(name, f"RunConfig.{name} must be true or false, got "
+                                     f"{getattr(self, name)!r}")
         m = self.minutes
         if m is not None and (isinstance(m, bool) or not isinstance(m, numbers.Real)
                               or not math.isfinite(m) or m <= 0):
