@@ -189,6 +189,10 @@ class Settings(BaseSettings):
     """Requests reading the content store at once over all clients; beyond that 503
     ``store_reads_busy`` + Retry-After. Keep it below the 40 threads sync routes share: a read
     of absent content waits for the node's find timeout in one of them."""
+    rpc_requests_per_client: int = Field(default=2, ge=1, le=1000)
+    """Embedded ``/rpc``: HTTP requests one remote client may have running at once (each may
+    hold the chain lock, a batch up to 50 times); beyond that 429 ``rpc_busy_per_client`` +
+    Retry-After. This machine's own workers and CLI are not bounded."""
     max_store_reads_per_client: int = Field(default=8, ge=1, le=1000)
     """Requests reading the content store at once for one client (IP address); beyond that
     429 ``store_reads_per_client`` + Retry-After."""

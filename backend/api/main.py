@@ -140,6 +140,9 @@ def create_app(
         settings.max_store_reads, settings.max_store_reads_per_client
     )
     app.state.download_pool = ClientSlots(settings.max_downloads, settings.max_downloads_per_client)
+    # /rpc requests of remote clients at once (four parallel 500-block log reads held the lock
+    # 37 s in the audit); the overall bound is the load shedder's
+    app.state.rpc_slots = ClientSlots(10_000, settings.rpc_requests_per_client)
     app.state.nonce_budget = GasBudget(settings.auth_nonces_per_minute)  # one per sign-in msg
     install_error_handlers(app)
     # added later = further out. A request counts as in flight once its body is read: bodies

@@ -218,3 +218,29 @@ def test_a_web_page_in_a_browser_here_is_metered(service: ChainService, tmp_path
             before = budget.available(CROSS_SITE)
             assert "result" in c.post("/rpc", json=body, headers=headers).json()
             assert budget.available(CROSS_SITE) == before - 16 * HEADER_GAS
+
+
+def test_a_remote_client_runs_a_bounded_number_of_requests_at_once(
+    service: ChainService, tmp_path: Any
+) -> None:
+    """Each request may hold the chain lock (a batch up to 50 times): four parallel log reads
+    of one client delayed everyone's by 37 s in the audit. Beyond the bound: 429 at once."""
+    settings = Settings(data_dir=tmp_path, rpc_requests_per_client=2)
+    app = create_app(settings, chain=service, indexer_interval=None)
+    body = {"jsonrpc": "2.0", "id": 1, "method": "eth_blockNumber", "params": []}
+    with TestClient(app, client=("198.51.100.7", 4000)) as c:
+        slots = c.app.state.rpc_slots
+        assert c.post("/rpc", json=body).status_code == 200
+        assert slots.by_client == {}  # given back after the answer
+        for _ in range(2):  # two requests of this client still running
+            assert slots.take("198.51.100.7") is None
+        r = c.post("/rpc", json=body)
+        assert r.status_code == 429 and r.json()["detail"]["rule"] == "rpc_busy_per_client"
+        assert r.headers["Retry-After"] == "1"
+        slots.release("198.51.100.7")
+        assert c.post("/rpc", json=body).json()["result"].startswith("0x")
+    local = {"client": ("127.0.0.1", 4000), "base_url": "http://127.0.0.1:8000"}
+    with TestClient(app, **local) as c:  # this machine's workers and CLI: not bounded
+        for _ in range(3):
+            assert c.app.state.rpc_slots.take("127.0.0.1") in (None, "client")
+        assert c.post("/rpc", json=body).status_code == 200

@@ -527,3 +527,24 @@ def test_run_switches_take_booleans_only(value):
     for name in ("tensorboard", "progress"):
         with pytest.raises(RunConfigError, match=name):
             RunConfig(**{name: value})
+
+
+@pytest.mark.parametrize("field", ["num_envs", "horizon"])
+def test_ppo_sizes_are_bounded_by_name(field):
+    """1e12 environments or steps per update ended in an allocation error naming no field."""
+    with pytest.raises(ValueError, match=field):
+        PPOConfig(**{field: 10**12})
+
+
+def test_integer_weights_are_refused(tmp_path):
+    """Integer or boolean weights were cast to float and loaded without a word."""
+    import torch
+
+    from workers.mdrl.modelio import load_weights
+
+    model = tmp_path / "m"
+    model.mkdir()
+    save_file({"actor.w": torch.ones(3, dtype=torch.int64), "critic.b": torch.zeros(2)},
+              str(model / "model.safetensors"))
+    with pytest.raises(ValueError, match="floating point"):
+        load_weights(model)

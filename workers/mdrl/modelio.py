@@ -244,6 +244,10 @@ def load_weights(path: str | Path) -> dict[str, torch.Tensor]:
         tensors = load_file(str(file))
     except SafetensorError as exc:
         raise ValueError(f"{file}: not a readable safetensors file ({exc})") from None
+    ints = sorted(k for k, v in tensors.items() if not v.is_floating_point())
+    if ints:  # every weight of a policy or its walls encoder is floating point
+        raise ValueError(f"{file}: weights must be floating point; {len(ints)} tensor(s) are "
+                         f"{tensors[ints[0]].dtype}, e.g. {ints[0]!r}")
     broken = sorted(k for k, v in tensors.items()
                     if v.is_floating_point() and not bool(torch.isfinite(v).all()))
     if broken:

@@ -13,6 +13,12 @@ from typing import Any, NamedTuple
 
 import torch
 
+MAX_HORIZON = 1 << 22
+"""Largest horizon (env steps per update; the presets use at most 8,192): a config's 1e12 ended
+in an allocation error naming no field."""
+MAX_NUM_ENVS = 1 << 14
+"""Largest number of environments stepped together (the presets use at most 128)."""
+
 
 @dataclass
 class PPOConfig:
@@ -60,10 +66,10 @@ class PPOConfig:
             "clip_coef": (self.clip_coef > 0, "> 0"),
             "gamma": (0.0 <= self.gamma <= 1.0, "in [0, 1]"),
             "gae_lambda": (0.0 <= self.gae_lambda <= 1.0, "in [0, 1]"),
-            "horizon": (self.horizon >= 1, ">= 1"),
+            "horizon": (1 <= self.horizon <= MAX_HORIZON, f"in 1..{MAX_HORIZON}"),
             "update_epochs": (self.update_epochs >= 1, ">= 1"),
             "num_minibatches": (self.num_minibatches >= 1, ">= 1"),
-            "num_envs": (self.num_envs >= 1, ">= 1"),
+            "num_envs": (1 <= self.num_envs <= MAX_NUM_ENVS, f"in 1..{MAX_NUM_ENVS}"),
             "max_grad_norm": (self.max_grad_norm > 0, "> 0"),
             "reward_scale": (self.reward_scale > 0, "> 0"),
             "adam_eps": (self.adam_eps > 0, "> 0"),

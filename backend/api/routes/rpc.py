@@ -16,8 +16,9 @@ from starlette.concurrency import run_in_threadpool
 
 from backend.api.deps import LOOPBACK, ChainDep, CurrentUser, is_loopback
 from backend.api.errors import RAW_BODY, RuleError, rule_responses
+from backend.api.slots import ClientSlots
 from backend.services.faucet import Faucet
-from backend.services.rpc import INVALID_REQUEST, MAX_BATCH, METHODS, EmbeddedRpc
+from backend.services.rpc import INVALID_REQUEST, MAX_BATCH, METHODS, UNMETERED, EmbeddedRpc
 
 router = APIRouter(tags=["rpc"])
 
@@ -84,7 +85,7 @@ _RESPONSE = {
                 }
             },
         },
-        **rule_responses(404, 415),
+        **rule_responses(404, 415, 429),
     },
     openapi_extra={
         RAW_BODY: True,  # parse errors are JSON-RPC answers (-32700), not FastAPI's 400
@@ -136,7 +137,17 @@ async def rpc(request: Request) -> JSONResponse:
     client = request.client.host if request.client else "unknown"
     if client in LOOPBACK and not is_loopback(request):
         client = CROSS_SITE  # a web page in a browser here: metered like a remote client
-    return JSONResponse(await run_in_threadpool(server.handle, payload, client))
+    if client in UNMETERED:
+        return JSONResponse(await run_in_threadpool(server.handle, payload, client))
+    slots: ClientSlots = request.app.state.rpc_slots
+    if slots.take(client) is not None:
+        raise RuleError(429, "rpc_busy_per_client", f"at most {slots.per_client} JSON-RPC "
+                        "requests at once per client; wait for one to finish",
+                        headers={"Retry-After": "1"})
+    try:
+        return JSONResponse(await run_in_threadpool(server.handle, payload, client))
+    finally:
+        slots.release(client)
 
 
 contracts_router = APIRouter(prefix="/chain", tags=["rpc"])
