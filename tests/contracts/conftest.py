@@ -4,6 +4,7 @@ installed (contracts/node_modules, `npm ci` in contracts/)."""
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import shutil
 import socket
@@ -92,9 +93,10 @@ def anvil_binary() -> str | None:
     return shutil.which("anvil")
 
 
-@pytest.fixture(scope="session")
-def anvil_url() -> Iterator[str]:
-    """Start anvil (zero base fee, like the consortium chain) and stop it after the session."""
+@contextlib.contextmanager
+def running_anvil() -> Iterator[str]:
+    """A new anvil node (zero base fee, like the consortium chain) on a free port, stopped on
+    exit; skips the test when the binary is missing."""
     binary = anvil_binary()
     if binary is None:
         pytest.skip("anvil binary missing: run `npm ci` in contracts/ (@foundry-rs/anvil)")
@@ -139,6 +141,13 @@ def anvil_url() -> Iterator[str]:
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait()
+
+
+@pytest.fixture(scope="session")
+def anvil_url() -> Iterator[str]:
+    """One anvil node for the session."""
+    with running_anvil() as url:
+        yield url
 
 
 @pytest.fixture(params=["embedded", "anvil"])

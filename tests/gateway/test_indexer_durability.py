@@ -6,9 +6,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import socket
-import subprocess
-import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -188,46 +185,10 @@ def test_a_chain_that_went_back_is_reindexed(
 @pytest.fixture
 def anvil() -> Iterator[str]:
     """A fresh anvil node (anvil_reorg rewrites its history, so never the session's)."""
-    from tests.contracts.conftest import _free_port, anvil_binary
+    from tests.contracts.conftest import running_anvil
 
-    binary = anvil_binary()
-    if binary is None:
-        pytest.skip("anvil binary missing: run `npm ci` in contracts/ (@foundry-rs/anvil)")
-    port = _free_port()
-    proc = subprocess.Popen(
-        [
-            binary,
-            "--host",
-            "127.0.0.1",
-            "--port",
-            str(port),
-            "--chain-id",
-            "31337",
-            "--gas-limit",
-            "30000000",
-            "--block-base-fee-per-gas",
-            "0",
-            "--accounts",
-            "24",
-            "--silent",
-        ],
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-    )
-    url = f"http://127.0.0.1:{port}"
-    try:
-        deadline = time.monotonic() + 20
-        while True:
-            try:
-                with socket.create_connection(("127.0.0.1", port), timeout=0.2):
-                    break
-            except OSError:
-                assert proc.poll() is None and time.monotonic() < deadline, "anvil did not start"
-                time.sleep(0.05)
+    with running_anvil() as url:
         yield url
-    finally:
-        proc.terminate()
-        proc.wait(timeout=10)
 
 
 def test_a_reorg_deeper_than_the_confirmations_is_reindexed(
