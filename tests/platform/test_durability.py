@@ -17,7 +17,6 @@ import pytest
 import torch
 
 from backend.celery_app import make_celery
-from backend.chain.client import Chain
 from backend.chain.platform import OfferState
 from backend.settings import Settings
 from backend.store import EmbeddedStore, StoreUnavailable
@@ -28,24 +27,9 @@ from workers.mdrl import checkpoint as ckpt
 from workers.mdrl.modelio import load_model
 from workers.mdrl.trainingspec import TrainingSpec
 
-from .helpers import TINY_SPEC, deploy, post_task, register
+from .helpers import TINY_SPEC, post_task
 
 torch.set_num_threads(1)
-
-
-@pytest.fixture(scope="module")
-def chain() -> Chain:
-    return Chain.embedded(accounts=8)
-
-
-@pytest.fixture
-def env(chain: Chain, tmp_path: Path):
-    snap = chain.snapshot()
-    p = deploy(chain)
-    actors = register(p, chain.accounts[1], chain.accounts[2:5])
-    store = EmbeddedStore(tmp_path / "ipfs")
-    yield p, actors, store
-    chain.revert(snap)
 
 
 def handler_for(p, address: str, store, tmp_path: Path, **kw: Any) -> OfferHandler:

@@ -11,9 +11,8 @@ from pathlib import Path
 import pytest
 import torch
 
-from backend.chain.client import Chain
 from backend.chain.platform import OfferState, cid_commitment
-from backend.store import EmbeddedStore, IpfsRpcStore, NotFound, StoreUnavailable
+from backend.store import IpfsRpcStore, NotFound, StoreUnavailable
 from backend.store.bundle import MODEL_FILES, pull_model, read_bundle
 from backend.store.sealed import public_key_hex, pull_model_with_key
 from workers.daemon.handler import OfferHandler, Transient
@@ -24,21 +23,6 @@ from workers.mdrl.trainingspec import TrainingSpec
 from .helpers import TINY_SPEC, deploy, post_task, register
 
 torch.set_num_threads(1)
-
-
-@pytest.fixture(scope="module")
-def chain() -> Chain:
-    return Chain.embedded(accounts=8)
-
-
-@pytest.fixture
-def env(chain: Chain, tmp_path: Path):
-    snap = chain.snapshot()
-    p = deploy(chain)
-    actors = register(p, chain.accounts[1], chain.accounts[2:5])
-    store = EmbeddedStore(tmp_path / "ipfs")
-    yield p, actors, store
-    chain.revert(snap)
 
 
 def handler_for(p, address: str, store, tmp_path: Path, **kw) -> OfferHandler:
