@@ -18,7 +18,7 @@ from workers.daemon.handler import Transient
 from workers.mdrl.trainingspec import TrainingSpec
 
 from .helpers import TINY_SPEC, post_task
-from .test_handler import chain, env, handler_for  # noqa: F401 - fixtures
+from .test_handler import handler_for
 
 EXPERT = Path(__file__).resolve().parents[2] / "models" / "odmtl-2a"
 HUGE = 10**400  # a JSON integer float() cannot hold (OverflowError)
