@@ -38,6 +38,8 @@ FIT_PROBE_DRAWS = 256
 #: with probability 0.8^100 = 2e-10; a spec fitting 3.6% of the time passed one reset and then
 #: failed mid-run (2.6% of its resets), its checkpoint unable to get past the failure.
 MIN_FIT_RATE = 0.2
+_FIT_RATES: dict[EnvSpec, float] = {}
+"""Share of fitting probe layouts per spec (evaluation builds an env per batch of episodes)."""
 
 
 class LayoutError(ValueError):
@@ -141,12 +143,16 @@ class TargetLocalizationEnv:
         spec = self.spec
         if not spec.walls[1]:
             return
-        rng = np.random.Generator(np.random.PCG64(FIT_PROBE_DRAWS))
-        walls = self.draw_walls(spec, rng, FIT_PROBE_DRAWS)
-        keys = rng.random((FIT_PROBE_DRAWS, spec.num_cells))
-        keys[walls] = 2.0
-        reachable = self._bfs(keys.argmin(axis=1), walls) < UNREACHABLE
-        rate = float((reachable.sum(1) >= spec.agents + 1).mean())
+        rate = _FIT_RATES.get(spec)
+        if rate is None:  # the same for every env of a spec (a fixed stream): once per spec
+            rng = np.random.Generator(np.random.PCG64(FIT_PROBE_DRAWS))
+            walls = self.draw_walls(spec, rng, FIT_PROBE_DRAWS)
+            keys = rng.random((FIT_PROBE_DRAWS, spec.num_cells))
+            keys[walls] = 2.0
+            reachable = self._bfs(keys.argmin(axis=1), walls) < UNREACHABLE
+            rate = float((reachable.sum(1) >= spec.agents + 1).mean())
+            if len(_FIT_RATES) < 1024:
+                _FIT_RATES[spec] = rate
         if rate < MIN_FIT_RATE:
             raise LayoutError(
                 f"only {rate:.0%} of the wall layouts this spec allows leave an area where "
