@@ -25,6 +25,7 @@ from backend.api.errors import document_shared_responses, install_error_handlers
 from backend.api.frontend import mount_docs_redirects, mount_frontend
 from backend.api.limits import BodyLimits
 from backend.api.pagecache import PageCache
+from backend.api.relative_redirects import RelativeRedirects
 from backend.api.routes import api_router, blocks, local, models, rpc, tasks, tx, users, workers
 from backend.api.security_headers import SecurityHeaders
 from backend.api.shedding import LoadShedder
@@ -159,6 +160,7 @@ def create_app(
     )
     # GET /metrics, HTTP latency and errors (Prometheus), behind DRLAAS_METRICS_TOKEN if set
     install_metrics(app, settings, guards=[Depends(require_metrics_token)])
+    app.add_middleware(RelativeRedirects)  # the router's slash redirects name no Host
     app.add_middleware(SecurityHeaders)  # outermost: the shedder's and limits' answers too
 
     @app.exception_handler(SignLocally)

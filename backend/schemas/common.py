@@ -5,7 +5,7 @@ from __future__ import annotations
 import unicodedata
 from typing import Annotated, Any, Generic, TypeVar
 
-from pydantic import AfterValidator, BaseModel, BeforeValidator, Field
+from pydantic import AfterValidator, BaseModel, BeforeValidator, ConfigDict, Field
 
 from backend.chain.addresses import checksum
 from backend.chain.platform import MAX_DOMAIN
@@ -182,6 +182,10 @@ class ListPublic(BaseModel, Generic[T]):
 
 
 class EventPublic(BaseModel):
+    """One indexed chain event (``chain_events`` row: ``EventPublic.model_validate(row)``)."""
+
+    model_config = ConfigDict(from_attributes=True)
+
     block_number: int
     log_index: int
     tx_hash: str
@@ -189,6 +193,11 @@ class EventPublic(BaseModel):
     name: str
     args: dict[str, Any]
     block_time: int | None
+    error: str | None = Field(
+        default=None,
+        description="why the index could not store this event's rows (it went on without "
+        "them; the chain holds the event), else null",
+    )
 
 
 class TxPublic(BaseModel):

@@ -302,7 +302,7 @@ def task_spec(agents: int = 3) -> dict:
     }
 
 
-def event(name: str, block: int, args: dict) -> dict:
+def event(name: str, block: int, args: dict, error: str | None = None) -> dict:
     """EventPublic (backend/schemas/common.py)."""
     return {
         "block_number": block,
@@ -312,6 +312,7 @@ def event(name: str, block: int, args: dict) -> dict:
         "name": name,
         "args": args,
         "block_time": 1_746_352_800 + 3 * block,
+        "error": error,
     }
 
 
@@ -374,6 +375,8 @@ def initial_tasks() -> list[dict]:
         timeline=[
             event("TaskAdded", 12, {"taskId": 1, "requester": ALICE, "numWorkers": 2}),
             event("TaskOffered", 13, {"taskId": 1, "worker": W2, "qos": 910000}),
+            event("TaskOffered", 14, {"taskId": 1, "worker": W4, "qos": 620000},
+                  error="DataError: value out of range for type bigint"),
             event("OfferAccepted", 15, {"taskId": 1, "worker": W2}),
         ],
         offers=[

@@ -341,6 +341,9 @@ def test_task_page_shows_timeline_offers_outcomes_and_live_curve(
     t = state.task(1)
     expect(page.locator("#timeline li")).to_have_count(len(t["timeline"]))
     expect(page.locator("#timeline li").first).to_contain_text("TaskAdded")
+    # an event the index kept without its rows says so, and why
+    expect(page.locator("#timeline li .error")).to_have_count(1)
+    expect(page.locator("#timeline li .error")).to_contain_text("not indexed: DataError")
     expect(page.locator("#task-offers tbody tr")).to_have_count(2)
     expect(page.locator("#task-offers")).to_contain_text("accepted")
     expect(page.locator("#task-outcomes")).to_contain_text("No outcome submitted yet")

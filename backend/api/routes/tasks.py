@@ -418,18 +418,7 @@ def get_task(task_id: TaskId, session: SessionDep) -> TaskDetailPublic:
         **task_public(t).model_dump(),
         spec=t.spec,
         experts=[TaskExpertPublic(**e) for e in task_experts(session, t.spec, t.requester)],
-        timeline=[
-            EventPublic(
-                block_number=e.block_number,
-                log_index=e.log_index,
-                tx_hash=e.tx_hash,
-                contract=e.contract,
-                name=e.name,
-                args=e.args,
-                block_time=e.block_time,
-            )
-            for e in events
-        ],
+        timeline=[EventPublic.model_validate(e) for e in events],
         offers=[
             OfferPublic(worker=o.worker, state=o.state, qos=from_fixed(o.qos), expiry=o.expiry)
             for o in offers

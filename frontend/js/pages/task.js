@@ -195,7 +195,8 @@ export async function render(main, [id], ctx) {
         h("span", { class: "when" }, formatTime(e.block_time ?? e.time ?? e.timestamp)),
         h("span", { class: "what" }, eventName(e)),
         (e.block_number ?? e.block) !== undefined ? h("span", { class: "muted", title: e.tx_hash || "" }, ` block ${e.block_number ?? e.block}`) : null,
-        h("span", { class: "args" }, eventDetails(e)))))
+        h("span", { class: "args" }, eventDetails(e)),
+        e.error ? h("span", { class: "error", title: e.error }, ` not indexed: ${e.error}`) : null)))
       : h("p", { class: "muted" }, "No events yet."));
   }
 
