@@ -38,6 +38,19 @@ FIT_PROBE_DRAWS = 256
 #: with probability 0.8^100 = 2e-10; a spec fitting 3.6% of the time passed one reset and then
 #: failed mid-run (2.6% of its resets), its checkpoint unable to get past the failure.
 MIN_FIT_RATE = 0.2
+#: Above this share of a spec's wall slots (one per non-corner side cell, ``wall_slots``) its
+#: most walls take, ``draw_walls`` picks the slots directly (``_draw_walls_direct``) instead of
+#: redrawing taken ones (coupon collecting: 25 walls on 10 x 10's 32 slots cost ~1.5 ms a
+#: layout). The same layouts in law, not the same stream: below it (every preset) the draws
+#: are the ones recorded figures and models were made with, bit for bit.
+DENSE_WALLS_SHARE = 0.25
+#: Under this share of fitting probe layouts, resets draw the layouts that leave the team no
+#: room again in a loop over the short rows (``_fitting_layouts``), several candidates per row
+#: at a time, instead of splitting the batch and recursing: the same law, another stream. At or
+#: above it (every preset fits 99.6-100%) the recursion and its stream are kept bit for bit.
+REDRAW_LOOP_FIT_RATE = 0.9
+#: Most candidate layouts x cells drawn in one round of ``_fitting_layouts`` (8 MB of keys).
+_REDRAW_CELLS = 1 << 20
 _FIT_RATES: dict[EnvSpec, float] = {}
 """Share of fitting probe layouts per spec (evaluation builds an env per batch of episodes)."""
 
@@ -141,18 +154,22 @@ class TargetLocalizationEnv:
         """Refuse a spec whose walls leave the team no room too often (LayoutError): decided
         once, here, not by a reset that gives up in the middle of a run."""
         spec = self.spec
+        self._fit_rate = 1.0
         if not spec.walls[1]:
             return
         rate = _FIT_RATES.get(spec)
         if rate is None:  # the same for every env of a spec (a fixed stream): once per spec
             rng = np.random.Generator(np.random.PCG64(FIT_PROBE_DRAWS))
-            walls = self.draw_walls(spec, rng, FIT_PROBE_DRAWS)
+            # always the rejection sampler: the rate, so which specs are refused, stays what
+            # it was before dense specs got a direct sampler (once per spec: ~10 ms at worst)
+            walls = self._draw_walls_rejection(spec, rng, FIT_PROBE_DRAWS)
             keys = rng.random((FIT_PROBE_DRAWS, spec.num_cells))
             keys[walls] = 2.0
             reachable = self._bfs(keys.argmin(axis=1), walls) < UNREACHABLE
             rate = float((reachable.sum(1) >= spec.agents + 1).mean())
             if len(_FIT_RATES) < 1024:
                 _FIT_RATES[spec] = rate
+        self._fit_rate = rate
         if rate < MIN_FIT_RATE:
             raise LayoutError(
                 f"only {rate:.0%} of the wall layouts this spec allows leave an area where "
@@ -227,27 +244,29 @@ class TargetLocalizationEnv:
     def _reset_rows(self, rows: np.ndarray, draw: int = 1) -> None:
         spec, rng = self.spec, self.layout_rng
         R, C, N = len(rows), spec.num_cells, spec.agents
-        walls = self.draw_walls(spec, rng, R)
-        self.walls[rows] = walls
-        self._next_stale[rows] = True
+        if self._fit_rate < REDRAW_LOOP_FIT_RATE:  # misfits common: redraw them in a loop
+            walls, target, dist = self._fitting_layouts(R)
+            self.walls[rows] = walls
+            self._next_stale[rows] = True
+            reachable = dist < UNREACHABLE
+        else:  # the recursion (and stream) every preset's recorded episodes were drawn with
+            walls = self.draw_walls(spec, rng, R)
+            self.walls[rows] = walls
+            self._next_stale[rows] = True
 
-        # Target among free cells; agents at distinct cells that can reach it.
-        keys = rng.random((R, C))
-        keys[walls] = 2.0
-        target = keys.argmin(axis=1)
-        dist = self._bfs(target, walls)
-        reachable = dist < UNREACHABLE
-        short = reachable.sum(1) < N + 1
-        if short.any():  # a pocket too small to hold the team: draw those layouts again
-            if draw >= MAX_LAYOUT_DRAWS:
-                raise LayoutError(
-                    f"{MAX_LAYOUT_DRAWS} wall layouts in a row left no area where {N} agents "
-                    f"and a target fit ({spec.rows}x{spec.cols}, walls {spec.walls}, "
-                    f"wall_length {spec.wall_length}): use fewer or shorter walls or a larger grid"
-                )
-            self._reset_rows(rows[~short], draw + 1) if (~short).any() else None
-            self._reset_rows(rows[short], draw + 1)
-            return
+            # Target among free cells; agents at distinct cells that can reach it.
+            keys = rng.random((R, C))
+            keys[walls] = 2.0
+            target = keys.argmin(axis=1)
+            dist = self._bfs(target, walls)
+            reachable = dist < UNREACHABLE
+            short = reachable.sum(1) < N + 1
+            if short.any():  # a pocket too small to hold the team: draw those layouts again
+                if draw >= MAX_LAYOUT_DRAWS:
+                    raise self._no_room()
+                self._reset_rows(rows[~short], draw + 1) if (~short).any() else None
+                self._reset_rows(rows[short], draw + 1)
+                return
         keys = rng.random((R, C))
         keys[~reachable] = 2.0
         keys[np.arange(R), target] = 2.0
@@ -272,10 +291,92 @@ class TargetLocalizationEnv:
         self._take_readings(rows, start)
         self._update_masks(rows)
 
+    def _no_room(self) -> LayoutError:
+        spec = self.spec
+        return LayoutError(
+            f"{MAX_LAYOUT_DRAWS} wall layouts in a row left no area where {spec.agents} agents "
+            f"and a target fit ({spec.rows}x{spec.cols}, walls {spec.walls}, "
+            f"wall_length {spec.wall_length}): use fewer or shorter walls or a larger grid"
+        )
+
+    def _fitting_layouts(self, R: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(walls (R, C), target (R,), dist (R, C)) for R new episodes, each layout and target
+        drawn again until the cells that reach the target hold the team: per row, the first
+        fitting draw of an i.i.d. sequence, so the law of the recursion (a layout and target
+        conditioned on fitting) without its two calls per batch that misfits. Each round draws
+        ~2 / fit-rate candidates per row still short in one batch (one ``draw_walls``, one BFS);
+        a row that met ``MAX_LAYOUT_DRAWS`` misfits in a row raises ``LayoutError``."""
+        spec, rng = self.spec, self.layout_rng
+        C, N = spec.num_cells, spec.agents
+        walls = np.zeros((R, C), dtype=bool)
+        target = np.zeros(R, dtype=np.int64)
+        dist = np.zeros((R, C), dtype=np.int32)
+        todo = np.arange(R)
+        tried = 0
+        per = int(np.ceil(2.0 / max(self._fit_rate, 2.0 / MAX_LAYOUT_DRAWS)))
+        while len(todo):
+            if tried >= MAX_LAYOUT_DRAWS:
+                raise self._no_room()
+            k = max(1, min(per, MAX_LAYOUT_DRAWS - tried, _REDRAW_CELLS // (len(todo) * C)))
+            w = self.draw_walls(spec, rng, len(todo) * k)  # row todo[i]: candidates i*k..i*k+k-1
+            keys = rng.random(w.shape)
+            keys[w] = 2.0
+            t = keys.argmin(axis=1)
+            d = self._bfs(t, w)
+            fit = ((d < UNREACHABLE).sum(1) >= N + 1).reshape(len(todo), k)
+            ok = fit.any(axis=1)
+            pick = np.flatnonzero(ok) * k + fit[ok].argmax(axis=1)  # each row's first fit
+            done = todo[ok]
+            walls[done], target[done], dist[done] = w[pick], t[pick], d[pick]
+            todo = todo[~ok]
+            tried += k
+        return walls, target, dist
+
+    @staticmethod
+    def wall_slots(spec: EnvSpec) -> int:
+        """Lines a wall can leave a side on: the non-corner cells of the four sides."""
+        return 2 * (spec.rows - 2) + 2 * (spec.cols - 2)
+
     @staticmethod
     def draw_walls(spec: EnvSpec, rng: np.random.Generator, R: int) -> np.ndarray:
         """(R, C) wall maps: each wall leaves a side at a non-corner cell, perpendicular to it.
-        Public (a static method) so the walls CAE (``cae.py``) trains on the env's own layouts."""
+        Public (a static method) so the walls CAE (``cae.py``) trains on the env's own layouts.
+        Specs whose walls take more than ``DENSE_WALLS_SHARE`` of the slots draw them directly
+        (the same law, another stream); the others keep the rejection draws."""
+        if spec.walls[1] > DENSE_WALLS_SHARE * TargetLocalizationEnv.wall_slots(spec):
+            return TargetLocalizationEnv._draw_walls_direct(spec, rng, R)
+        return TargetLocalizationEnv._draw_walls_rejection(spec, rng, R)
+
+    @staticmethod
+    def _draw_walls_direct(spec: EnvSpec, rng: np.random.Generator, R: int) -> np.ndarray:
+        """``_draw_walls_rejection``'s law without its redraws. There, each wall draws a side
+        (1/4 each) and a place on it (1 / (cells along it - 2)) until the slot is free: slot s is
+        taken next with probability w_s / (sum of w over the free slots), w_s = 1 / (4 (along_s -
+        2)), not uniform on a non-square grid. Exponential clocks with rates w_s ring in that
+        order (the first of the free ones is s with that probability, and memorylessness starts
+        the race again among the rest): the walls are the slots of the ``count`` smallest keys
+        Exp(1) / w_s, in increasing order, each with a length drawn as there."""
+        m, n = spec.rows, spec.cols
+        lo, hi = spec.walls
+        walls = np.zeros((R, m, n), dtype=bool)
+        count = rng.integers(lo, hi + 1, size=R)
+        slot_side = np.repeat(np.arange(4), [n - 2, n - 2, m - 2, m - 2])
+        slot_place = np.concatenate([np.arange(1, n - 1)] * 2 + [np.arange(1, m - 1)] * 2)
+        scale = np.where(slot_side < 2, 4.0 * (n - 2), 4.0 * (m - 2))  # 1 / w_s
+        keys = rng.standard_exponential((R, len(slot_side))) * scale
+        slots = np.argsort(keys, axis=1)[:, :hi]  # (R, hi): the order the walls are drawn in
+        side = slot_side[slots]
+        (lmin_m, lmax_m), (lmin_n, lmax_n) = spec.wall_length_range(m), spec.wall_length_range(n)
+        vertical = side < 2  # from the top or bottom: along a column, at most m - 2 long
+        length = rng.integers(np.where(vertical, lmin_m, lmin_n),
+                              np.where(vertical, lmax_m, lmax_n) + 1)
+        length[np.arange(hi)[None, :] >= count[:, None]] = 0
+        kernels.mark_wall_sets(walls, side, slot_place[slots], length)
+        return walls.reshape(R, -1)
+
+    @staticmethod
+    def _draw_walls_rejection(spec: EnvSpec, rng: np.random.Generator, R: int) -> np.ndarray:
+        """The original sampler (every preset's layouts): slots taken are drawn again."""
         m, n = spec.rows, spec.cols
         walls = np.zeros((R, m, n), dtype=bool)
         lo, hi = spec.walls

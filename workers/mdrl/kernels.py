@@ -281,6 +281,24 @@ def mark_walls(walls, side, place, length):  # pragma: no cover - compiled
                 walls[e, q, n - 1 - j] = True
 
 
+@njit(cache=True, nogil=True)
+def mark_wall_sets(walls, side, place, length):  # pragma: no cover - compiled
+    """``mark_walls`` for K walls per env at once: ``side``, ``place``, ``length`` (R, K)."""
+    m, n = walls.shape[1], walls.shape[2]
+    for e in range(walls.shape[0]):
+        for k in range(side.shape[1]):
+            s, q = side[e, k], place[e, k]
+            for j in range(length[e, k]):
+                if s == 0:
+                    walls[e, j, q] = True
+                elif s == 1:
+                    walls[e, m - 1 - j, q] = True
+                elif s == 2:
+                    walls[e, q, j] = True
+                else:
+                    walls[e, q, n - 1 - j] = True
+
+
 @njit(cache=True, nogil=True, inline="always")
 def _allowed(w, rows, cols, r, c, dr, dc):  # pragma: no cover - compiled
     """The move rule (env module docstring): from (r, c) by (dr, dc) the move stays on the
