@@ -53,6 +53,8 @@ PLACEHOLDER_SECRETS = frozenset(
     }
 )
 MIN_SECRET_LENGTH = 32
+RPC_GAS_TOTAL_CLIENTS = 3
+"""Default ``rpc_gas_per_minute_total``: as much as this many clients at their full rate."""
 
 
 class SettingsError(ValueError):
@@ -120,7 +122,7 @@ class Settings(BaseSettings):
     nonce_ttl_s: int = Field(default=300, ge=10, le=3600)
     """How long a sign-in message (its nonce) stays usable."""
     auth_nonces_per_minute: int = Field(default=30, ge=1, le=100_000)
-    """Sign-in messages one remote client (IP) may ask for a minute; past it 429
+    """Sign-in messages one remote client (``client_ipv6_prefix``) may ask for a minute; past it 429
     ``auth_rate_limited`` + Retry-After. Each is a database row until it expires, so this bounds
     what one client can make the gateway store (loopback clients are not metered)."""
 
@@ -150,8 +152,9 @@ class Settings(BaseSettings):
     faucet_per_minute: int = Field(default=30, ge=1, le=10_000)
     """Embedded demo chain: faucet top-ups per minute over all addresses."""
     faucet_per_client_per_minute: int = Field(default=5, ge=1, le=10_000)
-    """Embedded demo chain: faucet top-ups per minute for one client (IP address), whatever
-    keys it signs in with, so one client cannot take the whole ``faucet_per_minute``."""
+    """Embedded demo chain: faucet top-ups per minute for one client (IPv4 address or
+    IPv6 network), whatever keys it signs in with, so one client cannot take the whole
+    ``faucet_per_minute``."""
     faucet_max_per_address: int = Field(default=3, ge=1, le=10_000)
     """Embedded demo chain: top-ups one address may ever get (while the gateway runs); an
     address that sends its gas money away does not qualify again and again."""
@@ -160,9 +163,20 @@ class Settings(BaseSettings):
     (geth's ``RPCGasCap``; a larger ``gas`` is clamped to it). Also the largest gas limit a
     transaction relayed by ``POST /api/tx`` may carry (on any chain; refused above it)."""
     rpc_gas_per_minute: int = Field(default=40_000_000, ge=100_000, le=2**50)
-    """Embedded ``/rpc``: execution gas one client (address) may use a minute; past it
-    JSON-RPC -32005 with the seconds to wait (backend.services.rpc_budget). At py-evm's ~3M gas
-    a second this bounds one client's hold on the chain to ~13 s a minute."""
+    """Embedded ``/rpc``: execution gas one client (IPv4 address or IPv6 network) may use a
+    minute; past it JSON-RPC -32005 with the seconds to wait (backend.services.rpc_budget).
+    At py-evm's ~3M gas a second this bounds one client's hold on the chain to ~13 s a
+    minute."""
+    rpc_gas_per_minute_total: int | None = Field(default=None, ge=100_000, le=2**52)
+    """Embedded ``/rpc``: execution gas all remote clients together may use a minute, drawn
+    with each client's own (default: 3 x ``rpc_gas_per_minute``, ~40 s of the chain lock a
+    minute, so many clients or many networks together still leave time for platform writes);
+    past it JSON-RPC -32005 "gateway-wide" with the seconds to wait. At least
+    ``rpc_gas_per_minute``."""
+    client_ipv6_prefix: int = Field(default=64, ge=32, le=128)
+    """Prefix length of the IPv6 network that counts as one client for every per-client
+    limit (``backend.api.client_key``): a host gets a /64 (often a /56 or /48), so keying by
+    address would let one host be 2^64 clients. IPv4 addresses are one client each."""
     log_format: Literal["text", "json"] = "text"
     """``json``: one JSON object per log line (time, level, logger, message, task_id) for log
     collectors; ``text``: readable lines."""
@@ -183,7 +197,7 @@ class Settings(BaseSettings):
     503 ``downloads_busy`` + Retry-After. A download holds no ``max_in_flight`` slot once its
     response starts."""
     max_downloads_per_client: int = Field(default=4, ge=1, le=1000)
-    """Streamed downloads at once for one client (IP address); beyond that 429
+    """Streamed downloads at once for one client (IPv4 address or IPv6 network); beyond that 429
     ``downloads_per_client`` + Retry-After."""
     max_store_reads: int = Field(default=24, ge=1, le=10_000)
     """Requests reading the content store at once over all clients; beyond that 503
@@ -194,8 +208,8 @@ class Settings(BaseSettings):
     hold the chain lock, a batch up to 50 times); beyond that 429 ``rpc_busy_per_client`` +
     Retry-After. This machine's own workers and CLI are not bounded."""
     max_store_reads_per_client: int = Field(default=8, ge=1, le=1000)
-    """Requests reading the content store at once for one client (IP address); beyond that
-    429 ``store_reads_per_client`` + Retry-After."""
+    """Requests reading the content store at once for one client (IPv4 address or IPv6
+    network); beyond that 429 ``store_reads_per_client`` + Retry-After."""
     download_idle_timeout_s: float = Field(default=30.0, gt=0, le=3600)
     """Seconds a download may wait on a client that reads nothing; then it is given up and
     its connection closed."""
@@ -286,6 +300,19 @@ class Settings(BaseSettings):
                 f"{env_name('auth_domain')} must be a bare host[:port] (EIP-4361 domain), got {v!r}"
             )
         return v
+
+    @model_validator(mode="after")
+    def _check_rpc_gas_total(self) -> Settings:
+        per_client, total = self.rpc_gas_per_minute, self.rpc_gas_per_minute_total
+        if total is None:
+            object.__setattr__(self, "rpc_gas_per_minute_total", RPC_GAS_TOTAL_CLIENTS * per_client)
+        elif total < per_client:
+            raise ValueError(
+                f"{env_name('rpc_gas_per_minute_total')} ({total}) must be at least "
+                f"{env_name('rpc_gas_per_minute')} ({per_client}): all clients together cannot "
+                "have less gas a minute than one of them"
+            )
+        return self
 
     @model_validator(mode="after")
     def _check_secret(self) -> Settings:

@@ -17,6 +17,7 @@ from fastapi import Depends, Request
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from sqlalchemy.orm import Session
 
+from backend.api.client_key import client_key
 from backend.api.errors import RuleError
 from backend.api.slots import ClientSlots
 from backend.auth import User, decode_token
@@ -124,7 +125,7 @@ IndexerDep = Annotated[Indexer | None, Depends(get_indexer)]
 
 async def get_store(request: Request) -> AsyncIterator[ContentStore]:
     """The content store, holding one of the store-read slots (``app.state.store_reads``,
-    ``max_store_reads`` overall, ``max_store_reads_per_client`` per client address) until
+    ``max_store_reads`` overall, ``max_store_reads_per_client`` per client key) until
     the route returns: a read of content the node cannot find waits its find timeout in one
     of the threads every sync route shares. Past a bound: 429 ``store_reads_per_client`` /
     503 ``store_reads_busy`` at once, with Retry-After. An async dependency: taking and
@@ -134,7 +135,7 @@ async def get_store(request: Request) -> AsyncIterator[ContentStore]:
         raise RuleError(503, "store_unavailable", "the gateway has no content store")
     reads: ClientSlots = request.app.state.store_reads
     retry = {"Retry-After": str(request.app.state.settings.retry_after_s)}
-    client = request.client.host if request.client else "unknown"
+    client = client_key(request)
     full = reads.take(client)
     if full == "client":
         raise RuleError(429, "store_reads_per_client", f"at most {reads.per_client} requests "

@@ -235,6 +235,7 @@ def _start_services(
             service.lock,
             gas_cap=settings.rpc_gas_cap,
             budget=GasBudget(settings.rpc_gas_per_minute),
+            total_budget=GasBudget(settings.rpc_gas_per_minute_total),  # all clients together
             targets=frozenset(h.address for h in service.platform.contracts),
         )
         if settings.demo_keys_allowed:  # the faucet: embedded demo chain only

@@ -1,5 +1,6 @@
-"""Slots held at once, overall and per client address: what bounds streamed downloads
-(``routes.models``) and requests reading the content store (``deps.get_store``).
+"""Slots held at once, overall and per client: what bounds streamed downloads
+(``routes.models``) and requests reading the content store (``deps.get_store``). A client is
+its :func:`backend.api.client_key.client_key` (an IPv6 client is its /64, not each address).
 
 A read of content nobody holds waits for the node's find timeout (10 s on kubo) in one of the
 threads every sync route shares (anyio's pool of 40); a download waits on its client. Either,
@@ -13,7 +14,7 @@ from typing import Literal
 
 
 class ClientSlots:
-    """``limit`` slots overall, ``per_client`` of them for one client address. Thread-safe
+    """``limit`` slots overall, ``per_client`` of them for one client key. Thread-safe
     (sync routes take and give back slots from the thread pool, downloads on the event loop)."""
 
     def __init__(self, limit: int, per_client: int) -> None:

@@ -14,7 +14,9 @@ raises :class:`SignLocally` carrying the unsigned transaction (answered as 409),
 client signs and relays through ``POST /api/tx`` (:meth:`ChainService.relay_raw`).
 
 eth-tester is not thread-safe and nonces must not race, so every chain access from request
-handlers, the ``/rpc`` endpoint and the indexer goes through :attr:`ChainService.lock`.
+handlers, the ``/rpc`` endpoint and the indexer goes through :attr:`ChainService.lock`, a
+:class:`FairRLock`: granted in arrival order, so a platform write waits for the holders ahead
+of it, not for every anonymous ``/rpc`` read that keeps arriving after it.
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ import json
 import os
 import re
 import threading
+from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -227,6 +230,76 @@ def _jsonable_tx(tx: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
+class FairRLock:
+    """A reentrant lock granted first come, first served.
+
+    ``threading.RLock`` lets whoever asks at the moment it is released take it: a thread that
+    releases and asks again at once (a ``/rpc`` batch between its items, a stream of reads
+    from many clients) usually wins over a thread that has waited longer, so a platform write
+    (task creation, ``POST /api/tx``) could wait for as long as reads kept coming. Here a
+    release hands the lock to the longest waiter. Reentrant like ``RLock``; used with ``with``.
+    """
+
+    def __init__(self) -> None:
+        self._mutex = threading.Lock()  # guards the fields below; held only briefly
+        self._owner: int | None = None
+        self._depth = 0
+        self._waiters: deque[tuple[int, threading.Lock]] = deque()  # (thread, its gate)
+
+    def acquire(self, blocking: bool = True, timeout: float = -1) -> bool:
+        me = threading.get_ident()
+        with self._mutex:
+            if self._owner == me:
+                self._depth += 1
+                return True
+            if self._owner is None and not self._waiters:
+                self._owner, self._depth = me, 1
+                return True
+            if not blocking:
+                return False
+            gate = threading.Lock()
+            gate.acquire()  # opened by the release that hands the lock to this thread
+            self._waiters.append((me, gate))
+        try:
+            if gate.acquire(timeout=timeout if timeout >= 0 else -1):
+                return True  # the releaser made this thread the owner before opening the gate
+        except BaseException:  # interrupted (KeyboardInterrupt): never own it unknowingly
+            with self._mutex:
+                if self._owner == me:
+                    self._hand_on()
+                else:
+                    self._waiters.remove((me, gate))
+            raise
+        with self._mutex:  # timed out, unless a release handed the lock over meanwhile
+            if self._owner == me:
+                return True
+            self._waiters.remove((me, gate))
+            return False
+
+    def release(self) -> None:
+        with self._mutex:
+            if self._owner != threading.get_ident():
+                raise RuntimeError("cannot release a FairRLock this thread does not hold")
+            self._depth -= 1
+            if not self._depth:
+                self._hand_on()
+
+    def _hand_on(self) -> None:
+        """Give the lock to the longest waiter, or free it (the mutex is held)."""
+        if self._waiters:
+            self._owner, gate = self._waiters.popleft()
+            self._depth = 1
+            gate.release()
+        else:
+            self._owner, self._depth = None, 0
+
+    def __enter__(self) -> bool:
+        return self.acquire()
+
+    def __exit__(self, *exc: object) -> None:
+        self.release()
+
+
 @dataclass
 class ChainService:
     """Chain + deployed platform + (development) demo keys + the lock that serialises access."""
@@ -235,7 +308,7 @@ class ChainService:
     platform: Platform
     deploy_block: int
     demo_keys: DemoKeys | None = None
-    lock: threading.RLock = field(default_factory=threading.RLock)
+    lock: FairRLock = field(default_factory=FairRLock)
 
     # -- construction -------------------------------------------------------------------------
     @classmethod

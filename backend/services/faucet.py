@@ -5,8 +5,9 @@ pay it, so a newcomer's own key needs some native currency before it can registe
 sends ``amount`` from the deployer account to a caller holding less than ``threshold``. It
 exists only on the embedded chain in development mode (the gateway creates it only there), and
 it is rate-limited: one top-up per address per ``interval_s``, ``per_client_per_minute``
-top-ups per client (IP address, whatever keys it signs in with: fresh keys cost nothing, so one
-client could otherwise take the whole overall budget and starve newcomers), ``per_minute``
+top-ups per client (its IPv4 address or IPv6 network, the route's ``client_key``, whatever keys
+it signs in with: fresh keys cost nothing, so one client could otherwise take the whole overall
+budget and starve newcomers; a host picks any address of its /64), ``per_minute``
 top-ups over all addresses, and at most ``max_per_address`` top-ups per address ever (while the
 gateway runs: an address that sends its gas money away does not qualify again and again), so
 nobody drains the deployer or fills blocks with it. Requests that need no top-up (balance
@@ -80,7 +81,8 @@ class Faucet:
 
     def top_up(self, address: str, client: str | None = None) -> TopUp:
         """Send ``amount_wei`` to ``address`` if it holds less than the threshold; ``client``
-        (the caller's IP address, from the route) has its own rate; None counts for no client.
+        (the caller's key from the route: IPv4 address or IPv6 network) has its own rate; None
+        counts for no client.
 
         Raises :class:`FaucetLimited` when a rate limit stops the top-up.
         """

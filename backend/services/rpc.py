@@ -27,7 +27,8 @@ from web3.middleware import combine_middleware
 
 from backend.chain.client import Chain
 from backend.chain.rawtx import RawTx, check_chain, decode_raw_tx
-from backend.services.rpc_budget import GasBudget
+from backend.services.chain import FairRLock
+from backend.services.rpc_budget import GasBudget, JointBudget, Refusal
 from backend.services.rpc_call import ExecutionFailed, OutOfGas, bounded_estimate, unpriced_call
 from backend.services.rpc_params import InvalidParams, is_unpriced, normalize, quantity
 from backend.services.rpc_results import (
@@ -137,16 +138,18 @@ class EmbeddedRpc:
     def __init__(
         self,
         chain: Chain,
-        lock: threading.RLock,
+        lock: FairRLock | threading.RLock,
         *,
         gas_cap: int = DEFAULT_GAS_CAP,
         budget: GasBudget | None = None,
+        total_budget: GasBudget | None = None,
         targets: frozenset[str] = frozenset(),
     ) -> None:
         if chain._tester is None:
             raise ValueError("EmbeddedRpc serves only the embedded (eth-tester) chain")
         self.gas_cap = gas_cap
-        self.budget = budget
+        self.budget = budget  # per remote client
+        self.total_budget = total_budget  # all remote clients together (key rpc_budget.GATEWAY)
         self.targets = targets  # the platform contracts: what remote transactions may call
         self.chain = chain
         self.tester = chain._tester
@@ -159,9 +162,10 @@ class EmbeddedRpc:
         )
 
     def handle(self, payload: Any, client: str = "local") -> Any:
-        """One JSON-RPC request object or a batch (list) from ``client`` (its address: the
-        gas budget is per client). A remote client's ``eth_getLogs`` calls of one batch span
-        MAX_LOG_BLOCKS blocks together, as one call may: a batch is one request."""
+        """One JSON-RPC request object or a batch (list) from ``client`` (its key,
+        ``backend.api.client_key``: the gas budget is per client, and all remote clients
+        together draw on ``total_budget``). A remote client's ``eth_getLogs`` calls of one
+        batch span MAX_LOG_BLOCKS blocks together, as one call may: a batch is one request."""
         log_blocks = [MAX_LOG_BLOCKS]  # what this request's eth_getLogs may still span
         if isinstance(payload, list):
             if not payload or len(payload) > MAX_BATCH:
@@ -250,11 +254,11 @@ class EmbeddedRpc:
         tx, block = params[0], params[1]
         if not is_unpriced(tx):
             self._check_affordable(tx, block)
-        budget = None if client in UNMETERED else self.budget
+        budget = None if client in UNMETERED else self._joint_budget()
         if budget is not None:
-            wait = budget.wait_s(client, self.gas_cap)
-            if wait:
-                raise _gas_used_up(budget, wait)
+            refused = budget.shortfall(client, self.gas_cap)
+            if refused is not None:
+                raise _gas_used_up(refused)
 
         def charge(gas: int) -> None:
             if budget is not None:
@@ -311,18 +315,22 @@ class EmbeddedRpc:
             raise _RpcFailure(
                 SERVER_ERROR, f"gas limit {tx.gas} is over this gateway's cap of {self.gas_cap}"
             )
-        if self.budget is not None:
-            wait = self.budget.take(client, tx.gas)
-            if wait:
-                raise _gas_used_up(self.budget, wait)
+        refused = self._joint_budget().take(client, tx.gas)
+        if refused is not None:
+            raise _gas_used_up(refused)
 
     def _charge_reads(self, client: str, gas: int) -> None:
         """Draw what a read will hold the chain lock for from the client's gas budget, before
         reading (-32005 with the seconds to wait when the bucket does not hold it)."""
-        if self.budget is not None and gas > 0:
-            wait = self.budget.take(client, gas)
-            if wait:
-                raise _gas_used_up(self.budget, wait)
+        if gas > 0:
+            refused = self._joint_budget().take(client, gas)
+            if refused is not None:
+                raise _gas_used_up(refused)
+
+    def _joint_budget(self) -> JointBudget:
+        """The client's bucket and the gateway-wide one (read at each call: both are
+        attributes a test or the route may set after construction)."""
+        return JointBudget(self.budget, self.total_budget)
 
     @staticmethod
     def _fee_history_cost(params: list[Any]) -> int:
@@ -381,11 +389,17 @@ class _RpcFailure(Exception):
         self.code, self.message, self.data = code, message, data
 
 
-def _gas_used_up(budget: GasBudget, wait: int) -> _RpcFailure:
+def _gas_used_up(refused: Refusal) -> _RpcFailure:
+    if refused.bucket == "gateway":
+        return _RpcFailure(
+            LIMIT_EXCEEDED,
+            f"gateway-wide execution gas of all remote clients used up ({refused.per_minute} "
+            f"gas a minute together, block reads included): retry in {refused.wait_s} s",
+        )
     return _RpcFailure(
         LIMIT_EXCEEDED,
-        f"execution gas of this client used up ({budget.per_minute} gas a minute, block reads "
-        f"included): retry in {wait} s",
+        f"execution gas of this client used up ({refused.per_minute} gas a minute, block reads "
+        f"included): retry in {refused.wait_s} s",
     )
 
 

@@ -9,18 +9,28 @@ drawn from its bucket, refilled at ``rpc_gas_per_minute``. A client whose bucket
 than one capped execution waits (JSON-RPC -32005, "limit exceeded", with the seconds to wait).
 Calls that read the contracts' views use a few hundred thousand gas and never notice.
 
+Each client's bucket bounds that client; a gateway-wide bucket (``rpc_gas_per_minute_total``)
+bounds all remote clients together, drawn with the client's (:class:`JointBudget`): without it
+many clients (or one host with many networks) kept the lock busy between them and starved the
+platform's own writes.
+
 The bucket counts any unit: ``POST /auth/nonce`` draws one per sign-in message it stores.
 """
 
 from __future__ import annotations
 
+import contextlib
 import math
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from typing import Literal
 
 MAX_CLIENTS = 10_000
 """Buckets kept at most; full ones are forgotten first (a full bucket is the default)."""
+GATEWAY = "gateway"
+"""The one key of the gateway-wide bucket."""
 
 
 class GasBudget:
@@ -82,3 +92,68 @@ class GasBudget:
                 : len(self._buckets) // 2
             ]:
                 del self._buckets[client]
+
+
+@dataclass(frozen=True)
+class Refusal:
+    """A draw that a bucket cannot pay: whose bucket (``client``: the caller's own;
+    ``gateway``: all remote clients' together), its rate, and the whole seconds to wait."""
+
+    bucket: Literal["client", "gateway"]
+    per_minute: int
+    wait_s: int
+
+
+class JointBudget:
+    """A client's bucket and the gateway-wide bucket, checked and drawn together (either may
+    be None: not bounded). Both buckets' locks are held for one check-and-draw, always the
+    client's first, so concurrent callers cannot all pass the checks before any draws."""
+
+    def __init__(self, per_client: GasBudget | None, total: GasBudget | None) -> None:
+        if per_client is not None and per_client is total:
+            raise ValueError("the client buckets and the gateway-wide bucket must be two budgets")
+        self.per_client, self.total = per_client, total
+
+    def shortfall(self, client: str, gas: int) -> Refusal | None:
+        """The first bucket (the client's, then the gateway's) not holding ``gas`` now."""
+        with self._locked():
+            return self._shortfall(client, gas)
+
+    def take(self, client: str, gas: int) -> Refusal | None:
+        """Draw ``gas`` from both buckets if both hold it now (None); else draw nothing."""
+        with self._locked():
+            refused = self._shortfall(client, gas)
+            if refused is None:
+                self._draw(client, gas)
+            return refused
+
+    def charge(self, client: str, gas: int) -> None:
+        """Draw the gas an execution used from both buckets (they may go below zero)."""
+        with self._locked():
+            self._draw(client, gas)
+
+    def _buckets(self, client: str) -> list[tuple[Literal["client", "gateway"], GasBudget, str]]:
+        """(which, bucket, key) of the buckets that bound this draw, the client's first."""
+        both: list[tuple[Literal["client", "gateway"], GasBudget | None, str]] = [
+            ("client", self.per_client, client),
+            ("gateway", self.total, GATEWAY),
+        ]
+        return [(which, budget, key) for which, budget, key in both if budget is not None]
+
+    @contextlib.contextmanager
+    def _locked(self) -> Iterator[None]:
+        with contextlib.ExitStack() as held:
+            for _, budget, _ in self._buckets(""):
+                held.enter_context(budget._lock)
+            yield
+
+    def _shortfall(self, client: str, gas: int) -> Refusal | None:
+        for which, budget, key in self._buckets(client):
+            wait = budget._wait_s(key, gas, budget._clock())
+            if wait:
+                return Refusal(which, budget.per_minute, wait)
+        return None
+
+    def _draw(self, client: str, gas: int) -> None:
+        for _, budget, key in self._buckets(client):
+            budget._draw(key, gas, budget._clock())

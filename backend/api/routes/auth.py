@@ -11,6 +11,7 @@ import datetime as dt
 from fastapi import APIRouter, Request
 from pydantic import BaseModel, Field
 
+from backend.api.client_key import client_key
 from backend.api.deps import (
     ChainDep,
     ChainIdDep,
@@ -68,7 +69,7 @@ def create_nonce(
     ``auth_nonces_per_minute`` per remote client (429 ``auth_rate_limited`` + Retry-After)."""
     if not is_loopback(request):
         budget: GasBudget = request.app.state.nonce_budget
-        client = request.client.host if request.client else ""
+        client = client_key(request)
         wait = budget.take(client, 1)
         if wait:
             raise RateLimited(

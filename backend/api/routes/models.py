@@ -22,6 +22,7 @@ from fastapi.responses import JSONResponse, StreamingResponse
 from sqlalchemy import func, or_, select
 
 from backend.api.bundles import BundleRefused, check_model_bundle
+from backend.api.client_key import client_key
 from backend.api.deps import ChainDep, CurrentUser, IndexerDep, SessionDep, SettingsDep, StoreDep
 from backend.api.errors import RuleError, rule_responses
 from backend.api.limits import json_depth_exceeds
@@ -575,8 +576,7 @@ class _Download(StreamingResponse):
 
     async def __call__(self, scope: Any, receive: Any, send: Any) -> None:
         pool: ClientSlots = scope["app"].state.download_pool
-        peer = scope.get("client")
-        client = str(peer[0]) if peer else "unknown"
+        client = client_key(scope)
         full = pool.take(client)
         if full == "client":
             await self._refusal(

@@ -14,6 +14,7 @@ from fastapi.responses import JSONResponse
 from pydantic import BaseModel, Field
 from starlette.concurrency import run_in_threadpool
 
+from backend.api.client_key import client_key
 from backend.api.deps import LOOPBACK, ChainDep, CurrentUser, is_loopback
 from backend.api.errors import RAW_BODY, RuleError, rule_responses
 from backend.api.slots import ClientSlots
@@ -134,7 +135,7 @@ async def rpc(request: Request) -> JSONResponse:
                 "error": {"code": INVALID_REQUEST, "message": "invalid request"},
             }
         )
-    client = request.client.host if request.client else "unknown"
+    client = client_key(request)  # a remote IPv6 client is its /64: one budget, not 2^64
     if client in LOOPBACK and not is_loopback(request):
         client = CROSS_SITE  # a web page in a browser here: metered like a remote client
     if client in UNMETERED:
@@ -183,13 +184,13 @@ class FaucetPublic(BaseModel):
 )
 def faucet(user: CurrentUser, request: Request) -> FaucetPublic:
     """Embedded demo chain only (development mode): top the caller up to pay gas, 10 ETH when
-    it holds less than 1 ETH. Rate-limited per address, per client IP and overall (429 +
-    Retry-After), a few top-ups per address in all;
+    it holds less than 1 ETH. Rate-limited per address, per client (IPv4 address or IPv6
+    network) and overall (429 + Retry-After), a few top-ups per address in all;
     answers 404 ``faucet_disabled`` anywhere else."""
     service: Faucet | None = getattr(request.app.state, "faucet", None)
     if service is None:
         raise RuleError(404, "faucet_disabled", "the faucet exists only on the embedded demo chain")
-    client = request.client.host if request.client else None
+    client = client_key(request) if request.client else None  # None: counted for no client
     done = service.top_up(user.address, client)  # FaucetLimited: a domain error, 429 + Retry-After
     return FaucetPublic(
         address=done.address, balance_wei=str(done.balance_wei), tx_hash=done.tx_hash
