@@ -403,3 +403,40 @@ def load_settings(**overrides: Any) -> Settings:
             name = env_name(field) if field else "settings"
             lines.append(msg if msg.startswith(ENV_PREFIX) else f"{name}: {msg}")
         raise SettingsError("invalid settings:\n  " + "\n  ".join(lines)) from None
+
+
+class ChainClientSettings(BaseSettings):
+    """What a JSON-RPC chain client (``Chain.rpc``: the gateway on a node, a worker, the CLI,
+    the deploy job) accepts from its node before it signs (docs/platform.md, "Clients against
+    hostile servers"). Read apart from :class:`Settings`, so a process that needs none of the
+    gateway's settings (a worker, the deploy job) needs only these to be valid."""
+
+    model_config = SettingsConfigDict(env_prefix=ENV_PREFIX, extra="ignore", frozen=True)
+
+    chain_id: int | None = Field(default=None, gt=0)
+    """The chain id the client signs for (the same ``DRLAAS_CHAIN_ID`` as :class:`Settings`);
+    unset, the ``chain_id`` of the ``DRLAAS_CONTRACTS`` deployment when it names one. A node
+    reporting another id is refused."""
+    tx_max_fee_per_gas_wei: int = Field(default=100 * 10**9, ge=0, lt=2**256)
+    """Largest ``gasPrice`` / ``maxFeePerGas`` (wei) the client signs; a node asking more is
+    refused (the consortium chain runs at 0, anvil at 0, the embedded chain at ~1 gwei)."""
+    tx_max_gas: int = Field(default=30_000_000, ge=21_000, le=2**63 - 1)
+    """Largest gas limit the client signs (a node's estimate above it is refused)."""
+    chain_max_response_bytes: int = Field(default=32 * 2**20, ge=2**16, le=2**34)
+    """Largest JSON-RPC answer read from the node (``eth_getLogs`` is the largest)."""
+    chain_timeout_s: float = Field(default=60.0, gt=0, le=3600)
+    """Seconds a node may take per read; an answer's body must arrive within twice that."""
+
+
+def load_chain_client_settings(**overrides: Any) -> ChainClientSettings:
+    """:class:`ChainClientSettings` from the environment (``overrides`` win), raising
+    :class:`SettingsError` whose lines each start with the offending ``DRLAAS_*`` variable."""
+    try:
+        return ChainClientSettings(**overrides)
+    except ValidationError as exc:
+        lines = []
+        for err in exc.errors():
+            field = str(err["loc"][0]) if err["loc"] else ""
+            msg = err["msg"].removeprefix("Value error, ")
+            lines.append(f"{env_name(field) if field else 'settings'}: {msg}")
+        raise SettingsError("invalid chain client settings:\n  " + "\n  ".join(lines)) from None

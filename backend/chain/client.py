@@ -10,12 +10,15 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import json
+import os
 import threading
 import time
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
+import requests
 from eth_account import Account
 from eth_account.signers.local import LocalAccount
 from eth_utils import keccak
@@ -24,6 +27,14 @@ from web3._utils.events import get_event_data
 from web3.contract import Contract
 from web3.exceptions import ContractCustomError, ContractLogicError
 
+from ..httpbounds import (
+    ERROR_BODY_BYTES,
+    Budget,
+    ResponseRefused,
+    refuse_encoding,
+    without_userinfo,
+)
+from ..settings import ChainClientSettings, load_chain_client_settings
 from . import errors
 from .artifacts import load_artifact
 from .pyevm import restore_recursion_limit
@@ -46,6 +57,88 @@ is still in the exception's context (:func:`_slipped_revert`)."""
 # anvil's and hardhat's well-known development mnemonic (never use it outside tests).
 DEV_MNEMONIC = "test test test test test test test test test test test junk"
 GAS_MARGIN = 1.2  # headroom over eth_estimateGas: block timestamp may move between the two
+
+
+class NodeRefused(RuntimeError):
+    """The JSON-RPC node asked for something the client does not sign (another chain id than
+    the pinned one, a fee or gas above the caps): nothing was signed."""
+
+
+class _BoundedSession(requests.Session):
+    """The ``requests`` session of a JSON-RPC provider: redirects are refused, not followed
+    (R9), compressed answers too, and each answer is read within ``max_bytes`` and
+    ``deadline_s`` of its headers (:mod:`backend.httpbounds`); of an error, 64 KiB."""
+
+    def __init__(self, max_bytes: int, deadline_s: float) -> None:
+        super().__init__()  # (max_redirects = 0 would raise TooManyRedirects: less clear)
+        self.headers["Accept-Encoding"] = "identity"
+        self.max_bytes = max_bytes
+        self.deadline_s = deadline_s
+
+    def request(self, method: str | bytes, url: str | bytes, *args: Any, **kwargs: Any) -> Any:
+        kwargs["allow_redirects"] = False
+        kwargs["stream"] = True
+        response = super().request(method, url, *args, **kwargs)
+        where = url.decode() if isinstance(url, bytes) else str(url)
+        try:
+            if 300 <= response.status_code < 400:
+                raise ResponseRefused(
+                    where,
+                    f"it redirects (HTTP {response.status_code}) to "
+                    f"{response.headers.get('location')!r}; a JSON-RPC node's redirects are not "
+                    "followed",
+                )
+            reason = refuse_encoding(where, response.headers.get("content-encoding"))
+            if reason is not None:
+                raise ResponseRefused(where, reason)
+            raw = response.raw.stream(2**16, decode_content=False)
+            if response.ok:
+                budget = Budget(where, self.max_bytes, self.deadline_s)
+                budget.declared(response.headers.get("content-length"))
+                body = budget.read(raw)
+            else:  # its start is enough to report it
+                budget = Budget(where, None, self.deadline_s)
+                body = b""
+                for chunk in raw:
+                    budget.take(len(chunk))
+                    body += chunk
+                    if len(body) >= ERROR_BODY_BYTES:
+                        body = body[:ERROR_BODY_BYTES]
+                        break
+        except BaseException:
+            response.close()
+            raise
+        response._content = body
+        response._content_consumed = True
+        response.close()
+        return response
+
+
+def _deployment_chain_id() -> int | None:
+    """The ``chain_id`` of the ``DRLAAS_CONTRACTS`` deployment (JSON or a file), if it names
+    one; a missing or unreadable one is reported by whoever attaches with it."""
+    env = os.environ.get("DRLAAS_CONTRACTS", "").strip()
+    if not env:
+        return None
+    try:
+        doc = json.loads(env if env.startswith("{") else Path(env).read_text())
+    except (OSError, ValueError):
+        return None
+    value = doc.get("chain_id") if isinstance(doc, dict) else None
+    if isinstance(value, int) and not isinstance(value, bool) and value > 0:
+        return value
+    return None
+
+
+def pinned_chain_id(limits: ChainClientSettings) -> tuple[int | None, str]:
+    """(the chain id a JSON-RPC client must find, where the pin comes from); ``None`` when
+    none is known: ``DRLAAS_CHAIN_ID``, else the ``DRLAAS_CONTRACTS`` deployment's."""
+    if limits.chain_id is not None:
+        return limits.chain_id, "DRLAAS_CHAIN_ID"
+    deployed = _deployment_chain_id()
+    if deployed is not None:
+        return deployed, "the DRLAAS_CONTRACTS deployment"
+    return None, ""
 
 
 @dataclasses.dataclass
@@ -177,8 +270,18 @@ def _typed_reverts() -> Iterator[None]:
 class Chain:
     """A web3 connection plus local signing keys; see :meth:`embedded` and :meth:`rpc`."""
 
-    def __init__(self, w3: Web3, keys: Iterable[LocalAccount], kind: str, tester: Any = None):
+    def __init__(
+        self,
+        w3: Web3,
+        keys: Iterable[LocalAccount],
+        kind: str,
+        tester: Any = None,
+        *,
+        limits: ChainClientSettings | None = None,
+    ):
         self.w3 = w3
+        # caps on what a node may ask us to sign (None: the in-process chain, no node)
+        self.limits = limits
         self.kind = kind
         self._tester = tester
         self._keys = {a.address: a for a in keys}
@@ -224,13 +327,30 @@ class Chain:
 
     @classmethod
     def rpc(
-        cls, url: str, private_keys: Iterable[str] | None = None, n_dev_accounts: int = 10
+        cls,
+        url: str,
+        private_keys: Iterable[str] | None = None,
+        n_dev_accounts: int = 10,
+        *,
+        chain_id: int | None = None,
+        limits: ChainClientSettings | None = None,
     ) -> Chain:
         """A JSON-RPC node at ``url``; signs with ``private_keys`` (default: the dev mnemonic,
-        which anvil funds)."""
-        w3 = Web3(Web3.HTTPProvider(url, request_kwargs={"timeout": 60}))
+        which anvil funds).
+
+        The node is not trusted (docs/platform.md, "Clients against hostile servers"):
+        its answers are bounded (``limits``, default from the ``DRLAAS_*`` environment:
+        :class:`~backend.settings.ChainClientSettings`), its redirects refused, and it must
+        report ``chain_id`` (default :func:`pinned_chain_id`, if one is known), else
+        :class:`NodeRefused`; fees and gas above the caps are refused when signing."""
+        limits = limits if limits is not None else load_chain_client_settings()
+        session = _BoundedSession(limits.chain_max_response_bytes, 2 * limits.chain_timeout_s)
+        provider = Web3.HTTPProvider(
+            url, request_kwargs={"timeout": limits.chain_timeout_s}, session=session
+        )
+        w3 = Web3(provider)
         if not w3.is_connected():
-            raise ConnectionError(f"no JSON-RPC node answers at {url}")
+            raise ConnectionError(f"no JSON-RPC node answers at {without_userinfo(url)}")
         if private_keys is None:
             Account.enable_unaudited_hdwallet_features()
             keys = [
@@ -239,7 +359,17 @@ class Chain:
             ]
         else:
             keys = [Account.from_key(k) for k in private_keys]
-        return cls(w3, keys, "rpc")
+        chain = cls(w3, keys, "rpc", limits=limits)
+        expected, source = pinned_chain_id(limits)
+        if chain_id is not None:
+            expected, source = chain_id, "the caller"
+        if expected is not None and chain.chain_id != expected:
+            raise NodeRefused(
+                f"the JSON-RPC node at {without_userinfo(url)} reports chain id "
+                f"{chain.chain_id}, but {source} pins chain id {expected}: refusing to sign "
+                "for another chain (wrong node, or a hostile one)"
+            )
+        return chain
 
     # -- contracts ----------------------------------------------------------------------
     def register(self, name: str, address: str) -> ContractHandle:
@@ -300,6 +430,9 @@ class Chain:
     def _sign_and_send(self, fn: Any, sender: str, value: int) -> tuple[dict[str, Any], Any]:
         """Build ``fn``'s transaction at the sender's next nonce, sign it and send it raw;
         (the transaction, its hash). Called under ``_send_lock``."""
+        limits = self.limits
+        max_fee = limits.tx_max_fee_per_gas_wei if limits is not None else None
+        max_gas = limits.tx_max_gas if limits is not None else 30_000_000
         base = self.w3.eth.get_block("latest").get("baseFeePerGas")
         params: dict[str, Any] = {
             "from": sender,
@@ -308,19 +441,37 @@ class Chain:
             "chainId": self.chain_id,
         }
         if base is None:  # pre-London PoA chains (e.g. some Quorum/Besu setups): legacy tx
-            params["gasPrice"] = self.w3.eth.gas_price
+            price = self.w3.eth.gas_price
+            params["gasPrice"] = self._checked_fee("gas price (eth_gasPrice)", price)
         else:
             params["maxPriorityFeePerGas"] = 0  # consortium chain: no tips
-            params["maxFeePerGas"] = 2 * base
+            base = self._checked_fee("base fee of the latest block", base)
+            params["maxFeePerGas"] = 2 * base if max_fee is None else min(2 * base, max_fee)
         with _typed_reverts():
             gas = fn.estimate_gas(
                 {k: params[k] for k in ("from", "value")}, block_identifier=self.estimate_at
             )
-        params["gas"] = min(int(gas * GAS_MARGIN) + 10_000, 30_000_000)
+        if limits is not None and int(gas) > max_gas:
+            raise NodeRefused(
+                f"the node estimates {int(gas)} gas for this transaction, above the cap of "
+                f"{max_gas} (DRLAAS_TX_MAX_GAS): not signed"
+            )
+        params["gas"] = min(int(gas * GAS_MARGIN) + 10_000, max_gas)
         tx = fn.build_transaction(params)
         signed = self._keys[sender].sign_transaction(tx)
         tx_hash = self.w3.eth.send_raw_transaction(signed.raw_transaction)
         return tx, tx_hash
+
+    def _checked_fee(self, what: str, wei: Any) -> int:
+        """``wei`` (a node's gas price or base fee), refused above ``tx_max_fee_per_gas_wei``."""
+        wei = int(wei)
+        cap = self.limits.tx_max_fee_per_gas_wei if self.limits is not None else None
+        if wei < 0 or (cap is not None and wei > cap):
+            raise NodeRefused(
+                f"the node reports a {what} of {wei} wei, above the cap of {cap} wei "
+                "(DRLAAS_TX_MAX_FEE_PER_GAS_WEI): not signed"
+            )
+        return wei
 
     def _decode_logs(self, logs: list[Any]) -> list[Event]:
         out = []

@@ -21,6 +21,7 @@ from .embedded import EmbeddedStore
 from .errors import (
     CIDMismatch,
     ContentTooLarge,
+    FindTimeout,
     InvalidCID,
     InvalidContent,
     NotFound,
@@ -38,6 +39,7 @@ __all__ = [
     "ContentTooLarge",
     "DEFAULT_MAX_SIZE",
     "EmbeddedStore",
+    "FindTimeout",
     "InvalidCID",
     "InvalidContent",
     "IpfsRpcStore",

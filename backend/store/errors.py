@@ -2,7 +2,8 @@
 
 Callers (gateway, worker daemon, CLI) catch these by type: a :class:`CIDMismatch` means the bytes
 must not be used, :class:`StoreUnavailable` means "try again later", :class:`NotFound` means the
-content is not (or no longer) there.
+content is not (or no longer) there, and its subclass :class:`FindTimeout` that a node gave up
+looking for it in time (worth retrying).
 """
 
 from __future__ import annotations
@@ -57,6 +58,19 @@ class NotFound(StoreError, KeyError):
 
     def __str__(self) -> str:  # KeyError would otherwise repr() the message
         return str(self.args[0])
+
+
+class FindTimeout(NotFound):
+    """The node gave up looking for the CID within its find timeout (Kubo: "context deadline
+    exceeded", js-ipfs: "request timed out"): the content may come back with its provider, so
+    a caller that can wait retries it like :class:`StoreUnavailable`. A :class:`NotFound`, so
+    callers that treat both alike (the gateway's 404s, ``has``) keep working."""
+
+    def __init__(self, cid: str, detail: str = "", after: float | None = None) -> None:
+        self.cid = cid
+        within = f" within {after:g} s" if after is not None else ""
+        msg = f"timed out finding {cid}{within}" + (f" ({detail})" if detail else "")
+        Exception.__init__(self, msg + "; its provider may be offline, try again later")
 
 
 class StoreUnavailable(StoreError):

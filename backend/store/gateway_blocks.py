@@ -11,13 +11,16 @@ from typing import BinaryIO
 
 import httpx
 
+from ..httpbounds import MAX_BYTES, bounded_client
 from .base import ContentStore
 from .cid import CID
 from .errors import ContentTooLarge, NotFound, StoreError, StoreUnavailable
 
 
 class GatewayBlocks(ContentStore):
-    """``GatewayBlocks("http://gateway:8000")``: reads only; writes and pins raise."""
+    """``GatewayBlocks("http://gateway:8000")``: reads only; writes and pins raise. Its own
+    client bounds every answer (:mod:`backend.httpbounds`: a block within ``2 x timeout`` of
+    its headers, 64 KiB of an error body); a ``client`` given is used as it is."""
 
     def __init__(
         self,
@@ -29,7 +32,7 @@ class GatewayBlocks(ContentStore):
     ) -> None:
         super().__init__(**({"max_size": max_size} if max_size else {}))
         self.url = url.rstrip("/")
-        self._client = client or httpx.Client(base_url=self.url, timeout=timeout)
+        self._client = client or bounded_client(base_url=self.url, timeout=timeout)
 
     def __repr__(self) -> str:
         return f"GatewayBlocks({self.url!r})"
@@ -40,13 +43,15 @@ class GatewayBlocks(ContentStore):
     def _read_block(self, cid: CID, max_bytes: int) -> bytes:
         try:
             # the canonical v1 text: the only form the route accepts (a dag-pb link may be v0)
-            with self._client.stream("GET", f"/api/blocks/{cid.v1()}") as r:
+            with self._client.stream(  # the size is bounded below, by max_bytes
+                "GET", f"/api/blocks/{cid.v1()}", extensions={MAX_BYTES: None}
+            ) as r:
                 if r.status_code == 404:
                     raise NotFound(str(cid), f"{self.url} does not hold it")
                 if not r.is_success:
                     r.read()
                     raise StoreUnavailable(
-                        self.url, f"GET block {cid} -> {r.status_code}: {r.text}"
+                        self.url, f"GET block {cid} -> {r.status_code}: {r.text[:500]}"
                     )
                 out = bytearray()
                 for chunk in r.iter_bytes():

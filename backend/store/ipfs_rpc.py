@@ -21,20 +21,30 @@ from typing import Any, BinaryIO, TypeVar
 
 import httpx
 
+from ..httpbounds import DEADLINE_S, MAX_BYTES, bounded_client
 from .base import DEFAULT_MAX_SIZE, ContentStore
 from .cid import CID, cid_key
 from .dag import ADD_PARAMS, build_dag, iter_chunks
-from .errors import CIDMismatch, ContentTooLarge, NotFound, StoreError, StoreUnavailable
+from .errors import (
+    CIDMismatch,
+    ContentTooLarge,
+    FindTimeout,
+    NotFound,
+    StoreError,
+    StoreUnavailable,
+)
 
 T = TypeVar("T")
 
 _NOT_FOUND = re.compile(
-    r"not found|could not find|request timed out|context deadline exceeded|no link named"
-    r"|not pinned|block was not found",
+    r"not found|could not find|no link named|not pinned|block was not found",
     re.IGNORECASE,
 )
-"""Node error messages that mean "this content is not available" (Kubo and js-ipfs wording;
-an offline or unlucky node only knows it gave up after ``find_timeout``)."""
+"""Node error messages that mean "this content is not available" (Kubo and js-ipfs wording)."""
+
+_TIMED_OUT = re.compile(r"request timed out|context deadline exceeded", re.IGNORECASE)
+"""Node error messages that mean it gave up looking after ``find_timeout`` (js-ipfs, Kubo):
+:class:`FindTimeout`, not a plain :class:`NotFound` (the provider may be offline a while)."""
 
 _TRANSIENT = (httpx.TransportError,)
 """Failures of the connection (refused, reset, timed out, broken HTTP): :class:`StoreUnavailable`,
@@ -45,6 +55,12 @@ DEADLINE_FACTOR = 4
 """A block read, all its bytes, may take at most this many ``timeout``s by default: the
 timeout bounds each read only, and a node sending a byte per ``timeout - 1`` s would otherwise
 hold a worker for days."""
+
+MAX_ANSWER_BYTES = 32 * 2**20
+"""Largest JSON answer read from the node (``pin/ls`` of a big node is the largest); error
+bodies are read up to 64 KiB only (:mod:`backend.httpbounds`)."""
+_OWN_BOUNDS = {MAX_BYTES: None, DEADLINE_S: None}
+"""``block/get``: :meth:`IpfsRpcStore._read_block` bounds a block's size and time itself."""
 
 
 def normalize_api_url(url: str) -> str:
@@ -72,7 +88,8 @@ class IpfsRpcStore(ContentStore):
     ``timeout``: seconds for connecting/reading one HTTP response. ``deadline``: seconds one
     block read may take in all (default ``DEADLINE_FACTOR * timeout``; checked as bytes arrive,
     so a read ends within ``deadline + timeout``). ``find_timeout``: how long the
-    node may search for a block before the call counts as :class:`NotFound`. ``retries``: extra
+    node may search for a block before the call counts as :class:`FindTimeout` (a
+    :class:`NotFound` callers may retry). ``retries``: extra
     attempts, with capped exponential backoff and jitter, for transient failures only
     (connection refused, timeouts, 502/503/504); after them :class:`StoreUnavailable`.
     """
@@ -95,10 +112,12 @@ class IpfsRpcStore(ContentStore):
         self.find_timeout = find_timeout
         self.retries = max(0, retries)
         self.backoff = backoff
-        self._client = httpx.Client(
+        self._client = bounded_client(  # every answer within max/deadline (R4)
             base_url=self.url,
             timeout=httpx.Timeout(timeout, connect=min(timeout, 5.0)),
             transport=transport,
+            max_bytes=MAX_ANSWER_BYTES,
+            deadline_s=self.deadline,
         )
 
     def __repr__(self) -> str:
@@ -139,13 +158,15 @@ class IpfsRpcStore(ContentStore):
         if response.status_code == 200:
             return
         if not response.is_stream_consumed:
-            response.read()
+            response.read()  # its first 64 KiB only (bounded_client)
         try:
             message = str(json.loads(response.content).get("Message", ""))
         except (ValueError, AttributeError):
             message = response.text[:200]
         if response.status_code in (502, 503, 504):
             raise self._unavailable(endpoint, f"HTTP {response.status_code} {message}")
+        if _TIMED_OUT.search(message):
+            raise FindTimeout(arg or endpoint, f"node says: {message}", after=self.find_timeout)
         if _NOT_FOUND.search(message):
             raise NotFound(arg or endpoint, f"node says: {message}")
         raise StoreError(
@@ -206,7 +227,9 @@ class IpfsRpcStore(ContentStore):
         def fetch() -> bytes:
             give_up = time.monotonic() + self.deadline
             try:
-                with self._client.stream("POST", "block/get", params=params) as response:
+                with self._client.stream(  # size and time are bounded below
+                    "POST", "block/get", params=params, extensions=_OWN_BOUNDS
+                ) as response:
                     self._check("block/get", response, str(cid))
                     length = response.headers.get("content-length")
                     if length is not None and length.isdigit() and int(length) > max_bytes:

@@ -14,7 +14,14 @@ from fastapi.testclient import TestClient
 
 from backend.api.main import create_app
 from backend.settings import Settings
-from backend.store import CHUNK_SIZE, CIDMismatch, NotFound, compute_cid
+from backend.store import (
+    CHUNK_SIZE,
+    CIDMismatch,
+    FindTimeout,
+    NotFound,
+    StoreUnavailable,
+    compute_cid,
+)
 from backend.store.bundle import add_bundle, pull_model
 from backend.store.gateway_blocks import GatewayBlocks
 
@@ -96,3 +103,24 @@ def test_local_services_only_for_this_machine(settings: Settings) -> None:
     prod = Settings(data_dir=settings.data_dir, mode="production", token_secret="x" * 40)
     with TestClient(create_app(prod, chain=False), client=("127.0.0.1", 5000)) as local:
         assert local.get("/api/local/services").status_code == 404
+
+
+def test_a_node_that_timed_out_finding_a_block_is_not_absent(
+    client: TestClient, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A node's find timeout is a 504 to retry, and a client store over the gateway sees an
+    outage (StoreUnavailable: retried by workers), not NotFound (a worker declined the task)."""
+    cid = compute_cid(b"held by a provider that is offline")
+
+    def timed_out(cid_: str, max_bytes: int) -> bytes:
+        raise FindTimeout(cid_, "context deadline exceeded", after=10)
+
+    monkeypatch.setattr(client.app.state.store, "get_block", timed_out)
+    r = client.get(f"/api/blocks/{cid}")
+    assert r.status_code == 504, r.text
+    assert r.json()["detail"]["rule"] == "content_find_timeout"
+    assert "timed out finding" in r.json()["detail"]["msg"] and r.headers["retry-after"]
+    with GatewayBlocks(str(client.base_url), client=client) as remote:
+        with pytest.raises(StoreUnavailable) as caught:
+            remote.get(cid)
+    assert not isinstance(caught.value, NotFound)

@@ -17,7 +17,12 @@ from workers.daemon.funding import NoGas, chain_balance, ensure_gas
 from workers.daemon.gateway import Gateway
 
 
-def test_an_empty_key_is_funded_once(client: TestClient) -> None:
+def test_an_empty_key_is_funded_once(
+    client: TestClient, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # the test client is http://testserver; the gateway signs in as its default localhost:8000
+    monkeypatch.setenv("DRLAAS_AUTH_DOMAIN", client.app.state.settings.auth_domain)
+    monkeypatch.setenv("DRLAAS_AUTH_URI", client.app.state.settings.auth_uri)
     account = Account.create()
     gw = Gateway(str(client.base_url), account, client=client)
     assert chain_balance(gw, account.address) == 0

@@ -802,25 +802,26 @@ def test_a_resumed_job_trains_for_the_time_left_not_the_time_already_spent(
 def test_a_spec_the_store_cannot_find_after_acceptance_is_retried_not_failed(
     env, tmp_path: Path, monkeypatch
 ) -> None:
-    """A node reports content it cannot find in time as not found. Before accepting, that is
-    a decline; for a job already accepted (the worker read the spec then, e.g. redelivered
-    after a restart) it is a Transient failure, retried, not the job failed on chain."""
+    """A spec the store says it does not hold (NotFound; a node's find timeout is FindTimeout,
+    retried: test_find_timeout.py). Before accepting, that is a decline; for a job already
+    accepted (the worker read the spec then, e.g. redelivered after a restart) it is a
+    Transient failure, retried, not the job failed on chain."""
     p, actors, store = env
     task_id, offered, _ = post_task(p, store, actors.requester)
     h = handler_for(p, offered[0], store, tmp_path)
     real = store.get
 
-    def lost(cid, *a, **kw):  # noqa: ANN001, ANN002, ANN003 - what a node that gave up answers
-        raise NotFound(str(cid), "request timed out")
+    def lost(cid, *a, **kw):  # noqa: ANN001, ANN002, ANN003 - content nobody holds
+        raise NotFound(str(cid), "not held by any node")
 
     monkeypatch.setattr(store, "get", lost)
     out = h.handle(task_id, offered[0])
-    assert out["status"] == "declined" and "request timed out" in out["reason"], out
+    assert out["status"] == "declined" and "not held by any node" in out["reason"], out
 
     task_id, offered, _ = post_task(p, store, actors.requester, spec={**TINY_SPEC, "seed": 9})
     h = handler_for(p, offered[0], store, tmp_path)
     p.tmc.transact("acceptOffer", task_id, sender=offered[0])  # accepted, then restarted
-    with pytest.raises(Transient, match="request timed out"):
+    with pytest.raises(Transient, match="not held by any node"):
         h.handle(task_id, offered[0])
     assert p.tmc.offer(task_id, offered[0])["state"] == OfferState.ACCEPTED
     monkeypatch.setattr(store, "get", real)

@@ -18,20 +18,32 @@ them). Nothing from the network is trusted, so before an expert guides training 
 A verified expert lives in ``<job>/experts/<CID v1>/`` (a CAE in ``<job>/cae/<CID v1>/``),
 renamed into place only once complete, so a restarted job resumes with the same files and never
 fetches them again.
+
+A worker fetches a task's models before it accepts the offer, so a requester could make it
+download up to 8 x 64 MiB for every offer it then declines. Hence a :class:`ModelCache` shared
+by the worker's jobs (``<worker data>/cache/models/<CID v1>/``, least recently used evicted past
+its byte bound): bundles whose files were verified against their CIDs, linked into each job
+that names them, so a second offer naming the same models downloads nothing (their card and
+weights checks are run again on the cached files: cheap, local). :func:`offer_fetch_bytes` sizes
+what an offer's check would download from the manifests alone, before any card or weights.
 """
 
 from __future__ import annotations
 
 import json
+import logging
 import os
 import shutil
 import tempfile
+import time
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
 from backend.store import (
     CID,
     ContentStore,
+    FindTimeout,
     InvalidCID,
     NotFound,
     StoreError,
@@ -40,8 +52,21 @@ from backend.store import (
 from backend.store.bundle import MAX_CARD_BYTES, MODEL_FILES, read_bundle
 from workers.mdrl.weightsfile import MAX_WEIGHTS_BYTES, WeightsFileError, check_weights_file
 
+log = logging.getLogger(__name__)
+
 EXPERTS_DIR = "experts"
 CAE_DIR = "cae"
+#: The worker's model cache, under its data directory (``ModelCache``).
+CACHE_DIR = "cache/models"
+#: Default bound on the model cache (``DRLAAS_WORKER_MODEL_CACHE_BYTES``): a few offers' worth
+#: of the largest experts (8 x 64 MiB each).
+DEFAULT_CACHE_BYTES = 2 * 2**30
+#: Default bound on the bytes of models (cards and weights, not in the cache) one offer's
+#: check may download (``DRLAAS_WORKER_OFFER_FETCH_BYTES``): four of the largest experts.
+DEFAULT_OFFER_FETCH_BYTES = 256 * 2**20
+#: Store failures worth retrying: the store down, or a node that gave up finding a CID in time
+#: (its provider may be offline a while). Not a reason to fail a job or decline an offer.
+STORE_OUTAGES = (StoreUnavailable, FindTimeout)
 
 class ExpertFetchError(ValueError):
     """An expert CID that cannot be used: the message names the CID and what is wrong."""
@@ -62,37 +87,162 @@ def expert_key(ref: str) -> str:
         ) from None
 
 
+class ModelCache:
+    """Model bundles whose files were verified against their CIDs and sizes, keyed by the
+    bundle's CID v1 (``<root>/<CID>/model.safetensors`` + ``model.json``), shared by the jobs
+    of one worker so an offer naming models seen before downloads nothing. What is cached is
+    only what the CIDs vouch for: the card and weights checks run again at each use, so a
+    bundle that fails them is refused again without a download. Bounded to ``max_bytes`` in
+    all, least recently used evicted first (an entry's mtime is its last use); a job links the
+    files into its own directory, so evicting an entry never takes a job's files away."""
+
+    def __init__(self, root: str | os.PathLike[str], max_bytes: int = DEFAULT_CACHE_BYTES):
+        if max_bytes < 0:
+            raise ValueError(f"model cache bound must be >= 0 bytes, got {max_bytes}")
+        self.root, self.max_bytes = Path(root), max_bytes
+
+    def get(self, ref: str) -> Path | None:
+        """The cached directory of bundle ``ref`` (marked used now), or None."""
+        entry = self.root / expert_key(ref)
+        if not all((entry / name).is_file() for name in MODEL_FILES):
+            return None
+        try:
+            os.utime(entry)
+        except OSError:  # evicted meanwhile
+            return None
+        return entry
+
+    def add(self, ref: str, files: Path) -> None:
+        """Keep the verified files of bundle ``ref`` found in ``files`` (linked, not copied,
+        when the file system allows), then evict down to the bound."""
+        key = expert_key(ref)
+        self.root.mkdir(parents=True, exist_ok=True)
+        tmp = Path(tempfile.mkdtemp(dir=self.root, prefix=f".add-{key}."))
+        try:
+            _link_files(files, tmp)
+            if (self.root / key).exists():
+                shutil.rmtree(tmp, ignore_errors=True)  # cached by another fetch meanwhile
+            else:
+                os.replace(tmp, self.root / key)
+        except OSError as exc:  # a cache that cannot be written costs downloads, not the job
+            shutil.rmtree(tmp, ignore_errors=True)
+            log.warning("model cache %s: cannot keep %s: %s", self.root, key, exc)
+            return
+        self.evict()
+
+    def size(self) -> int:
+        """Bytes held by the cached bundles."""
+        return sum(size for _, _, size in self._entries())
+
+    def _entries(self) -> list[tuple[int, Path, int]]:
+        """(last use, directory, bytes) of each cached bundle, least recently used first."""
+        out = []
+        if not self.root.is_dir():
+            return out
+        for entry in self.root.iterdir():
+            if entry.name.startswith("."):
+                continue
+            try:
+                used = entry.stat().st_mtime_ns
+                size = sum((entry / name).stat().st_size for name in MODEL_FILES)
+            except OSError:  # incomplete or being removed: not a cached bundle
+                continue
+            out.append((used, entry, size))
+        return sorted(out, key=lambda e: (e[0], e[1].name))
+
+    def evict(self) -> list[str]:
+        """Remove least recently used bundles until the cache holds at most ``max_bytes``, and
+        leftovers of adds cut short (over an hour old); the CIDs evicted."""
+        entries = self._entries()
+        total = sum(size for _, _, size in entries)
+        gone = []
+        for _, entry, size in entries:
+            if total <= self.max_bytes:
+                break
+            doomed = entry.with_name(f".evict-{entry.name}-{os.getpid()}")
+            try:
+                os.replace(entry, doomed)  # out of sight at once, removed after
+            except OSError:
+                continue
+            shutil.rmtree(doomed, ignore_errors=True)
+            total -= size
+            gone.append(entry.name)
+        stale = time.time() - 3600
+        for left in self.root.glob(".*"):
+            try:
+                if left.stat().st_mtime < stale:
+                    shutil.rmtree(left, ignore_errors=True)
+            except OSError:
+                continue
+        return gone
+
+
+def _link_files(src: Path, dest: Path) -> None:
+    """Hard-link (copy where links fail) the model files of ``src`` into ``dest``: verified
+    files are never written again, so a link is as good as a copy."""
+    for name in MODEL_FILES:
+        (dest / name).unlink(missing_ok=True)
+        try:
+            os.link(src / name, dest / name)
+        except OSError:  # another file system, no hard links
+            shutil.copyfile(src / name, dest / name)
+
+
 def fetch_experts(
     store: ContentStore,
     refs: tuple[str, ...] | list[str],
     job_dir: Path,
     *,
     max_weights: int = MAX_WEIGHTS_BYTES,
+    cache: ModelCache | None = None,
 ) -> dict[str, Path]:
     """{reference as the spec writes it: verified model directory} for every expert."""
-    return {ref: fetch_expert(store, ref, job_dir, max_weights=max_weights) for ref in refs}
+    return {
+        ref: fetch_expert(store, ref, job_dir, max_weights=max_weights, cache=cache)
+        for ref in refs
+    }
 
 
 def fetch_expert(
-    store: ContentStore, ref: str, job_dir: Path, *, max_weights: int = MAX_WEIGHTS_BYTES
+    store: ContentStore,
+    ref: str,
+    job_dir: Path,
+    *,
+    max_weights: int = MAX_WEIGHTS_BYTES,
+    cache: ModelCache | None = None,
 ) -> Path:
-    """The verified model directory of expert ``ref`` under ``job_dir/experts`` (fetched once).
+    """The verified model directory of expert ``ref`` under ``job_dir/experts`` (fetched once;
+    from ``cache`` when it holds the bundle).
 
-    :class:`StoreUnavailable` propagates (try again later); every other failure is an
+    :data:`STORE_OUTAGES` propagate (try again later); every other failure is an
     :class:`ExpertFetchError` naming the CID."""
-    return _fetch_verified(store, ref, Path(job_dir) / EXPERTS_DIR, max_weights, check_card)
+    return _fetch_verified(
+        store, ref, Path(job_dir) / EXPERTS_DIR, max_weights, check_card, cache
+    )
 
 
 def fetch_walls_cae(
-    store: ContentStore, ref: str, job_dir: Path, *, max_weights: int = MAX_WEIGHTS_BYTES
+    store: ContentStore,
+    ref: str,
+    job_dir: Path,
+    *,
+    max_weights: int = MAX_WEIGHTS_BYTES,
+    cache: ModelCache | None = None,
 ) -> Path:
     """The verified walls CAE (Ch. 4, ``observation.walls_embedding``) of a task under
     ``job_dir/cae``: the same checks as an expert's, with a CAE card instead of a policy's."""
-    return _fetch_verified(store, ref, Path(job_dir) / CAE_DIR, max_weights, check_cae_card)
+    return _fetch_verified(
+        store, ref, Path(job_dir) / CAE_DIR, max_weights, check_cae_card, cache
+    )
 
 
 def _fetch_verified(
-    store: ContentStore, ref: str, parent: Path, max_weights: int, check: Any
+    store: ContentStore,
+    ref: str,
+    parent: Path,
+    max_weights: int,
+    check: Any,
+    cache: ModelCache | None = None,
 ) -> Path:
     key = expert_key(ref)
     final = parent / key
@@ -101,7 +251,14 @@ def _fetch_verified(
     final.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(dir=final.parent, prefix=f".{key}."))
     try:
-        _download(store, ref, tmp, max_weights)
+        cached = cache.get(ref) if cache is not None else None
+        if cached is not None:
+            _check_cached_sizes(cached, ref, max_weights)
+            _link_files(cached, tmp)
+        else:
+            _download(store, ref, tmp, max_weights)
+            if cache is not None:  # verified against the CIDs: worth keeping even if the
+                cache.add(ref, tmp)  # checks below fail (refused again without a download)
         check_safetensors(tmp / "model.safetensors", ref)
         check(tmp / "model.json", ref)
         shutil.rmtree(final, ignore_errors=True)  # a half-written leftover of an older layout
@@ -112,8 +269,49 @@ def _fetch_verified(
     return final
 
 
+def _check_cached_sizes(entry: Path, ref: str, max_weights: int) -> None:
+    """A cached bundle within this worker's bounds (they may be lower than when it was
+    cached), with the message a manifest over the bound gets."""
+    bounds = {"model.safetensors": max_weights, "model.json": MAX_CARD_BYTES}
+    for name in MODEL_FILES:
+        size = (entry / name).stat().st_size
+        if size > bounds[name]:
+            raise ExpertFetchError(
+                ref, f"{name} is {size} bytes, more than the bound of {bounds[name]} bytes"
+            )
+
+
+def offer_fetch_bytes(
+    store: ContentStore,
+    refs: Iterable[str],
+    *,
+    max_weights: int = MAX_WEIGHTS_BYTES,
+    cache: ModelCache | None = None,
+) -> int:
+    """Bytes (cards and weights) checking an offer naming the models ``refs`` would download:
+    those ``cache`` does not hold, sized from their manifests alone (a few hundred bytes each),
+    which must name the model files within the bounds. ExpertFetchError names a bundle that
+    is unusable on its manifest; nothing else is fetched."""
+    total, seen = 0, set()
+    for ref in refs:
+        key = expert_key(ref)
+        if key in seen:
+            continue
+        seen.add(key)
+        if cache is not None and (cached := cache.get(ref)) is not None:
+            _check_cached_sizes(cached, ref, max_weights)
+            continue
+        total += sum(size for _, size in _manifest(store, ref, max_weights).values())
+    return total
+
+
 def check_expert_card(
-    store: ContentStore, ref: str, *, max_weights: int = MAX_WEIGHTS_BYTES, task: Any = None
+    store: ContentStore,
+    ref: str,
+    *,
+    max_weights: int = MAX_WEIGHTS_BYTES,
+    task: Any = None,
+    cache: ModelCache | None = None,
 ) -> tuple[Any, Any]:
     """The checks of an expert that need only its manifest and card (at most MAX_CARD_BYTES),
     run before a worker accepts an offer: a requester naming a model no worker can use (the
@@ -124,9 +322,7 @@ def check_expert_card(
     from workers.mdrl.experts import expert_misfit
     from workers.mdrl.modelio import card_specs
 
-    with tempfile.TemporaryDirectory(prefix="drlaas-card-") as tmp:
-        _download(store, ref, Path(tmp), max_weights, only=("model.json",))
-        card = check_card(Path(tmp) / "model.json", ref)
+    card = _read_card(store, ref, max_weights, check_card, cache)
     try:
         env, obs = card_specs(card)
     except (ValueError, TypeError, KeyError) as exc:  # SpecError is a ValueError
@@ -145,14 +341,13 @@ def check_walls_cae_card(
     max_weights: int = MAX_WEIGHTS_BYTES,
     grid: tuple[int, int] | None = None,
     embedding: int | None = None,
+    cache: ModelCache | None = None,
 ) -> dict[str, Any]:
     """``check_expert_card`` for a task's walls CAE (``observation.walls_embedding``): its
     manifest and card, and that it reads the task's ``grid`` (rows, cols) into the spec's
     ``embedding`` size (``observation.walls_embedding_size``), before a worker accepts the
     offer."""
-    with tempfile.TemporaryDirectory(prefix="drlaas-card-") as tmp:
-        _download(store, ref, Path(tmp), max_weights, only=("model.json",))
-        card = check_cae_card(Path(tmp) / "model.json", ref)
+    card = _read_card(store, ref, max_weights, check_cae_card, cache)
     if grid is not None and tuple(card["grid"]) != tuple(grid):
         rows, cols = card["grid"]
         raise ExpertFetchError(
@@ -167,17 +362,27 @@ def check_walls_cae_card(
     return card
 
 
-def _download(
-    store: ContentStore,
-    ref: str,
-    dest: Path,
-    max_weights: int,
-    only: tuple[str, ...] = MODEL_FILES,
-) -> None:
+def _read_card(
+    store: ContentStore, ref: str, max_weights: int, check: Any, cache: ModelCache | None
+) -> dict[str, Any]:
+    """The checked card of bundle ``ref``: the cached one, else its manifest and card alone
+    fetched (the weights' size bounded on the manifest, none of their bytes fetched)."""
+    cached = cache.get(ref) if cache is not None else None
+    if cached is not None:
+        _check_cached_sizes(cached, ref, max_weights)
+        return check(cached / "model.json", ref)  # type: ignore[no-any-return]
+    with tempfile.TemporaryDirectory(prefix="drlaas-card-") as tmp:
+        _download(store, ref, Path(tmp), max_weights, only=("model.json",))
+        return check(Path(tmp) / "model.json", ref)  # type: ignore[no-any-return]
+
+
+def _manifest(store: ContentStore, ref: str, max_weights: int) -> dict[str, tuple[str, int]]:
+    """{file name: (CID, size)} of bundle ``ref``: exactly the model files, each within its
+    bound, checked before a byte of them is fetched."""
     bounds = {"model.safetensors": max_weights, "model.json": MAX_CARD_BYTES}
     try:
         files = read_bundle(store, ref)
-    except StoreUnavailable:
+    except STORE_OUTAGES:
         raise
     except StoreError as exc:  # not found, mismatch, not a manifest, too large
         raise ExpertFetchError(ref, f"cannot read its bundle manifest: {exc}") from None
@@ -193,11 +398,22 @@ def _download(
             raise ExpertFetchError(
                 ref, f"{name} is {size} bytes, more than the bound of {bounds[name]} bytes"
             )
+    return files
+
+
+def _download(
+    store: ContentStore,
+    ref: str,
+    dest: Path,
+    max_weights: int,
+    only: tuple[str, ...] = MODEL_FILES,
+) -> None:
+    files = _manifest(store, ref, max_weights)
     for name in only:
         file_cid, size = files[name]
         try:
             got = store.get_to_file(file_cid, dest / name, max_size=max(size, 1))
-        except StoreUnavailable:
+        except STORE_OUTAGES:
             raise
         except NotFound:
             raise ExpertFetchError(ref, f"{name} ({file_cid}) is not in the store") from None

@@ -8,7 +8,13 @@ says so instead of failing later inside a transaction.
 
 from __future__ import annotations
 
+import re
+
 from workers.daemon.gateway import Gateway, GatewayError
+
+#: A path on the gateway (``/rpc``): no scheme, host, ``//``, ``..``, query or backslash.
+_RELATIVE_PATH = re.compile(r"/(?!/)(?:[A-Za-z0-9_\-]+/?)*")
+_QUANTITY = re.compile(r"0x[0-9a-fA-F]{1,64}")
 
 
 class NoGas(RuntimeError):
@@ -17,15 +23,31 @@ class NoGas(RuntimeError):
 
 def chain_balance(gw: Gateway, address: str) -> int | None:
     """Balance of ``address`` read through the gateway's ``/rpc`` (embedded chain), or ``None``
-    when the gateway serves no JSON-RPC (a real node: the caller cannot check from here)."""
+    when the gateway serves no JSON-RPC (a real node: the caller cannot check from here).
+    :class:`GatewayError` naming what is wrong when an answer is not what the gateway
+    answers (not an object, an ``rpc`` that is not a path on the gateway, a balance that is
+    not a hex quantity)."""
     try:
-        served = gw.get("/chain/contracts").get("rpc")
+        doc = gw.get("/chain/contracts")
     except GatewayError:
         return None
+    if not isinstance(doc, dict):
+        raise GatewayError("GET", "/chain/contracts", 200,
+                           f"answer is {type(doc).__name__}, not a JSON object")
+    served = doc.get("rpc")
     if not served:
         return None
+    if not isinstance(served, str) or not _RELATIVE_PATH.fullmatch(served):
+        raise GatewayError(
+            "GET", "/chain/contracts", 200,
+            f"'rpc' is {served!r}: only a path on the gateway (e.g. /rpc) is used, never "
+            "another URL",
+        )
     result = gw.rpc(served, "eth_getBalance", [address, "latest"])
-    return int(result, 16) if isinstance(result, str) else None
+    if not isinstance(result, str) or not _QUANTITY.fullmatch(result):
+        raise GatewayError("POST", f"{served} eth_getBalance", 200,
+                           f"result {str(result)[:80]!r} is not a hex quantity")
+    return int(result, 16)
 
 
 def ensure_gas(gw: Gateway) -> str:

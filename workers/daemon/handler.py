@@ -21,7 +21,10 @@ names the CID and what is wrong.
 A job whose training process dies again and again without its checkpoint moving (killed for
 memory, say) is given back after :data:`MAX_STARTS_WITHOUT_PROGRESS` starts instead of being
 redelivered until the deadline; a start whose process died with the whole platform (a new
-``drlaas up``, a reboot: :func:`daemon_session` changed) is not counted. At daemon start
+``drlaas up``, a reboot: :func:`daemon_session` changed) is not counted, nor one the daemon was
+asked to stop during (SIGTERM, SIGINT: ``systemctl restart``, ``docker restart``, Ctrl-C, where
+the session looks the same: :meth:`OfferHandler.note_stop` leaves :data:`STOP_MARK`). At daemon
+start
 :meth:`OfferHandler.recover` reconciles the job directories with the chain (a failure the
 chain has not heard of is reported, a job still accepted, or offered and being checked, is
 queued again, a finished job's checkpoint and fetched models are removed).
@@ -34,6 +37,7 @@ import logging
 import os
 import shutil
 import time
+import uuid
 from collections import deque
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -49,22 +53,28 @@ from web3.exceptions import TimeExhausted
 from backend.chain.addresses import checksum
 from backend.chain.errors import ContractError
 from backend.chain.platform import OfferState, Platform, TaskStatus, Verdict
-from backend.store import ContentStore, NotFound, StoreError, StoreUnavailable
+from backend.store import ContentStore, NotFound, StoreError
 from backend.store.bundle import read_bundle, upload_model
 from backend.store.sealed import address_of, parse_public_key, publish_model, seal_model
 from backend.store.staged import StagedUpload
 from workers.daemon import job as jobs
 from workers.daemon.capabilities import ram_bytes
 from workers.daemon.experts import (
+    CACHE_DIR,
     CAE_DIR,
+    DEFAULT_CACHE_BYTES,
+    DEFAULT_OFFER_FETCH_BYTES,
     EXPERTS_DIR,
     MAX_WEIGHTS_BYTES,
+    STORE_OUTAGES,
     ExpertFetchError,
+    ModelCache,
     check_expert_card,
     check_walls_cae_card,
     expert_key,
     fetch_experts,
     fetch_walls_cae,
+    offer_fetch_bytes,
 )
 from workers.daemon.gateway import Gateway, GatewayError
 from workers.daemon.links import task_spec_cid
@@ -96,6 +106,11 @@ FINISHED = ("submitted", "declined", "closed", "failed")
 #: Training starts in a row that got no further than the last one (the process died before
 #: its checkpoint moved: killed for memory, say) before the job is given back.
 MAX_STARTS_WITHOUT_PROGRESS = 3
+#: Left in the job directory by :meth:`OfferHandler.note_stop` (the daemon asked to stop while
+#: the job's training start ran): ``{"start": start_id, ...}``. That start ended by a stop, not
+#: a death, and does not count toward MAX_STARTS_WITHOUT_PROGRESS. A file of its own, written
+#: from the signal handler: rewriting state.json there could race the job's own ``_save``.
+STOP_MARK = "stopped.json"
 #: What a finished job no longer needs (``_prune``): the delivered model, metrics.csv and
 #: progress.jsonl stay (``drlaas worker share`` reads the model).
 PRUNED = ("run/checkpoint", "experts", "cae", "outbox")
@@ -108,9 +123,9 @@ POINTS_PER_UPDATE = 16
 
 
 class SpecNotFound(SpecError):
-    """The task's spec could not be read from the store (a node reports content it cannot
-    find in time as not found): a reason to decline an offer, but only a Transient failure
-    for a job already accepted, whose spec the worker read when it accepted."""
+    """The task's spec is not in the store: a reason to decline an offer, but only a Transient
+    failure for a job already accepted, whose spec the worker read when it accepted. A node
+    that gave up finding it in time (``FindTimeout``) is a Transient failure either way."""
 
 
 class Transient(RuntimeError):
@@ -183,12 +198,27 @@ class OfferHandler:
     checkpoint_every: int = jobs.CHECKPOINT_EVERY
     max_expert_bytes: int = MAX_WEIGHTS_BYTES
     """Bound on the weights of one expert model fetched for an MEDC job."""
+    max_offer_fetch_bytes: int = DEFAULT_OFFER_FETCH_BYTES
+    """Bound on the model bytes (not cached) checking one offer may download: past it the
+    offer is declined on its manifests alone."""
+    cache_bytes: int = DEFAULT_CACHE_BYTES
+    """Bound on the model cache shared by this worker's jobs (``<data>/cache/models``; 0: none)."""
     clock: Callable[[], float] = time.time
     on_first_step: Callable[[int, int], None] | None = None
     session: str = field(default_factory=daemon_session)
     """This daemon's :func:`daemon_session`, recorded with each training start."""
     progress_errors: int = field(default=0, init=False)
     _pending: dict[int, deque[dict[str, Any]]] = field(default_factory=dict, init=False)
+    _running: tuple[int, str] | None = field(default=None, init=False)
+    """(task id, start id) of the training start in progress in this process (``note_stop``)."""
+    _stop_noted: str | None = field(default=None, init=False)
+
+    @property
+    def cache(self) -> ModelCache | None:
+        """The verified model bundles shared by this worker's jobs (None when disabled)."""
+        if self.cache_bytes <= 0:
+            return None
+        return ModelCache(self.data_dir / CACHE_DIR, self.cache_bytes)
 
     @property
     def address(self) -> str:
@@ -408,7 +438,7 @@ class OfferHandler:
             try:
                 staged.publish(self.store)
                 files = {name: entry[0] for name, entry in read_bundle(self.store, cid).items()}
-            except StoreUnavailable as exc:
+            except STORE_OUTAGES as exc:
                 raise Transient(str(exc)) from exc
             st = self._save(task_id, phase="uploaded", cid=cid, files=files)
             shutil.rmtree(self.job_dir(task_id) / OUTBOX_DIR, ignore_errors=True)  # published
@@ -462,26 +492,40 @@ class OfferHandler:
             if owner.lower() != requester.lower():
                 return f"outcome_key belongs to {owner}, not to the task's requester {requester}"
         cae_card, guides = None, []  # what the run loads besides its own nets (their cards)
-        try:  # experts (and a walls CAE) are fetched after acceptance; a reference no worker
-            # can fetch, and an expert whose card no worker can use, are known now
+        cache = self.cache
+        try:  # a reference no worker can fetch, models over the bounds (on their manifests,
+            # before any card or weights), and an expert whose card no worker can use
             for ref in spec.experts:
                 expert_key(ref)
-            if spec.observation.walls_embedding is not None:
+            demo = spec.demonstration()
+            cae = spec.observation.walls_embedding
+            models = ([cae] if cae is not None else []) + list(demo.experts if demo else ())
+            fetch = offer_fetch_bytes(
+                self.store, models, max_weights=self.max_expert_bytes, cache=cache
+            )
+            if fetch > self.max_offer_fetch_bytes:
+                return (
+                    f"experts_too_large: checking this offer would download {fetch} bytes of "
+                    f"expert models and walls CAE, this worker downloads at most "
+                    f"{self.max_offer_fetch_bytes} per offer"
+                )
+            if cae is not None:
                 cae_card = check_walls_cae_card(
                     self.store,
-                    spec.observation.walls_embedding,
+                    cae,
                     max_weights=self.max_expert_bytes,
                     grid=(spec.env.rows, spec.env.cols),
                     embedding=spec.observation.walls_embedding_size,
+                    cache=cache,
                 )
-            demo = spec.demonstration()
             for ref in demo.experts if demo is not None else ():
                 guides.append(check_expert_card(
-                    self.store, ref, max_weights=self.max_expert_bytes, task=spec.env
+                    self.store, ref, max_weights=self.max_expert_bytes, task=spec.env,
+                    cache=cache,
                 ))
         except ExpertFetchError as exc:
             return str(exc)
-        except StoreUnavailable as exc:
+        except STORE_OUTAGES as exc:
             raise Transient(f"cannot read the task's expert models: {exc}") from exc
         busy = self.active_jobs(exclude=task_id)
         if len(busy) >= self.max_jobs:
@@ -521,18 +565,19 @@ class OfferHandler:
         cae = spec.observation.walls_embedding
         if demo is None and cae is None:
             return None
-        job = self.job_dir(task_id)
+        job, cache = self.job_dir(task_id), self.cache
         try:
             experts = fetch_experts(self.store, demo.experts if demo is not None else (), job,
-                                    max_weights=self.max_expert_bytes)
-            walls = (fetch_walls_cae(self.store, cae, job, max_weights=self.max_expert_bytes)
+                                    max_weights=self.max_expert_bytes, cache=cache)
+            walls = (fetch_walls_cae(self.store, cae, job, max_weights=self.max_expert_bytes,
+                                     cache=cache)
                      if cae is not None else None)
             jobs.check_job_models(spec, experts, walls)
         except ExpertFetchError as exc:
-            for sub in (EXPERTS_DIR, CAE_DIR):  # nothing of a declined task stays on disk
-                shutil.rmtree(job / sub, ignore_errors=True)
+            for sub in (EXPERTS_DIR, CAE_DIR):  # nothing of a declined task stays in the job
+                shutil.rmtree(job / sub, ignore_errors=True)  # (the cache keeps the bytes)
             return str(exc)
-        except StoreUnavailable as exc:
+        except STORE_OUTAGES as exc:
             raise Transient(f"cannot fetch the task's expert models: {exc}") from exc
         return None
 
@@ -582,6 +627,7 @@ class OfferHandler:
         worker's disk does not fill up with jobs it will never resume."""
         for part in PRUNED:
             shutil.rmtree(self.job_dir(task_id) / part, ignore_errors=True)
+        (self.job_dir(task_id) / STOP_MARK).unlink(missing_ok=True)
         for left in jobs.run_dir(self.job_dir(task_id)).glob("checkpoint.*"):  # set aside, swaps
             shutil.rmtree(left, ignore_errors=True)
 
@@ -706,7 +752,7 @@ class OfferHandler:
         model_dir = jobs.run_dir(self.job_dir(task_id)) / st.get("model", "model")
         try:
             publish_model(self.store, st["cid"], model_dir)
-        except StoreUnavailable as exc:
+        except STORE_OUTAGES as exc:
             raise Transient(str(exc)) from exc
         card = json.loads((model_dir / "model.json").read_text())
         return {
@@ -719,7 +765,7 @@ class OfferHandler:
         """The verified spec ``cid``, or the SpecError saying why it cannot be trained."""
         try:
             raw = self.store.get(cid, max_size=MAX_SPEC_BYTES)
-        except StoreUnavailable as exc:
+        except STORE_OUTAGES as exc:  # down, or a node that gave up finding it in time
             raise Transient(f"cannot fetch task spec {cid}: {exc}") from exc
         except NotFound as exc:
             return SpecNotFound("spec", f"task spec {cid!r}: {exc}")
@@ -740,17 +786,76 @@ class OfferHandler:
         the fetches (a process killed for memory while loading experts dies there too), and is
         taken back when they fail for a store outage: that is not a process dying. Nor is a
         start whose process died with the whole platform (``start_session`` differs from this
-        daemon's): only deaths of the job's own daemon count."""
+        daemon's), nor one the daemon was asked to stop during (:meth:`note_stop`): only
+        deaths of the job's own daemon count."""
         st = self._state(task_id)
         starts = _count(st, "starts_without_progress")
-        if starts and st.get("start_session", self.session) != self.session:
-            starts -= 1  # the last start died with the platform (new drlaas up, reboot), not alone
+        if starts and self._last_start_not_a_death(task_id, st):
+            starts -= 1  # the last start died with the platform or was stopped, not alone
         if starts >= MAX_STARTS_WITHOUT_PROGRESS:
             raise JobKeepsDying(
                 f"training was started {starts} times and its process died each time before "
                 f"getting past step {st.get('resumed_from_step', 0)} (killed for memory?)"
             )
-        self._save(task_id, starts_without_progress=starts + 1, start_session=self.session)
+        start_id = uuid.uuid4().hex
+        self._running = (task_id, start_id)  # a stop from here on ends this start
+        try:
+            # an older start's STOP_MARK names another start: left, never removed here (a stop
+            # recorded from now on would be removed with it)
+            self._save(task_id, starts_without_progress=starts + 1, start_session=self.session,
+                       start_id=start_id)
+            return self._train_started(task_id, spec, starts, deadline=deadline)
+        finally:
+            self._running = None
+
+    def _last_start_not_a_death(self, task_id: int, st: dict[str, Any]) -> bool:
+        """Whether the last recorded start ended without its process dying alone: it died
+        with the whole platform (another :func:`daemon_session`), or the daemon was asked to
+        stop during it (its STOP_MARK names it)."""
+        if st.get("start_session", self.session) != self.session:
+            return True
+        start = st.get("start_id")
+        if not isinstance(start, str) or not start:
+            return False
+        try:
+            mark = json.loads((self.job_dir(task_id) / STOP_MARK).read_text())
+        except (OSError, ValueError, RecursionError):
+            return False
+        return isinstance(mark, dict) and mark.get("start") == start
+
+    def note_stop(self, how: str) -> int | None:
+        """The daemon was asked to stop (Celery's warm or cold shutdown on SIGTERM, SIGINT,
+        SIGQUIT: ``systemctl stop``, ``docker stop``, Ctrl-C): record that the training start
+        running now ends by a stop, so the next start does not count it as a death (under
+        systemd, or as PID 1 of a container, every restart has the same
+        :func:`daemon_session`). A SIGKILL or the OOM killer leaves no record and still
+        counts. Runs in the signal handler: writes STOP_MARK only, never raises; returns the
+        task id of the start marked, or None when no training start runs."""
+        running = self._running
+        if running is None or self._stop_noted == running[1]:
+            return running[0] if running is not None else None
+        task_id, start_id = running
+        self._stop_noted = start_id
+        mark = self.job_dir(task_id) / STOP_MARK
+        tmp = mark.with_name(f"{STOP_MARK}.{os.getpid()}.tmp")
+        try:
+            with tmp.open("w") as fh:  # on disk before a SIGKILL that may follow the SIGTERM
+                fh.write(json.dumps({"start": start_id, "how": how, "at": self.clock(),
+                                     "pid": os.getpid()}))
+                fh.flush()
+                os.fsync(fh.fileno())
+            os.replace(tmp, mark)
+        except OSError as exc:
+            log.error("task %s: cannot record the stop (%s): %s", task_id, how, exc)
+            return None
+        log.warning("task %s: stop requested (%s) while training: this start is not counted "
+                    "as a death", task_id, how)
+        return task_id
+
+    def _train_started(
+        self, task_id: int, spec: TrainingSpec, starts: int, *, deadline: int
+    ) -> Path:
+        """``_train`` once the start is counted: fetch the job's models, then train."""
         try:
             experts = self._fetch_experts(task_id, spec)
             walls_cae = self._fetch_walls_cae(task_id, spec)
@@ -789,9 +894,10 @@ class OfferHandler:
             return {}
         try:
             dirs = fetch_experts(
-                self.store, demo.experts, self.job_dir(task_id), max_weights=self.max_expert_bytes
+                self.store, demo.experts, self.job_dir(task_id), max_weights=self.max_expert_bytes,
+                cache=self.cache,
             )
-        except StoreUnavailable as exc:
+        except STORE_OUTAGES as exc:
             raise Transient(f"cannot fetch the task's expert models: {exc}") from exc
         self._save(task_id, experts=list(demo.experts))
         return dirs
@@ -804,9 +910,10 @@ class OfferHandler:
             return None
         try:
             return fetch_walls_cae(
-                self.store, ref, self.job_dir(task_id), max_weights=self.max_expert_bytes
+                self.store, ref, self.job_dir(task_id), max_weights=self.max_expert_bytes,
+                cache=self.cache,
             )
-        except StoreUnavailable as exc:
+        except STORE_OUTAGES as exc:
             raise Transient(f"cannot fetch the task's walls CAE: {exc}") from exc
 
     def _transact(self, fn: str, *args: Any) -> Any:

@@ -13,17 +13,20 @@ the gateway's, whose location the gateway tells loopback clients (``GET /api/loc
 
 from __future__ import annotations
 
+import ipaddress
 import json
 import os
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
+from urllib.parse import urlsplit
 
 import httpx
 from eth_account.signers.local import LocalAccount
 
 from backend.chain.client import Chain
 from backend.chain.platform import Platform, connect_platform
+from backend.httpbounds import bounded_get
 from backend.settings import Settings, load_settings
 from backend.store import ContentStore, make_store
 
@@ -50,7 +53,9 @@ class Deployment:
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> Deployment:
         """Accepts ``{umc, tmc, mmc}`` or contract names (``UsersManager``...), possibly under
-        a ``contracts`` key."""
+        a ``contracts`` key; ValueError naming what is wrong with any other document."""
+        if not isinstance(d, dict):
+            raise ValueError(f"deployment: not a JSON object but {type(d).__name__}")
         if isinstance(d.get("contracts"), dict):
             d = d["contracts"]
         out = {}
@@ -85,7 +90,7 @@ def resolve_deployment(settings: Settings, gateway: str | None) -> Deployment:
     if gateway:
         for path in ("/api/chain/contracts",):
             try:
-                r = httpx.get(gateway.rstrip("/") + path, timeout=10)
+                r = bounded_get(gateway.rstrip("/") + path, timeout=10)  # bounded answer
                 if r.is_success:
                     return Deployment.from_dict(r.json())
                 tried.append(f"GET {path} -> {r.status_code}")
@@ -118,8 +123,15 @@ def worker_settings(gateway: str | None) -> tuple[Settings, Path]:
     settings = load_settings(data_dir=str(own))
     if not gateway or not (settings.broker_service.embedded or settings.ipfs_service.embedded):
         return settings, own
+    if not is_loopback_url(gateway):
+        raise RuntimeError(
+            f"DRLAAS_BROKER / DRLAAS_IPFS are 'embedded', which means the gateway's own files on "
+            f"this machine, but the gateway {gateway} is not a loopback address (only a gateway "
+            f"on this machine is asked where they are); set DRLAAS_BROKER and DRLAAS_IPFS to "
+            f"the platform's broker and IPFS URLs"
+        )
     try:
-        r = httpx.get(gateway.rstrip("/") + "/api/local/services", timeout=10)
+        r = bounded_get(gateway.rstrip("/") + "/api/local/services", timeout=10)
         doc = r.json() if r.is_success else None
     except (httpx.HTTPError, ValueError):
         doc = None
@@ -131,10 +143,42 @@ def worker_settings(gateway: str | None) -> tuple[Settings, Path]:
         )
     overrides: dict[str, Any] = {}
     if settings.broker == "embedded" and doc.get("broker_embedded"):
-        overrides["data_dir"] = doc["data_dir"]
+        overrides["data_dir"] = _local_dir(gateway, "data_dir", doc["data_dir"])
     if settings.ipfs == "embedded" and doc.get("ipfs_dir"):
-        overrides["ipfs"] = "embedded:" + doc["ipfs_dir"]
+        overrides["ipfs"] = "embedded:" + _local_dir(gateway, "ipfs_dir", doc["ipfs_dir"])
     return load_settings(**{"data_dir": str(own), **overrides}), own
+
+
+def is_loopback_url(url: str) -> bool:
+    """Whether ``url``'s host is this machine by its literal name: ``localhost`` or a
+    loopback IP address (127.0.0.0/8, ::1). Names are not resolved."""
+    try:
+        host = (urlsplit(url).hostname or "").lower()
+    except ValueError:
+        return False
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+def _local_dir(gateway: str, name: str, value: Any) -> str:
+    """A directory named by a loopback gateway's ``/api/local/services``: an absolute path
+    with no ``..`` (RuntimeError naming the field otherwise)."""
+    if (
+        not isinstance(value, str)
+        or not value
+        or "\0" in value
+        or not Path(value).is_absolute()
+        or ".." in Path(value).parts
+    ):
+        raise RuntimeError(
+            f"the gateway {gateway} names {name} {value!r} for its embedded services: not an "
+            f"absolute path without '..'; set DRLAAS_BROKER and DRLAAS_IPFS instead"
+        )
+    return value
 
 
 def chain_url(settings: Settings, gateway: str | None) -> str:

@@ -15,7 +15,14 @@ it is retried past MAX_RETRIES, at most every RETRY_CAP_S and within half the ti
 The handler of a daemon process is built once from the environment (``runtime_from_env``):
 ``DRLAAS_WORKER_KEY`` (key file), ``DRLAAS_GATEWAY`` (gateway URL), ``DRLAAS_WORKER_DATA``
 (default ``<data>/workers/<address>``), ``DRLAAS_WORKER_MAX_JOBS`` (default 1),
-``DRLAAS_WORKER_CHECKPOINT_EVERY`` (updates between checkpoints, default 2).
+``DRLAAS_WORKER_CHECKPOINT_EVERY`` (updates between checkpoints, default 2),
+``DRLAAS_WORKER_MODEL_CACHE_BYTES`` (bound on the verified expert models kept for later offers,
+default 2 GiB, 0 for none), ``DRLAAS_WORKER_OFFER_FETCH_BYTES`` (model bytes one offer's check
+may download, default 256 MiB).
+
+A warm or cold shutdown of the daemon (SIGTERM, SIGINT, SIGQUIT: Celery's
+``worker_shutting_down``) marks the training start in progress as stopped
+(``OfferHandler.note_stop``), so a ``systemctl restart`` is not counted as the job dying.
 """
 
 from __future__ import annotations
@@ -29,11 +36,13 @@ from pathlib import Path
 from typing import Any
 
 from celery import Celery, shared_task
+from celery.signals import worker_shutting_down
 
 from backend.celery_app import make_celery, worker_queue
 from backend.chain.addresses import checksum
 from backend.observability.logs import task_context
 from backend.settings import Settings, load_settings
+from workers.daemon.experts import DEFAULT_CACHE_BYTES, DEFAULT_OFFER_FETCH_BYTES
 from workers.daemon.handler import OfferHandler, Transient
 
 log = logging.getLogger(__name__)
@@ -111,7 +120,24 @@ def runtime_from_env(settings: Settings | None = None) -> OfferHandler:
         gateway=Gateway(gateway_url, account) if gateway_url else None,
         max_jobs=int(os.environ.get("DRLAAS_WORKER_MAX_JOBS", "1")),
         checkpoint_every=int(os.environ.get("DRLAAS_WORKER_CHECKPOINT_EVERY", "2")),
+        cache_bytes=_env_bytes("DRLAAS_WORKER_MODEL_CACHE_BYTES", DEFAULT_CACHE_BYTES),
+        max_offer_fetch_bytes=_env_bytes("DRLAAS_WORKER_OFFER_FETCH_BYTES",
+                                         DEFAULT_OFFER_FETCH_BYTES),
     )
+
+
+def _env_bytes(name: str, default: int) -> int:
+    """A byte count from the environment; ValueError naming the variable if it is not one."""
+    text = os.environ.get(name, "").strip()
+    if not text:
+        return default
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if value < 0:
+        raise ValueError(f"{name} must be a number of bytes >= 0, got {text!r}")
+    return value
 
 
 def runtime() -> OfferHandler:
@@ -120,6 +146,16 @@ def runtime() -> OfferHandler:
         if _runtime is None:
             _runtime = runtime_from_env()
         return _runtime
+
+
+@worker_shutting_down.connect
+def _note_stop(sig: str = "", how: str = "", **_: Any) -> None:
+    """Celery's SIGTERM / SIGINT / SIGQUIT handler, in the daemon's main process: a deliberate
+    stop is not a death of the training job (``OfferHandler.note_stop``). Reads the handler
+    without the lock: a signal handler must not wait for a lock its own thread may hold."""
+    handler = _runtime
+    if handler is not None:
+        handler.note_stop(f"{sig or 'signal'}, {how.lower() or 'warm'} shutdown")
 
 
 def set_runtime(handler: OfferHandler | None) -> None:

@@ -14,7 +14,14 @@ from fastapi.responses import Response
 from backend.api.deps import StoreDep
 from backend.api.errors import RuleError, rule_responses
 from backend.schemas.common import CID_LENGTH, CID_PATTERN
-from backend.store import CHUNK_SIZE, CIDMismatch, ContentTooLarge, InvalidCID, NotFound
+from backend.store import (
+    CHUNK_SIZE,
+    CIDMismatch,
+    ContentTooLarge,
+    FindTimeout,
+    InvalidCID,
+    NotFound,
+)
 
 router = APIRouter(prefix="/blocks", tags=["models"])
 
@@ -35,7 +42,7 @@ RAW_BLOCK = "application/vnd.ipld.raw"
 @router.get(
     "/{cid}",
     response_class=Response,
-    responses={200: {"content": {RAW_BLOCK: {}}}, **rule_responses(404, 422, 502)},
+    responses={200: {"content": {RAW_BLOCK: {}}}, **rule_responses(404, 422, 502, 504)},
 )
 def get_block(cid: CidPath, store: StoreDep) -> Response:
     """The raw bytes of block ``cid`` (verified here, and again by the reader)."""
@@ -43,6 +50,10 @@ def get_block(cid: CidPath, store: StoreDep) -> Response:
         block = store.get_block(cid, max_bytes=MAX_BLOCK_BYTES)
     except InvalidCID as exc:
         raise RuleError(422, "invalid_cid", f"{cid!r} is not a CID: {exc}") from None
+    except FindTimeout as exc:  # the node gave up looking: not "absent", worth a retry
+        raise RuleError(
+            504, "content_find_timeout", str(exc), headers={"Retry-After": "30"}
+        ) from None
     except NotFound:
         raise RuleError(404, "content_not_found", f"the store does not hold block {cid}") from None
     except (CIDMismatch, ContentTooLarge) as exc:

@@ -29,6 +29,14 @@ from drlaas.commands.client.session import (
     table,
     write,
 )
+from drlaas.commands.client.txcheck import (
+    MMC,
+    TMC,
+    Call,
+    Expect,
+    allocate_model_call,
+    share_model_expect,
+)
 from workers.daemon.gateway import Gateway, GatewayError
 from workers.mdrl.spec import parse_grid, parse_walls
 
@@ -238,7 +246,16 @@ def model_push(
         with connect_funded(gateway, key) as gw:
             commitment = "0x" + cid_commitment(cid, gw.account.address).hex()
             try:
-                write(gw, "POST", "/models/commitments", {"commitment": commitment})
+                write(
+                    gw,
+                    "POST",
+                    "/models/commitments",
+                    {"commitment": commitment},
+                    expect=Expect(
+                        "model push --key",
+                        (Call(TMC, "commitCid", {"commitment": commitment}),),
+                    ),
+                )
             except GatewayError as exc:
                 fail(exc)
         out["commitment"] = commitment
@@ -292,18 +309,11 @@ def model_share(
     as_json: JsonOpt = False,
 ) -> None:
     """Share a model (MMC.addModel) so requesters can be allocated it."""
+    body = {"cid": cid, "description": description, "domain": domain, "env": json.loads(env_json)}
     with connect_funded(gateway, key) as gw:
         try:
             out = write(
-                gw,
-                "POST",
-                "/models",
-                {
-                    "cid": cid,
-                    "description": description,
-                    "domain": domain,
-                    "env": json.loads(env_json),
-                },
+                gw, "POST", "/models", body, expect=share_model_expect("model share", body, gw)
             )
         except GatewayError as exc:
             fail(exc)
@@ -326,7 +336,13 @@ def request_models(
     body["metric"] = metric
     if price_wei is not None:
         body["price_wei"] = price_wei
-    out = write(gw, "POST", "/models/requests", body)
+    out = write(  # paid price_wei (or the MMC's minimum) x num_models
+        gw,
+        "POST",
+        "/models/requests",
+        body,
+        expect=Expect("model request", (allocate_model_call(body),)),
+    )
     if "alloc_id" in out:
         return dict(out)
     alloc_id = int(event_arg(out, "ModelsRequested", "allocId"))
@@ -414,6 +430,16 @@ def model_review(
                 "POST",
                 f"/models/requests/{alloc_id}/reviews",
                 {"model_id": model_id, "review": review},
+                expect=Expect(
+                    "model review",
+                    (
+                        Call(
+                            MMC,
+                            "updateModelRep",
+                            {"allocId": alloc_id, "modelId": model_id, "review": review},
+                        ),
+                    ),
+                ),
             )
         except GatewayError as exc:
             fail(exc)

@@ -16,6 +16,14 @@ from typing import Annotated, Any
 import typer
 from web3 import Web3
 
+from drlaas.commands.client.txcheck import (
+    Expect,
+    Pin,
+    TxRefused,
+    check_tx,
+    expect_request,
+    platform_pin,
+)
 from workers.daemon.funding import NoGas, ensure_gas
 from workers.daemon.gateway import Gateway, GatewayError
 from workers.daemon.keys import load_or_create_key
@@ -34,10 +42,20 @@ _INT_FIELDS = frozenset(
 )
 
 
+class CliGateway(Gateway):
+    """A :class:`Gateway` that knows its key file (where the deployment is pinned,
+    ``<key>.platform.json``: :mod:`drlaas.commands.client.txcheck`)."""
+
+    def __init__(self, url: str, account: Any = None, key_path: Path | None = None) -> None:
+        super().__init__(url, account)
+        self.key_path = key_path
+        self.pin: Pin | None = None
+
+
 def connect(gateway: str, key: Path | None = None) -> Gateway:
     """A gateway session, signing in as the key file's account when ``key`` is given."""
     account = load_or_create_key(key) if key is not None else None
-    return Gateway(gateway or os.environ.get("DRLAAS_GATEWAY", DEFAULT_GATEWAY), account)
+    return CliGateway(gateway or os.environ.get("DRLAAS_GATEWAY", DEFAULT_GATEWAY), account, key)
 
 
 def connect_funded(gateway: str, key: Path) -> Gateway:
@@ -57,11 +75,17 @@ MAX_WRITE_STEPS = 3
 before ``POST /models``) and the request's own, with room for one retry of the first."""
 
 
-def write(gw: Gateway, method: str, path: str, body: Any = None) -> Any:
+def write(
+    gw: Gateway, method: str, path: str, body: Any = None, expect: Expect | None = None
+) -> Any:
     """A write acting as the key's address: relay the transaction ourselves if the gateway
     answers ``sign_locally`` (it holds no key for us), and send the request again when that
     transaction was only a first step (``then: repeat``). Returns the endpoint's answer, or
-    the relayed transaction's receipt (``{tx_hash, block_number, status, events}``)."""
+    the relayed transaction's receipt (``{tx_hash, block_number, status, events}``).
+
+    A transaction is signed only if it is what ``expect`` says (by default the one the
+    gateway's route sends for this request, :func:`txcheck.expect_request`) on the pinned
+    deployment: else :class:`~drlaas.commands.client.txcheck.TxRefused`, nothing signed."""
     for _ in range(MAX_WRITE_STEPS):
         try:
             return gw.request(method, path, json=body, auth=True)
@@ -69,10 +93,38 @@ def write(gw: Gateway, method: str, path: str, body: Any = None) -> Any:
             detail = exc.detail if isinstance(exc.detail, dict) else {}
             if exc.status != 409 or detail.get("rule") != "sign_locally" or "tx" not in detail:
                 raise
-            receipt = _relay(gw, sign(gw, detail["tx"]))
-            if detail.get("then") != "repeat":
+            then = detail.get("then")
+            fields = _checked(gw, method, path, body, expect, detail["tx"], then == "repeat")
+            receipt = _relay(gw, sign(gw, fields))
+            if then != "repeat":
                 return receipt
     raise RuntimeError(f"{method} {path}: still asks for a first step after {MAX_WRITE_STEPS}")
+
+
+def _checked(
+    gw: Gateway,
+    method: str,
+    path: str,
+    body: Any,
+    expect: Expect | None,
+    tx: Any,
+    first_step: bool,
+) -> dict[str, Any]:
+    """``tx`` checked against ``expect`` and the pinned deployment (TxRefused otherwise)."""
+    key = getattr(gw, "key_path", None)
+    try:
+        if expect is None:
+            expect = expect_request(method, path, body, gw.address)
+        pin = getattr(gw, "pin", None)
+        if pin is None:
+            pin = platform_pin(gw, key)
+            if isinstance(gw, CliGateway):
+                gw.pin = pin
+    except (LookupError, ValueError) as exc:
+        raise TxRefused(method, path, f"refusing to sign: {exc}; nothing was signed") from None
+    return check_tx(
+        gw, tx, expect, first_step=first_step, pin=pin, key=key, request=(method, path)
+    )
 
 
 def _relay(gw: Gateway, raw: str) -> Any:
@@ -90,7 +142,8 @@ def _relay(gw: Gateway, raw: str) -> Any:
 
 
 def sign(gw: Gateway, tx: dict[str, Any]) -> str:
-    """The 0x-hex raw transaction of ``tx`` (a ``sign_locally`` body) signed by the key."""
+    """The 0x-hex raw transaction of ``tx`` (fields checked by :func:`_checked`) signed by
+    the key."""
     fields = {
         k: (int(v, 16) if isinstance(v, str) and k in _INT_FIELDS and v.startswith("0x") else v)
         for k, v in tx.items()

@@ -20,12 +20,19 @@ from typing import Annotated, Any
 
 import typer
 
+from backend.chain.platform import cid_hash
 from backend.store import CID, InvalidCID
 from backend.store.gateway_blocks import GatewayBlocks
-from backend.store.sealed import public_key_hex, pull_model_with_key
+from backend.store.sealed import (
+    SEALED_FILE,
+    public_key_hex,
+    pull_model_with_key,
+    sealed_envelopes,
+)
 from drlaas.commands.client.models import request_models
 from drlaas.commands.client.session import (
     DEFAULT_GATEWAY,
+    CliGateway,
     GatewayOpt,
     JsonOpt,
     KeyOpt,
@@ -38,6 +45,16 @@ from drlaas.commands.client.session import (
     read,
     table,
     write,
+)
+from drlaas.commands.client.txcheck import (
+    TMC,
+    Call,
+    Expect,
+    add_task_call,
+    chain_url,
+    contract,
+    platform_pin,
+    web3_of,
 )
 from workers.daemon.gateway import Gateway, GatewayError
 from workers.daemon.keys import load_key
@@ -307,13 +324,15 @@ def submit(gw: Gateway, body: dict[str, Any]) -> dict[str, Any]:
     """Create and allocate a task; ``{task_id, spec_cid, offered, tx_hashes}`` either way: the
     gateway signs both transactions (it holds the key), or we relay ``addTask`` and then
     allocate (the gateway answered ``sign_locally``)."""
-    out = write(gw, "POST", "/tasks", body)
+    out = write(  # addTask: these terms, escrowing payment_wei x num_workers
+        gw, "POST", "/tasks", body, expect=Expect("task submit", (add_task_call(body),))
+    )
     if "task_id" in out:
         return out
     task_id = int(event_arg(out, "TaskAdded", "taskId"))
     spec_cid = str(event_arg(out, "TaskAdded", "description"))
     try:
-        alloc = write(gw, "POST", f"/tasks/{task_id}/allocate")
+        alloc = write(gw, "POST", f"/tasks/{task_id}/allocate", expect=allocate_expect(task_id))
     except GatewayError as exc:  # the task is posted and holds its escrow: say which it is
         return {"task_id": task_id, "spec_cid": spec_cid, "offered": [],
                 "tx_hashes": [out["tx_hash"]], "allocation_error": str(exc)}
@@ -323,6 +342,11 @@ def submit(gw: Gateway, body: dict[str, Any]) -> dict[str, Any]:
         "offered": [e["args"]["worker"] for e in alloc["events"] if e["name"] == "TaskOffered"],
         "tx_hashes": [out["tx_hash"], alloc["tx_hash"]],
     }
+
+
+def allocate_expect(task_id: int) -> Expect:
+    """What ``POST /tasks/{id}/allocate`` may have us sign: TMC.allocateTask(task_id)."""
+    return Expect(f"task allocate {task_id}", (Call(TMC, "allocateTask", {"taskId": task_id}),))
 
 
 @task_app.command("list")
@@ -456,6 +480,21 @@ def task_review(
                 "POST",
                 f"/tasks/{task_id}/reviews",
                 {"worker": worker, "review": review, "accepted": not reject},
+                expect=Expect(
+                    "task review",
+                    (
+                        Call(
+                            TMC,
+                            "reviewOutcome",
+                            {
+                                "taskId": task_id,
+                                "worker": worker,
+                                "review": review,
+                                "accepted": not reject,
+                            },
+                        ),
+                    ),
+                ),
             )
         except GatewayError as exc:
             fail(exc)
@@ -473,7 +512,7 @@ def task_allocate(
     submit whose allocation failed, or once offers expired or were declined."""
     with connect_funded(gateway, key) as gw:
         try:
-            out = write(gw, "POST", f"/tasks/{task_id}/allocate")
+            out = write(gw, "POST", f"/tasks/{task_id}/allocate", expect=allocate_expect(task_id))
         except GatewayError as exc:
             fail(exc)
     emit(out, as_json, lambda d: typer.echo(f"task {task_id} allocated ({d['tx_hash']})"))
@@ -539,18 +578,41 @@ def task_pull(
 ) -> None:
     """Download a task's outcome model through the gateway, verified against its CID (the
     requester does not have to wait until the worker shares it; a sealed outcome is opened
-    here with the requester's --key and checked against the CID on chain)."""
-    outcomes = read(gateway, f"/tasks/{task_id}").get("outcomes") or []
+    here with the requester's --key). The CID the gateway names is checked on chain first
+    (TMC.outcomeOf: an outcome of this task by that worker, at the pinned TasksManager); with
+    --key the bundle must be sealed."""
+    doc = read(gateway, f"/tasks/{task_id}")
+    outcomes = doc.get("outcomes") if isinstance(doc, dict) else None
+    if not isinstance(outcomes, list) or not all(
+        isinstance(o, dict) and isinstance(o.get("worker"), str) and isinstance(o.get("cid"), str)
+        for o in outcomes
+    ):
+        fail(GatewayError("GET", f"/tasks/{task_id}", 200, "'outcomes' is not a list of "
+                          "{worker, cid} objects"))
     chosen = [o for o in outcomes if worker is None or o["worker"].lower() == worker.lower()]
     if not chosen:
         fail(LookupError(f"task {task_id} has no outcome" + (f" from {worker}" if worker else "")))
     cid = chosen[0]["cid"]
+    try:
+        check_outcome_on_chain(gateway, key, task_id, chosen[0]["worker"], cid)
+    except (ValueError, LookupError, GatewayError) as exc:
+        fail(exc)
+    except Exception as exc:  # noqa: BLE001 - web3 raises several types; shown with its type
+        fail(RuntimeError(f"cannot read task {task_id}'s outcome on chain: "
+                          f"{type(exc).__name__}: {exc}"))
     private_key = bytes(load_key(key).key) if key is not None else None
     try:
         with GatewayBlocks(gateway) as store:
+            if private_key is not None and SEALED_FILE not in sealed_envelopes(store, cid):
+                fail(ValueError(
+                    f"outcome {cid} of task {task_id} is not sealed, and --key (or DRLAAS_KEY) "
+                    "asks for an outcome sealed to you: pull it without --key if the task was "
+                    "submitted with --public-outcome"))
             path = pull_model_with_key(
                 store, cid, out if out is not None else Path(f"task-{task_id}-model"), private_key
             )
+    except typer.Exit:
+        raise
     except Exception as exc:  # noqa: BLE001 - shown to the user with its type
         fail(RuntimeError(f"cannot pull {cid}: {type(exc).__name__}: {exc}"))
     emit(
@@ -558,3 +620,31 @@ def task_pull(
         as_json,
         lambda d: typer.echo(f"task {task_id} outcome {cid} ({d['worker']}) -> {path}"),
     )
+
+
+def check_outcome_on_chain(
+    gateway: str, key: Path | None, task_id: int, worker: str, cid: str
+) -> None:
+    """ValueError unless the chain (DRLAAS_CHAIN, or the gateway's /rpc; the pinned chain id
+    and TasksManager) records ``cid`` as ``worker``'s outcome of ``task_id``."""
+    with CliGateway(gateway or DEFAULT_GATEWAY, None, key) as gw:
+        pin = platform_pin(gw, key)
+        w3 = web3_of(gw)
+        chain_id = int(w3.eth.chain_id)
+        if chain_id != pin.chain_id:
+            raise ValueError(
+                f"the chain at {chain_url(gw)} is chain {chain_id}, not {pin.chain_id} "
+                f"({pin.source})"
+            )
+        tmc = contract(TMC, pin.contracts[TMC], w3)
+        owner, on_task, _ = tmc.functions.outcomeOf(cid_hash(cid)).call()
+    if int(owner, 16) == 0:
+        raise ValueError(
+            f"the gateway names {cid} as task {task_id}'s outcome, but the chain records no "
+            f"outcome with that CID (TasksManager {pin.contracts[TMC]})"
+        )
+    if str(owner).lower() != worker.lower() or int(on_task) != task_id:
+        raise ValueError(
+            f"the gateway names {cid} as {worker}'s outcome of task {task_id}, but the chain "
+            f"records it as {owner}'s outcome of task {on_task}"
+        )

@@ -14,6 +14,7 @@ from drlaas.commands.client.session import (
     fail,
     write,
 )
+from drlaas.commands.client.txcheck import UMC, Call, Expect
 from workers.daemon.gateway import GatewayError
 
 requester_app = typer.Typer(help="Your requester record.", no_args_is_help=True)
@@ -27,7 +28,12 @@ def requester_register(
     embedded demo chain is funded from the faucet first."""
     with connect_funded(gateway, key) as gw:
         try:
-            out = write(gw, "POST", "/users/requesters")
+            out = write(
+                gw,
+                "POST",
+                "/users/requesters",
+                expect=Expect("requester register", (Call(UMC, "addRequester"),)),
+            )
         except GatewayError as exc:
             fail(exc)
         emit(out, as_json, lambda d: typer.echo(_registered(gw.address, d.get("status"))))

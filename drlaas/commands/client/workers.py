@@ -19,6 +19,7 @@ from drlaas.commands.client.session import (
     kv,
     write,
 )
+from drlaas.commands.client.txcheck import expect_request, share_model_expect
 from workers.daemon.capabilities import measure
 from workers.daemon.command import open_worker, parse_domains, worker_command
 from workers.daemon.gateway import GatewayError
@@ -38,13 +39,15 @@ def worker_register(
 ) -> None:
     """Register (or update) your worker record with this machine's measured capabilities."""
     caps = measure()
+    body = {"domains": list(parse_domains(domains)), **caps.to_dict()}
     with connect_funded(gateway, key) as gw:
         try:
-            out = write(
+            out = write(  # UMC.addWorker, or updateCapabilities, with these capabilities
                 gw,
                 "POST",
                 "/users/workers",
-                {"domains": list(parse_domains(domains)), **caps.to_dict()},
+                body,
+                expect=expect_request("POST", "/users/workers", body, gw.address),
             )
         except GatewayError as exc:
             fail(exc)
@@ -106,18 +109,16 @@ def worker_share(
         model = handler.publish_outcome(task_id)
     except Exception as exc:  # noqa: BLE001 - shown to the user with its type
         fail(exc)
+    body = {
+        "cid": model["cid"],
+        "env": model["env"],
+        "domain": model["domain"],
+        "description": description or f"outcome of task {task_id}",
+    }
     with connect_funded(gateway, key) as gw:
         try:
             out = write(
-                gw,
-                "POST",
-                "/models",
-                {
-                    "cid": model["cid"],
-                    "env": model["env"],
-                    "domain": model["domain"],
-                    "description": description or f"outcome of task {task_id}",
-                },
+                gw, "POST", "/models", body, expect=share_model_expect("worker share", body, gw)
             )
         except GatewayError as exc:
             fail(exc)
