@@ -132,7 +132,9 @@ def worker_command(
     from workers.daemon.lock import hold_daemon_lock
     from workers.daemon.logs import configure_daemon_logging
     from workers.daemon.metrics import serve_worker_metrics
+    from workers.daemon.offer_watch import poll_interval_from_env, start_watcher
 
+    offer_poll_s = poll_interval_from_env()  # a bad DRLAAS_WORKER_OFFER_POLL_S fails at once
     logging.getLogger("httpx").setLevel(logging.WARNING)  # one line per progress point otherwise
     gateway = gateway or default_gateway()
     settings, own_dir = worker_settings(gateway)
@@ -153,8 +155,8 @@ def worker_command(
 
     handler = tasks.runtime_from_env(settings)
     lock = hold_daemon_lock(handler.data_dir)  # noqa: F841 - held until the process exits
-    if metrics_port is not None:
-        serve_worker_metrics(handler, metrics_port, metrics_host)
+    metrics = (serve_worker_metrics(handler, metrics_port, metrics_host)
+               if metrics_port is not None else None)
     caps = measure()
     done = register_worker(handler.platform, caps, parse_domains(domains))
     typer.echo(
@@ -165,7 +167,11 @@ def worker_command(
     )
     job.warm_up()
     tasks.set_runtime(handler)
-    recover_jobs(handler, tasks.make_on_offer(settings, app))
+    on_offer = tasks.make_on_offer(settings, app)
+    recover_jobs(handler, on_offer)
+    watcher = start_watcher(handler, on_offer, offer_poll_s)  # offers the broker did not deliver
+    if metrics is not None and watcher is not None:
+        metrics.watch(watcher)
     app.worker_main(
         [
             "worker",

@@ -6,7 +6,11 @@
   job directories' ``state.json`` at scrape time, so a restarted daemon reports its jobs at once;
 * ``drlaas_worker_training_steps_per_second{job}`` and ``drlaas_worker_training_step{job}``:
   of each job still training, from the last two points of its ``progress.jsonl``;
-* ``drlaas_chain_request_duration_seconds{method,outcome}``: the daemon's JSON-RPC requests.
+* ``drlaas_chain_request_duration_seconds{method,outcome}``: the daemon's JSON-RPC requests;
+* ``drlaas_worker_offers_found_on_chain_total``: offers the chain offer watcher
+  (``workers.daemon.offer_watch``) found on chain and enqueued because the broker had not
+  delivered them; ``drlaas_worker_offer_watch_errors_total``: its ticks that failed (node down
+  or garbled); ``drlaas_worker_offer_watch_block``: the last block it scanned.
 """
 
 from __future__ import annotations
@@ -18,7 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from prometheus_client import CollectorRegistry, start_http_server
-from prometheus_client.core import GaugeMetricFamily, Metric
+from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, Metric
 from prometheus_client.registry import Collector
 
 from backend.observability.metrics import chain_histogram, instrument_web3
@@ -111,6 +115,31 @@ class JobsCollector(Collector):
         yield from (jobs, sps, step)
 
 
+class OfferWatchCollector(Collector):
+    """The counters of a chain offer watcher (an ``offer_watch.OfferWatcher``), read at
+    scrape time."""
+
+    def __init__(self, watcher: Any) -> None:
+        self.watcher = watcher
+
+    def collect(self) -> Iterator[Metric]:
+        found = CounterMetricFamily(
+            "drlaas_worker_offers_found_on_chain",
+            "Offers found on chain and enqueued because the broker had not delivered them",
+        )
+        found.add_metric([], float(self.watcher.found))
+        errors = CounterMetricFamily(
+            "drlaas_worker_offer_watch_errors", "Ticks of the chain offer watcher that failed"
+        )
+        errors.add_metric([], float(self.watcher.errors))
+        yield from (found, errors)
+        if self.watcher.block is not None:
+            yield GaugeMetricFamily(
+                "drlaas_worker_offer_watch_block", "Last block the chain offer watcher scanned",
+                value=float(self.watcher.block),
+            )
+
+
 class WorkerMetrics:
     """A daemon's registry: its jobs under ``jobs_root`` and its chain requests."""
 
@@ -118,6 +147,10 @@ class WorkerMetrics:
         self.registry = CollectorRegistry()
         self.chain_latency = chain_histogram(self.registry)
         self.registry.register(JobsCollector(jobs_root))
+
+    def watch(self, watcher: Any) -> None:
+        """Report the counters of the daemon's chain offer watcher."""
+        self.registry.register(OfferWatchCollector(watcher))
 
     def instrument(self, w3: Any) -> None:
         instrument_web3(w3, self.chain_latency)
