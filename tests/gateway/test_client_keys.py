@@ -6,6 +6,7 @@ budget, request and store slots, sign-in messages and faucet top-ups."""
 from __future__ import annotations
 
 import asyncio
+import threading
 from pathlib import Path
 from typing import Any
 
@@ -157,7 +158,11 @@ def test_one_ipv6_network_shares_its_download_slots(tmp_path: Path) -> None:
 
         response = _Download(iter([b"weights"]), settings=app.state.settings, what="a model")
         scope = {"type": "http", "client": (host, 4000), "app": app, "method": "GET"}
-        asyncio.run(response(scope, receive, send))
+        # a thread of its own: an event loop another test left running in this one would
+        # refuse asyncio.run
+        runner = threading.Thread(target=asyncio.run, args=(response(scope, receive, send),))
+        runner.start()
+        runner.join(30)
         return int(sent[0]["status"])
 
     assert download(HOST_A2) == 429
