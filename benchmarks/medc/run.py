@@ -371,11 +371,12 @@ def last_level(runs: list[dict]) -> float:
 
 def final(runs: list[dict], key: str) -> tuple[float, tuple[float, float]]:
     """Mean over seeds of a held-out figure, with the t-interval over the seeds (the per-run
-    interval for one seed)."""
+    interval for one seed), cut at 0: the figures (time, cost, rates) are never negative."""
     v = np.array([r["heldout"][key] for r in runs])
     ci = t_interval(v) if len(v) > 1 else tuple(runs[0]["heldout"].get(f"{key}_ci",
                                                                        (math.nan, math.nan)))
-    return float(v.mean()), (float(ci[0]), float(ci[1]))
+    lo, hi = (math.nan if x is None else float(x) for x in ci)
+    return float(v.mean()), (lo if math.isnan(lo) else max(lo, 0.0), hi)
 
 
 def eq9_return(heldout: dict, bonus: float) -> float:

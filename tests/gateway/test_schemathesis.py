@@ -71,6 +71,8 @@ _ENV_RELATIONS = (
     r"at most \d+ walls",  # walls <= max(rows, cols)
     r"walls need a grid of at least 4x4",
     r"agents and a target do not fit",  # agents + 1 <= rows * cols
+    r"of the wall layouts this spec allows leave an area",  # the layout fit probe (env.py)
+    r"walls are at most \d+ cells long",  # wall_length within the grid
 )
 UNSCHEMATIC_REJECTIONS: dict[str, tuple[str, ...]] = {
     "POST /api/tasks": (
@@ -88,6 +90,7 @@ UNSCHEMATIC_REJECTIONS: dict[str, tuple[str, ...]] = {
         r"the QoS weights are all 0",  # a relation over the items (some qos > 0)
         # algorithm.demonstration (nested) needs experts or expert_allocation (top level)
         r"applies only when experts are named",
+        r"needs budget\.steps",  # schedules over the step budget (anneal_lr, rate_end)
         # outcome_key: a point of secp256k1 whose address is the caller's (sealed outcomes)
         r"not a point of secp256k1",
         r"^outcome_key_not_requester ",

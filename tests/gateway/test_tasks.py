@@ -273,6 +273,15 @@ def test_selection_goes_into_the_stored_spec(
             ["body", "env", "intensity", "values"],
         ),
         ({"env": ENV | {"walls": [0, 9]}}, ["body", "env", "walls"]),
+        # walls that leave 15 agents no room: no worker's env could lay them out
+        (
+            {"env": {"rows": 4, "cols": 4, "agents": 15, "moves": 8, "walls": [2, 3]}},
+            ["body", "env", "walls"],
+        ),
+        (
+            {"algorithm": {"ppo": {"anneal_lr": True}}, "budget": {"minutes": 10}},
+            ["body", "algorithm", "ppo", "anneal_lr"],
+        ),
         ({"algorithm": {"preset": "nope"}}, ["body", "algorithm", "preset"]),
         ({"algorithm": {"ppo": {"num_envs": 0}}}, ["body", "algorithm", "ppo", "num_envs"]),
         ({"experts": ["../../etc/passwd"]}, ["body", "experts", 0]),

@@ -80,6 +80,15 @@ def test_round_trip_and_defaults() -> None:
         ({"selection": {"keep_best": "time", "eval_every": 0}}, "selection.eval_every"),
         ({"selection": {"eval_every": 3}}, "selection.eval_every"),
         ({"selection": ["time"]}, "selection"),
+        # a schedule over a budget of steps only (it was accepted and ignored on the platform)
+        ({"algorithm": {"ppo": {"anneal_lr": True}}, "budget": {"minutes": 1}},
+         "algorithm.ppo.anneal_lr"),
+        # walls that leave 15 agents no room: refused here (the gateway's 422), not by every
+        # worker's env after the task was paid for
+        ({"env": {"rows": 4, "cols": 4, "agents": 15, "moves": 8, "walls": [2, 3]}}, "env.walls"),
+        ({"env": {"rows": 5, "cols": 5, "agents": 10, "walls": [5, 5]}}, "env.walls"),  # 19.5%
+        ({"env": {"rows": 10, "cols": 10, "walls": [1, 2], "wall_length": [64, 64]}},
+         "env.wall_length"),
         ({"outcome_key": "0x1234"}, "outcome_key"),
         ({"outcome_key": "0x" + "01" * 64}, "outcome_key"),  # hex of the length, off the curve
     ],

@@ -99,6 +99,8 @@ class RandomPolicy:
     """Uniform over each agent's valid actions, from its own seeded generator."""
 
     name = "random"
+    #: ``evaluate`` steps its chunks of episodes one at a time: its stream spans the batch.
+    rows_independent = False
 
     def __init__(self, seed: int = 0) -> None:
         self.rng = np.random.default_rng(seed)
@@ -175,6 +177,8 @@ class UniformPolicy:
     """
 
     name = "uniform"
+    #: ``evaluate`` steps its chunks of episodes one at a time: it holds B x C x C distance tables.
+    rows_independent = False
 
     def reset(self, env) -> None:
         self._tracker = _EpisodeTracker(env.pos.shape[0])
@@ -274,6 +278,8 @@ class BayesPolicy:
     """
 
     name = "bayes"
+    #: ``evaluate`` steps its chunks of episodes one at a time: it holds B x C x C distance tables.
+    rows_independent = False
 
     def __init__(self, move_cost: float = 0.1, intensity_levels: int = 8) -> None:
         if move_cost < 0:

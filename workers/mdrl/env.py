@@ -16,6 +16,7 @@ which the target is reachable (the target of Ch. 3/4 is always reachable).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -59,6 +60,110 @@ class LayoutError(ValueError):
     """The spec's walls leave no area for the team and the target (too many for the grid)."""
 
 
+#: Geometries (``geometry``) kept at once, and the most bytes they may hold together (a 64 x 64
+#: one is 200 MB): evaluation builds an env per batch of episodes, a trainer one per run.
+GEOMETRY_CACHE_ENTRIES = 8
+GEOMETRY_CACHE_BYTES = 1 << 30
+
+
+def _frozen(a: np.ndarray) -> np.ndarray:
+    a.flags.writeable = False
+    return a
+
+
+class Geometry:
+    """The static tables of one grid geometry, read-only and shared by every env built on it
+    (``geometry``): cell rows/columns and centres, the wall-free move table, BFS distances and
+    expected-count gains, and (built when first asked for) the wall path factors and the log
+    gains of the belief filter. They depend only on ``geometry_key(spec)``."""
+
+    def __init__(self, key: tuple) -> None:
+        m, n, moves, (cy, cx), dwell_min, detector_area_cm2 = key
+        self.key = key
+        cell_row, cell_col = np.repeat(np.arange(m), n), np.tile(np.arange(n), m)
+        centre_m = np.stack([(cell_row + 0.5) * cy, (cell_col + 0.5) * cx], axis=1)
+        step = MOVES[moves]
+        nr = cell_row[:, None] + step[None, :, 0]
+        nc = cell_col[:, None] + step[None, :, 1]
+        inside = (nr >= 0) & (nr < m) & (nc >= 0) & (nc < n)
+        # in place, in int32, one axis at a time: the same values as the int64 / (C, C, 2)
+        # temporaries the env built at every construction (~1 GB at 64 x 64), in ~0.3 GB
+        r32, c32 = cell_row.astype(np.int32), cell_col.astype(np.int32)
+        free_dist = np.abs(np.subtract(r32[:, None], r32[None]))
+        along = np.abs(np.subtract(c32[:, None], c32[None]))
+        (np.add if moves == 4 else np.maximum)(free_dist, along, out=free_dist)
+        del along
+        d2_cm2 = np.subtract(centre_m[:, None, 0], centre_m[None, :, 0])
+        np.square(d2_cm2, out=d2_cm2)
+        dx2 = np.subtract(centre_m[:, None, 1], centre_m[None, :, 1])
+        d2_cm2 += np.square(dx2, out=dx2)
+        del dx2
+        d2_cm2 *= 1e4
+        np.maximum(d2_cm2, (min(cy, cx) * 100 / 2) ** 2, out=d2_cm2)
+        # Eq. 6 per photon/min: dwell * area / (4 pi d^2), in d2_cm2's buffer
+        free_gain = np.divide(dwell_min * detector_area_cm2,
+                              np.multiply(4 * np.pi, d2_cm2, out=d2_cm2), out=d2_cm2)
+        self.cell_row, self.cell_col, self.centre_m = map(_frozen, (cell_row, cell_col, centre_m))
+        self.free_next = _frozen(np.where(inside, nr * n + nc, -1))
+        self.free_dist, self.free_gain = _frozen(free_dist), _frozen(free_gain)
+        self._slant: tuple[np.ndarray, np.ndarray] | None = None
+        self._log_gain: dict[float, np.ndarray] = {}
+
+    def slant(self) -> tuple[np.ndarray, np.ndarray]:
+        """(slant_y, slant_x) (C, C): 1 / cos(theta) per (source, detector) and slab axis."""
+        if self._slant is None:
+            dy = self.centre_m[None, :, 0] - self.centre_m[:, None, 0]  # detector - source
+            dx = self.centre_m[None, :, 1] - self.centre_m[:, None, 1]
+            length = np.hypot(dy, dx)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                self._slant = (_frozen(length / np.abs(dy)), _frozen(length / np.abs(dx)))
+        return self._slant
+
+    def log_free_gain(self, floor: float) -> np.ndarray:
+        """log max(free_gain, floor) (C, C), for the belief filter (one floor kept)."""
+        if floor not in self._log_gain:
+            self._log_gain.clear()
+            self._log_gain[floor] = _frozen(np.log(np.maximum(self.free_gain, floor)))
+        return self._log_gain[floor]
+
+    @property
+    def nbytes(self) -> int:
+        tables = [self.cell_row, self.cell_col, self.centre_m, self.free_next, self.free_dist,
+                  self.free_gain, *(self._slant or ()), *self._log_gain.values()]
+        return sum(a.nbytes for a in tables)
+
+
+_GEOMETRY: dict[tuple, Geometry] = {}
+"""Cached geometries by ``geometry_key``, least recently used first."""
+
+
+def geometry_key(spec: EnvSpec) -> tuple:
+    """The spec fields the static tables depend on: grid, moves, cell size, detector physics."""
+    return (spec.rows, spec.cols, spec.moves, tuple(spec.cell_size_m), spec.dwell_min,
+            spec.detector_area_cm2)
+
+
+def _build_geometry(key: tuple) -> Geometry:
+    return Geometry(key)
+
+
+def geometry(spec: EnvSpec) -> Geometry:
+    """The read-only static tables of ``spec``'s geometry, built once and cached (bounded by
+    ``GEOMETRY_CACHE_ENTRIES`` and ``GEOMETRY_CACHE_BYTES``; an evicted one lives on in the
+    envs that hold it)."""
+    key = geometry_key(spec)
+    geo = _GEOMETRY.pop(key, None)
+    if geo is None:
+        geo = _build_geometry(key)
+    _GEOMETRY[key] = geo  # most recently used last
+    while len(_GEOMETRY) > 1 and (
+        len(_GEOMETRY) > GEOMETRY_CACHE_ENTRIES
+        or sum(g.nbytes for g in _GEOMETRY.values()) > GEOMETRY_CACHE_BYTES
+    ):
+        del _GEOMETRY[next(iter(_GEOMETRY))]
+    return geo
+
+
 @dataclass
 class EpisodeStats:
     """Episodes that ended in one step: which envs, and how they ended."""
@@ -81,40 +186,33 @@ class TargetLocalizationEnv:
     """B target-localization episodes stepped together. See ``docs/mdrl-core.md`` for the state."""
 
     def __init__(
-        self, spec: EnvSpec, num_envs: int = 1, seed: int | None = None, autoreset: bool = True
+        self, spec: EnvSpec, num_envs: int = 1, seed: int | None = None, autoreset: bool = True,
+        blocks: Sequence[tuple[int, int]] | None = None,
     ) -> None:
+        """``blocks``: ``(seed, size)`` of consecutive runs of envs (sizes adding up to
+        ``num_envs``; ``seed`` is then unused), each drawing exactly the layouts and reading
+        noise an env of that size built with that seed would: evaluation steps several seeded
+        chunks of episodes as one batch (``evaluate``). Only with ``autoreset=False``."""
         if num_envs < 1:
             raise ValueError(f"num_envs must be >= 1, got {num_envs}")
         self.spec = spec
         self.num_envs = num_envs
         self.autoreset = autoreset
         B, N, C, A = num_envs, spec.agents, spec.num_cells, spec.num_actions
-        m, n = spec.rows, spec.cols
         self.moves = MOVES[spec.moves]
 
-        # Static geometry, shared by all episodes.
-        self.cell_row = np.repeat(np.arange(m), n)
-        self.cell_col = np.tile(np.arange(n), m)
-        cy, cx = spec.cell_size_m
-        self.centre_m = np.stack([(self.cell_row + 0.5) * cy, (self.cell_col + 0.5) * cx], axis=1)
-        nr = self.cell_row[:, None] + self.moves[None, :, 0]
-        nc = self.cell_col[:, None] + self.moves[None, :, 1]
-        inside = (nr >= 0) & (nr < m) & (nc >= 0) & (nc < n)
+        # Static geometry, shared by all episodes and by every env of the same geometry: built
+        # once (``geometry``, cached) and read-only (C x C tables: 200 MB at 64 x 64).
+        geo = geometry(spec)
+        self._geometry = geo
+        self.cell_row, self.cell_col, self.centre_m = geo.cell_row, geo.cell_col, geo.centre_m
         # (C, A) move table without walls: a valid move goes where it would go without walls,
         # so steps read this one table (which moves the walls allow: ``action_mask``)
-        self._free_next = np.where(inside, nr * n + nc, -1)
-        diff = (
-            np.abs(self.cell_row[:, None] - self.cell_row[None]),
-            np.abs(self.cell_col[:, None] - self.cell_col[None]),
-        )
+        self._free_next = geo.free_next
         # Wall-free BFS distances have a closed form: Manhattan (4 moves) or Chebyshev (8 moves).
-        self._free_dist = (diff[0] + diff[1] if spec.moves == 4 else np.maximum(*diff)).astype(
-            np.int32
-        )
-        d2_cm2 = ((self.centre_m[:, None, :] - self.centre_m[None, :, :]) ** 2).sum(-1) * 1e4
-        d2_cm2 = np.maximum(d2_cm2, (min(cy, cx) * 100 / 2) ** 2)
+        self._free_dist = geo.free_dist
         # Expected count per photon/min without walls (Eq. 6): dwell * area / (4 pi d^2).
-        self._free_gain = spec.dwell_min * spec.detector_area_cm2 / (4 * np.pi * d2_cm2)
+        self._free_gain = geo.free_gain
 
         # Per-env state (documented in docs/mdrl-core.md).
         self.pos = np.zeros((B, N), dtype=np.int64)
@@ -141,42 +239,39 @@ class TargetLocalizationEnv:
         self._agent_offsets = np.arange(B * N).reshape(B, N) * A  # flat (b, i, 0) in (B, N, A)
         if spec.walls[1] and C <= self._GEOMETRY_CELLS:
             # 1 / cos(theta) per (source, detector) and slab axis
-            dy = self.centre_m[None, :, 0] - self.centre_m[:, None, 0]  # detector - source
-            dx = self.centre_m[None, :, 1] - self.centre_m[:, None, 1]
-            length = np.hypot(dy, dx)
-            with np.errstate(divide="ignore", invalid="ignore"):
-                self._slant_y, self._slant_x = length / np.abs(dy), length / np.abs(dx)
+            self._slant_y, self._slant_x = geo.slant()
         self._check_fit_rate()
-        self.seed(seed)
-        self.reset()
+        if blocks is None:
+            self.seed(seed)
+            self.reset()
+        else:
+            self._reset_blocks(blocks)
 
     def _check_fit_rate(self) -> None:
         """Refuse a spec whose walls leave the team no room too often (LayoutError): decided
         once, here, not by a reset that gives up in the middle of a run."""
-        spec = self.spec
-        self._fit_rate = 1.0
-        if not spec.walls[1]:
-            return
-        rate = _FIT_RATES.get(spec)
-        if rate is None:  # the same for every env of a spec (a fixed stream): once per spec
-            rng = np.random.Generator(np.random.PCG64(FIT_PROBE_DRAWS))
-            # always the rejection sampler: the rate, so which specs are refused, stays what
-            # it was before dense specs got a direct sampler (once per spec: ~10 ms at worst)
-            walls = self._draw_walls_rejection(spec, rng, FIT_PROBE_DRAWS)
-            keys = rng.random((FIT_PROBE_DRAWS, spec.num_cells))
-            keys[walls] = 2.0
-            reachable = self._bfs(keys.argmin(axis=1), walls) < UNREACHABLE
-            rate = float((reachable.sum(1) >= spec.agents + 1).mean())
-            if len(_FIT_RATES) < 1024:
-                _FIT_RATES[spec] = rate
-        self._fit_rate = rate
-        if rate < MIN_FIT_RATE:
-            raise LayoutError(
-                f"only {rate:.0%} of the wall layouts this spec allows leave an area where "
-                f"{spec.agents} agents and a target fit ({spec.rows}x{spec.cols}, walls "
-                f"{spec.walls}, wall_length {spec.wall_length}; at least {MIN_FIT_RATE:.0%} must): "
-                "use fewer or shorter walls or a larger grid"
+        self._fit_rate = check_layout_fit(self.spec)
+
+    @staticmethod
+    def _probe_fit_rate(spec: EnvSpec) -> float:
+        """Share of FIT_PROBE_DRAWS layouts (a fixed stream) whose target's area holds the
+        team. Always the rejection sampler: the rate, so which specs are refused, stays what
+        it was before dense specs got a direct sampler (once per spec: ~10 ms at worst)."""
+        rng = np.random.Generator(np.random.PCG64(FIT_PROBE_DRAWS))
+        walls = TargetLocalizationEnv._draw_walls_rejection(spec, rng, FIT_PROBE_DRAWS)
+        keys = rng.random((FIT_PROBE_DRAWS, spec.num_cells))
+        keys[walls] = 2.0
+        target = keys.argmin(axis=1)
+        fits = np.ones(FIT_PROBE_DRAWS, dtype=bool)  # no walls: every cell reaches the target
+        hard = np.flatnonzero(walls.any(axis=1))
+        if len(hard):
+            dist = kernels.walls_bfs(
+                np.ascontiguousarray(target[hard]), np.ascontiguousarray(walls[hard]),
+                spec.rows, spec.cols, MOVES[spec.moves], UNREACHABLE,
             )
+            fits[hard] = (dist < UNREACHABLE).sum(1) >= spec.agents + 1
+        return float(fits.mean())
+
 
     # ------------------------------------------------------------------ seeding and state
     def seed(self, seed: int | None) -> None:
@@ -184,6 +279,28 @@ class TargetLocalizationEnv:
         layout, noise = np.random.SeedSequence(seed).spawn(2)
         self.layout_rng = np.random.Generator(np.random.PCG64(layout))
         self.noise_rng = np.random.Generator(np.random.PCG64(noise))
+        self._noise_blocks: list[np.random.Generator] | None = None  # one stream for all B
+
+    def _reset_blocks(self, blocks: Sequence[tuple[int, int]]) -> None:
+        """Start the episodes of ``blocks`` (see ``__init__``): block k's rows are reset from
+        its own layout stream and take readings from its own noise stream, in the order an env
+        of its size would (rows ascending), so its episodes are that env's bit for bit."""
+        sizes = [int(size) for _, size in blocks]
+        if self.autoreset:
+            raise ValueError("blocks of seeded envs need autoreset=False")
+        if not sizes or min(sizes) < 1 or sum(sizes) != self.num_envs:
+            raise ValueError(f"block sizes {sizes} must be >= 1 and add up to {self.num_envs}")
+        streams = []
+        for block_seed, _ in blocks:
+            self.seed(block_seed)
+            streams.append((self.layout_rng, self.noise_rng))
+        self._block_of = np.repeat(np.arange(len(sizes)), sizes)
+        self._noise_blocks = [noise for _, noise in streams]
+        start = 0
+        for (layout, _), size in zip(streams, sizes, strict=True):
+            self.layout_rng = layout
+            self._reset_rows(np.arange(start, start + size))
+            start += size
 
     _STATE = (
         "pos target walls dist mean_reading readings reading_sum visits episode_id t idle_streak "
@@ -209,6 +326,8 @@ class TargetLocalizationEnv:
 
     def state_dict(self) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
         """(arrays, JSON-able extras) that restore this env exactly, mid-episode included."""
+        if self._noise_blocks is not None:
+            raise ValueError("an env of seeded blocks (evaluation) has no single state to save")
         arrays = {name.lstrip("_"): getattr(self, name).copy() for name in self._STATE}
         extras = {
             "spec": self.spec.to_dict(),
@@ -231,14 +350,16 @@ class TargetLocalizationEnv:
                 )
             current[...] = value
         self._next_stale[...] = True
+        self._noise_blocks = None
         self.layout_rng.bit_generator.state = extras["layout_rng"]
         self.noise_rng.bit_generator.state = extras["noise_rng"]
 
     # ------------------------------------------------------------------ episodes
     def reset(self, seed: int | None = None) -> None:
-        """Start new episodes in all B environments."""
+        """Start new episodes in all B environments (one stream again after ``blocks``)."""
         if seed is not None:
             self.seed(seed)
+        self._noise_blocks = None
         self._reset_rows(self._rows)
 
     def _reset_rows(self, rows: np.ndarray, draw: int = 1) -> None:
@@ -476,8 +597,8 @@ class TargetLocalizationEnv:
         spec = self.spec
         cy, cx = spec.cell_size_m
         cells = np.ascontiguousarray(cells, dtype=np.int64)
-        if not hasattr(self, "_log_free_gain"):
-            self._log_free_gain = np.log(np.maximum(self._free_gain, floor))
+        if getattr(self, "_log_floor", None) != floor:
+            self._log_free_gain, self._log_floor = self._geometry.log_free_gain(floor), floor
         kernels.belief_add(
             sum_log, sum_gain, np.ascontiguousarray(envs, dtype=np.int64), cells,
             np.ascontiguousarray(d_reading, dtype=np.float64),
@@ -554,7 +675,14 @@ class TargetLocalizationEnv:
         and visit counts."""
         lam = self.mean_reading[rows[:, None], cells]
         noisy = self.spec.readings == "poisson"
-        taken = self.noise_rng.poisson(lam) if noisy else lam
+        if noisy and self._noise_blocks is not None:  # each block's rows from its own stream
+            taken = np.empty(lam.shape, dtype=np.float64)
+            block = self._block_of[rows]
+            cuts = [0, *(np.flatnonzero(block[1:] != block[:-1]) + 1).tolist(), len(rows)]
+            for lo, hi in zip(cuts[:-1], cuts[1:], strict=True):
+                taken[lo:hi] = self._noise_blocks[block[lo]].poisson(lam[lo:hi])
+        else:
+            taken = self.noise_rng.poisson(lam) if noisy else lam
         kernels.record_readings(
             rows, cells, taken.astype(np.float64, copy=False), self.readings, self.visits,
             self.reading_sum,
@@ -625,3 +753,29 @@ class TargetLocalizationEnv:
         """All episodes over (only with autoreset=False)."""
         return not self.active.any()
 
+
+def layout_fit_rate(spec: EnvSpec) -> float:
+    """Share of the wall layouts ``spec`` allows that leave the team and a target an area
+    (1.0 without walls): the same for every env of a spec (a fixed stream), so cached."""
+    if not spec.walls[1]:
+        return 1.0
+    rate = _FIT_RATES.get(spec)
+    if rate is None:
+        rate = TargetLocalizationEnv._probe_fit_rate(spec)
+        if len(_FIT_RATES) < 1024:
+            _FIT_RATES[spec] = rate
+    return rate
+
+
+def check_layout_fit(spec: EnvSpec) -> float:
+    """:func:`layout_fit_rate`, or LayoutError when under MIN_FIT_RATE: what env construction
+    and the task-spec parser (so the gateway, before a task is paid for) both refuse."""
+    rate = layout_fit_rate(spec)
+    if rate < MIN_FIT_RATE:
+        raise LayoutError(
+            f"only {rate:.0%} of the wall layouts this spec allows leave an area where "
+            f"{spec.agents} agents and a target fit ({spec.rows}x{spec.cols}, walls "
+            f"{spec.walls}, wall_length {spec.wall_length}; at least {MIN_FIT_RATE:.0%} must): "
+            "use fewer or shorter walls or a larger grid"
+        )
+    return rate

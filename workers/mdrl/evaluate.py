@@ -6,6 +6,13 @@ cost = moving actions of the whole team in the episode (line 577). Episodes are 
 j is seeded from ``(seed, j)``, so the same ``(spec, episodes, seed, batch)`` gives the very
 same layouts (targets, starts, walls, intensities) to every policy, and the same reading
 noise too as long as the policies' choices agree.
+
+Chunks are what the episodes are; how many are stepped at once is not: a policy whose choice
+in one env does not depend on the others in the batch (a trained model; not ``random``, whose
+stream is drawn over the batch, nor the baselines holding B x C x C tables) steps up to
+``STEP_ENVS`` envs of consecutive chunks as one env (``TargetLocalizationEnv(blocks=...)``,
+each chunk with its own streams), so a large grid, whose chunks hold one or a few episodes,
+is not stepped one episode at a time.
 """
 
 from __future__ import annotations
@@ -21,12 +28,17 @@ from .env import TargetLocalizationEnv
 from .spec import EnvSpec
 
 Z95 = 1.959963984540054
+#: Most envs stepped together by ``evaluate`` when it groups chunks (~1 MB each at 64 x 64,
+#: env and observer).
+STEP_ENVS = 100
 
 
 def default_batch(spec: EnvSpec, episodes: int) -> int:
-    """Environments stepped together; depends on the spec only, never on the policy.
+    """Episodes per seeded chunk; depends on the spec only, never on the policy (so every
+    policy gets the same episodes).
 
-    Bounded so the per-episode all-pairs tables of the baselines (B x C x C) stay small.
+    Bounded so the per-episode all-pairs tables of the baselines (B x C x C) stay small; other
+    policies step several chunks together (``evaluate``), so the bound does not slow them.
     """
     C = spec.num_cells
     return int(max(1, min(episodes, 100, 20_000_000 // (C * C))))
@@ -58,6 +70,12 @@ def t_interval(values: np.ndarray) -> tuple[float, float]:
     return (mean - half, mean + half)
 
 
+def _clipped(interval: tuple[float, float], low: float) -> list[float]:
+    """``interval`` cut to the support ``[low, inf)`` (a t interval on few skewed values can
+    reach below the least possible value: an episode lasts >= 1 step and costs >= 0)."""
+    return [x if math.isnan(x) else max(x, low) for x in interval]
+
+
 def _mean(values: np.ndarray) -> float:
     return float(np.mean(values)) if len(values) else math.nan
 
@@ -68,7 +86,8 @@ class EvalReport:
 
     ``time_mean`` / ``cost_mean`` average over ALL episodes (a failed episode counts
     ``max_steps`` steps and the moves it made); ``*_success`` average over the successful
-    episodes only (NaN if none). Rates use the Wilson interval, means the Student-t interval.
+    episodes only (NaN if none). Rates use the Wilson interval, means the Student-t interval
+    cut to the support (time >= 1 step, cost >= 0 moves).
     """
 
     policy: str
@@ -93,13 +112,13 @@ class EvalReport:
             "success_rate": float(ok.mean()) if n else math.nan,
             "success_ci": list(wilson_interval(int(ok.sum()), n)),
             "time_mean": _mean(self.time),
-            "time_ci": list(t_interval(self.time)),
+            "time_ci": _clipped(t_interval(self.time), 1.0),
             "cost_mean": _mean(self.cost),
-            "cost_ci": list(t_interval(self.cost)),
+            "cost_ci": _clipped(t_interval(self.cost), 0.0),
             "time_mean_success": _mean(self.time[ok]),
-            "time_success_ci": list(t_interval(self.time[ok])),
+            "time_success_ci": _clipped(t_interval(self.time[ok]), 1.0),
             "cost_mean_success": _mean(self.cost[ok]),
-            "cost_success_ci": list(t_interval(self.cost[ok])),
+            "cost_success_ci": _clipped(t_interval(self.cost[ok]), 0.0),
             "lower_bound_mean": _mean(self.lower_bound),
         }
 
@@ -156,12 +175,14 @@ def evaluate(
     batch = default_batch(env_spec, episodes) if batch is None else int(batch)
     if batch < 1:
         raise ValueError(f"batch must be >= 1, got {batch}")
+    sizes = [min(batch, episodes - start) for start in range(0, episodes, batch)]
+    together = max(1, STEP_ENVS // batch) if getattr(policy, "rows_independent", True) else 1
     found, time, cost, target, bound = [], [], [], [], []
-    for chunk, start in enumerate(range(0, episodes, batch)):
-        B = min(batch, episodes - start)
-        env = TargetLocalizationEnv(
-            env_spec, num_envs=B, seed=chunk_seed(seed, chunk), autoreset=False
-        )
+    for first in range(0, len(sizes), together):
+        blocks = [(chunk_seed(seed, c), sizes[c])
+                  for c in range(first, min(first + together, len(sizes)))]
+        B = sum(size for _, size in blocks)
+        env = TargetLocalizationEnv(env_spec, num_envs=B, autoreset=False, blocks=blocks)
         target.append(env.target.copy())
         bound.append(np.take_along_axis(env.dist, env.pos, axis=1).min(axis=1).astype(np.int64))
         f = np.zeros(B, dtype=bool)

@@ -24,6 +24,7 @@ import re
 from dataclasses import dataclass
 from typing import Any
 
+from workers.mdrl.env import LayoutError, check_layout_fit
 from workers.mdrl.observations import KINDS, ObservationSpec
 from workers.mdrl.ppo import PPOConfig
 from workers.mdrl.presets import FAST_PPO, PRESETS, get_preset
@@ -355,6 +356,9 @@ class TrainingSpec:
         if demonstration.get("rate_end") is not None and budget.get("steps") is None:
             raise SpecError("algorithm.demonstration.rate_end",
                             "an expert rate schedule needs budget.steps")
+        if (algo.get("ppo") or {}).get("anneal_lr") and budget.get("steps") is None:
+            raise SpecError("algorithm.ppo.anneal_lr",
+                            "a learning-rate schedule needs budget.steps (it anneals over them)")
         if obs.get("route") and not (obs.get("belief") and obs.get("kind", "odmtl") == "odmtl"):
             raise SpecError("observation.route", "needs observation.kind = odmtl and "
                             "observation.belief = true (the walking distance to the belief)")
@@ -429,10 +433,22 @@ def _env(fields: dict[str, Any], field: str = "env") -> EnvSpec:
         raise SpecError(join(field, "walls"), f"at most {max(rows, cols)} walls, got {list(walls)}")
     if walls[1] > 0 and min(rows, cols) < 4:
         raise SpecError(join(field, "walls"), "walls need a grid of at least 4x4")
+    length = fields.get("wall_length")
+    if walls[1] > 0 and length is not None and length[0] > max(rows, cols) - 2:
+        raise SpecError(  # it was drawn shorter than asked, and the card kept the ask
+            join(field, "wall_length"),
+            f"walls are at most {max(rows, cols) - 2} cells long on {rows}x{cols} (they stop "
+            f"short of the far side), got at least {length[0]}",
+        )
     try:
-        return EnvSpec(**fields)
+        spec = EnvSpec(**fields)
     except ValueError as exc:  # a rule of EnvSpec not mirrored above
         raise SpecError(field or "env", str(exc)) from None
+    try:  # what every worker's env would refuse after the task was paid for (cached per spec)
+        check_layout_fit(spec)
+    except LayoutError as exc:
+        raise SpecError(join(field, "walls"), str(exc)) from None
+    return spec
 
 
 class _PresetName:
