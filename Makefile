@@ -62,7 +62,7 @@ FORGE_PATH := PATH=$(CURDIR)/contracts/node_modules/.bin:$(CURDIR)/$(BIN):$$PATH
 test: setup test-contracts
 	$(BIN)/ruff check .
 	$(BIN)/lint-imports  # layers of .importlinter: nothing imports upward
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q --durations=20  # the slowest: CI must stay under 30 minutes
 
 # Foundry fuzz tests and invariants (foundry.toml: 10,000 calls per invariant), the per-function
 # gas snapshot against the committed one (isolated transactions, thesis bounds asserted), and
