@@ -16,6 +16,7 @@ which the target is reachable (the target of Ch. 3/4 is always reachable).
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -111,6 +112,10 @@ class Geometry:
 
     def slant(self) -> tuple[np.ndarray, np.ndarray]:
         """(slant_y, slant_x) (C, C): 1 / cos(theta) per (source, detector) and slab axis."""
+        with _GEOMETRY_LOCK:
+            return self._slant_tables()
+
+    def _slant_tables(self) -> tuple[np.ndarray, np.ndarray]:
         if self._slant is None:
             dy = self.centre_m[None, :, 0] - self.centre_m[:, None, 0]  # detector - source
             dx = self.centre_m[None, :, 1] - self.centre_m[:, None, 1]
@@ -121,10 +126,11 @@ class Geometry:
 
     def log_free_gain(self, floor: float) -> np.ndarray:
         """log max(free_gain, floor) (C, C), for the belief filter (one floor kept)."""
-        if floor not in self._log_gain:
-            self._log_gain.clear()
-            self._log_gain[floor] = _frozen(np.log(np.maximum(self.free_gain, floor)))
-        return self._log_gain[floor]
+        with _GEOMETRY_LOCK:
+            if floor not in self._log_gain:
+                self._log_gain.clear()
+                self._log_gain[floor] = _frozen(np.log(np.maximum(self.free_gain, floor)))
+            return self._log_gain[floor]
 
     @property
     def nbytes(self) -> int:
@@ -135,6 +141,9 @@ class Geometry:
 
 _GEOMETRY: dict[tuple, Geometry] = {}
 """Cached geometries by ``geometry_key``, least recently used first."""
+_GEOMETRY_LOCK = threading.RLock()
+"""Guards the cache and the tables built lazily: envs are built from threads too (the
+gateway's expert checks run in its thread pool)."""
 
 
 def geometry_key(spec: EnvSpec) -> tuple:
@@ -152,16 +161,17 @@ def geometry(spec: EnvSpec) -> Geometry:
     ``GEOMETRY_CACHE_ENTRIES`` and ``GEOMETRY_CACHE_BYTES``; an evicted one lives on in the
     envs that hold it)."""
     key = geometry_key(spec)
-    geo = _GEOMETRY.pop(key, None)
-    if geo is None:
-        geo = _build_geometry(key)
-    _GEOMETRY[key] = geo  # most recently used last
-    while len(_GEOMETRY) > 1 and (
-        len(_GEOMETRY) > GEOMETRY_CACHE_ENTRIES
-        or sum(g.nbytes for g in _GEOMETRY.values()) > GEOMETRY_CACHE_BYTES
-    ):
-        del _GEOMETRY[next(iter(_GEOMETRY))]
-    return geo
+    with _GEOMETRY_LOCK:
+        geo = _GEOMETRY.pop(key, None)
+        if geo is None:
+            geo = _build_geometry(key)
+        _GEOMETRY[key] = geo  # most recently used last
+        while len(_GEOMETRY) > 1 and (
+            len(_GEOMETRY) > GEOMETRY_CACHE_ENTRIES
+            or sum(g.nbytes for g in _GEOMETRY.values()) > GEOMETRY_CACHE_BYTES
+        ):
+            del _GEOMETRY[next(iter(_GEOMETRY))]
+        return geo
 
 
 @dataclass
