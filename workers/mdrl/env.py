@@ -531,7 +531,8 @@ class TargetLocalizationEnv:
             lmin = np.where(vertical, *(spec.wall_length_range(s)[0] for s in (m, n)))
             lmax = np.where(vertical, *(spec.wall_length_range(s)[1] for s in (m, n)))
             length = rng.integers(lmin, lmax + 1)
-            kernels.mark_walls(walls, side, place, np.where(k < count, length, 0))
+            kernels.mark_wall_sets(walls, side[:, None], place[:, None],
+                                   np.where(k < count, length, 0)[:, None])
         return walls.reshape(R, -1)
 
     def _valid_moves(self, walls: np.ndarray) -> np.ndarray:

@@ -263,27 +263,11 @@ def belief_add(sum_log, sum_gain, envs, cells, d_reading, d_visits, walls, free_
             sum_gain[e, c] += dv * g
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
-def mark_walls(walls, side, place, length):  # pragma: no cover - compiled
-    """Set the cells of one wall per env in ``walls`` (R, m, n): from ``side`` (0 top, 1
-    bottom, 2 left, 3 right) at ``place`` along it, ``length`` cells deep (0: no wall)."""
-    m, n = walls.shape[1], walls.shape[2]
-    for e in range(walls.shape[0]):
-        s, q = side[e], place[e]
-        for j in range(length[e]):
-            if s == 0:
-                walls[e, j, q] = True
-            elif s == 1:
-                walls[e, m - 1 - j, q] = True
-            elif s == 2:
-                walls[e, q, j] = True
-            else:
-                walls[e, q, n - 1 - j] = True
-
-
 @njit(cache=True, nogil=True)
 def mark_wall_sets(walls, side, place, length):  # pragma: no cover - compiled
-    """``mark_walls`` for K walls per env at once: ``side``, ``place``, ``length`` (R, K)."""
+    """Set the cells of K walls per env in ``walls`` (R, m, n): wall k of env e leaves side
+    ``side[e, k]`` (0 top, 1 bottom, 2 left, 3 right) at ``place[e, k]`` along it,
+    ``length[e, k]`` cells deep (0: no wall)."""
     m, n = walls.shape[1], walls.shape[2]
     for e in range(walls.shape[0]):
         for k in range(side.shape[1]):
