@@ -62,3 +62,29 @@ def post_task(
     )
     offered, _ = p.tmc.allocate(requester, task_id)
     return task_id, offered, cid
+
+
+def post_scenario_task(p: Any, *, steps: int, minutes: float) -> tuple[Any, int, Any, Any]:
+    """On a ``running_platform`` with one worker: demo user1 registers as a requester and
+    posts a one-worker task of the scenario env; (user1's session, task id, the worker
+    offered it, its job directory)."""
+    from drlaas.commands.scenario import SCENARIO_ENV, DemoUser
+
+    req = DemoUser(p.url, "user1")
+    req.post("/users/requesters", auth=True)
+    created = req.post(
+        "/tasks",
+        {
+            "env": SCENARIO_ENV,
+            "observation": {"kind": "odmtl", "window": 3},
+            "budget": {"steps": steps, "minutes": minutes},
+            "seed": 1,
+            "num_workers": 1,
+            "payment_wei": 10**16,
+        },
+        auth=True,
+    )
+    task_id, worker = created["task_id"], p.workers[0]
+    assert created["offered"] == [worker.address]
+    job = p.data_dir / "workers" / worker.address / "jobs" / p.chain.platform.identity
+    return req, task_id, worker, job / str(task_id)

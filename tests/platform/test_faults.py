@@ -5,14 +5,11 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from drlaas.commands.scenario import (
-    SCENARIO_ENV,
-    DemoUser,
-    wait_for,
-)
+from drlaas.commands.scenario import wait_for
 from drlaas.commands.up import running_platform
 
 from .conftest import worker_logs
+from .helpers import post_scenario_task
 
 
 def test_killed_worker_resumes_from_its_checkpoint(data_dir: Path) -> None:
@@ -22,24 +19,7 @@ def test_killed_worker_resumes_from_its_checkpoint(data_dir: Path) -> None:
         workers=1, data_dir=data_dir, worker_args=["--checkpoint-every", "1"]
     ) as p:
         p.wait_registered()
-        req = DemoUser(p.url, "user1")
-        req.post("/users/requesters", auth=True)
-        created = req.post(
-            "/tasks",
-            {
-                "env": SCENARIO_ENV,
-                "observation": {"kind": "odmtl", "window": 3},
-                "budget": {"steps": 14_000, "minutes": 5},
-                "seed": 1,
-                "num_workers": 1,
-                "payment_wei": 10**16,
-            },
-            auth=True,
-        )
-        task_id, worker = created["task_id"], p.workers[0]
-        assert created["offered"] == [worker.address]
-        ident = p.chain.platform.identity
-        job = p.data_dir / "workers" / worker.address / "jobs" / ident / str(task_id)
+        req, task_id, worker, job = post_scenario_task(p, steps=14_000, minutes=5)
         ckpt = job / "run" / "checkpoint" / "state.json"
         try:
             wait_for(

@@ -17,13 +17,13 @@ import torch
 from celery.signals import worker_shutting_down
 
 from backend.chain.platform import OfferState
-from drlaas.commands.scenario import SCENARIO_ENV, DemoUser, wait_for
+from drlaas.commands.scenario import wait_for
 from drlaas.commands.up import running_platform
 from workers.daemon import tasks
 from workers.daemon.handler import MAX_STARTS_WITHOUT_PROGRESS, STOP_MARK, OfferHandler
 
 from .conftest import worker_logs
-from .helpers import post_task
+from .helpers import post_scenario_task, post_task
 
 torch.set_num_threads(1)
 
@@ -121,25 +121,8 @@ def test_sigterm_to_a_real_daemon_is_not_counted_sigkill_is(data_dir: Path) -> N
         workers=1, data_dir=data_dir, worker_args=["--checkpoint-every", "100000"]
     ) as p:  # no checkpoint ever moves: every start gets no further than the one before
         p.wait_registered()
-        req = DemoUser(p.url, "user1")
-        req.post("/users/requesters", auth=True)
         since = time.time()
-        created = req.post(
-            "/tasks",
-            {
-                "env": SCENARIO_ENV,
-                "observation": {"kind": "odmtl", "window": 3},
-                "budget": {"steps": 200_000, "minutes": 10},
-                "seed": 1,
-                "num_workers": 1,
-                "payment_wei": 10**16,
-            },
-            auth=True,
-        )
-        task_id, worker = created["task_id"], p.workers[0]
-        assert created["offered"] == [worker.address]
-        ident = p.chain.platform.identity
-        job = p.data_dir / "workers" / worker.address / "jobs" / ident / str(task_id)
+        req, task_id, worker, job = post_scenario_task(p, steps=200_000, minutes=10)
         st = _started(p, job, since)
         assert st["starts_without_progress"] == 1
 
