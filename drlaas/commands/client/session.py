@@ -36,11 +36,6 @@ KeyOpt = Annotated[
 ]
 JsonOpt = Annotated[bool, typer.Option("--json", help="print one JSON document")]
 
-#: Fields of a ``sign_locally`` transaction that arrive as 0x-hex and must be signed as ints.
-_INT_FIELDS = frozenset(
-    {"value", "nonce", "chainId", "gas", "maxFeePerGas", "maxPriorityFeePerGas", "gasPrice", "type"}
-)
-
 
 class CliGateway(Gateway):
     """A :class:`Gateway` that knows its key file (where the deployment is pinned,
@@ -142,15 +137,11 @@ def _relay(gw: Gateway, raw: str) -> Any:
 
 
 def sign(gw: Gateway, tx: dict[str, Any]) -> str:
-    """The 0x-hex raw transaction of ``tx`` (fields checked by :func:`_checked`) signed by
-    the key."""
-    fields = {
-        k: (int(v, 16) if isinstance(v, str) and k in _INT_FIELDS and v.startswith("0x") else v)
-        for k, v in tx.items()
-    }
+    """The 0x-hex raw transaction of ``tx`` (as :func:`_checked` returns it: numbers decoded)
+    signed by the key."""
     if gw.account is None:
         raise RuntimeError("this command needs a key file (--key) to sign")
-    return "0x" + bytes(gw.account.sign_transaction(fields).raw_transaction).hex()
+    return "0x" + bytes(gw.account.sign_transaction(tx).raw_transaction).hex()
 
 
 def send_raw(rpc_url: str, raw: str, timeout: float = 60.0) -> dict[str, Any]:
