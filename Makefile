@@ -62,7 +62,10 @@ FORGE_PATH := PATH=$(CURDIR)/contracts/node_modules/.bin:$(CURDIR)/$(BIN):$$PATH
 test: setup test-contracts
 	$(BIN)/ruff check .
 	$(BIN)/lint-imports  # layers of .importlinter: nothing imports upward
-	$(BIN)/python -m pytest -q --durations=20  # the slowest: CI must stay under 30 minutes
+	# one process per core (-n auto), each file's tests in one process (--dist loadfile): a file's
+	# module fixtures are built once and its own Redis database is used by one process only.
+	# --durations: the slowest tests, because CI must stay under 30 minutes
+	$(BIN)/python -m pytest -q -n auto --dist loadfile --durations=20
 
 # Foundry fuzz tests and invariants (foundry.toml: 10,000 calls per invariant), the per-function
 # gas snapshot against the committed one (isolated transactions, thesis bounds asserted), and
