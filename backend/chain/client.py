@@ -341,7 +341,7 @@ class Chain:
         The node is not trusted (docs/platform.md, "Clients against hostile servers"):
         its answers are bounded (``limits``, default from the ``DRLAAS_*`` environment:
         :class:`~backend.settings.ChainClientSettings`), its redirects refused, and it must
-        report ``chain_id`` (default :func:`pinned_chain_id`, if one is known), else
+        report the chain id of :func:`pinned_chain_id` and ``chain_id``, each if known, else
         :class:`NodeRefused`; fees and gas above the caps are refused when signing."""
         limits = limits if limits is not None else load_chain_client_settings()
         session = _BoundedSession(limits.chain_max_response_bytes, 2 * limits.chain_timeout_s)
@@ -360,15 +360,13 @@ class Chain:
         else:
             keys = [Account.from_key(k) for k in private_keys]
         chain = cls(w3, keys, "rpc", limits=limits)
-        expected, source = pinned_chain_id(limits)
-        if chain_id is not None:
-            expected, source = chain_id, "the caller"
-        if expected is not None and chain.chain_id != expected:
-            raise NodeRefused(
-                f"the JSON-RPC node at {without_userinfo(url)} reports chain id "
-                f"{chain.chain_id}, but {source} pins chain id {expected}: refusing to sign "
-                "for another chain (wrong node, or a hostile one)"
-            )
+        for expected, source in (pinned_chain_id(limits), (chain_id, "the caller")):
+            if expected is not None and chain.chain_id != expected:  # every pin must hold
+                raise NodeRefused(
+                    f"the JSON-RPC node at {without_userinfo(url)} reports chain id "
+                    f"{chain.chain_id}, but {source} pins chain id {expected}: refusing to sign "
+                    "for another chain (wrong node, or a hostile one)"
+                )
         return chain
 
     # -- contracts ----------------------------------------------------------------------

@@ -188,11 +188,17 @@ def test_a_node_on_another_chain_is_refused(node: Node, monkeypatch: pytest.Monk
     monkeypatch.setenv("DRLAAS_CHAIN_ID", str(ANVIL_ID))
     with pytest.raises(NodeRefused, match="reports chain id 1, but DRLAAS_CHAIN_ID pins"):
         _connect(node)
-    with pytest.raises(NodeRefused, match="the caller pins chain id 5"):
-        _connect(node, chain_id=5)
     node.state["chain_id"] = ANVIL_ID
     chain, _ = _connect(node)
     assert chain.chain_id == ANVIL_ID
+    # every pin holds: the caller's (a worker's pin on first use) and the operator's
+    with pytest.raises(NodeRefused, match="the caller pins chain id 5"):
+        _connect(node, chain_id=5)
+    node.state["chain_id"] = 5
+    with pytest.raises(NodeRefused, match="DRLAAS_CHAIN_ID pins chain id 31337"):
+        _connect(node, chain_id=5)  # a caller cannot lift the operator's pin
+    monkeypatch.delenv("DRLAAS_CHAIN_ID")
+    assert _connect(node, chain_id=5)[0].chain_id == 5
 
 
 def test_the_deployment_pins_the_chain(

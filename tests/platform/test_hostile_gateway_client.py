@@ -25,11 +25,19 @@ from backend.store import EmbeddedStore
 from backend.store.bundle import upload_model
 from backend.store.dag import compute_cid
 from drlaas.cli import app
+from drlaas.commands.client.session import CliGateway
 from drlaas.commands.client.txcheck import MMC, TMC, UMC, contract, pin_file
 from workers.daemon.funding import chain_balance, ensure_gas
 from workers.daemon.gateway import Gateway, GatewayError
 from workers.daemon.keys import load_or_create_key
-from workers.daemon.links import resolve_deployment, worker_settings
+from workers.daemon.links import (
+    Deployment,
+    DeploymentChanged,
+    pinned_platform,
+    record_pin,
+    resolve_deployment,
+    worker_settings,
+)
 
 CHAIN_ID = 31337
 ADDRS = {UMC: "0x" + "11" * 20, TMC: "0x" + "22" * 20, MMC: "0x" + "33" * 20}
@@ -45,6 +53,7 @@ class Fake:
         self.routes: dict[str, Callable[[Fake, Any], tuple[int, Any]]] = {}
         self.seen: list[tuple[str, str, Any]] = []
         self.siwe_domain: str | None = None
+        self.siwe_chain = CHAIN_ID
         self.contracts: dict[str, Any] = {**ADDRS, "chain_id": CHAIN_ID, "rpc": None}
         fake = self
 
@@ -91,7 +100,7 @@ class Fake:
         host = self.siwe_domain or self.url.removeprefix("http://")
         now = dt.datetime.now(dt.UTC).replace(microsecond=0)
         msg = SiweMessage(domain=host, address=body["address"], statement=SIWE_STATEMENT,
-                          uri=f"http://{host}", chain_id=CHAIN_ID, nonce="abcdef0123456789",
+                          uri=f"http://{host}", chain_id=self.siwe_chain, nonce="abcdef0123456789",
                           issued_at=now, expiration_time=now + dt.timedelta(minutes=5))
         return 200, {"message": msg.text()}
 
@@ -234,8 +243,10 @@ def test_the_deployment_can_be_pinned_from_the_environment(fake: Fake, tmp_path:
     other = ",".join("0x" + c * 40 for c in "567")
     res = review(fake, key, DRLAAS_CONTRACTS=other, DRLAAS_CHAIN_ID=str(CHAIN_ID))
     assert res.exit_code == 1 and "none of the platform's contracts" in res.output, res.output
+    fake.siwe_chain = 7  # a sign-in for chain 7 (else refused before, by its chain id)...
     res = review(fake, key, DRLAAS_CONTRACTS=",".join(ADDRS.values()), DRLAAS_CHAIN_ID="7")
     assert res.exit_code == 1 and "chainId is 31337, expected 7" in res.output, res.output
+    fake.siwe_chain = CHAIN_ID  # ...and a transaction for chain 31337
     assert fake.posted("/api/tx") == [] and not pin_file(key).exists()
     ok = review(fake, key, DRLAAS_CONTRACTS=json.dumps(ADDRS), DRLAAS_CHAIN_ID=str(CHAIN_ID))
     assert ok.exit_code == 0, ok.output
@@ -276,6 +287,63 @@ def test_a_relayed_sign_in_message_of_another_site_is_not_signed(
     assert gw.sign_in() == "t"  # its own message is signed
     other = Gateway(fake.url.replace("127.0.0.1", "localhost"), Account.create())
     assert other.sign_in() == "t"  # loopback names are one host
+
+
+def test_a_sign_in_message_for_another_chain_is_not_signed_once_the_chain_is_known(
+    fake: Fake, tmp_path: Path
+) -> None:
+    """A gateway relaying the sign-in of a platform on another chain (same names, another
+    consortium): the worker knows its chain from its node, the CLI from its pin."""
+    fake.siwe_chain = 1
+    worker = Gateway(fake.url, Account.create(), chain_id=CHAIN_ID)
+    with pytest.raises(GatewayError, match="not signed: the message is for chain 1, not"):
+        worker.sign_in()
+    key = tmp_path / "me.key"
+    cli = CliGateway(fake.url, load_or_create_key(key), key)
+    assert cli.sign_in() == "t"  # nothing pinned yet: the chain is not known
+    fake.siwe_chain = CHAIN_ID
+    answer_review_with(fake, load_or_create_key(key).address)
+    assert review(fake, key).exit_code == 0  # the first write pins the deployment
+    fake.siwe_chain = 1
+    cli = CliGateway(fake.url, load_or_create_key(key), key)
+    with pytest.raises(GatewayError, match=f"the message is for chain 1, not .* {CHAIN_ID}"):
+        cli.sign_in()
+    assert len(fake.posted("/api/auth/token")) == 2  # the two signed before the change
+    fake.siwe_chain = CHAIN_ID
+    assert worker.sign_in() == cli.sign_in() == "t"
+
+
+def test_the_worker_pins_the_gateways_deployment_on_first_use(
+    fake: Fake, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from backend.settings import load_settings
+
+    monkeypatch.delenv("DRLAAS_CONTRACTS", raising=False)
+    settings = load_settings(data_dir=str(tmp_path / "d"))
+    pins = tmp_path / "worker" / "platform.json"
+    first = pinned_platform(settings, fake.url, pins)
+    assert (first.chain_id, first.pin_file) == (CHAIN_ID, pins)  # to record once connected
+    assert first.deployment == Deployment(ADDRS[UMC], ADDRS[TMC], ADDRS[MMC])
+    record_pin(pins, fake.url + "/", first.deployment, CHAIN_ID)
+    again = pinned_platform(settings, fake.url, pins)
+    assert (again.deployment, again.chain_id, again.pin_file) == (first.deployment, CHAIN_ID, None)
+    moved = "0x" + "44" * 20
+    fake.contracts = {**fake.contracts, MMC: moved}  # the gateway names its own MMC now
+    with pytest.raises(DeploymentChanged, match=f"pinned chain {CHAIN_ID} .*{pins}"):
+        pinned_platform(settings, fake.url, pins)
+    fake.contracts = {**ADDRS, "chain_id": 1, "rpc": None}  # ... or another chain
+    with pytest.raises(DeploymentChanged, match="names chain 1"):
+        pinned_platform(settings, fake.url, pins)
+    other = pinned_platform(settings, fake.url.replace("127.0.0.1", "localhost"), pins)
+    assert other.pin_file == pins  # another gateway URL: its own first use
+    # the operator's deployment is taken as it is, and pins nothing
+    monkeypatch.setenv("DRLAAS_CONTRACTS", json.dumps({**ADDRS, MMC: moved}))
+    named = pinned_platform(settings, fake.url, pins)
+    assert named.deployment.mmc == moved and named.pin_file is None
+    monkeypatch.delenv("DRLAAS_CONTRACTS")
+    pins.write_text("{not json")  # never silently pinned again
+    with pytest.raises(RuntimeError, match="unreadable pin file"):
+        pinned_platform(settings, fake.url, pins)
 
 
 def test_a_gateway_known_by_another_name_is_named_by_the_operator(

@@ -59,9 +59,12 @@ class Gateway:
         timeout: float = 30.0,
         client: httpx.Client | None = None,
         max_bytes: int = DEFAULT_MAX_BYTES,
+        chain_id: int | None = None,
     ) -> None:
         self.url = url.rstrip("/")
         self.account = account
+        self.chain_id = chain_id
+        """The chain a sign-in message must name (``None``: not checked)."""
         self._client = client or bounded_client(
             base_url=self.url, timeout=timeout, max_bytes=max_bytes
         )
@@ -87,7 +90,7 @@ class Gateway:
         r = self._client.post(f"{API}/auth/nonce", json={"address": self.address})
         self._check("POST", "/auth/nonce", r)
         message = _field("POST", "/auth/nonce", r, "message")
-        refused = _sign_in_refusal(self.url, self.address, message)
+        refused = _sign_in_refusal(self.url, self.address, message, self.chain_id)
         if refused:  # a message for another site (relayed by a phishing gateway): never sign
             raise GatewayError("POST", "/auth/nonce", r.status_code, f"not signed: {refused}")
         assert self.account is not None
@@ -180,11 +183,13 @@ def _origin(url: str) -> tuple[str, str, int]:
     return scheme, "loopback" if loopback else host, port
 
 
-def _sign_in_refusal(gateway_url: str, address: str, message: str) -> str | None:
+def _sign_in_refusal(
+    gateway_url: str, address: str, message: str, chain_id: int | None = None
+) -> str | None:
     """Why the EIP-4361 ``message`` a gateway at ``gateway_url`` asked ``address`` to sign is
     not DRLaaS's sign-in to that gateway (its domain and URI must name it, the address must be
-    ours, the statement the platform's), or None when it is. Loopback names (localhost,
-    127.0.0.1, ::1) count as one host, with the same port."""
+    ours, the statement the platform's, the chain ``chain_id`` when it is known), or None when
+    it is. Loopback names (localhost, 127.0.0.1, ::1) count as one host, with the same port."""
     from backend.auth import SIWE_STATEMENT, SiweMessage
     from backend.errors import DomainError
 
@@ -208,6 +213,8 @@ def _sign_in_refusal(gateway_url: str, address: str, message: str) -> str | None
         return f"the message names the address {msg.address}, not ours ({address})"
     if msg.statement != SIWE_STATEMENT:
         return f"the message's statement {msg.statement!r} is not DRLaaS's sign-in statement"
+    if chain_id is not None and msg.chain_id != chain_id:
+        return f"the message is for chain {msg.chain_id}, not this platform's chain {chain_id}"
     return None
 
 

@@ -5,6 +5,8 @@ In embedded mode the gateway hosts the chain and serves it at ``<gateway>/rpc`` 
 so a daemon uses :meth:`Chain.rpc` either way: ``DRLAAS_CHAIN`` when it is a node URL, else the
 gateway's ``/rpc``. Contract addresses come from, in order: ``DRLAAS_CONTRACTS`` (JSON or the
 path of a JSON file), the gateway (``GET /api/chain/contracts``), ``<data>/deployment.json``.
+What the gateway names is pinned on first use (:func:`pinned_platform`): later it must name the
+same.
 
 A worker needs no ``DRLAAS_DATA_DIR`` (:func:`worker_settings`): its own files go to the per-user
 ``~/.drlaas``, and when the gateway's broker and store are embedded (on this machine) it opens
@@ -31,6 +33,8 @@ from backend.settings import Settings, load_settings
 from backend.store import ContentStore, make_store
 
 DEPLOYMENT_FILE = "deployment.json"
+PIN_FILE = "platform.json"
+"""In a worker's own directory: the deployments its gateways named on first use."""
 #: The gateway of ``drlaas up --port 8000`` on this machine: where an embedded chain lives when
 #: no --gateway / DRLAAS_GATEWAY is given.
 LOCAL_GATEWAY = "http://127.0.0.1:8000"
@@ -81,26 +85,116 @@ def write_deployment(path: str | Path, deployment: Deployment, chain_url: str = 
 
 def resolve_deployment(settings: Settings, gateway: str | None) -> Deployment:
     """Find the contract addresses (see module docstring); the error lists what was tried."""
+    return find_deployment(settings, gateway)[0]
+
+
+def find_deployment(
+    settings: Settings, gateway: str | None
+) -> tuple[Deployment, int | None, bool]:
+    """(the contract addresses, the chain id their source names if it names one, whether the
+    gateway named them): see the module docstring; the error lists what was tried."""
     tried = []
     env = os.environ.get("DRLAAS_CONTRACTS", "").strip()
     if env:
         doc = json.loads(env if env.startswith("{") else Path(env).read_text())
-        return Deployment.from_dict(doc)
+        return Deployment.from_dict(doc), _positive_int(doc.get("chain_id")), False
     tried.append("DRLAAS_CONTRACTS (unset)")
     if gateway:
         for path in ("/api/chain/contracts",):
             try:
                 r = bounded_get(gateway.rstrip("/") + path, timeout=10)  # bounded answer
                 if r.is_success:
-                    return Deployment.from_dict(r.json())
+                    doc = r.json()
+                    return Deployment.from_dict(doc), _positive_int(doc.get("chain_id")), True
                 tried.append(f"GET {path} -> {r.status_code}")
             except (httpx.HTTPError, ValueError) as exc:
                 tried.append(f"GET {path}: {exc}")
     f = settings.data_dir / DEPLOYMENT_FILE
     if f.is_file():
-        return Deployment.from_dict(json.loads(f.read_text()))
+        doc = json.loads(f.read_text())
+        return Deployment.from_dict(doc), _positive_int(doc.get("chain_id")), False
     tried.append(f"{f} (missing)")
     raise RuntimeError("cannot find the contract addresses; tried: " + "; ".join(tried))
+
+
+def _positive_int(value: Any) -> int | None:
+    ok = isinstance(value, int) and not isinstance(value, bool) and value > 0
+    return value if ok else None
+
+
+class DeploymentChanged(RuntimeError):
+    """The gateway names another deployment than the one this worker pinned on first use."""
+
+
+@dataclass(frozen=True)
+class PinnedPlatform:
+    """What a daemon signs for: the contracts and the chain id it must find at the node."""
+
+    deployment: Deployment
+    chain_id: int | None
+    """``None``: unknown until the node is asked (the chain client's own pins still hold)."""
+    pin_file: Path | None
+    """Where to record the node's chain id after the first connection (``None``: nothing to
+    record, the deployment came from the operator or is already pinned)."""
+
+
+def pinned_platform(settings: Settings, gateway: str | None, pin_file: Path) -> PinnedPlatform:
+    """The deployment a daemon works for. Contracts named by the operator (``DRLAAS_CONTRACTS``,
+    ``<data>/deployment.json``) are taken as they are. Contracts learnt from the gateway are
+    pinned on first use, with the chain id, in ``pin_file`` (one entry per gateway URL, like
+    ssh's known_hosts): a gateway that later names other contracts or another chain is refused
+    (:class:`DeploymentChanged`), so a hostile or hijacked gateway cannot have the worker sign
+    for its own contracts or for another chain."""
+    deployment, chain_id, from_gateway = find_deployment(settings, gateway)
+    if not from_gateway or not gateway:
+        return PinnedPlatform(deployment, chain_id, None)
+    entry = read_pins(pin_file).get(gateway.rstrip("/"))
+    if entry is None:
+        return PinnedPlatform(deployment, chain_id, pin_file)
+    pinned = (entry.get("chain_id"), entry.get("contracts"))
+    named = {k: v.lower() for k, v in deployment.to_dict().items()}
+    if pinned[1] != named or (chain_id is not None and pinned[0] != chain_id):
+        raise DeploymentChanged(
+            f"the gateway {gateway} names chain {chain_id} and contracts {named}, but this "
+            f"worker pinned chain {pinned[0]} and contracts {pinned[1]} for it on first use, in "
+            f"{pin_file}: refusing to sign for another deployment (a hostile or hijacked "
+            f"gateway, or a redeployed platform). If the platform was really redeployed, "
+            f"remove the {gateway.rstrip('/')!r} entry of {pin_file}, or set DRLAAS_CONTRACTS "
+            f"and DRLAAS_CHAIN_ID to the deployment you trust"
+        )
+    return PinnedPlatform(deployment, int(pinned[0]), None)
+
+
+def read_pins(pin_file: Path) -> dict[str, Any]:
+    """{gateway URL: {chain_id, contracts}} pinned so far; RuntimeError naming the file if it
+    cannot be read (never silently re-pinned)."""
+    try:
+        doc = json.loads(pin_file.read_text())
+    except FileNotFoundError:
+        return {}
+    except (OSError, ValueError) as exc:
+        raise RuntimeError(f"{pin_file}: unreadable pin file ({exc}); remove it to pin "
+                           "the gateway's deployment again") from None
+    ok = isinstance(doc, dict) and all(
+        isinstance(e, dict) and _positive_int(e.get("chain_id")) and isinstance(
+            e.get("contracts"), dict) for e in doc.values())
+    if not ok:
+        raise RuntimeError(f"{pin_file}: not a pin file ({{gateway: {{chain_id, contracts}}}}); "
+                           "remove it to pin the gateway's deployment again")
+    return doc
+
+
+def record_pin(pin_file: Path, gateway: str, deployment: Deployment, chain_id: int) -> None:
+    """Pin ``gateway``'s deployment (atomically: a crash leaves the old file or the new)."""
+    pins = read_pins(pin_file)
+    pins[gateway.rstrip("/")] = {
+        "chain_id": chain_id,
+        "contracts": {k: v.lower() for k, v in deployment.to_dict().items()},
+    }
+    pin_file.parent.mkdir(parents=True, exist_ok=True)
+    tmp = pin_file.with_name(f"{pin_file.name}.{os.getpid()}.tmp")
+    tmp.write_text(json.dumps(pins, indent=1, sort_keys=True))
+    os.replace(tmp, pin_file)
 
 
 def default_gateway() -> str | None:
@@ -193,10 +287,13 @@ def chain_url(settings: Settings, gateway: str | None) -> str:
     return gateway.rstrip("/") + "/rpc"
 
 
-def connect_worker(url: str, account: LocalAccount, deployment: Deployment) -> Platform:
+def connect_worker(
+    url: str, account: LocalAccount, deployment: Deployment, chain_id: int | None = None
+) -> Platform:
     """Typed UMC/TMC/MMC handles over ``url`` that can sign for ``account`` only (the
-    platform's one :func:`~backend.chain.platform.connect_platform`, as the gateway attaches)."""
-    chain = Chain.rpc(url, private_keys=["0x" + bytes(account.key).hex()])
+    platform's one :func:`~backend.chain.platform.connect_platform`, as the gateway attaches);
+    the node must report ``chain_id`` when one is given (:class:`NodeRefused` otherwise)."""
+    chain = Chain.rpc(url, private_keys=["0x" + bytes(account.key).hex()], chain_id=chain_id)
     names = {_NAMES[short]: address for short, address in deployment.to_dict().items()}
     return connect_platform(chain, names, admin=account.address)
 

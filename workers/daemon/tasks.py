@@ -98,7 +98,14 @@ def runtime_from_env(settings: Settings | None = None) -> OfferHandler:
     """Build this process's handler from the environment (see module docstring)."""
     from workers.daemon.gateway import Gateway
     from workers.daemon.keys import load_key
-    from workers.daemon.links import chain_url, connect_worker, open_store, resolve_deployment
+    from workers.daemon.links import (
+        PIN_FILE,
+        chain_url,
+        connect_worker,
+        open_store,
+        pinned_platform,
+        record_pin,
+    )
 
     settings = settings or load_settings()
     key_file = os.environ.get("DRLAAS_WORKER_KEY")
@@ -106,18 +113,22 @@ def runtime_from_env(settings: Settings | None = None) -> OfferHandler:
         raise RuntimeError("DRLAAS_WORKER_KEY is not set: the daemon needs its key file")
     account = load_key(key_file)
     gateway_url = os.environ.get("DRLAAS_GATEWAY") or None
-    platform = connect_worker(
-        chain_url(settings, gateway_url), account, resolve_deployment(settings, gateway_url)
-    )
     data = Path(
         os.environ.get("DRLAAS_WORKER_DATA") or settings.data_dir / "workers" / account.address
     )
+    pin = pinned_platform(settings, gateway_url, data / PIN_FILE)
+    platform = connect_worker(
+        chain_url(settings, gateway_url), account, pin.deployment, pin.chain_id
+    )
+    if pin.pin_file is not None and gateway_url:  # first use: the chain id the node reported
+        record_pin(pin.pin_file, gateway_url, pin.deployment, platform.chain.chain_id)
     return OfferHandler(
         account=account,
         platform=platform,
         store=open_store(settings),
         data_dir=data,
-        gateway=Gateway(gateway_url, account) if gateway_url else None,
+        gateway=(Gateway(gateway_url, account, chain_id=platform.chain.chain_id)
+                 if gateway_url else None),
         max_jobs=int(os.environ.get("DRLAAS_WORKER_MAX_JOBS", "1")),
         checkpoint_every=int(os.environ.get("DRLAAS_WORKER_CHECKPOINT_EVERY", "2")),
         cache_bytes=_env_bytes("DRLAAS_WORKER_MODEL_CACHE_BYTES", DEFAULT_CACHE_BYTES),

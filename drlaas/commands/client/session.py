@@ -22,6 +22,7 @@ from drlaas.commands.client.txcheck import (
     TxRefused,
     check_tx,
     expect_request,
+    known_chain_id,
     platform_pin,
 )
 from workers.daemon.funding import NoGas, ensure_gas
@@ -45,6 +46,16 @@ class CliGateway(Gateway):
         super().__init__(url, account)
         self.key_path = key_path
         self.pin: Pin | None = None
+
+    def sign_in(self) -> str:
+        """The gateway's sign-in, whose message must name the pinned chain once one is pinned
+        (a gateway relaying another platform's sign-in is refused before anything is signed)."""
+        if self.chain_id is None:
+            try:
+                self.chain_id = known_chain_id(self.url, self.key_path)
+            except ValueError as exc:
+                raise GatewayError("POST", "/auth/nonce", 0, f"not signed: {exc}") from None
+        return super().sign_in()
 
 
 def connect(gateway: str, key: Path | None = None) -> Gateway:

@@ -363,6 +363,20 @@ def platform_pin(gw: Gateway, key: Path | None) -> Pin:
     )
 
 
+def known_chain_id(gateway_url: str, key: Path | None) -> int | None:
+    """The chain id already pinned for ``gateway_url`` (``DRLAAS_CHAIN_ID`` / the
+    ``DRLAAS_CONTRACTS`` deployment, else ``<key>.platform.json``), without asking the gateway;
+    ``None`` before the first write pins one."""
+    chain_id, _ = env_pin()
+    if chain_id is not None or key is None:
+        return chain_id
+    path = pin_file(key)
+    entry = _read_pins(path).get(gateway_url)
+    if not isinstance(entry, dict):
+        return None
+    return _chain_id(entry.get("chain_id"), f"{path} ({gateway_url})")
+
+
 def reset_hint(gw: Gateway, key: Path | None) -> str:
     where = f"the {gw.url!r} entry of {pin_file(key)}" if key is not None else "nothing"
     return (
