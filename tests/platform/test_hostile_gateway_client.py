@@ -342,7 +342,7 @@ def test_the_worker_pins_the_gateways_deployment_on_first_use(
     assert named.deployment.mmc == moved and named.pin_file is None
     monkeypatch.delenv("DRLAAS_CONTRACTS")
     pins.write_text("{not json")  # never silently pinned again
-    with pytest.raises(RuntimeError, match="unreadable pin file"):
+    with pytest.raises(ValueError, match="unreadable pin file"):
         pinned_platform(settings, fake.url, pins)
 
 

@@ -26,7 +26,9 @@ from urllib.parse import urlsplit
 import httpx
 from eth_account.signers.local import LocalAccount
 
+from backend.chain.addresses import checksum
 from backend.chain.client import Chain
+from backend.chain.pins import read_pins, write_pin
 from backend.chain.platform import Platform, connect_platform
 from backend.httpbounds import bounded_get
 from backend.settings import Settings, load_settings
@@ -141,60 +143,43 @@ class PinnedPlatform:
 def pinned_platform(settings: Settings, gateway: str | None, pin_file: Path) -> PinnedPlatform:
     """The deployment a daemon works for. Contracts named by the operator (``DRLAAS_CONTRACTS``,
     ``<data>/deployment.json``) are taken as they are. Contracts learnt from the gateway are
-    pinned on first use, with the chain id, in ``pin_file`` (one entry per gateway URL, like
-    ssh's known_hosts): a gateway that later names other contracts or another chain is refused
+    pinned on first use, with the chain id, in ``pin_file`` (:mod:`backend.chain.pins`): a
+    gateway that later names other contracts or another chain is refused
     (:class:`DeploymentChanged`), so a hostile or hijacked gateway cannot have the worker sign
     for its own contracts or for another chain."""
     deployment, chain_id, from_gateway = find_deployment(settings, gateway)
     if not from_gateway or not gateway:
         return PinnedPlatform(deployment, chain_id, None)
-    entry = read_pins(pin_file).get(gateway.rstrip("/"))
+    url = gateway.rstrip("/")
+    entry = read_pins(pin_file).get(url)
     if entry is None:
         return PinnedPlatform(deployment, chain_id, pin_file)
-    pinned = (entry.get("chain_id"), entry.get("contracts"))
-    named = {k: v.lower() for k, v in deployment.to_dict().items()}
-    if pinned[1] != named or (chain_id is not None and pinned[0] != chain_id):
+    pinned_chain = entry.get("chain_id") if isinstance(entry, dict) else None
+    pinned = entry.get("contracts") if isinstance(entry, dict) else None
+    if _positive_int(pinned_chain) is None or not isinstance(pinned, dict):
+        raise ValueError(f"{pin_file}: the {url!r} entry is not {{chain_id, contracts}}; remove "
+                         "it to pin the gateway's deployment again")
+    named = pin_contracts(deployment)
+    if pinned != named or (chain_id is not None and pinned_chain != chain_id):
         raise DeploymentChanged(
-            f"the gateway {gateway} names chain {chain_id} and contracts {named}, but this "
-            f"worker pinned chain {pinned[0]} and contracts {pinned[1]} for it on first use, in "
+            f"the gateway {url} names chain {chain_id} and contracts {named}, but this worker "
+            f"pinned chain {pinned_chain} and contracts {pinned} for it on first use, in "
             f"{pin_file}: refusing to sign for another deployment (a hostile or hijacked "
             f"gateway, or a redeployed platform). If the platform was really redeployed, "
-            f"remove the {gateway.rstrip('/')!r} entry of {pin_file}, or set DRLAAS_CONTRACTS "
-            f"and DRLAAS_CHAIN_ID to the deployment you trust"
+            f"remove the {url!r} entry of {pin_file}, or set DRLAAS_CONTRACTS and "
+            f"DRLAAS_CHAIN_ID to the deployment you trust"
         )
-    return PinnedPlatform(deployment, int(pinned[0]), None)
+    return PinnedPlatform(deployment, int(pinned_chain), None)
 
 
-def read_pins(pin_file: Path) -> dict[str, Any]:
-    """{gateway URL: {chain_id, contracts}} pinned so far; RuntimeError naming the file if it
-    cannot be read (never silently re-pinned)."""
-    try:
-        doc = json.loads(pin_file.read_text())
-    except FileNotFoundError:
-        return {}
-    except (OSError, ValueError) as exc:
-        raise RuntimeError(f"{pin_file}: unreadable pin file ({exc}); remove it to pin "
-                           "the gateway's deployment again") from None
-    ok = isinstance(doc, dict) and all(
-        isinstance(e, dict) and _positive_int(e.get("chain_id")) and isinstance(
-            e.get("contracts"), dict) for e in doc.values())
-    if not ok:
-        raise RuntimeError(f"{pin_file}: not a pin file ({{gateway: {{chain_id, contracts}}}}); "
-                           "remove it to pin the gateway's deployment again")
-    return doc
+def pin_contracts(deployment: Deployment) -> dict[str, str]:
+    """{contract name: checksummed address}, as pin files keep them."""
+    return {_NAMES[short]: checksum(a) for short, a in deployment.to_dict().items()}
 
 
 def record_pin(pin_file: Path, gateway: str, deployment: Deployment, chain_id: int) -> None:
-    """Pin ``gateway``'s deployment (atomically: a crash leaves the old file or the new)."""
-    pins = read_pins(pin_file)
-    pins[gateway.rstrip("/")] = {
-        "chain_id": chain_id,
-        "contracts": {k: v.lower() for k, v in deployment.to_dict().items()},
-    }
-    pin_file.parent.mkdir(parents=True, exist_ok=True)
-    tmp = pin_file.with_name(f"{pin_file.name}.{os.getpid()}.tmp")
-    tmp.write_text(json.dumps(pins, indent=1, sort_keys=True))
-    os.replace(tmp, pin_file)
+    """Pin ``gateway``'s deployment and the chain id its node reported."""
+    write_pin(pin_file, gateway.rstrip("/"), chain_id, pin_contracts(deployment))
 
 
 def default_gateway() -> str | None:

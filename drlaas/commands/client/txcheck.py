@@ -37,6 +37,7 @@ from typing import Any
 from eth_utils import is_hex_address, to_checksum_address
 
 from backend.chain.artifacts import PLATFORM_CONTRACTS, load_artifact
+from backend.chain.pins import read_pins, write_pin
 from backend.chain.platform import Metric, TaskStatus, cid_commitment, domain_mask
 from backend.settings import load_chain_client_settings
 from backend.store import CID, InvalidCID
@@ -309,18 +310,6 @@ def env_pin() -> tuple[int | None, dict[str, str] | None]:
     return (_chain_id(chain, "DRLAAS_CHAIN_ID") if chain else None), contracts
 
 
-def _read_pins(path: Path) -> dict[str, Any]:
-    try:
-        doc = json.loads(path.read_text())
-    except FileNotFoundError:
-        return {}
-    except (OSError, ValueError) as exc:
-        raise ValueError(f"{path}: unreadable pin file ({exc}); remove it to pin again") from None
-    if not isinstance(doc, dict):
-        raise ValueError(f"{path}: not a JSON object; remove it to pin again")
-    return doc
-
-
 def platform_pin(gw: Gateway, key: Path | None) -> Pin:
     """The deployment ``gw``'s transactions must target: ``DRLAAS_CHAIN_ID`` /
     ``DRLAAS_CONTRACTS`` where set, else the one pinned for ``gw.url`` in ``<key>.platform.json``,
@@ -329,7 +318,7 @@ def platform_pin(gw: Gateway, key: Path | None) -> Pin:
     if chain_id is not None and contracts is not None:
         return Pin(chain_id, contracts, "DRLAAS_CHAIN_ID / DRLAAS_CONTRACTS")
     path = pin_file(key) if key is not None else None
-    pins = _read_pins(path) if path is not None else {}
+    pins = read_pins(path) if path is not None else {}
     entry = pins.get(gw.url)
     if entry is not None:
         where = f"{path} ({gw.url})"
@@ -352,10 +341,7 @@ def platform_pin(gw: Gateway, key: Path | None) -> Pin:
         pinned = Pin(_chain_id(doc.get("chain_id"), where), _contracts(doc, where),
                      "pinned on first use" + (f" in {path}" if path else ""))
         if path is not None:
-            pins[gw.url] = {"chain_id": pinned.chain_id, "contracts": dict(pinned.contracts)}
-            tmp = path.with_name(path.name + ".tmp")
-            tmp.write_text(json.dumps(pins, indent=1, sort_keys=True))
-            tmp.replace(path)
+            write_pin(path, gw.url, pinned.chain_id, pinned.contracts)
     return Pin(
         chain_id if chain_id is not None else pinned.chain_id,
         contracts if contracts is not None else pinned.contracts,
@@ -371,7 +357,7 @@ def known_chain_id(gateway_url: str, key: Path | None) -> int | None:
     if chain_id is not None or key is None:
         return chain_id
     path = pin_file(key)
-    entry = _read_pins(path).get(gateway_url)
+    entry = read_pins(path).get(gateway_url)
     if not isinstance(entry, dict):
         return None
     return _chain_id(entry.get("chain_id"), f"{path} ({gateway_url})")

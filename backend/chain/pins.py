@@ -1,0 +1,43 @@
+"""Deployments pinned on first use, per gateway URL, like ssh's known_hosts (docs/platform.md,
+"Clients against hostile servers").
+
+A client that learns the platform's contracts and chain id from a gateway keeps them in a pin
+file, ``{gateway URL: {"chain_id": n, "contracts": {name: address}}}``, and checks later answers
+against them: the CLI per key file (``<key>.platform.json``), the worker daemon per worker
+directory (``platform.json``). An unreadable file is an error naming it, never pinned again
+silently: a file an attacker truncated must not reopen trust on first use.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+
+def read_pins(path: Path) -> dict[str, Any]:
+    """The pins kept in ``path`` (``{}`` when it does not exist); ValueError naming the file
+    when it cannot be read or is not a JSON object."""
+    try:
+        doc = json.loads(path.read_text())
+    except FileNotFoundError:
+        return {}
+    except (OSError, ValueError) as exc:
+        raise ValueError(f"{path}: unreadable pin file ({exc}); remove it to pin again") from None
+    if not isinstance(doc, dict):
+        raise ValueError(f"{path}: not a JSON object; remove it to pin again")
+    return doc
+
+
+def write_pin(path: Path, gateway: str, chain_id: int, contracts: Mapping[str, str]) -> None:
+    """Pin ``gateway``'s deployment in ``path``, keeping the other gateways' entries; written
+    atomically (a crash leaves the old file or the new one; concurrent writers each use their
+    own temporary file)."""
+    pins = read_pins(path)
+    pins[gateway] = {"chain_id": chain_id, "contracts": dict(contracts)}
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f"{path.name}.{os.getpid()}.tmp")
+    tmp.write_text(json.dumps(pins, indent=1, sort_keys=True))
+    os.replace(tmp, path)
