@@ -124,7 +124,17 @@ def test_celery_job_retries_transient_errors_only(tmp_path: Path) -> None:
         tasks.set_runtime(None)
 
 
-def test_progress_points_wait_for_the_gateway_index_and_keep_their_order(tmp_path: Path) -> None:
+@pytest.fixture
+def quick_pauses(monkeypatch: pytest.MonkeyPatch) -> None:
+    from workers.daemon import progress_sender
+
+    monkeypatch.setattr(progress_sender, "FIRST_PAUSE_S", 0.01)
+    monkeypatch.setattr(progress_sender, "MAX_PAUSE_S", 0.05)
+
+
+def test_progress_points_wait_for_the_gateway_index_and_keep_their_order(
+    tmp_path: Path, quick_pauses: None
+) -> None:
     from workers.daemon.gateway import GatewayError
     from workers.daemon.handler import OfferHandler
 
@@ -144,19 +154,49 @@ def test_progress_points_wait_for_the_gateway_index_and_keep_their_order(tmp_pat
 
     gw = LaggingGateway()
     h = OfferHandler(account=None, platform=None, store=None, data_dir=tmp_path, gateway=gw)  # type: ignore[arg-type]
-    h._post_progress(7, {"step": 1})  # refused: queued
-    assert gw.got == [] and list(h._pending[7]) == [{"step": 1}]
-    h._post_progress(7, {"step": 2})  # refused again, then 1 goes; 2 is a duplicate: dropped
-    h._post_progress(7, {"step": 3})
-    assert gw.got == [1, 3] and list(h._pending[7]) == []
+    for step in (1, 2, 3):
+        h._post_progress(7, {"step": step})
+    h._flush_progress(7, wait_s=10.0)
+    # 1 waited for the index (two refusals), 2 was a duplicate: dropped, 3 went after it
+    assert gw.got == [1, 3] and gw.calls == 5 and h._progress.pending(7) == []
 
 
-def test_progress_points_queued_through_an_outage_are_bounded(tmp_path: Path) -> None:
+def test_training_never_waits_on_the_gateway(tmp_path: Path) -> None:
+    """A gateway that holds every post (slow, or hostile): the training loop's posts return
+    at once and the points go once it answers, in order."""
+    import threading
+
+    from workers.daemon.handler import OfferHandler
+
+    class HeldGateway:
+        def __init__(self) -> None:
+            self.gate, self.got = threading.Event(), []
+
+        def post(self, path: str, json: dict, auth: bool) -> None:  # noqa: A002
+            assert self.gate.wait(30), "never released"
+            self.got.append(json["step"])
+
+    gw = HeldGateway()
+    h = OfferHandler(account=None, platform=None, store=None, data_dir=tmp_path, gateway=gw)  # type: ignore[arg-type]
+    for step in range(50):
+        h._post_progress(7, {"step": step})  # a synchronous post would hang here for 30 s
+    assert not gw.gate.is_set() and gw.got == []
+    assert not h._progress.flush(7, wait_s=0.05)  # held: the flush gives up at its deadline
+    gw.gate.set()
+    assert h._progress.flush(7, wait_s=30)
+    assert gw.got == list(range(50))
+
+
+def test_progress_points_queued_through_an_outage_are_bounded(
+    tmp_path: Path, quick_pauses: None
+) -> None:
     """While the gateway is down every point waits in a queue of at most MAX_PENDING_POINTS
-    (the oldest dropped: progress.jsonl keeps them all); when it is back, each update sends
-    at most POINTS_PER_UPDATE of the backlog, oldest first, so training never waits on the
-    whole backlog; a finished job's queue is dropped."""
+    (the oldest dropped: progress.jsonl keeps them all); when it is back they go oldest
+    first; a finished job's queue is dropped."""
+    from types import SimpleNamespace
+
     from workers.daemon import handler as hd
+    from workers.daemon.progress_sender import MAX_PENDING_POINTS
 
     class Gateway:
         def __init__(self) -> None:
@@ -167,24 +207,23 @@ def test_progress_points_queued_through_an_outage_are_bounded(tmp_path: Path) ->
                 raise ConnectionError("gateway down")
             self.got.append(json["step"])
 
-    from types import SimpleNamespace
-
     gw = Gateway()
     chain = SimpleNamespace(identity="chain-1")  # only the job directories' key is read
     h = hd.OfferHandler(account=None, platform=chain, store=None, data_dir=tmp_path, gateway=gw)  # type: ignore[arg-type]
-    n = hd.MAX_PENDING_POINTS + 100
+    n = MAX_PENDING_POINTS + 100
     for step in range(n):
         h._post_progress(7, {"step": step})
-    assert len(h._pending[7]) == hd.MAX_PENDING_POINTS and h._pending[7][0]["step"] == 100
+    pending = h._progress.pending(7)
+    assert len(pending) == MAX_PENDING_POINTS and pending[0]["step"] == 100
     gw.up = True
-    h._post_progress(7, {"step": n})  # queued last (100 drops out), then the 16 oldest go
-    assert gw.got == list(range(101, 101 + hd.POINTS_PER_UPDATE))
-    h._flush_progress(7, wait_s=1.0)  # before submitting: the rest, in order
-    assert gw.got == list(range(101, n + 1)) and not h._pending[7]
+    h._flush_progress(7, wait_s=10.0)  # before submitting: the rest, in order
+    # (one point taken while it was down may go first, if the queue had not dropped it yet)
+    assert gw.got[-MAX_PENDING_POINTS:] == list(range(100, n)) and gw.got == sorted(gw.got)
+    assert len(gw.got) <= MAX_PENDING_POINTS + 1 and h._progress.pending(7) == []
     gw.up = False
-    h._post_progress(7, {"step": n + 1})
+    h._post_progress(7, {"step": n})
     h._close(7, phase="failed")
-    assert 7 not in h._pending
+    assert h._progress.pending(7) == []
 
 
 def test_give_up_abandons_only_a_job_in_hand(tmp_path: Path) -> None:

@@ -38,7 +38,6 @@ import os
 import shutil
 import time
 import uuid
-from collections import deque
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -76,8 +75,9 @@ from workers.daemon.experts import (
     fetch_walls_cae,
     offer_fetch_bytes,
 )
-from workers.daemon.gateway import Gateway, GatewayError
+from workers.daemon.gateway import Gateway
 from workers.daemon.links import task_spec_cid
+from workers.daemon.progress_sender import ProgressSender
 from workers.mdrl.env import TargetLocalizationEnv
 from workers.mdrl.resources import estimate, update_seconds
 from workers.mdrl.trainingspec import MAX_SPEC_BYTES, SpecError, TrainingSpec
@@ -114,12 +114,6 @@ STOP_MARK = "stopped.json"
 #: What a finished job no longer needs (``_prune``): the delivered model, metrics.csv and
 #: progress.jsonl stay (``drlaas worker share`` reads the model).
 PRUNED = ("run/checkpoint", "experts", "cae", "outbox")
-#: Progress points queued for the gateway per job while it is unreachable: the oldest are
-#: dropped beyond this (progress.jsonl keeps every point; the curve on the gateway thins).
-MAX_PENDING_POINTS = 512
-#: Points sent per training update at most: a backlog after an outage is sent over the next
-#: updates, never all at once inside one (each post is a request, training waits on it).
-POINTS_PER_UPDATE = 16
 
 
 class SpecNotFound(SpecError):
@@ -207,8 +201,7 @@ class OfferHandler:
     on_first_step: Callable[[int, int], None] | None = None
     session: str = field(default_factory=daemon_session)
     """This daemon's :func:`daemon_session`, recorded with each training start."""
-    progress_errors: int = field(default=0, init=False)
-    _pending: dict[int, deque[dict[str, Any]]] = field(default_factory=dict, init=False)
+    _progress: ProgressSender | None = field(default=None, init=False)
     _running: tuple[int, str] | None = field(default=None, init=False)
     """(task id, start id) of the training start in progress in this process (``note_stop``)."""
     _stop_noted: str | None = field(default=None, init=False)
@@ -411,7 +404,7 @@ class OfferHandler:
         while kept.exists():
             kept, n = d.with_name(f"{d.name}.replaced-{int(self.clock())}-{n}"), n + 1
         os.replace(d, kept)
-        self._pending.pop(task_id, None)
+        self._drop_progress(task_id)
         log.error("task %s: job directory %s %s: moved aside as %s", task_id, d, why, kept.name)
 
     def _run(self, task_id: int, spec: TrainingSpec, task: dict[str, Any]) -> dict[str, Any]:
@@ -619,7 +612,7 @@ class OfferHandler:
         """Save a finished phase (FINISHED) and prune what the job no longer needs."""
         state = self._save(task_id, **changes)
         self._prune(task_id)
-        self._pending.pop(task_id, None)  # points a finished job never sent
+        self._drop_progress(task_id)  # points a finished job never sent
         return state
 
     def _prune(self, task_id: int) -> None:
@@ -921,48 +914,23 @@ class OfferHandler:
             return self.platform.tmc.transact(fn, *args, sender=self.address)
 
     def _post_progress(self, task_id: int, point: dict[str, Any]) -> None:
-        """Queue ``point`` and send every queued point of the task, oldest first.
-
-        Best effort: a gateway hiccup never stops training (points stay in progress.jsonl).
-        A 403 ``not_assigned_worker`` means the gateway's index has not seen our acceptance
-        yet (the indexer polls the chain): the points wait for the next try."""
+        """Hand ``point`` to the progress sender (:mod:`workers.daemon.progress_sender`):
+        training never waits on the gateway, whatever it answers or however slowly."""
         if self.gateway is None:
             return
-        queue = self._pending.setdefault(task_id, deque(maxlen=MAX_PENDING_POINTS))
-        queue.append(point)
-        self._flush_progress(task_id, at_most=POINTS_PER_UPDATE)
+        if self._progress is None or self._progress.gateway is not self.gateway:
+            self._progress = ProgressSender(self.gateway)
+        self._progress.put(task_id, point)
 
-    def _flush_progress(
-        self, task_id: int, wait_s: float = 0.0, at_most: int | None = None
-    ) -> None:
-        """Send queued points (``at_most`` of them); keep trying up to ``wait_s`` while the
-        gateway lags."""
-        if self.gateway is None:
-            return
-        queue = self._pending.get(task_id, deque())
-        deadline = time.monotonic() + wait_s
-        sent = 0
-        while queue and (at_most is None or sent < at_most):
-            try:
-                self.gateway.post(f"/tasks/{task_id}/progress", json=queue[0], auth=True)
-            except GatewayError as exc:
-                rule = exc.detail.get("rule") if isinstance(exc.detail, dict) else None
-                if rule == "not_assigned_worker" or exc.status >= 500:
-                    if time.monotonic() >= deadline:
-                        return  # keep the queue for the next update
-                    time.sleep(0.2)
-                    continue
-                self._progress_warning(task_id, exc)  # 409 duplicate step, 422: drop it
-            except Exception as exc:  # noqa: BLE001 - best effort: training goes on
-                self._progress_warning(task_id, exc)  # connection down, a point not JSON ...
-                return
-            queue.popleft()
-            sent += 1
+    def _flush_progress(self, task_id: int, wait_s: float) -> None:
+        """Give the task's queued points up to ``wait_s`` to reach the gateway (before the
+        outcome: the curve is complete when the model is); best effort."""
+        if self._progress is not None:
+            self._progress.flush(task_id, wait_s)
 
-    def _progress_warning(self, task_id: int, exc: Exception) -> None:
-        self.progress_errors += 1
-        if self.progress_errors <= 3:
-            log.warning("progress point of task %s not posted: %s", task_id, exc)
+    def _drop_progress(self, task_id: int) -> None:
+        if self._progress is not None:
+            self._progress.drop(task_id)
 
 
 def _count(state: dict[str, Any], key: str) -> int:
