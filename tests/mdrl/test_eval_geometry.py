@@ -123,6 +123,40 @@ def test_geometry_cache_bounded(monkeypatch):
     assert [k[0] for k in env_mod._GEOMETRY] == [6, 7]
 
 
+def test_threads_asking_for_one_geometry_at_once_build_it_once(monkeypatch):
+    """Envs are built from threads too (the gateway's expert checks): a geometry asked for by
+    several at once is built once and shared, and its lazy tables (slant) are one object."""
+    import threading
+    import time
+
+    monkeypatch.setattr(env_mod, "_GEOMETRY", {})
+    calls = []
+    real = env_mod._build_geometry
+
+    def slow(key):  # a build long enough for every thread to arrive while it runs
+        calls.append(key)
+        time.sleep(0.2)
+        return real(key)
+
+    monkeypatch.setattr(env_mod, "_build_geometry", slow)
+    spec = EnvSpec(rows=9, cols=9, agents=1)
+    start = threading.Barrier(8)
+    got = []
+
+    def ask():
+        start.wait()
+        geo = env_mod.geometry(spec)
+        got.append((geo, geo.slant()))
+
+    threads = [threading.Thread(target=ask) for _ in range(8)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(30)
+    assert len(got) == 8 and len(calls) == 1
+    assert all(g is got[0][0] and s is got[0][1] for g, s in got)
+
+
 def test_blocks_need_sizes_that_add_up():
     spec = EnvSpec(rows=4, cols=4, agents=1)
     with pytest.raises(ValueError):
