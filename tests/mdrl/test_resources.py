@@ -17,8 +17,10 @@ from workers.mdrl.resources import (
     REFERENCE_STEPS_PER_S,
     estimate,
     expert_bytes,
+    final_evaluation_flops,
     lenet_params,
     observer_bytes,
+    reference_flops_per_s,
     walls_cae_bytes,
     worker_hours,
 )
@@ -92,14 +94,21 @@ def test_compute_and_hours() -> None:
             "budget": {"steps": REFERENCE_STEPS_PER_S * 3600},
         }
     )
-    assert worker_hours(ref) == pytest.approx(1.0)
-    # hours are linear in steps, capped by minutes; a minutes-only budget counts its minutes
-    assert worker_hours(spec(budget={"steps": 200_000})) == pytest.approx(
-        2 * worker_hours(spec(budget={"steps": 100_000}))
-    )
+    # (plus its final evaluation: 100 greedy episodes, a few seconds of the hour)
+    assert worker_hours(ref) == pytest.approx(1.0, rel=1e-3) and worker_hours(ref) > 1.0
+    # hours are linear in steps plus the final evaluation, capped by minutes
+    h = [worker_hours(spec(budget={"steps": k * 100_000})) for k in (1, 2, 3)]
+    assert h[2] - h[1] == pytest.approx(h[1] - h[0])
+    final_h = h[0] - (h[1] - h[0])
+    s = spec(budget={"steps": 1})
+    assert final_h > 0 and final_h == pytest.approx(
+        final_evaluation_flops(s) / reference_flops_per_s() / 3600)
     assert worker_hours(spec(budget={"steps": 10**9, "minutes": 30})) == 0.5
+    # a minutes-only budget counts its minutes, and the steps that leave time to evaluate
     only_minutes = estimate(spec(budget={"minutes": 60}))
-    assert only_minutes.hours == 1.0 and only_minutes.env_steps > 0
+    assert only_minutes.hours == 1.0
+    rate, per_step = reference_flops_per_s(), only_minutes.flops_per_step
+    assert only_minutes.env_steps == int((3600 * rate - final_evaluation_flops(s)) / per_step)
     # more epochs and more agents cost more per step
     base = estimate(spec()).flops_per_step
     assert estimate(spec(ppo={"update_epochs": 20})).flops_per_step > base

@@ -12,7 +12,8 @@ and a fixed process overhead (Python, numpy, torch). Compute counts the LeNet fo
 the rollout, forward + backward (~3x forward) per epoch of the update, and the env/observer
 work per step, and with ``selection.keep_best`` the job's greedy evaluations (actor forward
 passes and env work of at most JOB_EVAL_EPISODES x max_steps steps every ``eval_every``
-updates), spread over the env steps between them.
+updates), spread over the env steps between them; the job's final evaluation (the same size)
+is charged once.
 
 The networks a run loads besides its own are counted when their cards are at hand (a worker
 reads them before it accepts; ``experts`` and ``walls_cae`` of :func:`estimate`): each MEDC
@@ -212,17 +213,24 @@ def estimate(
     }
 
     per_step = flops_per_step(spec)
+    final = final_evaluation_flops(spec)
     rate = reference_flops_per_s()
     if spec.budget.steps is not None:
         steps = spec.budget.steps
-        hours = steps * per_step / rate / 3600
+        hours = (steps * per_step + final) / rate / 3600
         if spec.budget.minutes is not None:
             hours = min(hours, spec.budget.minutes / 60)
-    else:
+    else:  # a time budget keeps the final evaluation's time (train.Trainer._no_time_for_another)
         assert spec.budget.minutes is not None
         hours = spec.budget.minutes / 60
-        steps = int(hours * 3600 * rate / per_step)
+        steps = max(0, int((hours * 3600 * rate - final) / per_step))
     return ResourceEstimate(sum(parts.values()), parts, per_step, steps, hours)
+
+
+def final_evaluation_flops(spec: TrainingSpec) -> int:
+    """FLOPs of a job's final greedy evaluation (JOB_EVAL_EPISODES episodes of at most
+    max_steps steps: actor passes and env work), paid once after the last update."""
+    return JOB_EVAL_EPISODES * spec.env.max_steps * _greedy_step_flops(spec)
 
 
 def update_seconds(spec: TrainingSpec) -> float:
@@ -242,23 +250,37 @@ def flops_per_step(spec: TrainingSpec) -> int:
     """FLOPs of one env step: the rollout's forward passes, forward + backward (~3x) per update
     epoch, and the env/observer work (maps over the C cells, ODMTL downsizing)."""
     env, obs = spec.env, spec.observation
-    n, c, a = env.agents, env.rows * env.cols, env.moves + 1
-    np_, ap = (1, a**n) if obs.kind == "cmtl" else (n, a)
+    np_, ap = _policy_outputs(env, obs)
     layout = channel_layout(env, obs)
     forward = np_ * lenet_flops(layout.actor_shape, ap) + lenet_flops(layout.critic_shape, 1)
-    window = obs.window * obs.window if obs.kind == "odmtl" else 1
-    env_flops = 20 * c + 50 * n + 2 * np_ * c * window + np_ * ap
-    if obs.belief:  # two (C,) x (C, C) products per env step (belief.py), then K-way logsumexp
-        env_flops += 4 * c * c + 30 * c
-    training = forward * (1 + 3 * spec.ppo.update_epochs) + env_flops
+    training = forward * (1 + 3 * spec.ppo.update_epochs) + _env_flops(spec)
     if spec.selection.keep_best is None:
         return training
-    # selection.keep_best: greedy evaluations (actor only) every eval_every updates, each at
-    # most JOB_EVAL_EPISODES episodes of max_steps steps, per env step of training between them
-    greedy = np_ * lenet_flops(layout.actor_shape, ap) + env_flops
-    evaluation = JOB_EVAL_EPISODES * env.max_steps * greedy
+    # selection.keep_best: greedy evaluations (actor only) every eval_every updates, each as
+    # long as the final one, spread over the env steps of training between them
+    evaluation = final_evaluation_flops(spec)
     between = spec.selection.eval_every * spec.ppo.batch_steps
     return training + -(-evaluation // between)
+
+
+def _env_flops(spec: TrainingSpec) -> int:
+    """FLOPs of the env and observer per env step (maps over the C cells, ODMTL downsizing,
+    the belief filter)."""
+    env, obs = spec.env, spec.observation
+    c = env.rows * env.cols
+    np_, ap = _policy_outputs(env, obs)
+    window = obs.window * obs.window if obs.kind == "odmtl" else 1
+    flops = 20 * c + 50 * env.agents + 2 * np_ * c * window + np_ * ap
+    if obs.belief:  # two (C,) x (C, C) products per env step (belief.py), then K-way logsumexp
+        flops += 4 * c * c + 30 * c
+    return flops
+
+
+def _greedy_step_flops(spec: TrainingSpec) -> int:
+    """FLOPs of one greedy env step: the actor's forward passes and the env/observer work."""
+    env, obs = spec.env, spec.observation
+    np_, ap = _policy_outputs(env, obs)
+    return np_ * lenet_flops(channel_layout(env, obs).actor_shape, ap) + _env_flops(spec)
 
 
 @cache
