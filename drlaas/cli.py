@@ -7,8 +7,11 @@ an embedded EVM.
 
 from __future__ import annotations
 
+import httpx
 import typer
+from typer.core import TyperGroup
 
+from backend.chain.client import NodeRefused
 from backend.chain.commands import app as chain_app
 from backend.chain.pyevm import restore_recursion_limit
 from drlaas.commands.client import model_app, requester_app, task_app, worker_app
@@ -16,6 +19,7 @@ from drlaas.commands.client.models import fetch_model
 from drlaas.commands.deploy import app as deploy_app
 from drlaas.commands.scenario import scenario_command
 from drlaas.commands.up import up_command
+from workers.daemon.links import SetupError
 from workers.mdrl.commands import train as train_command
 from workers.mdrl.commands.cae import app as cae_app
 from workers.mdrl.commands.evaluate import eval_command
@@ -27,7 +31,33 @@ from workers.mdrl.commands.zoo import app as zoo_app
 # RecursionError guards expect the normal limit. Every command runs after this line.
 restore_recursion_limit()
 
+
+
+class DrlaasGroup(TyperGroup):
+    """Every command: a platform that cannot be reached, or settings it cannot start with, end
+    the command with one line saying what to do, not with a traceback."""
+
+    def invoke(self, ctx: typer.Context) -> object:
+        try:
+            return super().invoke(ctx)
+        except httpx.TransportError as exc:
+            try:
+                where = str(exc.request.url.copy_with(query=None))
+            except RuntimeError:  # no request attached
+                where = "the platform"
+            typer.echo(
+                f"error: cannot reach {where} ({exc or type(exc).__name__}): is the platform "
+                f"running (`drlaas up`), and is --gateway / DRLAAS_GATEWAY its URL?",
+                err=True,
+            )
+            raise typer.Exit(1) from None
+        except (SetupError, NodeRefused, ConnectionError) as exc:
+            typer.echo(f"error: {exc}", err=True)
+            raise typer.Exit(1) from None
+
+
 app = typer.Typer(
+    cls=DrlaasGroup,
     name="drlaas",
     help="DRL as a Service: train, evaluate and share multi-agent RL models.",
     no_args_is_help=True,
@@ -44,7 +74,8 @@ app.add_typer(model_app, name="model")
 app.add_typer(worker_app, name="worker")  # register | status | run (the daemon)
 app.add_typer(requester_app, name="requester")
 app.command("up", help="Start the whole platform embedded here (Ctrl-C stops it).")(up_command)
-app.command("demo-scenario", help="Run the issue-4 scenario against a running `drlaas up`.")(
+app.command("demo-scenario", help="Run the end-to-end scenario (register, submit, train, review, "
+            "share) against a running `drlaas up`; `make demo` starts one and runs it.")(
     scenario_command
 )
 

@@ -278,6 +278,19 @@ def stop_workers(workers: list[WorkerProc], grace: float = STOP_GRACE_S) -> None
             w.proc.wait(timeout=10)
 
 
+def port_free(host: str, port: int) -> bool:
+    """Whether the gateway could listen on ``host:port`` now (bound as uvicorn binds it, with
+    SO_REUSEADDR, so a port in TIME_WAIT counts as free)."""
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    with socket.socket(family, socket.SOCK_STREAM) as s:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            s.bind((host, port))
+        except OSError:
+            return False
+    return True
+
+
 def up_command(
     workers: Annotated[int, typer.Option(min=0, max=32, help="local worker daemons")] = 3,
     port: Annotated[int, typer.Option(min=0, max=65535, help="gateway port (0 = a free one)")] = 0,
@@ -292,6 +305,15 @@ def up_command(
 
     settings = load_settings()
     configure_logging(settings.log_format)  # DRLAAS_LOG_FORMAT=json|text
+    # a fresh data directory's migrations are a dozen INFO lines before the banner
+    logging.getLogger("alembic").setLevel(logging.WARNING)
+    if port and not port_free(host, port):  # before a data directory or a chain is made
+        typer.echo(
+            f"error: {host}:{port} is in use (another `drlaas up`?): stop it, or choose another "
+            "port with --port (0: a free one)",
+            err=True,
+        )
+        raise typer.Exit(1)
     if settings.demo_keys_allowed and host not in ("127.0.0.1", "::1", "localhost"):
         typer.echo(
             f"warning: --host {host} serves the development platform beyond this machine: "

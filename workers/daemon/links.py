@@ -116,7 +116,7 @@ def find_deployment(
         doc = json.loads(f.read_text())
         return Deployment.from_dict(doc), _positive_int(doc.get("chain_id")), False
     tried.append(f"{f} (missing)")
-    raise RuntimeError("cannot find the contract addresses; tried: " + "; ".join(tried))
+    raise SetupError("cannot find the contract addresses; tried: " + "; ".join(tried))
 
 
 def _positive_int(value: Any) -> int | None:
@@ -124,7 +124,12 @@ def _positive_int(value: Any) -> int | None:
     return value if ok else None
 
 
-class DeploymentChanged(RuntimeError):
+class SetupError(RuntimeError):
+    """A daemon or client cannot start with these settings: the message says what to change
+    (the CLI prints it as one line, without a traceback)."""
+
+
+class DeploymentChanged(SetupError):
     """The gateway names another deployment than the one this worker pinned on first use."""
 
 
@@ -162,14 +167,20 @@ def pinned_platform(settings: Settings, gateway: str | None, pin_file: Path) -> 
     named = pin_contracts(deployment)
     if pinned != named or (chain_id is not None and pinned_chain != chain_id):
         raise DeploymentChanged(
-            f"the gateway {url} names chain {chain_id} and contracts {named}, but this worker "
-            f"pinned chain {pinned_chain} and contracts {pinned} for it on first use, in "
+            f"the gateway {url} names chain {chain_id} and contracts {_show(named)}, but this "
+            f"worker pinned chain {pinned_chain} and contracts {_show(pinned)} for it on first "
+            f"use, in "
             f"{pin_file}: refusing to sign for another deployment (a hostile or hijacked "
             f"gateway, or a redeployed platform). If the platform was really redeployed, "
             f"remove the {url!r} entry of {pin_file}, or set DRLAAS_CONTRACTS and "
             f"DRLAAS_CHAIN_ID to the deployment you trust"
         )
     return PinnedPlatform(deployment, int(pinned_chain), None)
+
+
+def _show(contracts: dict[str, Any]) -> str:
+    """Contracts in one order (``name=address, ...``), so two lists compare by eye."""
+    return ", ".join(f"{name}={contracts[name]}" for name in sorted(contracts))
 
 
 def pin_contracts(deployment: Deployment) -> dict[str, str]:
@@ -203,7 +214,7 @@ def worker_settings(gateway: str | None) -> tuple[Settings, Path]:
     if not gateway or not (settings.broker_service.embedded or settings.ipfs_service.embedded):
         return settings, own
     if not is_loopback_url(gateway):
-        raise RuntimeError(
+        raise SetupError(
             f"DRLAAS_BROKER / DRLAAS_IPFS are 'embedded', which means the gateway's own files on "
             f"this machine, but the gateway {gateway} is not a loopback address (only a gateway "
             f"on this machine is asked where they are); set DRLAAS_BROKER and DRLAAS_IPFS to "
@@ -212,10 +223,15 @@ def worker_settings(gateway: str | None) -> tuple[Settings, Path]:
     try:
         r = bounded_get(gateway.rstrip("/") + "/api/local/services", timeout=10)
         doc = r.json() if r.is_success else None
+    except httpx.TransportError as exc:  # nothing listens there: not a question of settings
+        raise SetupError(
+            f"cannot reach the gateway {gateway} ({exc}): is the platform running "
+            f"(`drlaas up`), and is --gateway / DRLAAS_GATEWAY its URL?"
+        ) from None
     except (httpx.HTTPError, ValueError):
         doc = None
     if not isinstance(doc, dict) or not isinstance(doc.get("data_dir"), str):
-        raise RuntimeError(
+        raise SetupError(
             f"DRLAAS_BROKER / DRLAAS_IPFS are 'embedded' but the gateway {gateway} does not say "
             f"where its embedded services are (it must run on this machine in development "
             f"mode); set DRLAAS_BROKER and DRLAAS_IPFS to the platform's broker and IPFS URLs"
@@ -245,7 +261,7 @@ def is_loopback_url(url: str) -> bool:
 
 def _local_dir(gateway: str, name: str, value: Any) -> str:
     """A directory named by a loopback gateway's ``/api/local/services``: an absolute path
-    with no ``..`` (RuntimeError naming the field otherwise)."""
+    with no ``..`` (SetupError naming the field otherwise)."""
     if (
         not isinstance(value, str)
         or not value
@@ -253,7 +269,7 @@ def _local_dir(gateway: str, name: str, value: Any) -> str:
         or not Path(value).is_absolute()
         or ".." in Path(value).parts
     ):
-        raise RuntimeError(
+        raise SetupError(
             f"the gateway {gateway} names {name} {value!r} for its embedded services: not an "
             f"absolute path without '..'; set DRLAAS_BROKER and DRLAAS_IPFS instead"
         )
