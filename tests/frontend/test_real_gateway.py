@@ -36,6 +36,8 @@ def test_pages_load_from_the_real_gateway(page: Any, tmp_path: Path) -> None:
             page.goto(server.url + path)
             expect(page.locator(ready).first).to_be_visible()
             expect(page.locator(".error-box")).to_have_count(0)
+            if path == "/models":  # a new platform: nothing shared, not "no match"
+                expect(page.locator("#no-models")).to_contain_text("No model shared yet")
         # the form reads its bounds from the real document (the page stays on /submit)
         expect(page.locator("#task-form")).to_have_attribute("data-bounds", "openapi")
         body = app.openapi()["components"]["schemas"]["TaskCreate"]["properties"]

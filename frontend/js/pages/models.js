@@ -40,7 +40,7 @@ export async function render(main, _params, ctx) {
       const { data, count } = asList(await api(`/models${query({ ...filters, limit: PAGE_SIZE, offset: offset || "" })}`,
         { signal: ctx.signal }));
       if (mine !== seq) return; // a newer filter answer is on its way
-      clear(results).appendChild(table(data));
+      clear(results).appendChild(table(data, Object.values(filters).some(Boolean)));
       results.appendChild(pager({ id: "models-pager", offset, shown: data.length, count,
         onPage: (next) => { offset = next; schedule(0); } }));
       countEl.textContent = `${count} model${count === 1 ? "" : "s"}`;
@@ -73,8 +73,12 @@ export async function render(main, _params, ctx) {
   await load();
 }
 
-function table(models) {
-  if (!models.length) return h("p", { class: "empty", id: "no-models" }, "No model matches these filters.");
+function table(models, filtered) {
+  if (!models.length) {
+    return h("p", { class: "empty", id: "no-models" }, filtered
+      ? "No model matches these filters."
+      : "No model shared yet: models appear here once workers share what they trained.");
+  }
   return h("table", { class: "list", id: "models-table" },
     h("thead", {}, h("tr", {}, ["#", "Environment", "Domain", "Owner", "Reputation", "Rating", "Allocations", "CID"]
       .map((c) => h("th", {}, c)))),

@@ -379,11 +379,12 @@ export async function render(main, params, ctx) {
       }
       if (!err.issues.length) {
         const extra = [];
-        if (err.status === 401) extra.push(" Sign in first (top right).");
         if (err.rule === "sign_locally") {
           extra.push(" This gateway holds no key for you: sign the transaction below with your own key and POST it to /api/tx, or use the drlaas CLI.");
         }
-        formError.appendChild(h("p", { class: "warn", "data-rule": err.rule || "" }, err.message, extra.join("")));
+        // 401: the API's text is for API clients (a bearer header); a browser user signs in
+        const message = err.status === 401 ? "Sign in first (top right): the task is created as your address." : err.message;
+        formError.appendChild(h("p", { class: "warn", "data-rule": err.rule || "" }, message, extra.join("")));
         if (err.rule === "tasks_not_requester") {
           formError.appendChild(h("button", { type: "button", class: "small", id: "register-requester", onclick: async (ev) => {
             try {
