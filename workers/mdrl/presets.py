@@ -34,7 +34,9 @@ A config file (JSON or TOML) has the same fields, optionally on top of a preset:
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import json
+import re
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -185,12 +187,27 @@ for _agents in range(1, 5):
             PRESETS[_p.name] = _p
 
 
+def preset_families() -> str:
+    """The preset names with their numbers written N (e.g. ``odmtl-Na-NxN``): the list in
+    short, for an error that cannot name a close one; derived, so never out of date."""
+    return ", ".join(sorted({re.sub(r"\d+", "N", name) for name in PRESETS}))
+
+
+LIST_PRESETS = "`drlaas train --list-presets`"
+"""How a user lists every preset with its description."""
+
+
 def get_preset(name: str) -> Preset:
-    """The preset called `name` (error lists the known names)."""
+    """The preset called `name`; an unknown one is one line naming it with the closest names
+    (the whole list of ~190 names buried the typo)."""
     try:
         return PRESETS[name]
     except KeyError:
-        raise ValueError(f"unknown preset {name!r}; known: {', '.join(sorted(PRESETS))}") from None
+        close = difflib.get_close_matches(str(name), PRESETS, n=3)
+        names = " or ".join([", ".join(close[:-1]), close[-1]] if len(close) > 1 else close)
+        hint = f"did you mean {names}?" if close else f"the families are {preset_families()}"
+        raise ValueError(f"unknown preset {name!r}; {hint} ({LIST_PRESETS} lists them all)"
+                         ) from None
 
 
 def _merge(base: dict[str, Any], changes: dict[str, Any], what: str) -> dict[str, Any]:
@@ -230,15 +247,22 @@ def load_config(path: str | Path) -> Preset:
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"config file not found: {path}")
-    if path.suffix == ".json":
-        try:
-            doc = json.loads(path.read_text())
-        except RecursionError:
-            raise ValueError(f"config {path}: JSON nested too deeply") from None
-    elif path.suffix == ".toml":
-        doc = tomllib.loads(path.read_text())
-    else:
+    if path.suffix not in (".json", ".toml"):
         raise ValueError(f"config {path}: expected a .json or .toml file")
+    kind = path.suffix[1:].upper()
+    try:
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError:
+        raise ValueError(f"{path}: not valid {kind} (not UTF-8 text)") from None
+    try:  # the parser's own message names neither the file nor the format
+        doc = json.loads(text) if kind == "JSON" else tomllib.loads(text)
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{path}: not valid JSON (line {exc.lineno}, column {exc.colno}: "
+                         f"{exc.msg})") from None
+    except tomllib.TOMLDecodeError as exc:  # its message ends with "(at line L, column C)"
+        raise ValueError(f"{path}: not valid TOML ({exc})") from None
+    except RecursionError:
+        raise ValueError(f"config {path}: {kind} nested too deeply") from None
     return preset_from_dict(doc, name=path.stem)
 
 

@@ -150,8 +150,10 @@ def resolve_policy(
             f"{name!r} is neither a baseline ({', '.join(BASELINES)}) nor a model directory",
             param_hint="--policy",
         )
-    from workers.mdrl.modelio import load_model
+    from workers.mdrl.modelio import CARD, load_model
 
+    if not (path / CARD).is_file():
+        _refuse_run_dir(path)
     try:
         policy = load_model(path)
     except (OSError, ValueError, KeyError, RuntimeError) as exc:
@@ -161,6 +163,22 @@ def resolve_policy(
     card_spec = policy.env_spec
     spec = build_spec(card_spec, agents, grid, walls, intensity, moves, readings)
     return model_policy_for(path, spec, card_spec, policy), spec, str(path)
+
+
+def _refuse_run_dir(path: Path) -> None:
+    """A `drlaas train` output directory was refused with only "no model.json": name the
+    models it holds (model/, the final one, and best/ with --keep-best) to give instead.
+    Not picked silently, since model/ and best/ are different policies."""
+    from workers.mdrl.modelio import CARD
+
+    held = [path / sub for sub in ("model", "best") if (path / sub / CARD).is_file()]
+    if held:
+        choices = " or ".join(f"--policy {p}" for p in held)
+        raise typer.BadParameter(
+            f"{path} is a training run directory, not a model directory: give {choices}"
+            + (" (best/: the best evaluated policy)" if len(held) > 1 else ""),
+            param_hint="--policy",
+        )
 
 
 def _fmt_ci(ci: list) -> str:
@@ -182,7 +200,8 @@ def eval_command(
     policy: Annotated[
         str,
         typer.Option(
-            "--policy", help="baseline (random, uniform, bayes, oracle) or a model directory"
+            "--policy", help="baseline (random, uniform, bayes, oracle) or a model "
+            "directory (a training run's model/ or best/)"
         ),
     ],
     agents: Annotated[

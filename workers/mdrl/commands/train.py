@@ -97,9 +97,55 @@ def _check_out(out: Path, *, same_run: Path | None = None) -> None:
                                  param_hint="--out") from None
 
 
+def _list_presets(value: bool) -> None:
+    """--list-presets: each preset's name and description, one a line, then exit (the help
+    can only name the families)."""
+    if not value:
+        return
+    from workers.mdrl.presets import PRESETS
+
+    width = max(map(len, PRESETS))
+    for name, chosen in PRESETS.items():
+        typer.echo(f"{name:{width}}  {chosen.description}")
+    raise typer.Exit()
+
+
+def _check_resume(resume: Path) -> None:
+    """--resume names an existing run directory (or its checkpoint/) holding a checkpoint:
+    checked before anything else, since the budget or other options mean nothing without
+    one (a missing directory was reported as a missing budget)."""
+    if not resume.is_dir():
+        raise typer.BadParameter(f"{resume}: no such directory", param_hint="--resume")
+    if (resume / "model.json").is_file() and not (resume / "state.json").is_file():
+        raise typer.BadParameter(f"{resume} is a model directory; --resume takes a run "
+                                 "directory (holding checkpoint/) or its checkpoint/",
+                                 param_hint="--resume")
+    places = (resume, resume / "checkpoint", resume / "checkpoint.old")  # .old: killed saving
+    if not any((p / "state.json").is_file() for p in places):
+        raise typer.BadParameter(f"{resume} is not a checkpoint directory and holds no "
+                                 "checkpoint/ (a run directory of `drlaas train --out`)",
+                                 param_hint="--resume")
+
+
+def _nothing_left(trainer) -> str | None:
+    """Why a resumed run has no budget left (its steps or time already reach the given
+    ones), or None: the run would end at once with its old summary, which read as done."""
+    run, used = trainer.run, []  # (what the run has, its budget, the flag)
+    if run.total_steps is not None and trainer.global_step >= run.total_steps:
+        used.append((f"{trainer.global_step} steps", f"{run.total_steps}", "--steps"))
+    if run.minutes is not None and trainer.elapsed >= run.minutes * 60.0:
+        used.append((f"{trainer.elapsed / 60:.2f} minutes", f"{run.minutes:g}", "--minutes"))
+    if not used:
+        return None
+    has = (f"{used[0][0]}, its budget is {used[0][1]}" if len(used) == 1
+           else " and ".join(f"{what} (budget {budget})" for what, budget, _ in used))
+    return (f"nothing to train: the run already has {has}; give a larger "
+            f"{' and '.join(flag for *_, flag in used)}")
+
+
 def train(
-    preset: Annotated[str, typer.Option(help="Named set-up, e.g. odmtl-3a-10x10 "
-                                             "(see workers/mdrl/presets.py).")] = "odmtl-3a-10x10",
+    preset: Annotated[str, typer.Option(help="Named set-up, e.g. odmtl-3a-10x10; "
+                                             "--list-presets lists them.")] = "odmtl-3a-10x10",
     config: Annotated[Path | None, typer.Option(help="JSON/TOML config file (sections env, "
                                                      "observation, ppo, run); overrides --preset."
                                                 )] = None,
@@ -107,7 +153,8 @@ def train(
                                                    "`drlaas task show ID --spec`): train what a "
                                                    "worker trains for it (env, observation, PPO, "
                                                    "budget, seed, experts, selection); "
-                                                   "--steps/--minutes/--seed override it.")
+                                                   "--steps, --minutes and --seed override "
+                                                   "it.")
                                 ] = None,
     steps: Annotated[int | None, typer.Option(help="Env-step budget of the run (total, "
                                                    "including steps before a resume).")] = None,
@@ -163,6 +210,9 @@ def train(
         "--expert-credit/--no-expert-credit", help="expert credit (medc.py): experts whose "
         "guided episodes are no shorter than the agents' own fade out (default off, as Alg. "
         "5.1)")] = None,
+    list_presets: Annotated[bool, typer.Option(
+        "--list-presets", is_eager=True, callback=_list_presets,
+        help="List the presets (name and description) and exit.")] = False,
 ) -> None:
     """Train with PPO (Alg. 3.3); writes metrics, TensorBoard, checkpoints and model files."""
     import dataclasses
@@ -202,6 +252,7 @@ def train(
     expert_options = (experts, expert_qos, expert_rate, expert_threshold, expert_credit,
                       expert_rate_end)
     if resume is not None:
+        _check_resume(resume)
         if num_envs is not None or config is not None or readings is not None or init_from or any(
                 o is not None for o in expert_options) or seed is not None:
             raise typer.BadParameter("--resume continues a run as configured; drop --config, "
@@ -210,12 +261,6 @@ def train(
         if steps is None and minutes is None:
             raise typer.BadParameter("give a budget: --steps and/or --minutes (the total, "
                                      "including the steps or time before the resume)")
-        if not resume.is_dir():
-            raise typer.BadParameter(f"{resume}: no such directory", param_hint="--resume")
-        if (resume / "model.json").is_file() and not (resume / "state.json").is_file():
-            raise typer.BadParameter(f"{resume} is a model directory; --resume takes a run "
-                                     "directory (holding checkpoint/) or its checkpoint/",
-                                     param_hint="--resume")
         run_dir = resume if (resume / "checkpoint").is_dir() else resume.parent
         if out is not None:
             _check_out(out, same_run=run_dir)
@@ -228,6 +273,9 @@ def train(
             text = str(exc) if not isinstance(exc, KeyError) else f"incomplete checkpoint ({exc})"
             raise typer.BadParameter(f"cannot resume {resume}: {text}",
                                      param_hint="--resume") from None
+        nothing = _nothing_left(trainer)
+        if nothing is not None:  # still exit 0 with the summary: the run is as asked
+            typer.echo(nothing, err=True)
         _finish(trainer)
         return
     source = "--preset" if config is None else "--config"
