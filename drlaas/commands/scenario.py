@@ -151,7 +151,7 @@ def run_scenario(
         for p in d.get("progress", [])[seen:]:
             say(
                 f"  progress {p['worker'][:10]} step {p['step']:>6} success "
-                f"{p['success'] if p['success'] is not None else '-'} time {p['time']}"
+                f"{_figure(p.get('success'), '.2f')} time {_figure(p.get('time'), '.1f')}"
             )
         seen = len(d.get("progress", []))
         return d
@@ -441,3 +441,8 @@ def scenario_command(
         typer.echo(json.dumps(report, indent=1, default=str))
     else:
         typer.echo("scenario completed")
+
+
+def _figure(value: Any, spec: str) -> str:
+    """A curve point's figure for a person: rounded, '-' when the point has none."""
+    return format(value, spec) if isinstance(value, int | float) else "-"
