@@ -80,7 +80,7 @@ def test_model_page_links_task_experts_and_reads_the_card(
         "intensity": {"kind": "fixed", "values": [1e9]},
     }  # fmt: skip
     assert client.get(f"{P}/tasks/{task_id}").json()["env"] == listed["env"]
-    assert env_summary(listed) == "8x8 2a 0w 4m I=1e+09"  # `drlaas task list`
+    assert env_summary(listed) == "8x8 2 agents 0 walls 4 moves I=1e+09"  # `drlaas task list`
 
     # the worker's outcome: a card with a curve, held-out figures and its experts
     card = card_bytes(

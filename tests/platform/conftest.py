@@ -17,17 +17,14 @@ def worker_logs(platform: Any) -> str:
     return "\n".join(f"--- {w.log}\n{w.log.read_text()[-3000:]}" for w in platform.workers)
 
 
+SERVICE_VARS = ("DRLAAS_CHAIN", "DRLAAS_IPFS", "DRLAAS_BROKER", "DRLAAS_DATABASE", "DRLAAS_GATEWAY",
+                "DRLAAS_CONTRACTS", "DRLAAS_MODE")
+"""Variables that would point a test's platform at services other than its own embedded ones."""
+
+
 @pytest.fixture
 def data_dir(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
-    for var in (
-        "DRLAAS_CHAIN",
-        "DRLAAS_IPFS",
-        "DRLAAS_BROKER",
-        "DRLAAS_DATABASE",
-        "DRLAAS_GATEWAY",
-        "DRLAAS_CONTRACTS",
-        "DRLAAS_MODE",
-    ):
+    for var in SERVICE_VARS:
         monkeypatch.delenv(var, raising=False)
     return tmp_path / "data"
 

@@ -22,7 +22,7 @@ from backend.api.experts import (
 from backend.api.pagecache import cached_page
 from backend.api.schemas import Address
 from backend.api.writes import catch_up, field_error, receipt_public
-from backend.chain.platform import TaskStatus, WorkerStatus
+from backend.chain.platform import OfferState, TaskStatus, WorkerStatus
 from backend.db import models as m
 from backend.schemas.common import (
     ID_DIGITS,
@@ -526,8 +526,10 @@ def review_outcome(
     chain: ChainDep,
     indexer: IndexerDep,
 ) -> TxPublic:
-    """TMC.reviewOutcome by the task's requester: review 0-5 and accept (pay) or reject."""
+    """TMC.reviewOutcome by the task's requester: review 0-5 and accept (pay) or reject;
+    409 ``outcome_already_reviewed`` for an outcome reviewed before."""
     _require_requester(_task(session, task_id), user.address)
+    _check_not_reviewed(session, chain, task_id, body.worker)
     rc = chain.send(
         user.address,
         chain.platform.tmc,
@@ -539,6 +541,30 @@ def review_outcome(
     )
     catch_up(indexer)
     return TxPublic(**receipt_public(rc))
+
+
+def _check_not_reviewed(
+    session: SessionDep, chain: ChainDep, task_id: int, worker: str
+) -> None:
+    """409 ``outcome_already_reviewed`` (with the verdict given) when the chain records the
+    worker's offer as reviewed: the contract refuses a second review as
+    ``TasksNotSubmitted``, which reads as if no outcome had been submitted. The chain's offer
+    state decides (the index may lag); the review given is the index's, when it has it."""
+    state, _, _, paid = chain.call(chain.platform.tmc, "getOffer", task_id, worker)
+    if int(state) != OfferState.REVIEWED:
+        return
+    verdict = "accepted" if paid else "rejected"
+    row = session.get(m.OutcomeRow, (task_id, worker))
+    if row is not None and row.review is not None:
+        done = f"reviewed ({row.review}/5, {verdict})"
+    else:  # closing the task pays a submitted outcome unreviewed (OutcomePaidUnreviewed)
+        done = f"reviewed or paid at the task's close ({verdict})"
+    raise RuleError(
+        409,
+        "outcome_already_reviewed",
+        f"the outcome of {worker} for task {task_id} was already {done}: an outcome is "
+        "reviewed once",
+    )
 
 
 @router.post(

@@ -37,6 +37,7 @@ from drlaas.commands.client.txcheck import (
     allocate_model_call,
     share_model_expect,
 )
+from drlaas.commands.client.users import fail_with_register_hint
 from workers.daemon.gateway import Gateway, GatewayError
 from workers.mdrl.spec import parse_grid, parse_walls
 
@@ -317,7 +318,18 @@ def model_share(
             )
         except GatewayError as exc:
             fail(exc)
-    emit(out, as_json, lambda d: typer.echo(f"model shared: {json.dumps(d)[:200]}"))
+    emit(out, as_json, lambda d: typer.echo(shared_line(d, cid)))
+
+
+def shared_line(answer: dict[str, Any], cid: str) -> str:
+    """``model ID shared: CID``. The id is the gateway's answer (``id``) when it signed the
+    write, else the ``ModelAdded`` event of the receipt we relayed, which has no ``id`` field
+    (left out only when that receipt came from the chain's JSON-RPC, without events)."""
+    try:
+        model_id = answer["id"] if "id" in answer else event_arg(answer, "ModelAdded", "modelId")
+    except LookupError:
+        return f"model shared: {cid} (its id: `drlaas model list --q {cid}`)"
+    return f"model {model_id} shared: {cid}"
 
 
 def request_models(
@@ -400,7 +412,7 @@ def model_request(
                 gw, env, num_models, domain=domain, price_wei=price_wei, metric=metric
             )
         except (GatewayError, LookupError) as exc:
-            fail(exc)
+            fail_with_register_hint(exc, key)
     emit(out, as_json, _show_allocation)
 
 

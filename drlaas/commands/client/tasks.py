@@ -13,6 +13,7 @@ the spec.
 
 from __future__ import annotations
 
+import datetime as dt
 import json
 import time
 from pathlib import Path
@@ -56,6 +57,7 @@ from drlaas.commands.client.txcheck import (
     platform_pin,
     web3_of,
 )
+from drlaas.commands.client.users import fail_with_register_hint
 from workers.daemon.gateway import Gateway, GatewayError
 from workers.daemon.keys import load_key
 from workers.mdrl.medc import parse_list
@@ -66,6 +68,12 @@ from workers.mdrl.trainingspec import DEMONSTRATION_RULES, SpecError, TrainingSp
 task_app = typer.Typer(
     help="Training tasks: submit, list, show, wait, pull, review.", no_args_is_help=True
 )
+
+NOT_INDEXED_GRACE_S = 30.0
+"""How long ``task wait`` takes the gateway's 404 for "not indexed yet" (its indexer may lag a
+few blocks behind a submit) before it says the task does not exist."""
+HOLDING_STATES = ("accepted", "submitted")
+"""Offer states in which a worker holds one of the task's slots."""
 
 
 def task_body(
@@ -302,11 +310,11 @@ def task_submit(
             if expert_allocation is not None:
                 out["expert_allocation"] = expert_allocation
         except (GatewayError, LookupError) as exc:
-            fail(exc)
-        emit(out, as_json, _submitted)
+            fail_with_register_hint(exc, key)
+        emit(out, as_json, lambda d: _submitted(d, key))
 
 
-def _submitted(d: dict[str, Any]) -> None:
+def _submitted(d: dict[str, Any], key: Path) -> None:
     typer.echo(
         f"task {d['task_id']} submitted (spec {d['spec_cid']}); offered to: "
         + (", ".join(d.get("offered") or []) or "nobody yet")
@@ -314,10 +322,33 @@ def _submitted(d: dict[str, Any]) -> None:
     if d.get("allocation_error"):
         typer.echo(
             f"task {d['task_id']} is posted (its payment escrowed) but was not allocated: "
-            f"{d['allocation_error']}; allocate it with `drlaas task allocate {d['task_id']}` "
-            "rather than submitting it again",
+            f"{d['allocation_error']}; allocate it with `drlaas task allocate {d['task_id']} "
+            f"--key {key}` rather than submitting it again",
             err=True,
         )
+    elif not d.get("offered"):
+        typer.echo(allocate_hint(d["task_id"], str(key)), err=True)
+
+
+def allocate_hint(task_id: int, key: str) -> str:
+    """What to run for a task no worker will train: the chain offers a task when it is
+    allocated (at submit, and on request), not when a worker registers later."""
+    return (
+        f"task {task_id} waits for no worker (no live offer, no worker holds it): once "
+        f"workers have registered, offer it with `drlaas task allocate {task_id} --key {key}`"
+    )
+
+
+def unallocated(task: dict[str, Any], now: float) -> bool:
+    """An open task that no worker holds and no live offer waits on: nobody will train it
+    until it is allocated again."""
+    if task.get("status") != "open":
+        return False
+    return not any(
+        o.get("state") in HOLDING_STATES
+        or (o.get("state") == "offered" and (o.get("expiry") or 0) > now)
+        for o in task.get("offers") or []
+    )
 
 
 def submit(gw: Gateway, body: dict[str, Any]) -> dict[str, Any]:
@@ -367,7 +398,10 @@ def task_list(
         as_json,
         lambda d: typer.echo(
             table(
-                [t | {"environment": env_summary(t)} for t in d["data"]],
+                [
+                    t | {"environment": env_summary(t), "deadline": utc_time(t.get("deadline"))}
+                    for t in d["data"]
+                ],
                 [
                     ("id", "ID"),
                     ("status", "STATUS"),
@@ -384,14 +418,28 @@ def task_list(
 
 
 def env_summary(task: dict[str, Any]) -> str:
-    """``10x10 3a 0w 4m I=1e+09`` from a listed task's ``env`` (its spec CID when it has none)."""
+    """``10x10 3 agents 0 walls 4 moves I=1e+09`` from a listed task's ``env`` (its spec CID
+    when it has none): units spelt out, as ``4m`` read as four minutes."""
     env = task.get("env")
     if not env:
         return f"spec {task.get('description')}"
     lo, hi = env["walls"]
     values = ",".join(f"{v:.0e}" for v in env["intensity"]["values"])
     walls = f"{lo}" if lo == hi else f"{lo}-{hi}"
-    return f"{env['rows']}x{env['cols']} {env['agents']}a {walls}w {env['moves']}m I={values}"
+    return (
+        f"{env['rows']}x{env['cols']} {env['agents']} agents {walls} walls "
+        f"{env['moves']} moves I={values}"
+    )
+
+
+def utc_time(unix: Any) -> Any:
+    """A chain timestamp (Unix seconds) as ``2026-12-03 18:40Z``; anything else as it is."""
+    if not isinstance(unix, int) or isinstance(unix, bool):
+        return unix
+    try:
+        return dt.datetime.fromtimestamp(unix, dt.UTC).strftime("%Y-%m-%d %H:%MZ")
+    except (OverflowError, OSError, ValueError):  # beyond what a datetime holds
+        return unix
 
 
 @task_app.command("show")
@@ -418,7 +466,12 @@ def task_show(
         return
 
     def render(d: dict[str, Any]) -> None:
-        typer.echo(kv(d, ["id", "status", "requester", "num_workers", "deadline", "description"]))
+        typer.echo(
+            kv(
+                d | {"deadline": utc_time(d.get("deadline"))},
+                ["id", "status", "requester", "num_workers", "deadline", "description"],
+            )
+        )
         if d.get("offers"):
             typer.echo(
                 "\noffers\n"
@@ -526,17 +579,32 @@ def task_wait(
     as_json: JsonOpt = False,
 ) -> None:
     """Wait until a worker submits an outcome for the task (or the task ends); training
-    progress is printed as it arrives. Exit 1 on timeout or when the task ended without one."""
-    deadline = time.monotonic() + timeout
+    progress is printed as it arrives. Exit 1 on timeout or when the task ended without one,
+    or when the gateway still knows no such task after :data:`NOT_INDEXED_GRACE_S`."""
+    started = time.monotonic()
+    deadline = started + timeout
     shown = 0
+    said_missing = said_unallocated = False
     with connect(gateway) as gw:
         while True:
             try:
                 d = gw.get(f"/tasks/{task_id}")
             except GatewayError as exc:
-                if exc.status != 404 or time.monotonic() > deadline:  # 404: not indexed yet
+                now = time.monotonic()
+                if exc.status != 404 or now > min(deadline, started + NOT_INDEXED_GRACE_S):
                     fail(exc)
-                d = {"status": "unknown", "outcomes": [], "progress": []}
+                if not said_missing:  # 404 right after a submit: the indexer may lag
+                    typer.echo(
+                        f"task {task_id}: not known to the gateway yet; waiting up to "
+                        f"{NOT_INDEXED_GRACE_S:g} s for it to appear",
+                        err=True,
+                    )
+                    said_missing = True
+                time.sleep(2.0)
+                continue
+            if not said_unallocated and unallocated(d, time.time()):
+                typer.echo(allocate_hint(task_id, "<your key>"), err=True)
+                said_unallocated = True
             for p in (d.get("progress") or [])[shown:]:
                 typer.echo(
                     f"task {task_id}: step {p.get('step')} success {p.get('success')}", err=True

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import typer
 
 from drlaas.commands.client.session import (
@@ -18,6 +20,20 @@ from drlaas.commands.client.txcheck import UMC, Call, Expect
 from workers.daemon.gateway import GatewayError
 
 requester_app = typer.Typer(help="Your requester record.", no_args_is_help=True)
+
+NOT_REQUESTER_RULES = ("tasks_not_requester", "models_not_requester")
+"""The gateway's refusals of an address that is no registered requester (its own check and
+the TMC's and MMC's reverts): their message names the REST route, a CLI user needs the command."""
+
+
+def fail_with_register_hint(exc: Exception, key: Path) -> None:
+    """Exit 1 with ``exc``, followed by the command that registers ``key`` when the gateway
+    refused it for not being a registered requester."""
+    detail = exc.detail if isinstance(exc, GatewayError) else None
+    if isinstance(detail, dict) and detail.get("rule") in NOT_REQUESTER_RULES:
+        typer.echo(f"error: {exc}\nrun: drlaas requester register --key {key}", err=True)
+        raise typer.Exit(1)
+    fail(exc)
 
 
 @requester_app.command("register")

@@ -7,6 +7,7 @@ from typing import Annotated
 
 import typer
 
+from drlaas.commands.client.models import shared_line
 from drlaas.commands.client.session import (
     DEFAULT_GATEWAY,
     GatewayOpt,
@@ -122,4 +123,4 @@ def worker_share(
             )
         except GatewayError as exc:
             fail(exc)
-    emit(out, as_json, lambda d: typer.echo(f"model {d.get('id', '?')} shared: {model['cid']}"))
+    emit(out, as_json, lambda d: typer.echo(shared_line(d, model["cid"])))
