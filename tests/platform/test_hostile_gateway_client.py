@@ -204,7 +204,8 @@ def test_a_transaction_the_command_did_not_mean_is_neither_signed_nor_relayed(
     answer_review_with(fake, load_or_create_key(key).address, **change)
     res = review(fake, key)
     assert res.exit_code == 1, res.output
-    assert "tx_refused" in res.output and reason in res.output, res.output
+    assert "tx_refused by this client" in res.output and reason in res.output, res.output
+    assert "-> 409" not in res.output  # the client refused: no HTTP status of the gateway's
     assert "nothing was signed" in res.output
     assert fake.posted("/api/tx") == []  # nothing relayed, nothing sent anywhere else
     assert [p for _, p, _ in fake.seen if p == "/rpc"] == []

@@ -75,6 +75,11 @@ class TxRefused(GatewayError):
 
     def __init__(self, method: str, path: str, msg: str) -> None:
         super().__init__(method, path, 409, {"rule": "tx_refused", "msg": msg})
+        # this client refused, not the gateway: no HTTP status in what the user reads
+        self.args = (f"{method} {path}: tx_refused by this client: {msg}",)
+
+    def __str__(self) -> str:
+        return str(self.args[0])
 
 
 class _Mismatch(ValueError):
