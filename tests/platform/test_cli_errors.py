@@ -93,3 +93,28 @@ def test_up_on_a_port_in_use_stops_before_making_anything(
     assert code == 1 and "Traceback" not in text, text
     assert f"127.0.0.1:{port} is in use" in text and "--port" in text
     assert not data.exists()  # no chain, no store, no database made for nothing
+
+
+def test_the_faucet_sign_in_at_start_names_the_pinned_chain(
+    fake: Fake, tmp_path: Path, monkeypatch: pytest.MonkeyPatch  # noqa: F811
+) -> None:
+    """Before its deployment is checked the daemon signs in for the faucet: a sign-in message
+    for another chain than the one pinned is not signed there either."""
+    monkeypatch.setenv("HOME", str(tmp_path))
+    for var in ("DRLAAS_CONTRACTS", "DRLAAS_CHAIN", "DRLAAS_BROKER", "DRLAAS_IPFS"):
+        monkeypatch.delenv(var, raising=False)
+    from workers.daemon.keys import load_or_create_key
+    from workers.daemon.links import Deployment, pinned_chain, record_pin
+
+    key = tmp_path / "w.key"
+    pins = tmp_path / "data" / "workers" / load_or_create_key(key).address / "platform.json"
+    assert pinned_chain(pins, fake.url) is None
+    record_pin(pins, fake.url, Deployment(*("0x" + c * 40 for c in "567")), 5)
+    assert pinned_chain(pins, fake.url + "/") == 5
+    fake.contracts = {**fake.contracts, "rpc": "/rpc"}  # an embedded chain: an empty key
+    fake.routes["/rpc"] = lambda f, b: (200, {"jsonrpc": "2.0", "id": b["id"], "result": "0x0"})
+    code, text = run("worker", "run", "--key", str(key), "--gateway", fake.url,
+                     env={"DRLAAS_DATA_DIR": str(tmp_path / "data")})
+    assert code == 1 and "Traceback" not in text, text
+    assert f"the message is for chain {CHAIN_ID}, not this platform's chain 5" in text
+    assert fake.posted("/api/auth/token") == []  # nothing signed

@@ -128,7 +128,7 @@ def worker_command(
     from workers.daemon.funding import ensure_gas
     from workers.daemon.gateway import Gateway
     from workers.daemon.keys import load_or_create_key
-    from workers.daemon.links import default_gateway, worker_settings
+    from workers.daemon.links import PIN_FILE, default_gateway, pinned_chain, worker_settings
     from workers.daemon.lock import hold_daemon_lock
     from workers.daemon.logs import configure_daemon_logging
     from workers.daemon.metrics import serve_worker_metrics
@@ -146,11 +146,13 @@ def worker_command(
     os.environ["DRLAAS_WORKER_KEY"] = str(key)
     os.environ["DRLAAS_WORKER_MAX_JOBS"] = str(max_jobs)
     os.environ["DRLAAS_WORKER_CHECKPOINT_EVERY"] = str(checkpoint_every)
+    worker_dir = data or own_dir / "workers" / account.address
     if gateway:
         os.environ["DRLAAS_GATEWAY"] = gateway
-        with Gateway(gateway, account) as gw:
+        known_chain = pinned_chain(worker_dir / PIN_FILE, gateway)  # this sign-in checks it too
+        with Gateway(gateway, account, chain_id=known_chain) as gw:
             ensure_gas(gw)  # an empty key on the embedded demo chain: the faucet
-    os.environ["DRLAAS_WORKER_DATA"] = str(data or own_dir / "workers" / account.address)
+    os.environ["DRLAAS_WORKER_DATA"] = str(worker_dir)
     from workers.daemon.app import app  # built from the environment set above
 
     handler = tasks.runtime_from_env(settings)

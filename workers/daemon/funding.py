@@ -11,13 +11,14 @@ from __future__ import annotations
 import re
 
 from workers.daemon.gateway import Gateway, GatewayError
+from workers.daemon.links import SetupError
 
 #: A path on the gateway (``/rpc``): no scheme, host, ``//``, ``..``, query or backslash.
 _RELATIVE_PATH = re.compile(r"/(?!/)(?:[A-Za-z0-9_\-]+/?)*")
 _QUANTITY = re.compile(r"0x[0-9a-fA-F]{1,64}")
 
 
-class NoGas(RuntimeError):
+class NoGas(SetupError):
     """The key has no currency for gas and this platform's faucet cannot give any."""
 
 

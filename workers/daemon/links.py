@@ -183,6 +183,13 @@ def _show(contracts: dict[str, Any]) -> str:
     return ", ".join(f"{name}={contracts[name]}" for name in sorted(contracts))
 
 
+def pinned_chain(pin_file: Path, gateway: str) -> int | None:
+    """The chain id pinned for ``gateway`` in ``pin_file``, if any (a sign-in before the
+    deployment is checked, e.g. the faucet's at start, must already name it)."""
+    entry = read_pins(pin_file).get(gateway.rstrip("/"))
+    return _positive_int(entry.get("chain_id")) if isinstance(entry, dict) else None
+
+
 def pin_contracts(deployment: Deployment) -> dict[str, str]:
     """{contract name: checksummed address}, as pin files keep them."""
     return {_NAMES[short]: checksum(a) for short, a in deployment.to_dict().items()}
