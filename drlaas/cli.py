@@ -16,6 +16,7 @@ from backend.chain.commands import app as chain_app
 from backend.chain.pyevm import restore_recursion_limit
 from drlaas.commands.client import model_app, requester_app, task_app, worker_app
 from drlaas.commands.client.models import fetch_model
+from drlaas.commands.client.pins import pin_app
 from drlaas.commands.deploy import app as deploy_app
 from drlaas.commands.scenario import scenario_command
 from drlaas.commands.up import up_command
@@ -73,6 +74,7 @@ app.add_typer(task_app, name="task")
 app.add_typer(model_app, name="model")
 app.add_typer(worker_app, name="worker")  # register | status | run (the daemon)
 app.add_typer(requester_app, name="requester")
+app.add_typer(pin_app, name="pin")  # show | forget: deployments pinned on first use
 app.command("up", help="Start the whole platform embedded here (Ctrl-C stops it).")(up_command)
 app.command("demo-scenario", help="Run the end-to-end scenario (register, submit, train, review, "
             "share) against a running `drlaas up`; `make demo` starts one and runs it.")(

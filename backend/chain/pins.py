@@ -32,11 +32,25 @@ def read_pins(path: Path) -> dict[str, Any]:
 
 
 def write_pin(path: Path, gateway: str, chain_id: int, contracts: Mapping[str, str]) -> None:
-    """Pin ``gateway``'s deployment in ``path``, keeping the other gateways' entries; written
-    atomically (a crash leaves the old file or the new one; concurrent writers each use their
-    own temporary file)."""
+    """Pin ``gateway``'s deployment in ``path``, keeping the other gateways' entries."""
     pins = read_pins(path)
     pins[gateway] = {"chain_id": chain_id, "contracts": dict(contracts)}
+    _write(path, pins)
+
+
+def forget_pin(path: Path, gateway: str) -> bool:
+    """Remove ``gateway``'s entry from ``path`` (after a real redeployment at the same URL: the
+    next use pins the new deployment); whether there was one."""
+    pins = read_pins(path)
+    if pins.pop(gateway, None) is None:
+        return False
+    _write(path, pins)
+    return True
+
+
+def _write(path: Path, pins: dict[str, Any]) -> None:
+    """Atomically: a crash leaves the old file or the new one; concurrent writers each use
+    their own temporary file."""
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f"{path.name}.{os.getpid()}.tmp")
     tmp.write_text(json.dumps(pins, indent=1, sort_keys=True))

@@ -238,6 +238,38 @@ def test_contracts_that_change_after_the_first_use_are_refused(
     assert len(fake.posted("/api/tx")) == 1  # the first review only
 
 
+def test_a_real_redeployment_is_pinned_again_after_pin_forget(
+    fake: Fake, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """`drlaas pin forget` (the command the refusal names) drops the CLI's and the key's
+    worker's pins for that gateway URL only; the next use pins what the gateway names then."""
+    monkeypatch.setenv("DRLAAS_DATA_DIR", str(tmp_path / "data"))
+    key = tmp_path / "me.key"
+    address = load_or_create_key(key).address
+    answer_review_with(fake, address)
+    assert review(fake, key).exit_code == 0  # the CLI pinned the deployment
+    worker_pins = tmp_path / "data" / "workers" / address / "platform.json"
+    record_pin(worker_pins, fake.url, Deployment(ADDRS[UMC], ADDRS[TMC], ADDRS[MMC]), CHAIN_ID)
+    record_pin(worker_pins, "http://elsewhere:8000", Deployment(*ADDRS.values()), 7)
+    shown = CliRunner().invoke(app, ["pin", "show", "--key", str(key)])
+    assert shown.exit_code == 0 and shown.output.count(f"{fake.url}: chain {CHAIN_ID}") == 2
+
+    moved = "0x" + "44" * 20
+    fake.contracts = {**fake.contracts, MMC: moved}  # really redeployed
+    answer_review_with(fake, address, to=moved)
+    refused = review(fake, key)
+    assert f"drlaas pin forget --gateway {fake.url} --key {key}" in refused.output
+    forget = CliRunner().invoke(app, ["pin", "forget", "--gateway", fake.url, "--key", str(key)])
+    assert forget.exit_code == 0 and "(cli and worker)" in forget.output, forget.output
+    assert list(json.loads(worker_pins.read_text())) == ["http://elsewhere:8000"]
+    assert review(fake, key).exit_code == 0  # pinned again, on the new deployment
+    pinned = json.loads(pin_file(key).read_text())[fake.url]["contracts"]
+    assert pinned[MMC] == Web3.to_checksum_address(moved)
+    again = CliRunner().invoke(app, ["pin", "forget", "--gateway", "http://nowhere", "--key",
+                                     str(key)])
+    assert again.exit_code == 0 and "nothing was pinned" in again.output
+
+
 def test_the_deployment_can_be_pinned_from_the_environment(fake: Fake, tmp_path: Path) -> None:
     key = tmp_path / "me.key"
     answer_review_with(fake, load_or_create_key(key).address)

@@ -171,9 +171,10 @@ def pinned_platform(settings: Settings, gateway: str | None, pin_file: Path) -> 
             f"worker pinned chain {pinned_chain} and contracts {_show(pinned)} for it on first "
             f"use, in "
             f"{pin_file}: refusing to sign for another deployment (a hostile or hijacked "
-            f"gateway, or a redeployed platform). If the platform was really redeployed, "
-            f"remove the {url!r} entry of {pin_file}, or set DRLAAS_CONTRACTS and "
-            f"DRLAAS_CHAIN_ID to the deployment you trust"
+            f"gateway, or a redeployed platform). If the platform was really redeployed, run "
+            f"`drlaas pin forget --gateway {url} --key <the worker's key file>` (or remove the "
+            f"{url!r} entry of {pin_file}), or set DRLAAS_CONTRACTS and DRLAAS_CHAIN_ID to the "
+            f"deployment you trust"
         )
     return PinnedPlatform(deployment, int(pinned_chain), None)
 
@@ -204,6 +205,14 @@ def default_gateway() -> str | None:
     """:data:`LOCAL_GATEWAY` when the chain is embedded (it lives in a gateway), else ``None``
     (a real node needs no gateway)."""
     return LOCAL_GATEWAY if load_settings().chain_service.embedded else None
+
+
+def default_worker_dir(address: str) -> Path:
+    """Where ``drlaas worker run`` without ``--data`` keeps the worker's files (its jobs, its
+    pin file): ``<DRLAAS_DATA_DIR or ~/.drlaas>/workers/<address>``."""
+    own = (load_settings().data_dir if os.environ.get("DRLAAS_DATA_DIR")
+           else USER_DATA_DIR.expanduser().resolve())
+    return own / "workers" / address
 
 
 def worker_settings(gateway: str | None) -> tuple[Settings, Path]:

@@ -369,10 +369,13 @@ def known_chain_id(gateway_url: str, key: Path | None) -> int | None:
 
 
 def reset_hint(gw: Gateway, key: Path | None) -> str:
-    where = f"the {gw.url!r} entry of {pin_file(key)}" if key is not None else "nothing"
+    if key is None:
+        return ("set DRLAAS_CONTRACTS and DRLAAS_CHAIN_ID to the deployment you trust if the "
+                f"platform at {gw.url} was really redeployed")
     return (
-        f"if the platform at {gw.url} was really redeployed, remove {where} to pin it again, "
-        "or set DRLAAS_CONTRACTS and DRLAAS_CHAIN_ID to the deployment you trust"
+        f"if the platform at {gw.url} was really redeployed, run `drlaas pin forget --gateway "
+        f"{gw.url} --key {key}` (or remove the {gw.url!r} entry of {pin_file(key)}) to pin it "
+        "again, or set DRLAAS_CONTRACTS and DRLAAS_CHAIN_ID to the deployment you trust"
     )
 
 
