@@ -187,6 +187,33 @@ def test_training_never_waits_on_the_gateway(tmp_path: Path) -> None:
     assert gw.got == list(range(50))
 
 
+def test_a_job_whose_points_the_gateway_refuses_holds_back_no_other_job(
+    tmp_path: Path, quick_pauses: None
+) -> None:
+    """Two jobs at once (max_jobs 2): the gateway's index has not seen job 7's acceptance
+    yet, so its points wait; job 8's go meanwhile."""
+    from workers.daemon.gateway import GatewayError
+    from workers.daemon.handler import OfferHandler
+
+    class Gateway:
+        def __init__(self) -> None:
+            self.got: list[tuple[str, int]] = []
+
+        def post(self, path: str, json: dict, auth: bool) -> None:  # noqa: A002
+            if path.startswith("/tasks/7/"):
+                raise GatewayError("POST", path, 403, {"rule": "not_assigned_worker", "msg": ""})
+            self.got.append((path, json["step"]))
+
+    gw = Gateway()
+    h = OfferHandler(account=None, platform=None, store=None, data_dir=tmp_path, gateway=gw)  # type: ignore[arg-type]
+    h._post_progress(7, {"step": 1})
+    for step in (1, 2):
+        h._post_progress(8, {"step": step})
+    assert h._progress.flush(8, wait_s=10.0)
+    assert gw.got == [("/tasks/8/progress", 1), ("/tasks/8/progress", 2)]
+    assert h._progress.pending(7) == [{"step": 1}]  # still waiting for the index
+
+
 def test_progress_points_queued_through_an_outage_are_bounded(
     tmp_path: Path, quick_pauses: None
 ) -> None:

@@ -100,6 +100,8 @@ class ProgressSender:
             queue = self._queues.get(task_id)
             if leaves and queue and queue[0] is point:
                 queue.popleft()
+            elif not leaves and queue is not None:  # its turn passes: another job's points
+                self._queues[task_id] = self._queues.pop(task_id)  # are not held behind it
             self._sending = None
             self._cond.notify_all()
 
