@@ -9,7 +9,6 @@ from __future__ import annotations
 import datetime as dt
 import json
 import re
-import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -68,15 +67,14 @@ def submitted_id(res: Result) -> int:
     return int(found.group(1))
 
 
+@pytest.mark.timeout(300)  # waiting for --timeout (an hour) would fail here
 def test_waiting_for_an_unknown_task_fails_after_a_short_grace(
     platform: RunningPlatform, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """The 404 ``task_not_found`` is taken for indexer lag only for a short while, not
     until --timeout."""
     monkeypatch.setattr(task_commands, "NOT_INDEXED_GRACE_S", 1.0, raising=False)
-    start = time.monotonic()
-    res = cli(platform, "task", "wait", "99", "--timeout", "20", code=1)
-    assert time.monotonic() - start < 10, "waited for --timeout, not for the grace"
+    res = cli(platform, "task", "wait", "99", "--timeout", "3600", code=1)
     assert "task_not_found" in res.stderr
     assert res.stderr.count("waiting up to") == 1, res.stderr
 
