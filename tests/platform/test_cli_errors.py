@@ -118,3 +118,21 @@ def test_the_faucet_sign_in_at_start_names_the_pinned_chain(
     assert code == 1 and "Traceback" not in text, text
     assert f"the message is for chain {CHAIN_ID}, not this platform's chain 5" in text
     assert fake.posted("/api/auth/token") == []  # nothing signed
+
+
+@pytest.mark.parametrize(
+    ("args", "named"),
+    [
+        (("model", "request", "--grid", "abc"), "grid 'abc'"),
+        (("model", "request", "--env", "notjson"), "not JSON"),
+        (("model", "request", "--env", "[1, 2]"), "a JSON object"),
+        (("model", "share", "--cid", "bafkreix", "--env", "notjson"), "not JSON"),
+    ],
+)
+def test_bad_model_options_are_usage_errors_before_any_request(
+    args, named, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv("HOME", str(tmp_path))
+    code, text = run(*args, "--key", str(tmp_path / "k.key"), "--gateway", dead_url())
+    assert code == 2 and "Traceback" not in text and named in text, text
+    assert "cannot reach" not in text  # refused before the gateway is asked

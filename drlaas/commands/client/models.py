@@ -310,7 +310,8 @@ def model_share(
     as_json: JsonOpt = False,
 ) -> None:
     """Share a model (MMC.addModel) so requesters can be allocated it."""
-    body = {"cid": cid, "description": description, "domain": domain, "env": json.loads(env_json)}
+    body = {"cid": cid, "description": description, "domain": domain,
+            "env": env_option(env_json)}
     with connect_funded(gateway, key) as gw:
         try:
             out = write(
@@ -319,6 +320,18 @@ def model_share(
         except GatewayError as exc:
             fail(exc)
     emit(out, as_json, lambda d: typer.echo(shared_line(d, cid)))
+
+
+def env_option(text: str) -> Any:
+    """The ``--env`` option's JSON object; a usage error naming it when it is not one."""
+    try:
+        env = json.loads(text)
+    except (ValueError, RecursionError) as exc:
+        raise typer.BadParameter(f"not JSON ({exc})", param_hint="--env") from None
+    if not isinstance(env, dict):
+        raise typer.BadParameter("a JSON object, e.g. '{\"rows\": 10, \"cols\": 10, "
+                                 "\"agents\": 3}'", param_hint="--env")
+    return env
 
 
 def shared_line(answer: dict[str, Any], cid: str) -> str:
@@ -402,10 +415,14 @@ def model_request(
     if metric not in ("sharing", "model"):
         raise typer.BadParameter("sharing or model", param_hint="--metric")
     if env_json is not None:
-        env = json.loads(env_json)
+        env = env_option(env_json)
     else:
-        rows, cols = parse_grid(grid)
-        env = {"rows": rows, "cols": cols, "agents": agents, "walls": list(parse_walls(walls))}
+        try:
+            rows, cols = parse_grid(grid)
+            env = {"rows": rows, "cols": cols, "agents": agents,
+                   "walls": list(parse_walls(walls))}
+        except ValueError as exc:
+            raise typer.BadParameter(str(exc)) from None
     with connect_funded(gateway, key) as gw:
         try:
             out = request_models(

@@ -580,7 +580,7 @@ def task_wait(
 ) -> None:
     """Wait until a worker submits an outcome for the task (or the task ends); training
     progress is printed as it arrives. Exit 1 on timeout or when the task ended without one,
-    or when the gateway still knows no such task after :data:`NOT_INDEXED_GRACE_S`."""
+    or when the gateway still knows no such task after 30 s."""
     started = time.monotonic()
     deadline = started + timeout
     shown = 0
