@@ -165,6 +165,12 @@ def test_model_page_links_task_experts_and_reads_the_card(
         "held-out (1000 episodes, poisson readings): success 99.9%, time 5.50 (oracle 4.00), "
         "cost 6.50" in lines
     )
+    # the card's own final evaluation (what the web page shows), labelled not held out; the
+    # curve's last point is training episodes, not an evaluation
+    final = d["final_eval"]
+    assert any(ln.startswith("final evaluation (the run's own episodes, not held out): "
+                             f"success {100 * final['success']:.1f}%") for ln in lines), lines
+    assert any("its last point (training episodes that ended then)" in ln for ln in lines)
 
     # the expert was no task's outcome: no producing task; its card has no curve
     e = client.get(f"{P}/models/{expert['id']}").json()

@@ -180,14 +180,26 @@ def hub_lines(d: dict[str, Any]) -> list[str]:
             f"success {100 * f['success']:.1f}%, time {time} (oracle {oracle}), "
             f"cost {'-' if f.get('cost') is None else format(f['cost'], '.2f')}"
         )
+    final = d.get("final_eval")
+    if final and final.get("success") is not None:  # what the web page shows, not held out
+        lines.append(
+            f"final evaluation (the run's own episodes, not held out): success "
+            f"{100 * final['success']:.1f}%, time {_num(final.get('time'))} steps, cost "
+            f"{_num(final.get('cost'))}"
+        )
     curve = d.get("curve") or []
     if curve:
-        last = curve[-1]
+        last = curve[-1]  # training episodes that ended in the last update: not an evaluation
         lines.append(
-            f"curve: {len(curve)} points to {last['step']} env steps; last success "
-            f"{last.get('success')}, time {last.get('time')}, cost {last.get('cost')}"
+            f"curve: {len(curve)} points to {last['step']} env steps; its last point (training "
+            f"episodes that ended then) success {_num(last.get('success'))}, time "
+            f"{_num(last.get('time'))}, cost {_num(last.get('cost'))}"
         )
     return lines
+
+
+def _num(value: Any) -> str:
+    return f"{value:.2f}" if isinstance(value, int | float) else "-"
 
 
 @model_app.command("pull")
