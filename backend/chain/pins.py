@@ -31,6 +31,18 @@ def read_pins(path: Path) -> dict[str, Any]:
     return doc
 
 
+def chain_pinned_for(path: Path, gateway: str) -> int | None:
+    """The chain id pinned for ``gateway`` in ``path`` (``None``: nothing pinned yet);
+    ValueError naming the file when the entry's chain id is not a positive integer."""
+    entry = read_pins(path).get(gateway)
+    if entry is None:
+        return None
+    chain_id = entry.get("chain_id") if isinstance(entry, dict) else None
+    if not isinstance(chain_id, int) or isinstance(chain_id, bool) or chain_id <= 0:
+        raise ValueError(f"{path}: the {gateway!r} entry has no chain id; remove it to pin again")
+    return chain_id
+
+
 def write_pin(path: Path, gateway: str, chain_id: int, contracts: Mapping[str, str]) -> None:
     """Pin ``gateway``'s deployment in ``path``, keeping the other gateways' entries."""
     pins = read_pins(path)

@@ -58,22 +58,18 @@ def config(tmp_path, name="tiny", **sections):
     return path
 
 
-def assert_usage_error(res, *named):
-    """Exit code 2 (a usage error), no traceback, and every ``named`` text in the message."""
-    assert res.exit_code == 2, res.output
+def assert_clean_exit(res, code):
+    """Exit ``code`` by the CLI's own exit, no traceback."""
+    assert res.exit_code == code, res.output
     assert res.exception is None or isinstance(res.exception, SystemExit), res.exception
     assert "Traceback" not in res.output
+
+
+def assert_usage_error(res, *named):
+    """Exit code 2 (a usage error), no traceback, and every ``named`` text in the message."""
+    assert_clean_exit(res, 2)
     text = flat(res)
     assert all(n in text for n in named), text
-
-
-@pytest.fixture(scope="module")
-def trained(tmp_path_factory):
-    """A finished tiny run (checkpoint/, model/, metrics.csv) to resume and load."""
-    out = tmp_path_factory.mktemp("trained") / "run"
-    res = invoke("train", "--config", config(out.parent), "--steps", 64, "--out", out, *QUIET)
-    assert res.exit_code == 0, res.output
-    return out
 
 
 # ---------------------------------------------------------------- 1. a time-only budget

@@ -10,8 +10,8 @@ from typer.testing import CliRunner
 
 from tests.mdrl.test_cli_robustness import (
     QUIET,
+    assert_clean_exit,
     assert_usage_error,
-    config,
     flat,
     invoke,
     make_app,
@@ -19,31 +19,16 @@ from tests.mdrl.test_cli_robustness import (
 from workers.mdrl.presets import PRESETS
 
 
-@pytest.fixture(scope="module")
-def run(tmp_path_factory):
-    """A finished tiny run of 64 env steps (checkpoint/, model/, metrics.csv)."""
-    out = tmp_path_factory.mktemp("wording") / "run"
-    res = invoke("train", "--config", config(out.parent), "--steps", 64, "--out", out, *QUIET)
-    assert res.exit_code == 0, res.output
-    return out
-
-
-def assert_clean_exit(res, code):
-    assert res.exit_code == code, res.output
-    assert res.exception is None or isinstance(res.exception, SystemExit), res.exception
-    assert "Traceback" not in res.output
-
-
 # ---------------------------------------------------------------- 1. nothing left to train
 @pytest.mark.parametrize(("budget", "named"), [
     (["--steps", 64], "the run already has 64 steps, its budget is 64; give a larger --steps"),
     (["--minutes", 1e-6], "give a larger --minutes"),
 ])
-def test_resume_with_its_budget_used_up_says_nothing_was_trained(run, budget, named):
+def test_resume_with_its_budget_used_up_says_nothing_was_trained(trained, budget, named):
     """A resume whose budget the run already reached exited 0 with the old summary, which
     read as a finished training: it still exits 0 (the run is as asked), saying so on
     stderr."""
-    res = invoke("train", "--resume", run, *budget, *QUIET)
+    res = invoke("train", "--resume", trained, *budget, *QUIET)
     assert_clean_exit(res, 0)
     assert "nothing to train" in res.stderr and named in res.stderr
     assert json.loads(res.stdout.strip().splitlines()[-1])["env_steps"] == 64
@@ -98,9 +83,10 @@ def test_resume_of_a_missing_directory_names_it_before_the_budget(tmp_path):
 
 
 # ---------------------------------------------------------------- 5. eval of a run directory
-def test_eval_of_a_run_directory_names_its_models(run, monkeypatch):
+def test_eval_of_a_run_directory_names_its_models(trained, monkeypatch):
     """`--policy RUN` (a `drlaas train --out`) said only `no model.json`; model/ and best/
     are different policies, so the error names them rather than picking one."""
+    run = trained  # a directory named run/
     monkeypatch.chdir(run.parent)
     res = invoke("eval", "--policy", "run", "--episodes", 2)
     assert_usage_error(res, "--policy", "training run directory", "--policy run/model")

@@ -245,6 +245,6 @@ def test_worker_lookups_are_bounded(serve: Any, tmp_path: Path, monkeypatch: Any
     settings = load_settings(data_dir=str(tmp_path))
     t0 = time.monotonic()
     with pytest.raises(RuntimeError, match="past the cap"):
-        links.resolve_deployment(settings, srv.url)
+        links.find_deployment(settings, srv.url)
     _within(10, t0)
     assert srv.sent < 8 * 2**20 + SLACK

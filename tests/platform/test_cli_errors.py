@@ -103,14 +103,15 @@ def test_the_faucet_sign_in_at_start_names_the_pinned_chain(
     monkeypatch.setenv("HOME", str(tmp_path))
     for var in ("DRLAAS_CONTRACTS", "DRLAAS_CHAIN", "DRLAAS_BROKER", "DRLAAS_IPFS"):
         monkeypatch.delenv(var, raising=False)
+    from backend.chain.pins import chain_pinned_for
     from workers.daemon.keys import load_or_create_key
-    from workers.daemon.links import Deployment, pinned_chain, record_pin
+    from workers.daemon.links import Deployment, record_pin
 
     key = tmp_path / "w.key"
     pins = tmp_path / "data" / "workers" / load_or_create_key(key).address / "platform.json"
-    assert pinned_chain(pins, fake.url) is None
+    assert chain_pinned_for(pins, fake.url) is None
     record_pin(pins, fake.url, Deployment(*("0x" + c * 40 for c in "567")), 5)
-    assert pinned_chain(pins, fake.url + "/") == 5
+    assert chain_pinned_for(pins, fake.url) == 5
     fake.contracts = {**fake.contracts, "rpc": "/rpc"}  # an embedded chain: an empty key
     fake.routes["/rpc"] = lambda f, b: (200, {"jsonrpc": "2.0", "id": b["id"], "result": "0x0"})
     code, text = run("worker", "run", "--key", str(key), "--gateway", fake.url,

@@ -33,9 +33,9 @@ from workers.daemon.keys import load_or_create_key
 from workers.daemon.links import (
     Deployment,
     DeploymentChanged,
+    find_deployment,
     pinned_platform,
     record_pin,
-    resolve_deployment,
     worker_settings,
 )
 
@@ -488,6 +488,6 @@ def test_answers_of_the_wrong_type_are_gateway_errors_and_rpc_stays_on_the_gatew
         from backend.settings import load_settings
 
         with pytest.raises(RuntimeError, match="not a JSON object"):
-            resolve_deployment(load_settings(data_dir=str(tmp_path / "d")), fake.url)
+            find_deployment(load_settings(data_dir=str(tmp_path / "d")), fake.url)
     finally:
         other.server.shutdown()

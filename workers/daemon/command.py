@@ -124,11 +124,12 @@ def worker_command(
 ) -> None:
     """Run a worker daemon: register on chain, then accept, train and submit offered tasks."""
     from backend.celery_app import worker_queue
+    from backend.chain.pins import chain_pinned_for
     from workers.daemon import job, tasks
     from workers.daemon.funding import ensure_gas
     from workers.daemon.gateway import Gateway
     from workers.daemon.keys import load_or_create_key
-    from workers.daemon.links import PIN_FILE, default_gateway, pinned_chain, worker_settings
+    from workers.daemon.links import PIN_FILE, default_gateway, worker_settings
     from workers.daemon.lock import hold_daemon_lock
     from workers.daemon.logs import configure_daemon_logging
     from workers.daemon.metrics import serve_worker_metrics
@@ -149,7 +150,8 @@ def worker_command(
     worker_dir = data or own_dir / "workers" / account.address
     if gateway:
         os.environ["DRLAAS_GATEWAY"] = gateway
-        known_chain = pinned_chain(worker_dir / PIN_FILE, gateway)  # this sign-in checks it too
+        # this sign-in names the pinned chain too
+        known_chain = chain_pinned_for(worker_dir / PIN_FILE, gateway.rstrip("/"))
         with Gateway(gateway, account, chain_id=known_chain) as gw:
             ensure_gas(gw)  # an empty key on the embedded demo chain: the faucet
     os.environ["DRLAAS_WORKER_DATA"] = str(worker_dir)

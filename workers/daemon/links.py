@@ -85,11 +85,6 @@ def write_deployment(path: str | Path, deployment: Deployment, chain_url: str = 
     p.write_text(json.dumps({**deployment.to_dict(), "chain": chain_url}, indent=1))
 
 
-def resolve_deployment(settings: Settings, gateway: str | None) -> Deployment:
-    """Find the contract addresses (see module docstring); the error lists what was tried."""
-    return find_deployment(settings, gateway)[0]
-
-
 def find_deployment(
     settings: Settings, gateway: str | None
 ) -> tuple[Deployment, int | None, bool]:
@@ -182,13 +177,6 @@ def pinned_platform(settings: Settings, gateway: str | None, pin_file: Path) -> 
 def _show(contracts: dict[str, Any]) -> str:
     """Contracts in one order (``name=address, ...``), so two lists compare by eye."""
     return ", ".join(f"{name}={contracts[name]}" for name in sorted(contracts))
-
-
-def pinned_chain(pin_file: Path, gateway: str) -> int | None:
-    """The chain id pinned for ``gateway`` in ``pin_file``, if any (a sign-in before the
-    deployment is checked, e.g. the faucet's at start, must already name it)."""
-    entry = read_pins(pin_file).get(gateway.rstrip("/"))
-    return _positive_int(entry.get("chain_id")) if isinstance(entry, dict) else None
 
 
 def pin_contracts(deployment: Deployment) -> dict[str, str]:

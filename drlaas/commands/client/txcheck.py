@@ -37,7 +37,7 @@ from typing import Any
 from eth_utils import is_hex_address, to_checksum_address
 
 from backend.chain.artifacts import PLATFORM_CONTRACTS, load_artifact
-from backend.chain.pins import read_pins, write_pin
+from backend.chain.pins import chain_pinned_for, read_pins, write_pin
 from backend.chain.platform import Metric, TaskStatus, cid_commitment, domain_mask
 from backend.settings import load_chain_client_settings
 from backend.store import CID, InvalidCID
@@ -361,11 +361,7 @@ def known_chain_id(gateway_url: str, key: Path | None) -> int | None:
     chain_id, _ = env_pin()
     if chain_id is not None or key is None:
         return chain_id
-    path = pin_file(key)
-    entry = read_pins(path).get(gateway_url)
-    if not isinstance(entry, dict):
-        return None
-    return _chain_id(entry.get("chain_id"), f"{path} ({gateway_url})")
+    return chain_pinned_for(pin_file(key), gateway_url)
 
 
 def reset_hint(gw: Gateway, key: Path | None) -> str:
