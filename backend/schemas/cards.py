@@ -184,10 +184,13 @@ def _obj(v: Any) -> dict[str, Any]:
 
 
 def _section(build: Any) -> Any:
+    """A card section, or None when the owner's card gets it wrong. Logged at DEBUG only: a
+    card is untrusted input that the model page shows without the section, not a gateway
+    fault, and a card of many bad curve points would log a line per point per view."""
     try:
         return build()
     except (ValidationError, TypeError, ValueError) as exc:
-        log.info("model card section dropped: %s", str(exc)[:200])
+        log.debug("model card section dropped: %s", str(exc)[:200])
         return None
 
 

@@ -76,6 +76,13 @@ def test_search_allocate_review_download(
     assert ids(walls=3) == [b["id"]]
     assert ids(walls=1, domain=0) == [a["id"]]
     assert ids(q="walled") == [b["id"]]
+    assert ids(q="AGENTS Two") == [b["id"]]  # every word, in any order and case
+    assert ids(q="agents field") == [a["id"]]
+    assert ids(q="agents other") == []
+    assert ids(q=f"#{c['id']}") == [c["id"]]  # a model id
+    assert ids(q=addr(service, "user4")[2:12].lower()) == [b["id"]]  # part of the owner
+    assert ids(q=b["cid"][-12:]) == [b["id"]]
+    assert ids(q="walled ³") == []  # not a number: only text
     assert ids(q="%") == []  # LIKE wildcards are literal
     r = client.get(f"{P}/models", params={"q": "\x00"})  # SQLite's LIKE stops at a NUL
     assert r.status_code == 422 and r.json()["detail"][0]["loc"] == ["query", "q"]

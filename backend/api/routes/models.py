@@ -211,6 +211,29 @@ def model_public(row: m.ModelRow, owner: m.WorkerRow | None) -> ModelPublic:
     )
 
 
+MAX_SEARCH_WORDS = 8
+"""Words of one ``q`` that are matched (the rest are ignored): each is one more LIKE scan."""
+
+
+def _search_terms(q: str) -> list[Any]:
+    """One condition per word of ``q`` (whitespace-separated, all must hold): the word in the
+    description, the CID or the owner's address (any case), or, for a number, the model id.
+    LIKE's wildcards in a word are literal."""
+    terms = []
+    for word in q.split()[:MAX_SEARCH_WORDS]:
+        like = "%" + word.replace("\\", "\\\\").replace("%", "\\%").replace("_", "\\_") + "%"
+        options = [
+            m.ModelRow.description.ilike(like, escape="\\"),
+            m.ModelRow.cid.ilike(like, escape="\\"),
+            m.ModelRow.owner.ilike(like, escape="\\"),
+        ]
+        number = word.removeprefix("#")
+        if number.isascii() and number.isdigit() and len(number) < 19:
+            options.append(m.ModelRow.id == int(number))
+        terms.append(or_(*options))
+    return terms
+
+
 @router.get("", response_model=ModelsPublic)
 def list_models(
     request: Request,
@@ -228,14 +251,18 @@ def list_models(
             min_length=1,
             max_length=100,
             pattern=r"^[^\x00-\x1f\x7f]+$",
-            description="text in the description or CID (no control characters)",
+            description=(
+                "words that must all appear, each in the description, the CID or the owner's"
+                " address, or be the model id (no control characters)"
+            ),
         ),
     ] = None,
     sort: Literal["reputation", "newest", "allocations"] = "reputation",
     limit: Annotated[int, Query(ge=1, le=500)] = 100,
     offset: Annotated[int, Query(ge=0, le=1_000_000)] = 0,
 ) -> ModelsPublic:
-    """Models matching every given filter; ``q`` searches description and CID."""
+    """Models matching every given filter; every word of q must match the description, the
+    CID or the owner's address, or be the model id."""
 
     def build() -> dict[str, Any]:
         stmt = select(m.ModelRow)
@@ -250,13 +277,7 @@ def list_models(
         if owner is not None:
             stmt = stmt.where(m.ModelRow.owner == owner)  # checksummed by the Address type
         if q is not None:
-            like = "%" + q.replace("\\", "\\\\").replace("%", "\\%").replace("_", "\\_") + "%"
-            stmt = stmt.where(
-                or_(
-                    m.ModelRow.description.ilike(like, escape="\\"),
-                    m.ModelRow.cid.ilike(like, escape="\\"),
-                )
-            )
+            stmt = stmt.where(*_search_terms(q))
         count = session.scalar(select(func.count()).select_from(stmt.subquery())) or 0
         # Listing is the hot path (issue 7, "Overload"): plain columns with the owner's rating in
         # one query, serialised once (no ORM objects, no re-validation of the response model).
