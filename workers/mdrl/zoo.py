@@ -84,6 +84,10 @@ ZOO: dict[str, ZooEntry] = {
     # the benchmark's experts on the route presets (benchmarks/medc, --route): 1M steps each
     **{f"ch4-{u}-route-30x30": ZooEntry(f"ch4-{u}-sr-route", minutes=20, steps=1_000_000)
        for u in ("a1w0", "a1w3", "a2w2")},
+    # the other users of the thesis' FRL comparison (Fig. 5.7: the first six of A1W0, A3W0,
+    # A2W1, A2W2, A2W3, A3W1 share their models with A3W2 and A3W3), trained the same way
+    **{f"ch4-{u}-route-30x30": ZooEntry(f"ch4-{u}-sr-route", minutes=20, steps=1_000_000)
+       for u in ("a3w0", "a2w1", "a2w3", "a3w1")},
 }
 
 
