@@ -3,9 +3,11 @@ one line naming what is wrong and what to give instead, no traceback. The CLI is
 test_cli_robustness.py, whose helpers these tests reuse."""
 
 import json
+import re
 import shutil
 
 import pytest
+import typer
 from typer.testing import CliRunner
 
 from tests.mdrl.test_cli_robustness import (
@@ -106,3 +108,27 @@ def test_help_texts_are_not_cut_off_at_80_columns(command):
     res = CliRunner().invoke(make_app(), [command, "--help"], env={"COLUMNS": "80"})
     assert_clean_exit(res, 0)
     assert "…" not in res.output, [line for line in res.output.splitlines() if "…" in line]
+
+
+SOURCE_MARKUP = re.compile(r"``|:[a-z]+:`|\.\. [a-z-]+::")
+"""reStructuredText / Sphinx markup of docstrings (``literal``, :func:`name`, .. note::): typer
+prints a command's docstring as its help, where the markup reaches the user as it is."""
+
+
+def test_no_help_text_shows_docstring_markup():
+    """Every `drlaas` command's --help (the platform's and the core's) is plain text: `drlaas
+    model push --help` showed ``experts`` (user audit)."""
+    from drlaas.cli import app
+
+    def paths(cmd, path):
+        yield path
+        for name, sub in sorted(getattr(cmd, "commands", {}).items()):
+            yield from paths(sub, [*path, name])
+
+    runner, marked = CliRunner(), []
+    for path in paths(typer.main.get_command(app), []):
+        res = runner.invoke(app, [*path, "--help"], env={"COLUMNS": "200"})
+        assert_clean_exit(res, 0)
+        marked += [f"drlaas {' '.join(path)}: {line.strip()}"
+                   for line in res.output.splitlines() if SOURCE_MARKUP.search(line)]
+    assert not marked, "\n".join(marked)

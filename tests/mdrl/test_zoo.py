@@ -213,3 +213,21 @@ def test_zoo_list_and_complete_name_a_malformed_card(tmp_path):
     res = runner.invoke(app, ["list", "--models", str(tmp_path / "none")])
     said = " ".join(res.output.replace("│", " ").split())
     assert res.exit_code == 2 and "no such directory" in said, res.output
+
+
+def test_zoo_list_finds_the_shipped_models_from_any_directory(tmp_path, monkeypatch):
+    """`drlaas zoo list` looked for ./models: outside the checkout it found no zoo (user
+    audit). Without the shipped zoo the error names where it looked and --models."""
+    from typer.testing import CliRunner
+
+    from workers.mdrl.commands import zoo as zoo_commands
+
+    monkeypatch.chdir(tmp_path)
+    res = CliRunner().invoke(zoo_commands.app, ["list"])
+    assert res.exit_code == 0, res.output
+    rows = {line.split()[0]: line for line in res.output.splitlines() if line.strip()}
+    assert set(rows) == set(ZOO) and "poisson: time" in rows["odmtl-2a"], res.output
+    monkeypatch.setattr(zoo_commands, "SHIPPED_MODELS", tmp_path / "gone")
+    res = CliRunner().invoke(zoo_commands.app, ["list"], env={"COLUMNS": "200"})
+    said = " ".join(res.output.replace("│", " ").split())
+    assert res.exit_code == 2 and str(tmp_path / "gone") in said and "--models DIR" in said, said

@@ -19,7 +19,7 @@ from typer.testing import CliRunner, Result
 from drlaas.cli import app
 from drlaas.commands.client import tasks as task_commands
 from drlaas.commands.client import workers as worker_commands
-from drlaas.commands.up import RunningPlatform, running_platform
+from drlaas.commands.up import RunningPlatform, fund, running_platform
 from workers.daemon.keys import load_or_create_key
 
 from .conftest import SERVICE_VARS
@@ -54,6 +54,13 @@ def cli(p: RunningPlatform, *args: str, code: int = 0) -> Result:
     res = CliRunner().invoke(app, [*args, "--gateway", p.url])
     assert res.exit_code == code, f"{args}: exit {res.exit_code}\n{res.output}"
     return res
+
+
+def funded(p: RunningPlatform, key: Path) -> Path:
+    """A new key holding gas money, so that it needs no faucet (which tops up 5 keys a minute
+    from one client)."""
+    fund(p.chain, load_or_create_key(key).address)
+    return key
 
 
 def requester(p: RunningPlatform, key: Path) -> Path:
@@ -153,7 +160,9 @@ def test_worker_share_prints_the_listed_models_id(
     env = json.loads((EXPERT / "model.json").read_text())["env"]
     monkeypatch.setattr(worker_commands, "open_worker",
                         lambda *a: SubmittedOutcome(pushed["cid"], env))
-    res = cli(platform, "worker", "share", "1", "--key", str(key))
+    (tmp_path / "worker" / "jobs").mkdir(parents=True)  # the daemon's, with its outcome
+    res = cli(platform, "worker", "share", "1", "--key", str(key),
+              "--data", str(tmp_path / "worker"))
     listed = json.loads(cli(platform, "model", "list", "--json").stdout)["data"]
     (model,) = [m for m in listed if m["cid"] == pushed["cid"]]
     assert model["owner"] == load_or_create_key(key).address
@@ -174,3 +183,43 @@ def test_task_list_shows_the_deadline_in_utc_and_moves_in_words(
     utc = dt.datetime.fromtimestamp(task["deadline"], dt.UTC).strftime("%Y-%m-%d %H:%MZ")
     assert utc in row and str(task["deadline"]) not in row, row
     assert "4 moves" in row and " 4m " not in row, row
+
+
+def test_task_cancel_refunds_an_open_task_of_yours_only(
+    platform: RunningPlatform, tmp_path: Path
+) -> None:
+    """`drlaas task cancel` (the web page had it, the CLI did not), with the gateway's rules
+    said as what is wrong: not your task, no longer open."""
+    key = requester(platform, funded(platform, tmp_path / "req.key"))
+    task_id = submitted_id(cli(platform, "task", "submit", "--key", str(key),
+                               "--domain", str(DOMAIN_NOBODY), *SMALL_TASK))
+    stranger = requester(platform, funded(platform, tmp_path / "stranger.key"))
+    res = cli(platform, "task", "cancel", str(task_id), "--yes", "--key", str(stranger), code=1)
+    assert f"task {task_id} is not yours" in res.stderr, res.stderr
+    res = cli(platform, "task", "cancel", str(task_id), "--yes", "--key", str(key))
+    assert f"task {task_id} cancelled" in res.stdout, res.output
+    assert "0.001 ETH refunded to your credit" in res.stdout, res.output  # 1 worker x 10^15 wei
+    res = cli(platform, "task", "cancel", str(task_id), "--yes", "--key", str(key), code=1)
+    assert f"task {task_id} is cancelled: only an open task can be cancelled" in res.stderr
+
+
+def test_model_share_takes_the_environment_from_the_card(
+    platform: RunningPlatform, tmp_path: Path
+) -> None:
+    """`--env` had to be typed again (default {}: the gateway then refused the card's); it is
+    the card's now, and one that differs is named with the card's. The model's CID is listed
+    whole in `model list` (tables cut it in the middle)."""
+    key = funded(platform, tmp_path / "owner.key")
+    cli(platform, "worker", "register", "--key", str(key), "--domains", str(DOMAIN_SHARE))
+    model = EXPERT.parent / "odmtl-1a"  # one agent: not the default environment's three
+    cid = json.loads(cli(platform, "model", "push", str(model), "--key", str(key),
+                         "--json").stdout)["cid"]
+    share = ("model", "share", "--cid", cid, "--key", str(key), "--domain", str(DOMAIN_SHARE))
+    res = cli(platform, *share, "--env", '{"rows": 10, "cols": 10, "agents": 3}', code=2)
+    said = " ".join(res.output.replace("│", " ").split())
+    assert "--env has agents=3, the card agents=1" in said, said
+    res = cli(platform, *share)
+    assert "shared" in res.stdout, res.output
+    listed = cli(platform, "model", "list", "--q", cid).stdout
+    assert cid in listed, listed
+

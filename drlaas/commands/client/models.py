@@ -8,18 +8,23 @@ from __future__ import annotations
 import json
 import os
 import re
+import shutil
+from collections.abc import Callable
 from pathlib import Path
 from typing import Annotated, Any
 
 import typer
 
-from backend.store.bundle import pull_model
+from backend.store import NotFound, StoreError
+from backend.store.bundle import model_files, pull_model
+from backend.store.dag import compute_cid
 from backend.store.gateway_blocks import GatewayBlocks
 from drlaas.commands.client.session import (
     DEFAULT_GATEWAY,
     GatewayOpt,
     JsonOpt,
     KeyOpt,
+    OwnKeyOpt,
     connect_funded,
     emit,
     event_arg,
@@ -40,6 +45,7 @@ from drlaas.commands.client.txcheck import (
 from drlaas.commands.client.users import fail_with_register_hint
 from workers.daemon.gateway import Gateway, GatewayError
 from workers.mdrl.spec import parse_grid, parse_walls
+from workers.mdrl.trainingspec import SpecError, parse_env
 
 model_app = typer.Typer(
     help="Shared models: list, show, pull, push (to the store), share, request (from the "
@@ -48,11 +54,58 @@ model_app = typer.Typer(
 )
 
 
-def pull(gateway: str, cid: str, out: Path) -> Path:
-    """Both files of model bundle ``cid`` into ``out``, fetched block by block through the
-    gateway and each block verified against its CID here."""
-    with GatewayBlocks(gateway) as store:
-        return pull_model(store, cid, out)
+ForceOpt = Annotated[
+    bool, typer.Option("--force", help="replace a non-empty --out folder (its files are deleted)")
+]
+
+
+def pull_into(
+    store: Any, cid: str, dest: Path, force: bool, fetch: Callable[[Path], Any]
+) -> bool:
+    """``fetch`` model bundle ``cid`` into ``dest``; False when ``dest`` already holds exactly
+    its files (nothing done). Files of the user's are never overwritten: a folder that holds
+    anything else is refused (exit 1) unless ``force``, which replaces it. The model is
+    fetched into a new folder beside ``dest`` first, so a pull that fails changes nothing."""
+    if dest.exists() and not dest.is_dir():
+        fail(NotADirectoryError(f"--out {dest} is a file, not a folder: give another --out"))
+    occupied = dest.is_dir() and any(dest.iterdir())
+    if occupied and not force:
+        if holds_bundle(store, cid, dest):
+            return False
+        fail(FileExistsError(
+            f"--out {dest} is not empty: the model would overwrite its files; give a new or "
+            f"empty folder, or --force to replace {dest} and everything in it"))
+    target = dest.resolve()
+    if occupied and Path.cwd().resolve().is_relative_to(target):
+        fail(ValueError(f"--out {dest} holds the current directory: it is not replaced; "
+                        "give another --out"))
+    target.parent.mkdir(parents=True, exist_ok=True)
+    fresh = target.parent / f".{target.name}.pulling-{os.getpid()}"
+    shutil.rmtree(fresh, ignore_errors=True)  # left by a pull that was killed
+    fresh.mkdir()
+    try:
+        fetch(fresh)
+        if occupied:
+            shutil.rmtree(target)
+        if target.is_dir():  # an empty folder stays (it may be the current directory)
+            for f in fresh.iterdir():
+                f.replace(target / f.name)
+        else:
+            fresh.rename(target)
+    finally:
+        shutil.rmtree(fresh, ignore_errors=True)
+    return True
+
+
+def holds_bundle(store: Any, cid: str, folder: Path) -> bool:
+    """Whether ``folder`` holds exactly the files of model bundle ``cid``, each with its CID."""
+    files = model_files(store, cid)
+    if sorted(p.name for p in folder.iterdir()) != sorted(files):
+        return False
+    return all(
+        (folder / name).is_file() and compute_cid((folder / name).read_bytes()) == file_cid
+        for name, (file_cid, _) in files.items()
+    )
 
 
 def fetch_model(cid: str, kind: str) -> Path:
@@ -207,22 +260,30 @@ def model_pull(
     model: Annotated[str, typer.Argument(help="model id or manifest CID")],
     out: Annotated[
         Path | None,
-        typer.Option("--out", help="directory to write the model into (default ./model-<MODEL>)"),
+        typer.Option("--out", help="new or empty folder to write the model into (default "
+                     "./model-<MODEL>)"),
     ] = None,
+    force: ForceOpt = False,
     gateway: GatewayOpt = DEFAULT_GATEWAY,
     as_json: JsonOpt = False,
 ) -> None:
     """Download a model (model.safetensors + model.json) through the gateway, every block
-    verified against its CID; a model id is resolved to its CID by the gateway."""
+    verified against its CID; a model id is resolved to its CID by the gateway. A folder
+    that already holds files is left alone unless --force (or it holds this very model)."""
     cid = model
     if model.isdigit():
         cid = read(gateway, f"/models/{model}")["cid"]
     dest = out if out is not None else default_out(model)
     try:
-        path = pull(gateway, cid, dest)
+        with GatewayBlocks(gateway) as store:
+            pulled = pull_into(store, cid, dest, force, lambda d: pull_model(store, cid, d))
+    except typer.Exit:
+        raise
     except Exception as exc:  # noqa: BLE001 - shown to the user with its type
         fail(RuntimeError(f"cannot pull {cid}: {type(exc).__name__}: {exc}"))
-    emit({"cid": cid, "path": str(path)}, as_json, lambda d: typer.echo(f"model {cid} -> {path}"))
+    emit({"cid": cid, "path": str(dest), "pulled": pulled}, as_json,
+         lambda d: typer.echo(f"model {cid} -> {dest}" if pulled
+                              else f"model {cid}: {dest} already holds it"))
 
 
 @model_app.command("push")
@@ -241,11 +302,11 @@ def model_push(
     as_json: JsonOpt = False,
 ) -> None:
     """Add a model or a walls CAE (model.safetensors + model.json) to the platform's content
-    store and print its bundle CID: what a task spec names in ``experts`` or
-    ``observation.walls_embedding``. Checked here first (safetensors + a card that rebuilds);
+    store and print its bundle CID: what a task spec names in experts or
+    observation.walls_embedding. Checked here first (safetensors + a card that rebuilds);
     the store is the platform's (DRLAAS_IPFS, or the embedded one of a gateway on this
-    machine), as for the worker daemon. With ``--key`` the CID is computed first and committed
-    (``POST /models/commitments``, commit-reveal) before anything is uploaded."""
+    machine), as for the worker daemon. With --key the CID is computed first and committed
+    (POST /models/commitments, commit-reveal) before anything is uploaded."""
     from backend.chain.platform import cid_commitment
     from backend.store.bundle import upload_model
     from backend.store.staged import StagedUpload
@@ -256,7 +317,7 @@ def model_push(
     cid = upload_model(staged, directory)
     out: dict[str, Any] = {"cid": cid, "kind": kind, "path": str(directory)}
     if key is not None:
-        with connect_funded(gateway, key) as gw:
+        with connect_funded(gateway, key, create=True) as gw:
             commitment = "0x" + cid_commitment(cid, gw.account.address).hex()
             try:
                 write(
@@ -314,17 +375,20 @@ def model_share(
     cid: Annotated[str, typer.Option(help="manifest CID of the model")],
     key: KeyOpt,
     env_json: Annotated[
-        str, typer.Option("--env", help="EnvSpec JSON the model was trained on")
-    ] = "{}",
+        str | None,
+        typer.Option("--env", help="EnvSpec JSON the model was trained on (default: its card's)"),
+    ] = None,
     description: str = "",
     domain: int = 0,
     gateway: GatewayOpt = DEFAULT_GATEWAY,
     as_json: JsonOpt = False,
 ) -> None:
-    """Share a model (MMC.addModel) so requesters can be allocated it."""
+    """Share a model (MMC.addModel) so requesters can be allocated it; its environment is the
+    one its card (model.json, read from the store) names."""
+    declared = env_option(env_json) if env_json is not None else None
     body = {"cid": cid, "description": description, "domain": domain,
-            "env": env_option(env_json)}
-    with connect_funded(gateway, key) as gw:
+            "env": shared_env(gateway, cid, declared)}
+    with connect_funded(gateway, key, create=True) as gw:
         try:
             out = write(
                 gw, "POST", "/models", body, expect=share_model_expect("model share", body, gw)
@@ -343,6 +407,42 @@ def env_option(text: str) -> Any:
     if not isinstance(env, dict):
         raise typer.BadParameter("a JSON object, e.g. '{\"rows\": 10, \"cols\": 10, "
                                  "\"agents\": 3}'", param_hint="--env")
+    return env
+
+
+def shared_env(gateway: str, cid: str, declared: dict[str, Any] | None) -> dict[str, Any]:
+    """The environment to share bundle ``cid`` with: its card's (the gateway refuses any other),
+    read from the store; a ``declared`` one (--env) that differs is a usage error naming the
+    fields of both."""
+    try:
+        with GatewayBlocks(gateway) as store:
+            card_cid, size = model_files(store, cid)["model.json"]
+            card = json.loads(store.get(card_cid, max_size=size))
+    except NotFound:
+        fail(LookupError(f"the content store has no {cid}: push the model first "
+                         "(`drlaas model push DIR --key K`)"))
+    except (StoreError, ValueError, RecursionError) as exc:
+        fail(ValueError(f"cannot read the card (model.json) of {cid}: {exc}"))
+    env = card.get("env") if isinstance(card, dict) else None
+    if not isinstance(env, dict):
+        fail(ValueError(f"the card (model.json) of {cid} names no environment ('env'): it is "
+                        "no model to share"))
+    if declared is None:
+        return env
+    try:
+        mine, theirs = parse_env(declared, field="").to_dict(), parse_env(env, field="").to_dict()
+    except SpecError as exc:
+        raise typer.BadParameter(f"{exc.field}: {exc.msg}".lstrip(": "),
+                                 param_hint="--env") from None
+    differ = [k for k in mine if mine[k] != theirs.get(k)]
+    if differ:
+        raise typer.BadParameter(
+            "disagrees with the card of the model: --env has "
+            + ", ".join(f"{k}={mine[k]!r}" for k in differ) + ", the card "
+            + ", ".join(f"{k}={theirs.get(k)!r}" for k in differ)
+            + "; leave --env out to share it with the card's environment",
+            param_hint="--env",
+        )
     return env
 
 
@@ -435,7 +535,7 @@ def model_request(
                    "walls": list(parse_walls(walls))}
         except ValueError as exc:
             raise typer.BadParameter(str(exc)) from None
-    with connect_funded(gateway, key) as gw:
+    with connect_funded(gateway, key, create=True) as gw:
         try:
             out = request_models(
                 gw, env, num_models, domain=domain, price_wei=price_wei, metric=metric
@@ -458,7 +558,7 @@ def model_review(
     alloc_id: Annotated[int, typer.Argument(help="the allocation that gave you the model")],
     model_id: Annotated[int, typer.Option("--model", min=1, help="the model reviewed")],
     review: Annotated[int, typer.Option(min=0, max=5, help="0-5")],
-    key: KeyOpt,
+    key: OwnKeyOpt,
     gateway: GatewayOpt = DEFAULT_GATEWAY,
     as_json: JsonOpt = False,
 ) -> None:

@@ -22,12 +22,13 @@ from drlaas.commands.client.txcheck import (
     TxRefused,
     check_tx,
     expect_request,
+    is_cid,
     known_chain_id,
     platform_pin,
 )
 from workers.daemon.funding import NoGas, ensure_gas
 from workers.daemon.gateway import Gateway, GatewayError
-from workers.daemon.keys import load_or_create_key
+from workers.daemon.keys import load_key, load_or_create_key
 
 DEFAULT_GATEWAY = "http://127.0.0.1:8000"
 
@@ -35,6 +36,13 @@ GatewayOpt = Annotated[str, typer.Option("--gateway", envvar="DRLAAS_GATEWAY", h
 KeyOpt = Annotated[
     Path, typer.Option("--key", envvar="DRLAAS_KEY", help="your key file (created if missing)")
 ]
+"""The key of a command that can be a key's first use (register, submit, push, share, request):
+a new key file is made at a path that holds none (pass ``create=True`` to :func:`connect`)."""
+OwnKeyOpt = Annotated[
+    Path, typer.Option("--key", envvar="DRLAAS_KEY", help="your key file (it must exist)")
+]
+"""The key of a command that acts on what the key already has (its task, its allocation, its
+outcome): a mistyped path is an error naming it, not a new key with nothing to act on."""
 JsonOpt = Annotated[bool, typer.Option("--json", help="print one JSON document")]
 
 
@@ -58,16 +66,22 @@ class CliGateway(Gateway):
         return super().sign_in()
 
 
-def connect(gateway: str, key: Path | None = None) -> Gateway:
-    """A gateway session, signing in as the key file's account when ``key`` is given."""
-    account = load_or_create_key(key) if key is not None else None
+def connect(gateway: str, key: Path | None = None, *, create: bool = False) -> Gateway:
+    """A gateway session, signing in as the key file's account when ``key`` is given; a key
+    file that does not exist is made only with ``create`` (else the command fails naming it)."""
+    account = None
+    if key is not None:
+        try:
+            account = load_or_create_key(key) if create else load_key(key)
+        except (OSError, ValueError) as exc:
+            fail(exc)
     return CliGateway(gateway or os.environ.get("DRLAAS_GATEWAY", DEFAULT_GATEWAY), account, key)
 
 
-def connect_funded(gateway: str, key: Path) -> Gateway:
+def connect_funded(gateway: str, key: Path, *, create: bool = False) -> Gateway:
     """:func:`connect`, then make sure the key can pay gas (the embedded demo chain's faucet
     tops up an empty key; elsewhere the error says who funds it)."""
-    gw = connect(gateway, key)
+    gw = connect(gateway, key, create=create)
     try:
         ensure_gas(gw)
     except (NoGas, GatewayError) as exc:
@@ -199,8 +213,13 @@ def emit(doc: Any, as_json: bool, render: Any = None) -> None:
         render(doc)
 
 
+MAX_CELL = 46
+"""Longer cells of free text (a description) are cut to their ends in a table."""
+
+
 def table(rows: list[dict[str, Any]], columns: list[tuple[str, str]]) -> str:
-    """A plain fixed-width table of ``rows`` with (key, header) ``columns``."""
+    """A plain fixed-width table of ``rows`` with (key, header) ``columns``. A cell holding a
+    CID is printed in full, however long: users copy CIDs from tables into other commands."""
 
     def cell(v: Any) -> str:
         if v is None:
@@ -208,7 +227,9 @@ def table(rows: list[dict[str, Any]], columns: list[tuple[str, str]]) -> str:
         if isinstance(v, float):
             return f"{v:.3f}"
         s = str(v)
-        return s if len(s) <= 46 else s[:20] + "…" + s[-20:]
+        if len(s) <= MAX_CELL or any(is_cid(word) for word in s.split()):
+            return s
+        return s[:20] + "…" + s[-20:]
 
     cells = [[cell(r.get(k)) for k, _ in columns] for r in rows]
     widths = [max([len(h)] + [len(c[i]) for c in cells]) for i, (_, h) in enumerate(columns)]

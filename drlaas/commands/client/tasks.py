@@ -1,4 +1,5 @@
-"""``drlaas task ...``: submit a training task, list, show, review.
+"""``drlaas task ...``: submit a training task, list, show, wait, pull, review, allocate,
+cancel.
 
 The body of ``POST /api/tasks`` is built in one place, :func:`task_body`. When the gateway holds
 no key for the requester, ``submit`` relays the signed ``addTask`` itself and then allocates the
@@ -21,7 +22,8 @@ from typing import Annotated, Any
 
 import typer
 
-from backend.chain.platform import cid_hash
+from backend.chain.platform import TaskStatus, cid_hash
+from backend.schemas.common import wei_to_eth
 from backend.store import CID, InvalidCID
 from backend.store.gateway_blocks import GatewayBlocks
 from backend.store.sealed import (
@@ -30,13 +32,14 @@ from backend.store.sealed import (
     pull_model_with_key,
     sealed_envelopes,
 )
-from drlaas.commands.client.models import request_models
+from drlaas.commands.client.models import ForceOpt, pull_into, request_models
 from drlaas.commands.client.session import (
     DEFAULT_GATEWAY,
     CliGateway,
     GatewayOpt,
     JsonOpt,
     KeyOpt,
+    OwnKeyOpt,
     connect,
     connect_funded,
     emit,
@@ -66,7 +69,8 @@ from workers.mdrl.specfields import check_object
 from workers.mdrl.trainingspec import DEMONSTRATION_RULES, SpecError, TrainingSpec
 
 task_app = typer.Typer(
-    help="Training tasks: submit, list, show, wait, pull, review.", no_args_is_help=True
+    help="Training tasks: submit, list, show, wait, pull, review, allocate, cancel.",
+    no_args_is_help=True,
 )
 
 NOT_INDEXED_GRACE_S = 30.0
@@ -286,7 +290,7 @@ def task_submit(
         expert_rate_end=expert_rate_end,
         keep_best=keep_best,
     )
-    with connect_funded(gateway, key) as gw:
+    with connect_funded(gateway, key, create=True) as gw:
         if not public_outcome and gw.account is not None:
             body.setdefault("outcome_key", public_key_hex(bytes(gw.account.key)))
         try:
@@ -520,7 +524,7 @@ def task_review(
     task_id: int,
     worker: Annotated[str, typer.Option(help="worker whose outcome you review")],
     review: Annotated[int, typer.Option(min=0, max=5, help="0-5")],
-    key: KeyOpt,
+    key: OwnKeyOpt,
     reject: Annotated[bool, typer.Option(help="reject the outcome (no payment)")] = False,
     gateway: GatewayOpt = DEFAULT_GATEWAY,
     as_json: JsonOpt = False,
@@ -557,7 +561,7 @@ def task_review(
 @task_app.command("allocate")
 def task_allocate(
     task_id: int,
-    key: KeyOpt,
+    key: OwnKeyOpt,
     gateway: GatewayOpt = DEFAULT_GATEWAY,
     as_json: JsonOpt = False,
 ) -> None:
@@ -569,6 +573,86 @@ def task_allocate(
         except GatewayError as exc:
             fail(exc)
     emit(out, as_json, lambda d: typer.echo(f"task {task_id} allocated ({d['tx_hash']})"))
+
+
+CANCEL_REFUSED = {
+    "tasks_not_open": "task {id} is no longer open: only an open task can be cancelled",
+    "tasks_has_accepted_workers": "a worker has accepted task {id}: it can no longer be "
+    "cancelled (wait for its outcome, or for the deadline to close it)",
+    "tasks_has_live_offers": "task {id} is offered to a worker who may still accept it: "
+    "cancel it once the offer expires (`drlaas task show {id}` lists the offers)",
+    "tasks_deadline_passed": "task {id} is past its deadline: it can no longer be cancelled, "
+    "closing it refunds what no worker earned",
+}
+"""The chain's refusals of a cancel (TMC.updateTaskStatus, as the gateway names them), said as
+what is wrong with the task and what to do."""
+
+
+def cancel_expect(task_id: int) -> Expect:
+    """What ``POST /tasks/{id}/cancel`` may have us sign: TMC.updateTaskStatus(id, Cancelled)."""
+    return Expect(
+        f"task cancel {task_id}",
+        (Call(TMC, "updateTaskStatus", {"taskId": task_id, "status": int(TaskStatus.CANCELLED)}),),
+    )
+
+
+@task_app.command("cancel")
+def task_cancel(
+    task_id: int,
+    key: OwnKeyOpt,
+    yes: Annotated[bool, typer.Option("--yes", "-y", help="do not ask for confirmation")] = False,
+    gateway: GatewayOpt = DEFAULT_GATEWAY,
+    as_json: JsonOpt = False,
+) -> None:
+    """Cancel your open task before any worker accepted it (TMC.updateTaskStatus): its escrow
+    is refunded to your credit on the TasksManager."""
+    with connect_funded(gateway, key) as gw:
+        task = _own_open_task(gw, task_id, key)
+        if not yes:
+            typer.confirm(
+                f"Cancel task {task_id} ({env_summary(task)}; {task.get('num_workers')} "
+                f"worker(s) x {task.get('reward_eth')} ETH escrowed)?",
+                abort=True,
+            )
+        try:
+            out = write(gw, "POST", f"/tasks/{task_id}/cancel", expect=cancel_expect(task_id))
+        except GatewayError as exc:
+            rule = exc.detail.get("rule") if isinstance(exc.detail, dict) else None
+            fail(RuntimeError(CANCEL_REFUSED[rule].format(id=task_id))
+                 if rule in CANCEL_REFUSED else exc)
+        refunded = sum(
+            int(e["args"]["amount"])
+            for e in out.get("events") or []
+            if e.get("name") == "PaymentCredited"
+            and str(e["args"].get("account", "")).lower() == gw.address.lower()
+        )
+    emit(
+        {**out, "task_id": task_id, "refunded_wei": refunded},
+        as_json,
+        lambda d: typer.echo(
+            f"task {task_id} cancelled ({d['tx_hash']})"
+            + (f"; {wei_to_eth(refunded)} ETH refunded to your credit on the TasksManager"
+               if refunded else "")
+        ),
+    )
+
+
+def _own_open_task(gw: Gateway, task_id: int, key: Path) -> dict[str, Any]:
+    """Task ``task_id`` if it is open and the key's; else exit 1 saying which it is not."""
+    try:
+        task = gw.get(f"/tasks/{task_id}")
+    except GatewayError as exc:
+        if exc.status == 404:
+            fail(LookupError(f"no task {task_id} on {gw.url} (`drlaas task list` lists them)"))
+        fail(exc)
+    if str(task.get("requester", "")).lower() != gw.address.lower():
+        fail(PermissionError(
+            f"task {task_id} is not yours: its requester is {task.get('requester')}, "
+            f"{key} is {gw.address}; give the key that submitted it"))
+    if task.get("status") != "open":
+        fail(RuntimeError(
+            f"task {task_id} is {task.get('status')}: only an open task can be cancelled"))
+    return dict(task)
 
 
 @task_app.command("wait")
@@ -634,8 +718,10 @@ def task_wait(
 def task_pull(
     task_id: int,
     out: Annotated[
-        Path | None, typer.Option("--out", help="directory (default ./task-<ID>-model)")
+        Path | None,
+        typer.Option("--out", help="new or empty folder (default ./task-<ID>-model)"),
     ] = None,
+    force: ForceOpt = False,
     worker: Annotated[str | None, typer.Option(help="whose outcome (default: the first)")] = None,
     key: Annotated[
         Path | None,
@@ -649,6 +735,10 @@ def task_pull(
     here with the requester's --key). The CID the gateway names is checked on chain first
     (TMC.outcomeOf: an outcome of this task by that worker, at the pinned TasksManager); with
     --key the bundle must be sealed."""
+    try:  # before anything is read or pinned for it: a mistyped --key is named, not used
+        private_key = bytes(load_key(key).key) if key is not None else None
+    except (OSError, ValueError) as exc:
+        fail(exc)
     doc = read(gateway, f"/tasks/{task_id}")
     outcomes = doc.get("outcomes") if isinstance(doc, dict) else None
     if not isinstance(outcomes, list) or not all(
@@ -661,6 +751,7 @@ def task_pull(
     if not chosen:
         fail(LookupError(f"task {task_id} has no outcome" + (f" from {worker}" if worker else "")))
     cid = chosen[0]["cid"]
+    path = out if out is not None else Path(f"task-{task_id}-model")
     try:
         check_outcome_on_chain(gateway, key, task_id, chosen[0]["worker"], cid)
     except (ValueError, LookupError, GatewayError) as exc:
@@ -668,7 +759,6 @@ def task_pull(
     except Exception as exc:  # noqa: BLE001 - web3 raises several types; shown with its type
         fail(RuntimeError(f"cannot read task {task_id}'s outcome on chain: "
                           f"{type(exc).__name__}: {exc}"))
-    private_key = bytes(load_key(key).key) if key is not None else None
     try:
         with GatewayBlocks(gateway) as store:
             if private_key is not None and SEALED_FILE not in sealed_envelopes(store, cid):
@@ -676,17 +766,18 @@ def task_pull(
                     f"outcome {cid} of task {task_id} is not sealed, and --key (or DRLAAS_KEY) "
                     "asks for an outcome sealed to you: pull it without --key if the task was "
                     "submitted with --public-outcome"))
-            path = pull_model_with_key(
-                store, cid, out if out is not None else Path(f"task-{task_id}-model"), private_key
-            )
+            pulled = pull_into(store, cid, path, force,
+                               lambda d: pull_model_with_key(store, cid, d, private_key))
     except typer.Exit:
         raise
     except Exception as exc:  # noqa: BLE001 - shown to the user with its type
         fail(RuntimeError(f"cannot pull {cid}: {type(exc).__name__}: {exc}"))
     emit(
-        {"task_id": task_id, "worker": chosen[0]["worker"], "cid": cid, "path": str(path)},
+        {"task_id": task_id, "worker": chosen[0]["worker"], "cid": cid, "path": str(path),
+         "pulled": pulled},
         as_json,
-        lambda d: typer.echo(f"task {task_id} outcome {cid} ({d['worker']}) -> {path}"),
+        lambda d: typer.echo(f"task {task_id} outcome {cid} ({d['worker']}) -> {path}" if pulled
+                             else f"task {task_id} outcome {cid}: {path} already holds it"),
     )
 
 

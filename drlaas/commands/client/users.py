@@ -42,7 +42,7 @@ def requester_register(
 ) -> None:
     """Register the key's address as a requester (UMC.addRequester); an empty key on the
     embedded demo chain is funded from the faucet first."""
-    with connect_funded(gateway, key) as gw:
+    with connect_funded(gateway, key, create=True) as gw:
         try:
             out = write(
                 gw,

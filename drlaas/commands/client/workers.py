@@ -13,6 +13,7 @@ from drlaas.commands.client.session import (
     GatewayOpt,
     JsonOpt,
     KeyOpt,
+    OwnKeyOpt,
     connect,
     connect_funded,
     emit,
@@ -24,6 +25,8 @@ from drlaas.commands.client.txcheck import expect_request, share_model_expect
 from workers.daemon.capabilities import measure
 from workers.daemon.command import open_worker, parse_domains, worker_command
 from workers.daemon.gateway import GatewayError
+from workers.daemon.keys import load_key
+from workers.daemon.links import default_worker_dir
 
 worker_app = typer.Typer(
     help="Your worker: register, status, run (the daemon), share (an outcome as a model).",
@@ -41,7 +44,7 @@ def worker_register(
     """Register (or update) your worker record with this machine's measured capabilities."""
     caps = measure()
     body = {"domains": list(parse_domains(domains)), **caps.to_dict()}
-    with connect_funded(gateway, key) as gw:
+    with connect_funded(gateway, key, create=True) as gw:
         try:
             out = write(  # UMC.addWorker, or updateCapabilities, with these capabilities
                 gw,
@@ -94,10 +97,12 @@ worker_app.command(
 @worker_app.command("share")
 def worker_share(
     task_id: int,
-    key: KeyOpt,
+    key: OwnKeyOpt,
     description: str = "",
     data: Annotated[
-        Path | None, typer.Option(help="the daemon's --data, if it was given one")
+        Path | None,
+        typer.Option(help="the worker's directory, if `worker run` was given --data (default "
+                     "<DRLAAS_DATA_DIR or ~/.drlaas>/workers/<address>, as `worker run`)"),
     ] = None,
     gateway: GatewayOpt = DEFAULT_GATEWAY,
     as_json: JsonOpt = False,
@@ -106,6 +111,8 @@ def worker_share(
     accepted it): uploads the model's files from the daemon's job directory first, so an
     outcome sealed to its requester becomes public now."""
     try:
+        check_worker_dir(data if data is not None else default_worker_dir(load_key(key).address),
+                         given=data is not None)
         handler = open_worker(key, gateway, data)
         model = handler.publish_outcome(task_id)
     except Exception as exc:  # noqa: BLE001 - shown to the user with its type
@@ -124,3 +131,15 @@ def worker_share(
         except GatewayError as exc:
             fail(exc)
     emit(out, as_json, lambda d: typer.echo(shared_line(d, model["cid"])))
+
+
+def check_worker_dir(worker_dir: Path, *, given: bool) -> None:
+    """FileNotFoundError naming ``worker_dir`` and how to name another when it holds no worker's
+    jobs (nothing is opened there: a worker's pin file would be written into it)."""
+    if (worker_dir / "jobs").is_dir():
+        return
+    how = ("give the folder `worker run --data` was given" if given else
+           "give --data DIR if `worker run` was given --data DIR, or set DRLAAS_DATA_DIR as it "
+           "was for `worker run` (a worker of `drlaas up` keeps its files in "
+           "<up's data>/workers/<address>)")
+    raise FileNotFoundError(f"no worker's jobs in {worker_dir}: {how}")

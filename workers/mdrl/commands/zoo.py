@@ -10,14 +10,26 @@ import typer
 
 app = typer.Typer(no_args_is_help=True, help="The model zoo: one trained model per thesis row.")
 
+SHIPPED_MODELS = Path(__file__).resolve().parents[3] / "models"
+"""The zoo shipped with the project (``models/`` of the checkout this package runs from), so
+that ``zoo list`` finds it from any directory."""
+
 
 @app.command("list")
 def list_command(
-    models: Annotated[Path, typer.Option(help="Zoo directory.")] = Path("models"),
+    models: Annotated[
+        Path | None, typer.Option(help="Zoo directory (default: the project's models/).")
+    ] = None,
 ) -> None:
     """Each zoo model: preset, budget, and its card's held-out figures if trained."""
     from workers.mdrl.zoo import ZOO
 
+    if models is None:
+        models = SHIPPED_MODELS
+        if not models.is_dir():
+            raise typer.BadParameter(
+                f"no shipped models at {models} (this install has no project checkout); give "
+                "the zoo directory with --models DIR", param_hint="--models")
     if not models.is_dir():
         raise typer.BadParameter(f"{models}: no such directory", param_hint="--models")
     for name, entry in ZOO.items():
