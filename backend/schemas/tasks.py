@@ -177,6 +177,9 @@ class OutcomePublic(BaseModel):
     cid: str
     review: int | None
     accepted: bool | None
+    model_id: int | None = Field(
+        default=None, description="the model listed with this CID (MMC) if its worker shared it"
+    )
 
 
 class ProgressCreate(BaseModel):

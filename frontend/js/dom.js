@@ -63,6 +63,14 @@ export function shortCid(cid) {
   return h("span", { class: "cid mono", title: cid }, text);
 }
 
+/** A "Copy" button putting text on the clipboard (where the browser refuses: says to select it). */
+export function copyButton(text) {
+  return h("button", { type: "button", class: "small", onclick: async (e) => {
+    try { await navigator.clipboard.writeText(text); e.target.textContent = "Copied"; }
+    catch { e.target.textContent = "Select and copy"; }
+  } }, "Copy");
+}
+
 export function num(value, digits = 2) {
   if (value === undefined || value === null || value === "") return "—";
   const n = Number(value);
@@ -93,14 +101,18 @@ export function ethToWei(text) {
   return (BigInt(whole) * WEI_PER_ETH + BigInt(frac.padEnd(18, "0"))).toString();
 }
 
-/** ISO date or unix seconds -> local "2025-01-02 13:04:05". */
-export function formatTime(t) {
+/** ISO date or unix seconds (a number or a string of digits) -> local "2025-01-02 13:04:05";
+ *  {utc: true}: the same in UTC, marked "UTC". */
+export function formatTime(t, { utc = false } = {}) {
   if (t === undefined || t === null || t === "") return "—";
-  const d = typeof t === "number" ? new Date(t * 1000) : new Date(t);
+  const seconds = typeof t === "number" || (typeof t === "string" && /^\d+$/.test(t));
+  const d = seconds ? new Date(Number(t) * 1000) : new Date(t);
   if (Number.isNaN(d.getTime())) return String(t);
   const pad = (x) => String(x).padStart(2, "0");
-  return `${d.getFullYear()}-${pad(d.getMonth() + 1)}-${pad(d.getDate())} `
-    + `${pad(d.getHours())}:${pad(d.getMinutes())}:${pad(d.getSeconds())}`;
+  const [y, mo, day, hh, mi, ss] = utc
+    ? [d.getUTCFullYear(), d.getUTCMonth(), d.getUTCDate(), d.getUTCHours(), d.getUTCMinutes(), d.getUTCSeconds()]
+    : [d.getFullYear(), d.getMonth(), d.getDate(), d.getHours(), d.getMinutes(), d.getSeconds()];
+  return `${y}-${pad(mo + 1)}-${pad(day)} ${pad(hh)}:${pad(mi)}:${pad(ss)}${utc ? " UTC" : ""}`;
 }
 
 /** A status pill; the class lets CSS colour it (open, completed, cancelled, ...). */

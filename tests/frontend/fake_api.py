@@ -374,8 +374,10 @@ def initial_tasks() -> list[dict]:
         10**16,
         timeline=[
             event("TaskAdded", 12, {"taskId": 1, "requester": ALICE, "numWorkers": 2}),
-            event("TaskOffered", 13, {"taskId": 1, "worker": W2, "qos": 910000}),
-            event("TaskOffered", 14, {"taskId": 1, "worker": W4, "qos": 620000},
+            event("TaskOffered", 13, {"taskId": 1, "worker": W2, "qos": 910000,
+                                      "expiry": 1_746_353_100}),
+            event("TaskOffered", 14, {"taskId": 1, "worker": W4, "qos": 620000,
+                                      "expiry": 1_746_353_100},
                   error="DataError: value out of range for type bigint"),
             event("OfferAccepted", 15, {"taskId": 1, "worker": W2}),
         ],
@@ -571,9 +573,11 @@ def make_fake_app(state: FakeState) -> FastAPI:
     @app.get("/api/tasks/{tid}")
     def get_task(tid: int) -> dict:
         try:
-            return state.task(tid)
+            t = state.task(tid)
         except StopIteration:
             raise RuleError(404, "task_not_found", f"no task {tid}") from None
+        listed = {mo["cid"]: mo["id"] for mo in state.models}  # as the gateway: the MMC listing
+        return t | {"outcomes": [o | {"model_id": listed.get(o["cid"])} for o in t["outcomes"]]}
 
     @app.post("/api/tasks", status_code=201)
     async def create_task(request: Request) -> JSONResponse:
@@ -620,6 +624,18 @@ def make_fake_app(state: FakeState) -> FastAPI:
             {"task_id": tid, "spec_cid": CID_SPEC, "offered": offered, "tx_hashes": []},
             status_code=201,
         )
+
+    @app.post("/api/tasks/{tid}/cancel")
+    def cancel_task(tid: int, request: Request) -> dict:
+        """TxPublic; the requester of an open task only, as the real route."""
+        get_task(tid)  # 404 as the real route
+        t = state.task(tid)
+        if caller(request).lower() != t["requester"].lower():
+            raise RuleError(403, "tasks_not_requester", "only the task's requester may cancel it")
+        if t["status"] != "open":
+            raise RuleError(409, "tasks_not_open", f"task {tid} is {t['status']}")
+        t["status"] = "cancelled"
+        return {"tx_hash": "0x" + "2" * 64, "block_number": 99, "status": 1, "events": []}
 
     mount_frontend(app)
     app.add_middleware(SecurityHeaders)  # the real gateway's policy: a blocked style fails a test

@@ -67,7 +67,7 @@ def test_model_page_shows_heldout_curve_provenance_and_human_units(
     # what the run did with each expert, from the card (a record that does not validate: none)
     expect(experts.nth(0).locator(".usage")).to_have_text(
         " · guided 630 episodes, its action taken in 82.5% of 5,000 decisions, picked with "
-        "R_S = 0.5"
+        "probability 0.5"
     )
     expect(experts.nth(1).locator(".usage")).to_have_count(0)
     # the card's training.selected: the delivered policy is the best evaluated, not the last

@@ -372,7 +372,8 @@ def test_task_page_shows_timeline_offers_outcomes_and_live_curve(
     t["status"] = "completed"
     expect(page.locator("#task-status")).to_have_text("completed", timeout=5000)
     expect(page.locator("#outcomes-table tbody tr")).to_have_count(1)
-    expect(page.locator("#outcomes-table a")).to_have_attribute("href", f"/models?q={CID_A}")
+    # CID_A is listed as model 1 (looked up by its CID): a link to its page
+    expect(page.locator("#outcomes-table a")).to_have_attribute("href", "/models/1")
     # an outcome the requester left unreviewed and the close paid: no review of 0/5 shown
     t["outcomes"].append(
         {"worker": t["offers"][1]["worker"], "cid": CID_B, "review": None, "accepted": True}
@@ -462,5 +463,8 @@ def test_lists_page_through_more_rows_than_one_answer(
     page.goto(f"{server.url}/models?offset=200")
     wait_for_models(page, list(range(201, 231)))
     page.fill('input[name="walls"]', "2")
-    page.wait_for_function("() => !location.search.includes('offset')")
+    page.wait_for_function(  # the URL changes before the request: wait for its answer too
+        "() => !location.search.includes('offset')"
+        " && !document.querySelector('#models-results').hasAttribute('aria-busy')"
+    )
     assert "offset" not in state.queries("/api/models")[-1]

@@ -56,6 +56,8 @@ def test_outcome_download_and_sharing_follow_provenance(
     assert r.status_code == 403 and r.json()["detail"]["rule"] == "models_not_outcome_owner"
     r = client.post(f"{P}/models", json=share, headers=login(names[owner]))
     assert r.status_code == 409 and r.json()["detail"]["rule"] == "models_outcome_not_accepted"
+    [unshared] = client.get(f"{P}/tasks/{task_id}").json()["outcomes"]
+    assert unshared["cid"] == cid and unshared["model_id"] is None
 
     r = client.post(
         f"{P}/tasks/{task_id}/reviews", json={"worker": owner, "review": 5}, headers=login("user1")
@@ -69,6 +71,8 @@ def test_outcome_download_and_sharing_follow_provenance(
     r = client.post(f"{P}/models", json=share, headers=login(names[owner]))
     assert r.status_code == 201, r.text
     assert r.json()["owner"] == owner and r.json()["cid"] == cid
+    [listed] = client.get(f"{P}/tasks/{task_id}").json()["outcomes"]
+    assert listed["model_id"] == r.json()["id"]  # the task page links the outcome to its model
     r = client.post(f"{P}/models", json=share, headers=login(names[owner]))
     assert r.status_code == 409 and r.json()["detail"]["rule"] == "model_already_listed"
     assert client.get(f"{P}/models").json()["count"] == 1

@@ -145,7 +145,7 @@ def test_progress_review_and_cancel_act_only_for_the_right_address(
         detail["status"] == "completed" == service.platform.tmc.task(task_id)["status"].name.lower()
     )
     assert detail["outcomes"] == [
-        {"worker": worker, "cid": "bafyoutcome", "review": 4, "accepted": True}
+        {"worker": worker, "cid": "bafyoutcome", "review": 4, "accepted": True, "model_id": None}
     ]
     w = client.get(f"{P}/workers/{worker}").json()
     assert w["counters"]["rating_sum"] == 4 and w["rating"] == pytest.approx(0.8)

@@ -408,6 +408,13 @@ def get_task(task_id: TaskId, session: SessionDep) -> TaskDetailPublic:
         select(m.OfferRow).where(m.OfferRow.task_id == task_id).order_by(m.OfferRow.block_number)
     ).all()
     outcomes = session.scalars(select(m.OutcomeRow).where(m.OutcomeRow.task_id == task_id)).all()
+    listed = dict(  # a CID is listed once on the MMC (ModelsManager: provenance)
+        session.execute(
+            select(m.ModelRow.cid, m.ModelRow.id).where(
+                m.ModelRow.cid.in_([o.cid for o in outcomes])
+            )
+        ).all()
+    )
     progress = session.scalars(
         select(m.ProgressPoint)
         .where(m.ProgressPoint.task_id == task_id)
@@ -424,7 +431,13 @@ def get_task(task_id: TaskId, session: SessionDep) -> TaskDetailPublic:
             for o in offers
         ],
         outcomes=[
-            OutcomePublic(worker=o.worker, cid=o.cid, review=o.review, accepted=o.accepted)
+            OutcomePublic(
+                worker=o.worker,
+                cid=o.cid,
+                review=o.review,
+                accepted=o.accepted,
+                model_id=listed.get(o.cid),
+            )
             for o in outcomes
         ],
         progress=[

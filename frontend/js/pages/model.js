@@ -7,7 +7,7 @@
 import { api, API_BASE } from "../api.js";
 import { curvePanels } from "../chart.js";
 import {
-  defList, envSummary, formatTime, h, link, num, rawJson, shortAddr, shortCid,
+  copyButton, defList, envSummary, formatTime, h, link, num, rawJson, shortAddr, shortCid,
 } from "../dom.js";
 
 const READING_MODELS = {
@@ -30,13 +30,6 @@ export function withCi(value, ci, digits = 2) {
 
 function percent(x) {
   return x === null || x === undefined ? "—" : `${(100 * Number(x)).toFixed(1)}%`;
-}
-
-function copyButton(text) {
-  return h("button", { type: "button", class: "small", onclick: async (e) => {
-    try { await navigator.clipboard.writeText(text); e.target.textContent = "Copied"; }
-    catch { e.target.textContent = "Select and copy"; }
-  } }, "Copy");
 }
 
 const BASELINE_LABELS = {
@@ -87,7 +80,12 @@ function expertItem(x) {
     h("span", { class: "muted" }, x.source === "task_spec" ? " · named by the task's spec" : " · listed by the card"),
     x.usage ? h("span", { class: "usage" }, ` · guided ${num(x.usage.episodes)} episode${x.usage.episodes === 1 ? "" : "s"}`
       + (x.usage.decisions ? `, its action taken in ${num(100 * x.usage.followed / x.usage.decisions, 1)}% of ${num(x.usage.decisions)} decisions` : "")
-      + (x.usage.selection_probability !== null && x.usage.selection_probability !== undefined ? `, picked with R_S = ${num(x.usage.selection_probability, 3)}` : "")) : null);
+      + (x.usage.selection_probability !== null && x.usage.selection_probability !== undefined ? `, picked with probability ${num(x.usage.selection_probability, 3)}` : "")) : null);
+}
+
+/** A label in plain words; the reference for experts (an equation number) in its tooltip. */
+function tip(label, title) {
+  return h("span", { class: "tip", title }, label);
 }
 
 function provenance(m) {
@@ -117,11 +115,11 @@ function provenance(m) {
 function requestsTable(requests) {
   if (!requests || !requests.length) return h("p", { class: "muted", id: "model-requests" }, "No model request has returned it yet.");
   return h("table", { class: "list", id: "model-requests" },
-    h("thead", {}, h("tr", {}, ["Request", "Requester", "QoS", "Price", "Review"].map((c) => h("th", {}, c)))),
+    h("thead", {}, h("tr", {}, ["Request", "Requester", "Match score", "Price", "Review"].map((c) => h("th", {}, c)))),
     h("tbody", {}, requests.map((r) => h("tr", { "data-alloc-id": r.alloc_id },
       h("td", {}, `#${r.alloc_id}`),
       h("td", {}, shortAddr(r.requester)),
-      h("td", { class: "num qos" }, num(r.qos, 3)),
+      h("td", { class: "num qos", title: "the model's QoS for this request" }, num(r.qos, 3)),
       h("td", { class: "num price", title: `${r.price_wei} wei` }, `${r.price_eth} ETH`),
       h("td", { class: "num" }, r.review === null || r.review === undefined ? "—" : `${r.review}/5`)))));
 }
@@ -163,10 +161,13 @@ export async function render(main, [id], ctx) {
 
     h("div", { class: "grid2" },
       h("div", { class: "panel", id: "model-chain" }, h("h2", {}, "On chain"), defList([
-        ["Model reputation", h("span", { id: "model-reputation" }, num(m.reputation, 3))],
-        ["Owner reputation (sharing, Eq. 19)", h("span", { id: "owner-reputation" }, num(m.owner_reputation, 3))],
-        ["Owner rating (sharing)", num(m.owner_rating, 3)],
-        ["Owner reputation (models, Eq. 10)", h("span", { id: "owner-model-reputation" }, num(m.owner_model_reputation, 3))],
+        [tip("Model reputation", "from the requesters' reviews of this model (Eq. 11)"),
+          h("span", { id: "model-reputation" }, num(m.reputation, 3))],
+        [tip("Owner's reputation as a sharer", "from the owner's record of shared models (Eq. 19)"),
+          h("span", { id: "owner-reputation" }, num(m.owner_reputation, 3))],
+        [tip("Owner's rating as a sharer", "the rating of the same record (Eq. 19)"), num(m.owner_rating, 3)],
+        [tip("Owner's reputation over all its models", "the reviews of every request for the owner's models; 0.5 before any (Eq. 10)"),
+          h("span", { id: "owner-model-reputation" }, num(m.owner_model_reputation, 3))],
         ["Requests", num(m.allocations)],
         ["Environment", Array.isArray(m.env) ? envSummary(m.env) : undefined],
       ])),

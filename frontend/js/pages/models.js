@@ -6,7 +6,7 @@ import { clear, envSummary, errorBox, h, link, num, shortAddr, shortCid } from "
 import { PAGE_SIZE, offsetFromUrl, pager } from "../pager.js";
 
 const FILTERS = [
-  { name: "q", label: "Search", type: "search", placeholder: "description or CID" },
+  { name: "q", label: "Search", type: "search", placeholder: "words of the description, CID, owner or #id" },
   { name: "domain", label: "Domain", type: "number", min: 0, max: 255, placeholder: "any" },
   { name: "agents", label: "Agents", type: "number", min: 1, placeholder: "any" },
   { name: "walls", label: "Walls", type: "number", min: 0, placeholder: "any" },

@@ -12,8 +12,8 @@ import { boundError, boundsOf, fmt, inputAttrs, requestSchema } from "../schema.
  *  gateway serves no schema). */
 const LABELS = {
   "env.moves": { 4: "4 (up/down/left/right)", 8: "8 (with diagonals)" },
-  "observation.kind": { odmtl: "ODMTL (windowed maps)", dmtl: "DMTL (per-agent maps)", cmtl: "CMTL (centralized)" },
-  "algorithm.demonstration.credit": { false: "off (Alg. 5.1)", true: "on (experts on probation, weighted by credit)" },
+  "observation.kind": { odmtl: "a window around each agent (ODMTL)", dmtl: "the whole map, per agent (DMTL)", cmtl: "one shared map for all agents (CMTL)" },
+  "algorithm.demonstration.credit": { false: "off (every expert trusted)", true: "on (experts on probation, weighted by credit)" },
   "selection.keep_best": { "": "the final policy", time: "the best evaluated: shortest episodes", cost: "the best evaluated: lowest moving cost" },
 };
 /** Selects whose first option is "not set" (the spec field is nullable: null = the default). */
@@ -21,9 +21,10 @@ const UNSET_OPTION = { "selection.keep_best": "" };
 /** "1 to 16" from a field's bounds ("" without both). */
 const range = (b) => (b && b.min !== undefined && b.max !== undefined ? `${fmt(b.min)} to ${fmt(b.max)}` : "");
 
-/** name -> [label, default, input, help]; names are the JSON paths in the body (SCHEMA_PATH for
- *  the others). input: "int" | "real" (the schema's type wins) | "select" | "text". help: text, or
- *  (bounds) => [parts] joined with ", ". No bounds here: they come from the schema. */
+/** name -> [label, default, input, help, tip]; names are the JSON paths in the body (SCHEMA_PATH
+ *  for the others). input: "int" | "real" (the schema's type wins) | "select" | "text". help: text,
+ *  or (bounds) => [parts] joined with ", ". tip: the label's tooltip (the method's own terms, for
+ *  experts; labels and help are plain words). No bounds here: they come from the schema. */
 const FIELDS = {
   "env.agents": ["Agents", "3", "int", range],
   "env.rows": ["Grid rows", "10", "int", range],
@@ -32,10 +33,10 @@ const FIELDS = {
   "env.walls_max": ["Walls (max)", "0", "int", () => ["a count is drawn per episode in [min, max]", "at most max(rows, cols)"]],
   "env.moves": ["Moves", "4", "select"],
   "env.intensity": ["Source intensity (photons/min)", "1e9", "text", () => ["1e9, a set 1e8,5e8,1e9 or a range 1e8:1e9"]],
-  "observation.kind": ["Observation", "odmtl", "select"],
-  "observation.window": ["Window w (ODMTL)", "3", "int", (b) => [b && b.odd ? "odd" : "", range(b), "w < min(rows, cols)"]],
-  "observation.walls_embedding": ["Walls autoencoder (CID)", "", "text", () => ["a walls CAE (drlaas cae train, then drlaas model push)", "empty = wall maps only", "trained on this grid size"]],
-  "observation.walls_embedding_size": ["CAE embedding size d", "", "int", (b) => [range(b), "empty = 128 (Ch. 4); must be the CAE's d"]],
+  "observation.kind": ["Observation", "odmtl", "select", undefined, "what each agent sees: ODMTL, DMTL or CMTL"],
+  "observation.window": ["Window size (cells)", "3", "int", (b) => [b && b.odd ? "odd" : "", range(b), "smaller than the grid's shorter side"], "w, the ODMTL window"],
+  "observation.walls_embedding": ["Walls autoencoder (CID)", "", "text", () => ["a model that compresses wall maps (drlaas cae train, then drlaas model push)", "empty = wall maps only", "trained on this grid size"], "a walls CAE (Ch. 4)"],
+  "observation.walls_embedding_size": ["Autoencoder code size", "", "int", (b) => [range(b), "empty = 128; must be the autoencoder's"], "d, the CAE's embedding size (Ch. 4)"],
   "budget.steps": ["Budget: environment steps", "20000", "int", (b) => [range(b), "training stops at exactly this many"]],
   "budget.minutes": ["Budget: minutes", "10", "real", (b) => [range(b), "training stops at whichever comes first"]],
   "seed": ["Seed", "0", "int"],
@@ -50,9 +51,9 @@ const FIELDS = {
   "deadline_s": ["Deadline (s)", "3600", "int", () => ["time the workers have to submit"]],
   "payment_eth": ["Payment per worker (ETH)", "0.01", "text"],
   "experts": ["Expert models (CIDs)", "", "text", () => ["model CIDs, comma-separated (Models page)", "empty = none"]],
-  "experts_from_mmc": ["Or buy K experts from the MMC", "0", "int", () => [`0 to ${MAX_EXPERTS}`, "the K shared models closest to this environment, each paid its price to its owner"]],
-  "algorithm.demonstration.rate": ["Expert rate R_E", "", "real", (b) => [range(b), "share of expert-guided episodes; empty = 0.2 with one expert, 0.1 with several"]],
-  "algorithm.demonstration.rate_end": ["Expert rate at the end", "", "real", (b) => [range(b), "R_E moves linearly to this over the step budget; empty = R_E fixed (Alg. 5.1)"]],
+  "experts_from_mmc": ["Or buy this many experts", "0", "int", () => [`0 to ${MAX_EXPERTS}`, "the shared models closest to this environment, each paid its price to its owner"], "K models from the MMC (the models contract)"],
+  "algorithm.demonstration.rate": ["Expert-guided share", "", "real", (b) => [range(b), "share of the episodes an expert guides; empty = 0.2 with one expert, 0.1 with several"], "R_E (Alg. 5.1)"],
+  "algorithm.demonstration.rate_end": ["Expert-guided share at the end", "", "real", (b) => [range(b), "the share moves linearly to this over the step budget; empty = the same share throughout"], "R_E at the end of the step budget (Alg. 5.1 with a schedule)"],
   "algorithm.demonstration.credit": ["Expert credit", "false", "select", () => ["on: learn from an expert's episodes only once it has been judged against the agents' own, weighted by its credit (guards against faulty experts)"]],
 };
 /** Experts (MEDC, thesis Alg. 5.1): at most this many; a CID as the content store writes it. */
@@ -65,7 +66,7 @@ const GROUPS = [
   ["observation", "Observation", ["observation.kind", "observation.window", "observation.walls_embedding", "observation.walls_embedding_size"]],
   ["budget", "Training budget", ["budget.steps", "budget.minutes", "seed", "selection.keep_best", "selection.eval_every"]],
   ["recruit", "Recruitment and payment", ["domain", "num_workers", "min_reputation", "min_rating", "min_cpu_cores", "min_ram_gb", "deadline_s", "payment_eth"]],
-  ["medc", "Experts (optional: MEDC, demonstrations from shared models)", ["experts", "experts_from_mmc", "algorithm.demonstration.rate", "algorithm.demonstration.rate_end", "algorithm.demonstration.credit"]],
+  ["medc", "Experts (optional: learn from the demonstrations of shared models)", ["experts", "experts_from_mmc", "algorithm.demonstration.rate", "algorithm.demonstration.rate_end", "algorithm.demonstration.credit"]],
 ];
 /** Server loc (after "body") -> the field showing its error. */
 const LOC_ALIASES = {
@@ -281,7 +282,7 @@ export async function render(main, params, ctx) {
   let purchase = null; // {key, answer}: the experts bought for this form's environment
 
   const control = (name) => {
-    const [label, def, input, help] = FIELDS[name];
+    const [label, def, input, help, tip] = FIELDS[name];
     const b = boundsFor(schema, name);
     const common = { id: fid(name), name, "aria-describedby": eid(name) };
     let el;
@@ -296,7 +297,7 @@ export async function render(main, params, ctx) {
     }
     const text = typeof help === "function" ? [].concat(help(b)).filter(Boolean).join(", ") : help;
     return h("div", { class: "field", "data-field": name },
-      h("label", { for: fid(name) }, label), el,
+      h("label", { for: fid(name), title: tip }, label), el,
       text ? h("small", { class: "help" }, text) : null,
       h("div", { class: "field-error", id: eid(name) }));
   };
@@ -365,7 +366,7 @@ export async function render(main, params, ctx) {
       const tid = answer.task_id ?? answer.id;
       result.replaceChildren(h("div", { class: "ok-box", role: "status" },
         bought ? h("p", { id: "bought-experts" }, `Allocation #${bought.alloc_id}: ${bought.models.length} expert(s) bought, `,
-          bought.models.map((m, i) => [i ? ", " : "", h("code", { class: "mono" }, m.cid), ` (QoS ${fmt(m.qos)})`]), ". ") : null,
+          bought.models.map((m, i) => [i ? ", " : "", h("code", { class: "mono" }, m.cid), ` (match score ${fmt(m.qos)})`]), ". ") : null,
         h("strong", {}, `Task #${tid} created. `),
         `${Array.isArray(answer.offered) ? answer.offered.length : (answer.offered ?? 0)} worker(s) offered. Spec CID `, h("code", { class: "mono" }, answer.spec_cid || "—"), ". ",
         link(`/tasks/${encodeURIComponent(tid)}`, "Follow it live →")));
@@ -409,7 +410,7 @@ export async function render(main, params, ctx) {
   main.appendChild(h("section", {},
     h("div", { class: "page-head" }, h("h1", {}, "Submit a training task")),
     h("p", { class: "muted" }, "The spec is stored in the content store and its CID goes on chain; the chain then "
-      + "offers the task to the workers with the best QoS that meet your requirements."),
+      + "offers the task first to the best-matching workers that meet your requirements."),
     schema ? null : h("p", { class: "muted", id: "bounds-note" },
       "The gateway's limits could not be read: they are checked when you submit."),
     form, result));

@@ -3,11 +3,13 @@
 // form survives the polling. Experts (MEDC): the models the spec names, with their QoS weight,
 // the MMC model and allocation they came from, and the requester's review of each
 // (POST /models/requests/{alloc_id}/reviews, MMC updateModelRep).
+// Cancelling asks for confirmation first; the timeline's chain values are in human units (ETH,
+// UTC dates, fractions); an outcome links to its model only where that model is listed.
 
 import { api } from "../api.js";
 import { curvePanels } from "../chart.js";
 import {
-  defList, envSummary, errorBox, formatTime, formatWei, h, link, num, rawJson, shortAddr, shortCid,
+  copyButton, defList, envSummary, errorBox, formatTime, formatWei, h, link, num, rawJson, shortAddr, shortCid,
   statusPill,
 } from "../dom.js";
 import { POLL_MS, specCid } from "./tasks.js";
@@ -25,13 +27,47 @@ function eventName(e) {
   return e.name || e.event || e.type || "event";
 }
 
+/** The task page's times: UTC, marked so (the chain's clock; the reader's zone may differ). */
+const utc = (t) => formatTime(t, { utc: true });
+
+// Event args (TasksManager events) in human units; the raw value stays on hover.
+const WEI_ARGS = new Set(["reward", "amount", "price", "weiPerHour", "weiPerModel"]);
+const TIME_ARGS = new Set(["deadline", "expiry"]);
+const FIXED_ARGS = new Set(["qos", "minReputation", "minRating"]); // contract fixed point, 1e6 = 1
+const CID_ARGS = new Set(["cid", "description"]);
+const TASK_STATUS = ["none", "open", "completed", "cancelled", "closed"]; // TasksManager.TaskStatus
+
+function argValue(k, v) {
+  if (typeof v === "string" && /^0x[0-9a-fA-F]{40}$/.test(v)) return shortAddr(v);
+  if (WEI_ARGS.has(k)) return h("span", { class: "eth", title: `${v} wei` }, formatWei(v));
+  if (TIME_ARGS.has(k)) return h("span", { class: "date", title: `${v} (unix time)` }, utc(v));
+  if (FIXED_ARGS.has(k) && Number.isFinite(Number(v))) {
+    return h("span", { title: `${v} on chain (1,000,000 = 1)` }, num(Number(v) / 1e6, 4));
+  }
+  if (CID_ARGS.has(k) && typeof v === "string" && v.length > 20) return shortCid(v);
+  if (k === "status" && TASK_STATUS[v] !== undefined) return TASK_STATUS[v];
+  return typeof v === "object" && v !== null ? JSON.stringify(v) : String(v);
+}
+
+const ARG_LABELS = { qos: "match score", numWorkers: "workers", description: "spec", minCpuCores: "min CPU cores",
+  minRamGb: "min RAM (GB)", weiPerHour: "min reward per hour" };
+/** "minReputation" -> "min reputation". */
+const argLabel = (k) => ARG_LABELS[k] ?? k.replace(/([a-z0-9])([A-Z])/g, "$1 $2").toLowerCase();
+
 function eventDetails(e) {
   const args = e.args || e.data || {};
-  // qos/reputation args are contract fixed point (1e6 = 1); shown as they are on chain.
   return Object.entries(args)
     .filter(([k]) => !["taskId", "task_id"].includes(k))
-    .map(([k, v]) => h("span", { class: "arg" }, `${k}=`,
-      typeof v === "string" && /^0x[0-9a-fA-F]{40}$/.test(v) ? shortAddr(v) : String(v)));
+    .map(([k, v]) => h("span", { class: "arg", "data-arg": k }, `${argLabel(k)}: `, argValue(k, v)));
+}
+
+/** An outcome's model CID: a link to its model page where it is listed (the gateway's model_id);
+ *  else the full CID to copy, with a note that no shared model has it. */
+function outcomeCid(cid, modelId) {
+  if (!cid) return shortCid(cid);
+  if (modelId !== undefined && modelId !== null) return link(`/models/${encodeURIComponent(modelId)}`, shortCid(cid));
+  return h("span", { class: "cid-text" }, h("code", { class: "mono" }, cid), " ", copyButton(cid),
+    h("div", { class: "muted note" }, "Not listed as a shared model (its worker has not shared it)."));
 }
 
 export async function render(main, [id], ctx) {
@@ -44,7 +80,7 @@ export async function render(main, [id], ctx) {
     curve: section("task-curve", "Live training curve"),
     offers: section("task-offers", "Offers"),
     outcomes: section("task-outcomes", "Outcomes"),
-    experts: section("task-experts", "Experts (MEDC)"),
+    experts: section("task-experts", "Expert models"),
     timeline: section("task-timeline", "Timeline"),
   };
   const message = h("div", { id: "task-message" });
@@ -86,6 +122,7 @@ export async function render(main, [id], ctx) {
       return;
     }
     task = t;
+    const outcomes = Array.isArray(t.outcomes) ? t.outcomes : [];
     updated.textContent = `live · updated ${new Date().toLocaleTimeString("en-GB")}`;
     const spec = t.spec || {};
     const me = document.body.dataset.address || "";
@@ -93,7 +130,12 @@ export async function render(main, [id], ctx) {
     head.replaceChildren(h("h1", {}, `Task #${t.id ?? id}`), h("span", { id: "task-status" }, statusPill(t.status)));
     actions.replaceChildren(...(isRequester && String(t.status).toLowerCase() === "open"
       ? [h("button", { type: "button", class: "small danger", id: "cancel-task",
-          onclick: () => act("Cancel", `/tasks/${encodeURIComponent(id)}/cancel`, {}) }, "Cancel task")]
+          onclick: () => {
+            // an on-chain transaction that cannot be undone: ask first
+            if (!window.confirm(`Cancel task #${t.id ?? id}?\n\nThe task is cancelled on chain and its payment `
+              + "refunded to your credit (only while no worker has accepted it). This cannot be undone.")) return;
+            act("Cancel", `/tasks/${encodeURIComponent(id)}/cancel`, {});
+          } }, "Cancel task…")]
       : []));
 
     const cid = specCid(t);
@@ -115,7 +157,7 @@ export async function render(main, [id], ctx) {
         ["Min reputation", t.min_reputation ?? spec.min_reputation],
         ["Min rating", t.min_rating ?? spec.min_rating],
         ["Min CPU / RAM", t.min_cpu_cores !== undefined ? `${t.min_cpu_cores} cores, ${t.min_ram_gb} GB` : undefined],
-        ["Deadline", t.deadline !== undefined ? formatTime(t.deadline) : (spec.deadline_s !== undefined ? `${num(spec.deadline_s)} s` : undefined)],
+        ["Deadline", t.deadline !== undefined ? utc(t.deadline) : (spec.deadline_s !== undefined ? `${num(spec.deadline_s)} s` : undefined)],
         ["Seed", spec.seed],
       ]),
       Object.keys(spec).length ? rawJson("Task spec (JSON)", spec) : null,
@@ -136,13 +178,46 @@ export async function render(main, [id], ctx) {
 
     const offers = Array.isArray(t.offers) ? t.offers : [];
     draw("offers", [JSON.stringify(offers)], () => offers.length
-      ? h("table", { class: "list" }, h("thead", {}, h("tr", {}, ["Worker", "State", "QoS", "Expires"].map((c) => h("th", {}, c)))),
+      ? h("table", { class: "list" }, h("thead", {}, h("tr", {}, ["Worker", "State", "Match score", "Expires"].map((c) => h("th", {}, c)))),
         h("tbody", {}, offers.map((o) => h("tr", { "data-worker": o.worker },
           h("td", {}, shortAddr(o.worker)), h("td", {}, statusPill(o.state ?? o.status)),
-          h("td", { class: "num" }, num(o.qos, 4)), h("td", {}, formatTime(o.expiry ?? o.expires_at))))))
+          h("td", { class: "num", title: "the worker's QoS for this task: the best are offered it first" }, num(o.qos, 4)),
+          h("td", {}, utc(o.expiry ?? o.expires_at))))))
       : h("p", { class: "muted" }, "No offers yet."));
 
-    const outcomes = Array.isArray(t.outcomes) ? t.outcomes : [];
+    const experts = Array.isArray(t.experts) ? t.experts : [];
+    sections.experts.el.hidden = !experts.length;
+    draw("experts", [JSON.stringify(experts), isRequester], () => experts.length
+      ? h("table", { class: "list", id: "experts-table" },
+        h("thead", {}, h("tr", {}, ["Model", "Weight", "Reputation", "Bought in request", "Review", ""].map((c) => h("th", {}, c)))),
+        h("tbody", {}, experts.map((x) => {
+          const reviewed = x.review !== undefined && x.review !== null;
+          let cell = null;
+          if (isRequester && !reviewed && x.alloc_id && x.model_id) {
+            const sel = h("select", { "aria-label": "Expert review 0-5" }, [5, 4, 3, 2, 1, 0].map((v) => h("option", { value: String(v) }, `${v}/5`)));
+            cell = h("span", {}, sel, h("button", { type: "button", class: "small", onclick: () =>
+              act("Expert review", `/models/requests/${encodeURIComponent(x.alloc_id)}/reviews`, { model_id: x.model_id, review: Number(sel.value) }) }, "Review"));
+          }
+          return h("tr", { "data-cid": x.cid },
+            h("td", {}, x.model_id ? link(`/models/${x.model_id}`, shortCid(x.cid)) : shortCid(x.cid)),
+            h("td", { class: "num", title: "the expert's QoS weight in the task's spec" }, x.qos === null || x.qos === undefined ? "equal" : num(x.qos, 4)),
+            h("td", { class: "num" }, num(x.reputation, 3)),
+            h("td", {}, x.alloc_id ? `#${x.alloc_id}` : h("span", { class: "muted" }, "named by CID")),
+            h("td", {}, reviewed ? `${x.review}/5` : h("span", { class: "muted" }, "not reviewed")),
+            h("td", {}, cell));
+        })))
+      : null);
+
+    const timeline = Array.isArray(t.timeline) ? t.timeline : [];
+    draw("timeline", [JSON.stringify(timeline)], () => timeline.length
+      ? h("ol", { class: "timeline", id: "timeline" }, timeline.map((e) => h("li", {},
+        h("span", { class: "when" }, utc(e.block_time ?? e.time ?? e.timestamp)),
+        h("span", { class: "what" }, eventName(e)),
+        (e.block_number ?? e.block) !== undefined ? h("span", { class: "muted", title: e.tx_hash || "" }, ` block ${e.block_number ?? e.block}`) : null,
+        h("span", { class: "args" }, eventDetails(e)),
+        e.error ? h("span", { class: "error", title: e.error }, ` not indexed: ${e.error}`) : null)))
+      : h("p", { class: "muted" }, "No events yet."));
+
     draw("outcomes", [JSON.stringify(outcomes), isRequester], () => outcomes.length
       ? h("table", { class: "list", id: "outcomes-table" },
         h("thead", {}, h("tr", {}, ["Worker", "Model CID", "Review", ""].map((c) => h("th", {}, c)))),
@@ -157,47 +232,12 @@ export async function render(main, [id], ctx) {
           }
           return h("tr", { "data-worker": o.worker },
             h("td", {}, shortAddr(o.worker)),
-            h("td", {}, o.model_id !== undefined && o.model_id !== null
-              ? link(`/models/${o.model_id}`, shortCid(o.cid))
-              : (o.cid ? link(`/models?q=${encodeURIComponent(o.cid)}`, shortCid(o.cid)) : shortCid(o.cid))),
+            h("td", { class: "outcome-cid" }, outcomeCid(o.cid, o.model_id)),
             h("td", {}, reviewed ? `${o.review}/5${o.accepted === false ? " (rejected)" : ""}`
               : h("span", { class: "muted" }, paid ? "not reviewed: paid at close" : "not reviewed")),
             h("td", {}, cell));
         })))
       : h("p", { class: "muted" }, "No outcome submitted yet."));
-
-    const experts = Array.isArray(t.experts) ? t.experts : [];
-    sections.experts.el.hidden = !experts.length;
-    draw("experts", [JSON.stringify(experts), isRequester], () => experts.length
-      ? h("table", { class: "list", id: "experts-table" },
-        h("thead", {}, h("tr", {}, ["Model", "QoS weight", "Reputation", "Allocation", "Review", ""].map((c) => h("th", {}, c)))),
-        h("tbody", {}, experts.map((x) => {
-          const reviewed = x.review !== undefined && x.review !== null;
-          let cell = null;
-          if (isRequester && !reviewed && x.alloc_id && x.model_id) {
-            const sel = h("select", { "aria-label": "Expert review 0-5" }, [5, 4, 3, 2, 1, 0].map((v) => h("option", { value: String(v) }, `${v}/5`)));
-            cell = h("span", {}, sel, h("button", { type: "button", class: "small", onclick: () =>
-              act("Expert review", `/models/requests/${encodeURIComponent(x.alloc_id)}/reviews`, { model_id: x.model_id, review: Number(sel.value) }) }, "Review"));
-          }
-          return h("tr", { "data-cid": x.cid },
-            h("td", {}, x.model_id ? link(`/models/${x.model_id}`, shortCid(x.cid)) : shortCid(x.cid)),
-            h("td", { class: "num" }, x.qos === null || x.qos === undefined ? "equal" : num(x.qos, 4)),
-            h("td", { class: "num" }, num(x.reputation, 3)),
-            h("td", {}, x.alloc_id ? `#${x.alloc_id}` : h("span", { class: "muted" }, "named by CID")),
-            h("td", {}, reviewed ? `${x.review}/5` : h("span", { class: "muted" }, "not reviewed")),
-            h("td", {}, cell));
-        })))
-      : null);
-
-    const timeline = Array.isArray(t.timeline) ? t.timeline : [];
-    draw("timeline", [JSON.stringify(timeline)], () => timeline.length
-      ? h("ol", { class: "timeline", id: "timeline" }, timeline.map((e) => h("li", {},
-        h("span", { class: "when" }, formatTime(e.block_time ?? e.time ?? e.timestamp)),
-        h("span", { class: "what" }, eventName(e)),
-        (e.block_number ?? e.block) !== undefined ? h("span", { class: "muted", title: e.tx_hash || "" }, ` block ${e.block_number ?? e.block}`) : null,
-        h("span", { class: "args" }, eventDetails(e)),
-        e.error ? h("span", { class: "error", title: e.error }, ` not indexed: ${e.error}`) : null)))
-      : h("p", { class: "muted" }, "No events yet."));
   }
 
   await ctx.every(POLL_MS, refresh);
