@@ -23,6 +23,8 @@ from backend.api.slots import ClientSlots
 from backend.auth import User, decode_token
 from backend.indexer import Indexer
 from backend.services.chain import ChainService
+from backend.services.rpc import UNMETERED
+from backend.services.rpc_budget import GasMeter
 from backend.settings import Settings
 from backend.store import ContentStore
 
@@ -107,10 +109,17 @@ def require_metrics_token(request: Request, settings: SettingsDep) -> None:
 
 # -- platform services (set by create_app's lifespan; absent when the chain is disabled) --------
 def get_chain(request: Request) -> ChainService:
+    """The chain service, acting for this request's client: on the embedded chain a remote
+    client's writes draw the executions they run under the chain lock from its ``/rpc`` gas
+    budget (``ChainService.meter``); loopback clients are not metered, as on ``/rpc``."""
     service: ChainService | None = getattr(request.app.state, "chain", None)
     if service is None:
         raise RuleError(503, "chain_unavailable", "the gateway is not connected to a chain")
-    return service
+    rpc = getattr(request.app.state, "rpc", None)
+    client = client_key(request)
+    if rpc is None or client in UNMETERED:
+        return service
+    return service.for_client(GasMeter(rpc.joint_budget(), client, rpc.gas_cap))
 
 
 ChainDep = Annotated[ChainService, Depends(get_chain)]

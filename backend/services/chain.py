@@ -22,6 +22,7 @@ of it, not for every anonymous ``/rpc`` read that keeps arriving after it.
 from __future__ import annotations
 
 import ast
+import dataclasses
 import json
 import os
 import re
@@ -35,6 +36,7 @@ import rlp  # type: ignore[import-untyped]
 from eth_account import Account
 from eth_account.signers.local import LocalAccount
 from eth_account.typed_transactions import TypedTransaction
+from eth_tester.exceptions import TransactionFailed
 from hexbytes import HexBytes
 from web3 import Web3
 from web3.exceptions import TimeExhausted
@@ -51,9 +53,11 @@ from backend.errors import (
     Invalid,
     NotFound,
     PaymentRequired,
+    TooLarge,
     Unavailable,
 )
-from backend.services.rpc_call import unpriced_call
+from backend.services.rpc_budget import GasMeter
+from backend.services.rpc_call import OutOfGas, bounded_estimate, unpriced_call
 from backend.settings import Settings
 
 CONTRACTS_ENV = "DRLAAS_CONTRACTS"
@@ -309,6 +313,13 @@ class ChainService:
     deploy_block: int
     demo_keys: DemoKeys | None = None
     lock: FairRLock = field(default_factory=FairRLock)
+    meter: GasMeter | None = None
+    """The remote client this view acts for (:meth:`for_client`): the executions its writes
+    run on the embedded chain are drawn from its gas budget. None: not metered."""
+
+    def for_client(self, meter: GasMeter | None) -> ChainService:
+        """This service (same chain, platform, keys and lock) acting for one metered client."""
+        return dataclasses.replace(self, meter=meter)
 
     # -- construction -------------------------------------------------------------------------
     @classmethod
@@ -445,7 +456,7 @@ class ChainService:
     ) -> dict[str, Any]:
         w3 = self.chain.w3
         f = handle.contract.functions[fn](*args)
-        gas = handle.estimate(fn, *args, sender=sender, value=value)  # typed revert first
+        gas = self._estimate(sender, handle, fn, args, value)  # typed revert first
         base = w3.eth.get_block("latest").get("baseFeePerGas", 0) or 0
         tx = f.build_transaction(  # type: ignore[arg-type]
             {
@@ -458,7 +469,46 @@ class ChainService:
                 "maxFeePerGas": 2 * base,
             }
         )
+        need = int(tx["gas"]) * int(tx["maxFeePerGas"]) + value
+        have = int(w3.eth.get_balance(sender))  # type: ignore[arg-type]
+        if have < need:  # a transaction its sender could never pay for is not handed out
+            raise PaymentRequired(
+                "insufficient_funds",
+                f"{sender} holds {have} wei; {handle.name}.{fn} may cost up to {need} wei (gas "
+                f"limit x max fee + value): fund the account first",
+            )
         return _jsonable_tx(dict(tx))
+
+    def _estimate(
+        self, sender: str, handle: ContractHandle, fn: str, args: tuple[Any, ...], value: int
+    ) -> int:
+        """The gas of ``handle.fn(*args)`` from ``sender``. For a metered client on the
+        embedded chain: at most a few executions of at most its gas cap (``bounded_estimate``,
+        not eth-tester's bisection from the block gas limit, ~25 runs), each drawn from its
+        budget; refused up front when the budget does not hold one execution at the cap."""
+        tester = self.chain._tester
+        if self.meter is None or tester is None:
+            return handle.estimate(fn, *args, sender=sender, value=value)
+        meter = self.meter
+        meter.check(meter.gas_cap)
+        tx = {
+            "from": sender,
+            "to": handle.address,
+            "data": handle.contract.encode_abi(fn, args=list(args)),
+            "value": value,
+        }
+        try:
+            return bounded_estimate(
+                tester, tx, "pending", gas_cap=meter.gas_cap, charge=meter.charge
+            )
+        except TransactionFailed as exc:
+            raise typed_revert(exc) from None
+        except OutOfGas:
+            raise TooLarge(
+                "gas_cap",
+                f"{handle.name}.{fn} needs more than this gateway's {meter.gas_cap} gas per "
+                f"execution",
+            ) from None
 
     def relay_raw(self, raw: bytes, expected_sender: str, gas_cap: int | None = None) -> Receipt:
         """Relay a transaction the client signed: its recovered sender must be the caller
@@ -493,6 +543,8 @@ class ChainService:
             raise Invalid(
                 "tx_target", f"transaction goes to {to}; only platform contracts: {targets}"
             )
+        if self.meter is not None and self.chain._tester is not None:
+            self.meter.take(tx.gas)  # it runs under the lock: as eth_sendRawTransaction on /rpc
         nonce, max_fee = _nonce_and_max_fee(raw)
         w3 = self.chain.w3
         embedded = self.chain.kind == "embedded"

@@ -254,7 +254,7 @@ class EmbeddedRpc:
         tx, block = params[0], params[1]
         if not is_unpriced(tx):
             self._check_affordable(tx, block)
-        budget = None if client in UNMETERED else self._joint_budget()
+        budget = None if client in UNMETERED else self.joint_budget()
         if budget is not None:
             refused = budget.shortfall(client, self.gas_cap)
             if refused is not None:
@@ -315,7 +315,7 @@ class EmbeddedRpc:
             raise _RpcFailure(
                 SERVER_ERROR, f"gas limit {tx.gas} is over this gateway's cap of {self.gas_cap}"
             )
-        refused = self._joint_budget().take(client, tx.gas)
+        refused = self.joint_budget().take(client, tx.gas)
         if refused is not None:
             raise _gas_used_up(refused)
 
@@ -323,11 +323,11 @@ class EmbeddedRpc:
         """Draw what a read will hold the chain lock for from the client's gas budget, before
         reading (-32005 with the seconds to wait when the bucket does not hold it)."""
         if gas > 0:
-            refused = self._joint_budget().take(client, gas)
+            refused = self.joint_budget().take(client, gas)
             if refused is not None:
                 raise _gas_used_up(refused)
 
-    def _joint_budget(self) -> JointBudget:
+    def joint_budget(self) -> JointBudget:
         """The client's bucket and the gateway-wide one (read at each call: both are
         attributes a test or the route may set after construction)."""
         return JointBudget(self.budget, self.total_budget)

@@ -27,6 +27,8 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import Literal
 
+from backend.errors import RateLimited
+
 MAX_CLIENTS = 10_000
 """Buckets kept at most; full ones are forgotten first (a full bucket is the default)."""
 GATEWAY = "gateway"
@@ -157,3 +159,42 @@ class JointBudget:
     def _draw(self, client: str, gas: int) -> None:
         for _, budget, key in self._buckets(client):
             budget._draw(key, gas, budget._clock())
+
+
+@dataclass(frozen=True)
+class GasMeter:
+    """One remote client's draw on the ``/rpc`` gas budgets, for the executions its ``/api``
+    writes run under the chain lock: the gas estimate of a transaction the gateway hands back
+    to sign (``sign_locally``) and a transaction relayed through ``POST /api/tx``. Without it a
+    client asking again and again for an unsigned ``allocateTask`` held the lock for seconds a
+    request at no cost, stalling every other chain access (docs/platform.md, "Gas budgets")."""
+
+    budget: JointBudget
+    client: str
+    gas_cap: int
+
+    def take(self, gas: int) -> None:
+        """Draw ``gas`` before an execution, or raise :class:`RateLimited` (nothing drawn)."""
+        refused = self.budget.take(self.client, gas)
+        if refused is not None:
+            raise used_up(refused)
+
+    def check(self, gas: int) -> None:
+        """Raise :class:`RateLimited` unless both buckets hold ``gas`` now (nothing drawn)."""
+        refused = self.budget.shortfall(self.client, gas)
+        if refused is not None:
+            raise used_up(refused)
+
+    def charge(self, gas: int) -> None:
+        """Draw the gas an execution used, after it ran."""
+        self.budget.charge(self.client, gas)
+
+
+def used_up(refused: Refusal) -> RateLimited:
+    whose = "all remote clients' together" if refused.bucket == "gateway" else "this client's"
+    return RateLimited(
+        "gas_budget_used",
+        f"{whose} chain execution budget ({refused.per_minute} gas a minute, shared with /rpc) "
+        f"is used up: retry in {refused.wait_s} s",
+        retry_after=refused.wait_s,
+    )
