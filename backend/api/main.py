@@ -25,6 +25,7 @@ from backend.api.errors import document_shared_responses, install_error_handlers
 from backend.api.frontend import mount_docs_redirects, mount_frontend
 from backend.api.limits import BodyLimits
 from backend.api.pagecache import PageCache
+from backend.api.pending_specs import PendingSpecs
 from backend.api.relative_redirects import RelativeRedirects
 from backend.api.routes import api_router, blocks, local, models, rpc, tasks, tx, users, workers
 from backend.api.security_headers import SecurityHeaders
@@ -145,6 +146,7 @@ def create_app(
     # 37 s in the audit); the overall bound is the load shedder's
     app.state.rpc_slots = ClientSlots(10_000, settings.rpc_requests_per_client)
     app.state.nonce_budget = GasBudget(settings.auth_nonces_per_minute)  # one per sign-in msg
+    app.state.pending_specs = PendingSpecs()  # specs stored for addTasks not relayed yet
     install_error_handlers(app)
     # added later = further out. A request counts as in flight once its body is read: bodies
     # sent slowly (each bounded in size and time by BodyLimits) never hold the shedder's

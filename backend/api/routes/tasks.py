@@ -4,6 +4,7 @@ timeline/offers/outcomes/progress, progress points from assigned workers, review
 from __future__ import annotations
 
 import logging
+from collections.abc import Iterable
 from typing import Annotated, Any, Literal
 
 from fastapi import APIRouter, Path, Query, Request, status
@@ -20,6 +21,7 @@ from backend.api.experts import (
     task_experts,
 )
 from backend.api.pagecache import cached_page
+from backend.api.pending_specs import PendingSpecs
 from backend.api.schemas import Address
 from backend.api.writes import catch_up, field_error, receipt_public
 from backend.chain.platform import OfferState, TaskStatus, WorkerStatus
@@ -180,6 +182,7 @@ def check_requester_can_escrow(chain: ChainDep, address: str, escrow_wei: int) -
     responses=rule_responses(400, 401, 402, 403, 409, 422, 503),
 )
 def create_task(
+    request: Request,
     body: TaskCreate,
     user: CurrentUser,
     chain: ChainDep,
@@ -227,7 +230,25 @@ def create_task(
             raise RuleError(422, exc.rule, exc.msg) from None
     check_duration(chain, body.deadline_s)
     check_min_reward(chain, body.payment_wei, body.deadline_s)
-    spec_cid = store.add(canonical_json(spec.to_dict()))
+    # a caller who signs addTask itself may never relay it: a bounded number of its specs may
+    # wait in the store for their task (backend.api.pending_specs)
+    pending: PendingSpecs | None = getattr(request.app.state, "pending_specs", None)
+    if chain.signer(user.address) is None and pending is not None:
+
+        def on_chain(cids: Iterable[str]) -> set[str]:
+            return set(
+                session.scalars(
+                    select(m.TaskRow.description).where(
+                        m.TaskRow.requester == user.address, m.TaskRow.description.in_(list(cids))
+                    )
+                )
+            )
+
+        pending.admit(user.address, on_chain)
+        spec_cid = store.add(canonical_json(spec.to_dict()))
+        pending.add(user.address, spec_cid)
+    else:
+        spec_cid = store.add(canonical_json(spec.to_dict()))
     tmc = chain.platform.tmc
     params = (
         body.domain,
