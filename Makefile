@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 DEMO_OUT ?= runs/demo
 
-.PHONY: setup demo train-demo test test-contracts lint bench-env bench-train bench-table \
+.PHONY: setup demo train-demo test test-python test-contracts lint bench-env bench-train bench-table \
 	bench-ablations bench-recruitment bench-gas zoo clean
 
 $(STAMP): pyproject.toml
@@ -59,7 +59,13 @@ train-demo: setup
 # forge (contracts/node_modules/.bin, npm ci) and slither (venv) for the contract checks.
 FORGE_PATH := PATH=$(CURDIR)/contracts/node_modules/.bin:$(CURDIR)/$(BIN):$$PATH
 
-test: setup test-contracts
+# The contract checks and the Python tests run side by side (-j2; --output-sync prints each
+# one's output whole when it ends): the contract checks are one solc-js compile and slither on
+# one core for about eight minutes, which run in turn had left the other core idle.
+test: setup
+	$(MAKE) --no-print-directory -j2 --output-sync=target test-contracts test-python
+
+test-python: setup
 	$(BIN)/ruff check .
 	$(BIN)/lint-imports  # layers of .importlinter: nothing imports upward
 	# one process per core (-n auto), each file's tests in one process (--dist loadfile): a file's

@@ -105,6 +105,8 @@ CAE: str | None = None
 """--cae: the walls CAE directory of the ``-cae`` methods (trained for the benchmark's grid)."""
 BONUS: float | None = None
 """--bonus: S of Eq. 9 for every sparse-reward run (the presets: 50, Table 4.1)."""
+HORIZON: int | None = None
+"""--horizon: env steps per PPO update of every run instead of the presets' (short runs)."""
 REACH = 1.05
 """A run "reaches" a level when its mean held-out episode length is within 5% of it."""
 CHECKPOINT_EVERY = 10
@@ -112,8 +114,11 @@ CHECKPOINT_EVERY = 10
 
 
 def user_preset(user: str, reward: str, grid: int = 30) -> Any:
-    """``thesis_preset`` with ``--bonus`` as S of the sparse reward (Eq. 9) when given."""
+    """``thesis_preset`` with ``--bonus`` as S of the sparse reward (Eq. 9) and ``--horizon``
+    as the steps per update, when given."""
     preset = thesis_preset(user, reward, grid)
+    if HORIZON is not None:
+        preset = dataclasses.replace(preset, ppo=dataclasses.replace(preset.ppo, horizon=HORIZON))
     if BONUS is None or reward != "sparse":
         return preset
     return dataclasses.replace(preset, env=dataclasses.replace(preset.env, sparse_bonus=BONUS))
@@ -266,7 +271,7 @@ def train_run(task: str, method: str, seed: int, steps: int, experts: list[str],
     trainer.train()
     wall = time.perf_counter() - start + before
     result = {"task": task, "grid": grid, "method": method, "seed": seed,
-              "bonus": float(env.sparse_bonus),
+              "bonus": float(env.sparse_bonus), "horizon": ppo.horizon,
               "steps": trainer.global_step,
               "wall_s": wall, "curve": read_curve(run_dir / "metrics.csv"),
               "heldout": heldout(learner.policy(), env)}
@@ -659,7 +664,7 @@ def run_in_processes(pending: list[tuple[str, str, int]], argv: list[str], jobs:
 
 
 def main(argv: list[str] | None = None) -> int:
-    global HELDOUT_EPISODES, THRESHOLD, BELIEF, ROUTE, CAE, BONUS, MEDC_RATE, ANNEAL
+    global HELDOUT_EPISODES, THRESHOLD, BELIEF, ROUTE, CAE, BONUS, HORIZON, MEDC_RATE, ANNEAL
     global FRL_LOCAL_UPDATES
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--steps", type=int, default=1_000_000)
@@ -702,6 +707,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--bonus", type=float, default=None,
                    help="S of the sparse reward (Eq. 9) instead of the presets' 50: how much "
                    "finding the source is worth against moving; give another --out")
+    p.add_argument("--horizon", type=int, default=None, metavar="N",
+                   help="env steps per PPO update instead of the presets' (e.g. short test "
+                   "runs); give another --out")
     p.add_argument("--cae", default=None,
                    help="walls CAE directory for the -cae methods (drlaas cae train, same grid)")
     p.add_argument("--jobs", type=int, default=1, metavar="N",
@@ -721,6 +729,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.bonus is not None and not args.bonus > 0:
         p.error(f"--bonus must be > 0, got {args.bonus}")
     BONUS = args.bonus
+    if args.horizon is not None and args.horizon < 1:
+        p.error(f"--horizon must be >= 1, got {args.horizon}")
+    HORIZON = args.horizon
     HELDOUT_EPISODES = args.episodes
     THRESHOLD = args.threshold
     if args.rate is not None and not 0.0 < args.rate <= 1.0:
@@ -777,6 +788,10 @@ def main(argv: list[str] | None = None) -> int:
                     if method not in ("sr", "sr-cae") and r.get("bonus", 50.0) != bonus:
                         raise SystemExit(f"{cached} was run with S = {r.get('bonus', 50.0):g}, "
                                          f"not {bonus:g}: give another --out")
+                    horizon = user_preset(task, "sparse", g).ppo.horizon
+                    if r.get("horizon", horizon) != horizon:
+                        raise SystemExit(f"{cached} was run with {r['horizon']} steps per "
+                                         f"update, not {horizon}: give another --out")
                     if method in FRL and r.get("local_updates", 1) != FRL_LOCAL_UPDATES:
                         raise SystemExit(f"{cached} averaged every {r.get('local_updates', 1)} "
                                          f"local update(s), not {FRL_LOCAL_UPDATES}: give "

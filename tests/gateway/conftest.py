@@ -13,11 +13,12 @@ from typing import Any
 
 import pytest
 import uvicorn
+from eth_account import Account
 from fastapi import FastAPI
 from fastapi.testclient import TestClient
 
 from backend.api.main import create_app
-from backend.auth import bearer_headers
+from backend.auth import DemoKeys, bearer_headers
 from backend.services.chain import ChainService
 from backend.settings import Settings
 
@@ -131,6 +132,16 @@ def fund(service: ChainService, address: str, wei: int = 10**18) -> None:
             "maxPriorityFeePerGas": 0,
         }
         w3.eth.send_raw_transaction(admin.sign_transaction(tx).raw_transaction)
+
+
+def signed_in_outsider(client: TestClient, service: ChainService, settings: Any) -> tuple:
+    """(account, headers): a funded key the gateway does not hold (its writes come back to
+    sign), signed in."""
+    account = Account.create()
+    keys = DemoKeys(settings)
+    keys.add("outsider", account)
+    fund(service, account.address)
+    return account, dict(bearer_headers(keys.sign_in(client, "outsider")))
 
 
 def addr(service: ChainService, name: str) -> str:

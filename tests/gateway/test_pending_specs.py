@@ -7,15 +7,13 @@ from __future__ import annotations
 from typing import Any
 
 import pytest
-from eth_account import Account
 from fastapi.testclient import TestClient
 
 from backend.api.pending_specs import PendingSpecs
-from backend.auth import DemoKeys, bearer_headers
 from backend.errors import RateLimited
 from backend.services.chain import ChainService
 
-from .conftest import P, fund, task_body
+from .conftest import P, signed_in_outsider, task_body
 
 
 def test_pending_specs_are_bounded_per_address_until_on_chain_or_old() -> None:
@@ -47,11 +45,7 @@ def test_pending_specs_are_bounded_per_address_until_on_chain_or_old() -> None:
 def test_unrelayed_task_specs_stop_being_stored(
     client: TestClient, service: ChainService, settings: Any
 ) -> None:
-    account = Account.create()
-    keys = DemoKeys(settings)
-    keys.add("outsider", account)
-    fund(service, account.address)
-    headers = dict(bearer_headers(keys.sign_in(client, "outsider")))
+    account, headers = signed_in_outsider(client, service, settings)
 
     def relay(answer: Any) -> None:
         assert answer.status_code == 409 and answer.json()["detail"]["rule"] == "sign_locally"

@@ -11,6 +11,7 @@ Narrow exceptions, each with its reason, are in ``CONFIG`` and ``UNSCHEMATIC_REJ
 
 from __future__ import annotations
 
+import os
 import re
 from collections import defaultdict
 from typing import Any
@@ -29,7 +30,9 @@ from schemathesis.checks import CHECKS, load_all_checks  # noqa: E402
 from schemathesis.config import SchemathesisConfig  # noqa: E402
 from schemathesis.generation import GenerationMode  # noqa: E402
 
-EXAMPLES_PER_OPERATION = 50
+#: 25 per operation and mode in CI (about a minute); DRLAAS_SCHEMATHESIS_EXAMPLES=200 for a
+#: deeper run by hand.
+EXAMPLES_PER_OPERATION = int(os.environ.get("DRLAAS_SCHEMATHESIS_EXAMPLES", "25"))
 #: What a schema-valid request may get besides 2xx: 402 insufficient_funds (a payment larger than
 #: the caller's balance: state, not schema), 401/403/404/409 and the documented 422.
 _SCHEMA_VALID_422 = '["2xx", "401", "402", "403", "404", "409", "422"]'

@@ -18,16 +18,7 @@ from backend.services import rpc_call
 from backend.services.chain import ChainService
 from backend.services.rpc_budget import GasBudget
 
-from .conftest import P, fund
-
-
-def signed_in_outsider(client: TestClient, service: ChainService, settings: Any) -> tuple:
-    """A funded key the gateway does not hold (its writes come back to sign), signed in."""
-    account = Account.create()
-    keys = DemoKeys(settings)
-    keys.add("outsider", account)
-    fund(service, account.address)
-    return account, dict(bearer_headers(keys.sign_in(client, "outsider")))
+from .conftest import P, signed_in_outsider
 
 
 def test_sign_locally_estimates_are_bounded_and_drawn_from_the_clients_budget(

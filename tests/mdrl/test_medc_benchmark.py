@@ -13,12 +13,15 @@ ROOT = Path(__file__).resolve().parents[2]
 METHODS = ("sparse", "medc", "medc-anneal", "medc-credit", "il", "medc-mixed-credit", "il-mixed",
            "frl-mixed", "frl-biased", "medc-cae")
 CAE = ROOT / "models" / "cae-10x10"
+HORIZON = 2048  # steps per update (the presets' 8192 would make each FRL round 8 x 8192 steps)
+STEPS = HORIZON  # one update per run
 
 
 def bench(out: Path, *extra: str, methods: tuple[str, ...] = METHODS
           ) -> subprocess.CompletedProcess:
     cmd = [sys.executable, str(ROOT / "benchmarks" / "medc" / "run.py"), "--grid", "10",
-           "--steps", "4096", "--seeds", "0", "--tasks", "A3W3", "--methods", ",".join(methods),
+           "--steps", str(STEPS), "--horizon", str(HORIZON), "--seeds", "0", "--tasks", "A3W3",
+           "--methods", ",".join(methods),
            "--experts", "oracle,random", "--episodes", "10", "--eval-every", "1",
            "--cae", str(CAE), "--out", str(out), *extra]
     return subprocess.run(cmd, capture_output=True, text=True, timeout=600, cwd=ROOT)
@@ -30,9 +33,10 @@ def test_the_benchmark_runs_every_guided_method_and_reuses_its_cache(tmp_path):
     table = first.stdout
     for m in METHODS:
         assert f"| {m} | 1 |" in table, (m, table)
-        run = json.loads((tmp_path / f"A3W3-10x10-{m}-s0-4096.json").read_text())
+        run = json.loads((tmp_path / f"A3W3-10x10-{m}-s0-{STEPS}.json").read_text())
         # FRL stops at the end of a round of every user's update: at or past the budget
-        assert run["steps"] == 4096 or m.startswith("frl") and run["steps"] >= 4096
+        assert run["steps"] == STEPS or m.startswith("frl") and run["steps"] >= STEPS
+        assert run["horizon"] == HORIZON
         assert run["heldout"]["episodes"] == 10
         assert run["bonus"] == 50.0  # S of Eq. 9 (Table 4.1) unless --bonus
         assert run.get("local_updates") == (1 if m.startswith("frl") else None)
@@ -51,7 +55,7 @@ def test_the_benchmark_runs_every_guided_method_and_reuses_its_cache(tmp_path):
     assert "- medc ends at " in table and "x the fastest expert followed (oracle: " in table
 
     def card(method: str) -> dict:
-        return json.loads((tmp_path / f"A3W3-10x10-{method}-s0-4096" / "model" / "model.json")
+        return json.loads((tmp_path / f"A3W3-10x10-{method}-s0-{STEPS}" / "model" / "model.json")
                           .read_text())
 
     # Fig. 5.8: MEDC and IL are given the same experts, the proper ones plus as many faulty
@@ -88,6 +92,9 @@ def test_the_benchmark_runs_every_guided_method_and_reuses_its_cache(tmp_path):
     # nor runs of FRL averaging every 1 update when every 2 is asked
     k2 = bench(tmp_path, "--frl-local-updates", "2", "--eval-every", "2")
     assert k2.returncode != 0 and "every 1 local update(s), not 2" in k2.stderr, k2.stderr
+    # nor runs of another number of steps per update
+    h = bench(tmp_path, "--horizon", str(HORIZON // 2))
+    assert h.returncode != 0 and f"{HORIZON} steps per update, not {HORIZON // 2}" in h.stderr
 
 
 def test_frl_averaging_every_k_updates_is_evaluated_at_the_same_steps(tmp_path):
@@ -95,14 +102,14 @@ def test_frl_averaging_every_k_updates_is_evaluated_at_the_same_steps(tmp_path):
     --eval-every updates as the other methods are (K must divide it), and records K."""
     bad = bench(tmp_path, "--frl-local-updates", "2", methods=("frl",))  # --eval-every 1
     assert bad.returncode == 2 and "must divide --eval-every" in bad.stderr
-    steps = 3 * 8192  # 3 updates of the preset's 8192 steps: a round of 2, then 1 (cut short)
+    steps = 3 * HORIZON  # 3 updates: a round of 2, then 1 (cut short)
     done = bench(tmp_path, "--frl-local-updates", "2", "--eval-every", "2", "--steps", str(steps),
                  methods=("frl",))
     assert done.returncode == 0, done.stderr[-3000:]
     run = json.loads((tmp_path / f"A3W3-10x10-frl-s0-{steps}.json").read_text())
     assert run["local_updates"] == 2 and run["steps"] == steps
     # evaluated after 2 updates (every --eval-every 2) and at the end, as a lone trainer is
-    assert [p["step"] for p in run["curve"]] == [2 * 8192, steps]
+    assert [p["step"] for p in run["curve"]] == [2 * HORIZON, steps]
     method = json.loads((tmp_path / f"A3W3-10x10-frl-s0-{steps}" / "model" / "model.json")
                         .read_text())["training"]["method"]
     assert method["local_updates"] == 2 and method["rounds"] == 2
@@ -126,7 +133,7 @@ def test_runs_in_parallel_processes_give_the_figures_of_runs_in_turn(tmp_path):
     for m in methods:
         assert f"| {m} | 2 |" in parallel.stdout, parallel.stdout
         for s in (0, 1):
-            name = f"A3W3-10x10-{m}-s{s}-4096"
+            name = f"A3W3-10x10-{m}-s{s}-{STEPS}"
             a, b = (json.loads((tmp_path / d / f"{name}.json").read_text())
                     for d in ("jobs", "turn"))
             assert _figures(a) == _figures(b), name
@@ -146,8 +153,8 @@ def test_a_failed_parallel_run_names_itself_and_its_log_and_spares_the_others(tm
     log = tmp_path / "logs" / "A3W3-medc-s0.log"
     assert "1 of 2 run(s) failed: A3W3 medc seed 0" in r.stderr and str(log) in r.stderr
     assert str(missing) in log.read_text()  # the child's own error names the expert
-    assert (tmp_path / "A3W3-10x10-sparse-s0-4096.json").is_file()
-    assert not (tmp_path / "A3W3-10x10-medc-s0-4096.json").exists()
+    assert (tmp_path / f"A3W3-10x10-sparse-s0-{STEPS}.json").is_file()
+    assert not (tmp_path / f"A3W3-10x10-medc-s0-{STEPS}.json").exists()
     assert "A3W3 sparse seed 0: done in " in r.stderr and "A3W3 medc seed 0: done" not in r.stderr
     bad = bench(tmp_path, "--jobs", "0", methods=("sparse",))
     assert bad.returncode == 2 and "--jobs must be >= 1, got 0" in bad.stderr
