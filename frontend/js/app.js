@@ -1,5 +1,6 @@
 // Client-side router, navigation and the sign-in bar. Each page module exports
-// render(main, params, ctx); ctx.every(ms, fn) polls until the user navigates away.
+// render(main, params, ctx); ctx.every(ms, fn) polls until the user navigates away (and not
+// while the tab is hidden).
 
 import { api, ApiError, getToken, setToken } from "./api.js";
 import { clear, h, shortAddr } from "./dom.js";
@@ -30,12 +31,15 @@ function stopCurrent() {
 }
 
 function makeContext() {
-  const ctx = { controller: new AbortController(), timers: new Set(), stopped: false };
+  const ctx = { controller: new AbortController(), timers: new Set(), paused: new Set(), stopped: false };
   ctx.signal = ctx.controller.signal;
-  /** Run fn now and then every ms after it settles (no overlapping requests), until navigation. */
+  /** Run fn now and then every ms after it settles (no overlapping requests), until navigation.
+   * While the browser tab is hidden nothing is fetched: the poll waits and runs again as soon
+   * as the tab is shown (a page left open in a background tab costs the gateway nothing). */
   ctx.every = (ms, fn) => {
     const tick = async () => {
       if (ctx.stopped) return;
+      if (document.hidden) { ctx.paused.add(tick); return; }
       try { await fn(); } catch (err) { if (err.name !== "AbortError") console.error(err); }
       if (!ctx.stopped) {
         const t = setTimeout(() => { ctx.timers.delete(t); tick(); }, ms);
@@ -46,6 +50,13 @@ function makeContext() {
   };
   return ctx;
 }
+
+document.addEventListener("visibilitychange", () => {
+  if (document.hidden || !current) return;
+  const waiting = [...current.paused];
+  current.paused.clear();
+  waiting.forEach((tick) => tick());
+});
 
 export function navigate(href, { replace = false } = {}) {
   if (replace) history.replaceState(null, "", href);

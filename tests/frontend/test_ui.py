@@ -334,6 +334,30 @@ def test_polling_stops_when_leaving_the_page(
     assert len(state.queries("/api/tasks")) == before
 
 
+def test_polling_pauses_while_the_tab_is_hidden(
+    page: Any, server: LiveServer, state: FakeState
+) -> None:
+    page.goto(f"{server.url}/tasks")
+    expect(page.locator("#tasks-table")).to_be_visible()
+    show = """hidden => {
+        Object.defineProperty(document, "hidden", {configurable: true, get: () => hidden});
+        Object.defineProperty(document, "visibilityState", {configurable: true,
+            get: () => hidden ? "hidden" : "visible"});
+        document.dispatchEvent(new Event("visibilitychange"));
+    }"""
+    page.evaluate(show, True)
+    page.wait_for_timeout(500)  # a request already under way may still land
+    before = len(state.queries("/api/tasks"))
+    page.wait_for_timeout(4500)  # two poll periods
+    assert len(state.queries("/api/tasks")) == before
+    page.evaluate(show, False)  # shown again: polled at once, not a period later
+    page.wait_for_timeout(800)
+    resumed = len(state.queries("/api/tasks"))
+    assert resumed > before
+    page.wait_for_timeout(2500)
+    assert len(state.queries("/api/tasks")) > resumed  # and polling goes on
+
+
 def test_task_page_shows_timeline_offers_outcomes_and_live_curve(
     page: Any, server: LiveServer, state: FakeState
 ) -> None:
