@@ -86,7 +86,7 @@ def contracts_command(
     ] = 1,
     timeout: Annotated[float, typer.Option(min=1, help="seconds to wait for the chain")] = 600,
     cpu_workers: Annotated[
-        bool, typer.Option(help="accept workers without a GPU (GPU series 0)")
+        bool, typer.Option("--cpu-workers", help="accept workers without a GPU (GPU series 0)")
     ] = False,
 ) -> None:
     """Wait for the chain, deploy UMC/TMC/MMC once and write contracts.json."""

@@ -115,18 +115,35 @@ SOURCE_MARKUP = re.compile(r"``|:[a-z]+:`|\.\. [a-z-]+::")
 prints a command's docstring as its help, where the markup reaches the user as it is."""
 
 
+def command_paths(cmd, path=()):
+    """Every command of a click group, as argv prefixes (the group itself first)."""
+    yield list(path)
+    for name, sub in sorted(getattr(cmd, "commands", {}).items()):
+        yield from command_paths(sub, [*path, name])
+
+
+def test_no_option_name_is_cut_off_at_80_columns():
+    """A `--flag/--no-flag` pair widened the names column of `drlaas task submit --help` until
+    Rich cut `--public-outcome` to `--public-outco…` and squeezed every help text to a few
+    words a line."""
+    from drlaas.cli import app
+
+    runner, cut = CliRunner(), []
+    for path in command_paths(typer.main.get_command(app)):
+        res = runner.invoke(app, [*path, "--help"], env={"COLUMNS": "80"})
+        assert_clean_exit(res, 0)
+        cut += [f"drlaas {' '.join(path)}: {line.strip()}"
+                for line in res.output.splitlines() if re.search(r"--[\w-]*…", line)]
+    assert not cut, "\n".join(cut)
+
+
 def test_no_help_text_shows_docstring_markup():
     """Every `drlaas` command's --help (the platform's and the core's) is plain text: `drlaas
     model push --help` showed ``experts`` (user audit)."""
     from drlaas.cli import app
 
-    def paths(cmd, path):
-        yield path
-        for name, sub in sorted(getattr(cmd, "commands", {}).items()):
-            yield from paths(sub, [*path, name])
-
     runner, marked = CliRunner(), []
-    for path in paths(typer.main.get_command(app), []):
+    for path in command_paths(typer.main.get_command(app)):
         res = runner.invoke(app, [*path, "--help"], env={"COLUMNS": "200"})
         assert_clean_exit(res, 0)
         marked += [f"drlaas {' '.join(path)}: {line.strip()}"

@@ -232,6 +232,7 @@ def task_submit(
     expert_credit: Annotated[
         bool,
         typer.Option(
+            "--expert-credit",  # a flag alone: a --no- twin widened every row of --help
             help="expert credit rule: PPO learns from an expert only once its episodes are "
             "shorter than the agents' own, and unhelpful experts fade out (resilience to "
             "faulty shared models; not in Alg. 5.1)"
@@ -247,6 +248,7 @@ def task_submit(
     public_outcome: Annotated[
         bool,
         typer.Option(
+            "--public-outcome",
             help="let the outcome's weights be public (default: sealed to your key, "
             "readable by you only until the worker shares the model)"
         ),
