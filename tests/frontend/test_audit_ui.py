@@ -238,3 +238,16 @@ def test_the_leaderboard_is_live_and_keeps_the_users_place(
     left = len(state.queries("/api/workers"))
     page.wait_for_timeout(4500)
     assert len(state.queries("/api/workers")) == left
+
+
+@pytest.mark.parametrize("path", ["/models", "/models/1", "/tasks", "/tasks/1", "/workers"])
+def test_no_page_scrolls_sideways_on_a_phone(
+    page: Any, server: LiveServer, path: str
+) -> None:
+    """A table wider than a phone scrolls in its own box; the page itself never scrolls
+    sideways (the workers and models lists did: the whole page moved under the thumb)."""
+    page.set_viewport_size({"width": 360, "height": 800})
+    page.goto(f"{server.url}{path}")
+    expect(page.locator("table.list").first).to_be_visible()
+    width = page.evaluate("document.documentElement.clientWidth")
+    assert page.evaluate("document.documentElement.scrollWidth") <= width, path

@@ -49,7 +49,7 @@ function figuresRow(reading, policy, label, f, oracleTime) {
 }
 
 function heldoutTable(held) {
-  return h("div", {},
+  return h("div", { class: "table-scroll" },
     h("table", { class: "list", id: "heldout-table" },
       h("thead", {}, h("tr", {}, ["Policy", "Success", "Time (steps, 95% CI)", "Cost (moves, 95% CI)",
         "Time / oracle"].map((c) => h("th", {}, c)))),
@@ -172,7 +172,8 @@ export async function render(main, [id], ctx) {
         ["Environment", Array.isArray(m.env) ? envSummary(m.env) : undefined],
       ])),
       h("div", { class: "panel", id: "model-provenance" }, h("h2", {}, "Provenance"), provenance(m))),
-    h("div", { class: "panel" }, h("h2", {}, "Latest model requests"), requestsTable(m.requests)),
+    h("div", { class: "panel" }, h("h2", {}, "Latest model requests"),
+      h("div", { class: "table-scroll" }, requestsTable(m.requests))),
 
     h("div", { class: "panel", id: "model-card" }, h("h2", {}, "Card"), defList([
       ["Format", card.format],

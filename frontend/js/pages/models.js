@@ -21,7 +21,7 @@ export function filtersFromUrl() {
 export async function render(main, _params, ctx) {
   document.title = "Models · DRLaaS";
   const values = filtersFromUrl();
-  const results = h("div", { id: "models-results" });
+  const results = h("div", { id: "models-results", class: "table-scroll" });
   const countEl = h("span", { class: "muted", id: "models-count" });
   let timer = null;
   let seq = 0;

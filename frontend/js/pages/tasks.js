@@ -53,7 +53,7 @@ export async function render(main, _params, ctx) {
     STATUSES.map((st) => h("option", { value: st }, st || "any status")));
   const mine = h("input", { type: "checkbox", name: "mine", id: "task-mine", checked: p.get("mine") === "1", disabled: !me });
   const updated = h("span", { class: "muted", id: "tasks-updated" });
-  const body = h("div", { id: "tasks-results" });
+  const body = h("div", { id: "tasks-results", class: "table-scroll" });
   let tbody = null;
 
   const pages = h("div", { id: "tasks-pages" });

@@ -38,7 +38,7 @@ function counters(w) {
 export async function render(main, _params, ctx) {
   document.title = "Workers · DRLaaS";
   const p = new URLSearchParams(location.search);
-  const results = h("div", { id: "workers-results" });
+  const results = h("div", { id: "workers-results", class: "table-scroll" });
   const pages = h("div", { id: "workers-pages" });
   const countEl = h("span", { class: "muted" });
   const updated = h("span", { class: "muted", id: "workers-updated" });
