@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 DEMO_OUT ?= runs/demo
 
-.PHONY: setup demo train-demo test test-python test-contracts lint bench-env bench-train bench-table \
+.PHONY: setup demo train-demo test test-python test-benchmarks test-contracts lint bench-env bench-train bench-table \
 	bench-ablations bench-recruitment bench-gas zoo clean
 
 $(STAMP): pyproject.toml
@@ -71,12 +71,20 @@ test-python: setup
 	# one process per core (-n auto), each file's tests in one process (--dist loadfile): a file's
 	# module fixtures are built once and its own Redis database is used by one process only.
 	# --durations: the slowest tests, because CI must stay under 30 minutes
-	$(BIN)/python -m pytest -q -n auto --dist loadfile --durations=20
+	$(BIN)/python -m pytest -q -n auto --dist loadfile -m "not benchmark" --durations=20
+
+# Tests that train for real to check a benchmark (benchmarks/medc/run.py end to end on tiny
+# budgets, DC's learning-speed claim): kept out of CI's 30 minutes.
+test-benchmarks: setup
+	$(BIN)/python -m pytest -q -n auto --dist loadfile -m benchmark
 
 # Foundry fuzz tests and invariants (foundry.toml: 10,000 calls per invariant), the per-function
 # gas snapshot against the committed one (isolated transactions, thesis bounds asserted), and
 # Slither with the zero-High / zero-unexplained-Medium gate.
 test-contracts: setup
+	# one compile of everything (forge test alone leaves GasTest out and snapshot compiles it
+	# with the contracts again: 1.5 min more of solc-js)
+	cd contracts && $(FORGE_PATH) forge build
 	cd contracts && $(FORGE_PATH) forge test --no-match-contract GasTest
 	cd contracts && $(FORGE_PATH) FORGE_SNAPSHOT_CHECK=true forge snapshot --isolate --match-contract GasTest --check
 	$(FORGE_PATH) $(BIN)/python contracts/foundry/slither_gate.py

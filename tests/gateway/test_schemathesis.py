@@ -30,9 +30,9 @@ from schemathesis.checks import CHECKS, load_all_checks  # noqa: E402
 from schemathesis.config import SchemathesisConfig  # noqa: E402
 from schemathesis.generation import GenerationMode  # noqa: E402
 
-#: 25 per operation and mode in CI (about a minute); DRLAAS_SCHEMATHESIS_EXAMPLES=200 for a
+#: 20 per operation and mode in CI (about a minute); DRLAAS_SCHEMATHESIS_EXAMPLES=200 for a
 #: deeper run by hand.
-EXAMPLES_PER_OPERATION = int(os.environ.get("DRLAAS_SCHEMATHESIS_EXAMPLES", "25"))
+EXAMPLES_PER_OPERATION = int(os.environ.get("DRLAAS_SCHEMATHESIS_EXAMPLES", "20"))
 #: What a schema-valid request may get besides 2xx: 402 insufficient_funds (a payment larger than
 #: the caller's balance: state, not schema), 401/403/404/409 and the documented 422.
 _SCHEMA_VALID_422 = '["2xx", "401", "402", "403", "404", "409", "422"]'

@@ -556,7 +556,7 @@ def test_moves_are_matched_by_direction():
 # ---------------------------------------------------------------------------- learning
 
 
-@pytest.mark.slow
+@pytest.mark.benchmark  # 8 training runs: a learning-speed claim, make test-benchmarks
 def test_dc_with_the_oracle_learns_faster_than_plain_ppo():
     """Sparse reward (Eq. 9), 8x8, 2 agents, 16k steps: with DC (rate 0.5) the greedy policy
     finds the target far more often. Measured (200 held-out episodes each, binomial s.e.

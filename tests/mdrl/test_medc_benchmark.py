@@ -9,6 +9,9 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
+
+pytestmark = pytest.mark.benchmark  # `make test-benchmarks`: they train, three minutes in all
 ROOT = Path(__file__).resolve().parents[2]
 METHODS = ("sparse", "medc", "medc-anneal", "medc-credit", "il", "medc-mixed-credit", "il-mixed",
            "frl-mixed", "frl-biased", "medc-cae")
