@@ -171,6 +171,12 @@ class TaskRow(Base):
     min_ram_gb: Mapped[int] = mapped_column(BigInteger)
     description: Mapped[str] = mapped_column(String(512))
     spec: Mapped[dict[str, Any] | None] = mapped_column(JSON, default=None)
+    spec_state: Mapped[str] = mapped_column(
+        String(8), default="pending", server_default="pending", index=True
+    )
+    """pending (to be read from the store), read, none (the description is no CID), invalid (no
+    task spec), missing (not found in ``SPEC_TRIES`` reads): backend.indexer."""
+    spec_tries: Mapped[int] = mapped_column(Integer, default=0, server_default="0")
     status: Mapped[str] = mapped_column(String(16), index=True)
     offered: Mapped[int] = mapped_column(Integer, default=0)
     block_number: Mapped[int] = mapped_column(BigInteger)

@@ -11,8 +11,12 @@ Guarantees:
 * ``confirmations`` blocks are left unprocessed at the head (real nodes may reorganise);
 * ``on_offer(task_id, worker)`` is called for every ``TaskOffered`` before the batch commits:
   at-least-once (a crash after the hook repeats it; the job key ``offer:<task>:<worker>``
-  makes the job idempotent), never lost. A failing hook rolls the batch back for a retry, and
-  so does a content store that cannot be reached while a task's spec is read;
+  makes the job idempotent), never lost. A failing hook rolls the batch back for a retry;
+* the content store never holds up an event: a task is indexed ``pending`` and its spec is read
+  after the batch (:meth:`Indexer.fill_specs`, within a time budget per poll, with a short find
+  timeout, fewest reads first), so a description naming a CID nobody holds costs one short read
+  per poll, ``SPEC_TRIES`` in all, instead of stopping every later event; a store that is down
+  leaves specs pending for the next poll, never "no spec";
 * one event's rows that the database cannot hold (a value out of a column's range, a row that
   violates a constraint) never stop the index: each event is applied in a SAVEPOINT, and such
   an event is kept in ``chain_events`` with its ``error``, without its rows;
@@ -29,11 +33,12 @@ from __future__ import annotations
 import logging
 import math
 import threading
+import time
 from collections.abc import Callable, Iterable
-from typing import Any, cast
+from typing import Any
 
 from hexbytes import HexBytes
-from sqlalchemy import delete, select
+from sqlalchemy import delete, select, update
 from sqlalchemy.exc import DataError, IntegrityError
 from sqlalchemy.orm import Session, sessionmaker
 from web3.exceptions import BlockNotFound
@@ -43,7 +48,8 @@ from backend.chain.qos import mmc_reputation_fixed, rating_fixed, reputation_fix
 from backend.db import models as m
 from backend.services.chain import ChainService
 from backend.services.specs import load_json_doc, summarize_env
-from backend.store import ContentStore, StoreUnavailable
+from backend.store import ContentStore, NotFound, StoreUnavailable
+from backend.store.cid import CID
 from workers.mdrl.trainingspec import MAX_SPEC_BYTES, TRAINING_SPEC_FORMAT, TrainingSpec
 
 log = logging.getLogger(__name__)
@@ -71,6 +77,16 @@ TASK_TYPE_TRAINING, TASK_TYPE_SHARING = 0, 1
 KEPT_BLOCK_HASHES = 256  # how far back a chain that went back can be followed block by block
 HANDED_OVER = "offers_handed_over"  # IndexMeta: offers up to this block reached on_offer
 INT64_MAX = 2**63 - 1
+SPEC_TRIES = 3
+"""Reads of a task's spec that found nothing before the task is marked ``missing``."""
+SPEC_FIND_TIMEOUT_S = 2.0
+"""How long one spec read may look for an absent CID on an IPFS node (the node's default is 10
+s; a spec posted through the gateway is on its own node and is found at once)."""
+SPEC_BUDGET_S = 1.0
+"""Time one poll spends reading pending specs after its events: a read starts only within it,
+so a poll takes at most this plus one read longer than its events."""
+SPEC_BATCH = 64
+"""Pending tasks one poll looks at, at most."""
 UNSTORABLE = (DataError, IntegrityError, ValueError, TypeError, KeyError, ArithmeticError)
 """What an event's own data can make a handler raise, directly or as the ``orig`` of a
 SQLAlchemy error (deterministic: retrying never helps); anything else (the database or the store
@@ -107,6 +123,8 @@ class Indexer:
         on_offer: OfferHook | None = None,
         batch_blocks: int = 500,
         store: ContentStore | None = None,
+        spec_budget_s: float = SPEC_BUDGET_S,
+        spec_find_timeout_s: float = SPEC_FIND_TIMEOUT_S,
     ) -> None:
         if confirmations < 0:
             raise ValueError(f"confirmations must be >= 0, got {confirmations}")
@@ -118,6 +136,8 @@ class Indexer:
         self.on_offer: OfferHook = on_offer or _noop
         self.batch_blocks = batch_blocks
         self.store = store
+        self._spec_store = store.with_find_timeout(spec_find_timeout_s) if store else None
+        self.spec_budget_s = spec_budget_s
         self._poll_lock = threading.Lock()
         self._checked_anchor = False
         p = service.platform
@@ -230,7 +250,8 @@ class Indexer:
         return self.service.block_number() - self.confirmations
 
     def poll(self) -> int:
-        """Apply every confirmed event after the cursor; returns how many were applied."""
+        """Apply every confirmed event after the cursor, then read pending task specs within
+        ``spec_budget_s``; returns how many events were applied."""
         with self._poll_lock:
             if not self._checked_anchor:
                 self.check_anchor()
@@ -242,7 +263,76 @@ class Indexer:
                 to = min(head, start + self.batch_blocks)
                 applied += self._batch(start + 1, to)
                 start = to
+            self.fill_specs()
             return applied
+
+    def fill_specs(self, budget_s: float | None = None) -> int:
+        """Read the specs of ``pending`` tasks, fewest reads first (a new task is not queued
+        behind CIDs that were not found), starting reads only within ``budget_s`` (default
+        ``spec_budget_s``); returns how many specs were read. Each task is updated in its own
+        transaction; a store that is down ends the round and leaves the rest pending."""
+        if self._spec_store is None:
+            return 0
+        with self.sessions() as s:
+            pending = s.execute(
+                select(m.TaskRow.id, m.TaskRow.description, m.TaskRow.spec_tries)
+                .where(m.TaskRow.spec_state == "pending")
+                .order_by(m.TaskRow.spec_tries, m.TaskRow.id)
+                .limit(SPEC_BATCH)
+            ).all()
+        give_up = time.monotonic() + (self.spec_budget_s if budget_s is None else budget_s)
+        read = 0
+        for task_id, cid, tries in pending:
+            if time.monotonic() >= give_up:
+                break
+            try:
+                values = self._read_spec(cid, tries)
+            except (StoreUnavailable, TimeoutError, ConnectionError) as exc:
+                log.warning("indexer: task specs stay pending, the store is unavailable: %s", exc)
+                break
+            read += self._set_spec(task_id, values) == "read"
+        return read
+
+    def _read_spec(self, cid: str, tries: int) -> dict[str, Any]:
+        """The columns a read of the spec behind ``cid`` sets (anyone can addTask with any
+        document, and the listing and task pages read what is indexed)."""
+        assert self._spec_store is not None
+        try:
+            doc = load_json_doc(
+                self._spec_store, cid, max_size=MAX_SPEC_BYTES, fmt=TRAINING_SPEC_FORMAT
+            )
+            TrainingSpec.from_dict(doc)
+        except (StoreUnavailable, TimeoutError, ConnectionError):
+            raise
+        except NotFound as exc:  # absent, or not found within the find timeout: maybe later
+            state = "missing" if tries + 1 >= SPEC_TRIES else "pending"
+            log.info("indexer: task spec %s not found (read %d of %d): %s", cid, tries + 1,
+                     SPEC_TRIES, exc)
+            return {"spec_state": state, "spec_tries": tries + 1}
+        except Exception as exc:  # not a spec: keep the raw text only
+            log.info("indexer: task description %r is not a readable task spec: %s", cid, exc)
+            return {"spec_state": "invalid", "spec_tries": tries + 1}
+        return {"spec": _json_safe(doc), "spec_state": "read", "spec_tries": tries + 1}
+
+    def _set_spec(self, task_id: int, values: dict[str, Any]) -> str:
+        """Write ``values`` on a task still ``pending`` (another poller may have read it); a
+        spec the database refuses marks the task ``invalid``. Returns the state written."""
+        still_pending = (m.TaskRow.id == task_id, m.TaskRow.spec_state == "pending")
+        with self.sessions() as s:
+            try:
+                s.execute(update(m.TaskRow).where(*still_pending).values(**values))
+                s.commit()
+                return str(values["spec_state"])
+            except Exception as exc:  # NaN/NUL the database refuses arrive wrapped (orig)
+                if not isinstance(exc, UNSTORABLE) and not isinstance(
+                    getattr(exc, "orig", None), UNSTORABLE
+                ):
+                    raise
+                s.rollback()
+                log.info("indexer: task %d's spec cannot be stored: %s", task_id, exc)
+            s.execute(update(m.TaskRow).where(*still_pending).values(spec_state="invalid"))
+            s.commit()
+            return "invalid"
 
     def _fetch(
         self, from_block: int, to_block: int
@@ -459,29 +549,15 @@ class Indexer:
                 min_cpu_cores=a["minCpuCores"],
                 min_ram_gb=a["minRamGb"],
                 description=_text(a["description"], 512),
-                spec=self._task_spec(str(a["description"])),
+                spec=None,  # read after the batch: fill_specs
+                spec_state="pending" if _is_cid(str(a["description"])) else "none",
+                spec_tries=0,
                 status=TaskStatus.OPEN.name.lower(),
                 offered=0,
                 block_number=block,
                 updated_block=block,
             )
         )
-
-    def _task_spec(self, cid: str) -> dict[str, Any] | None:
-        """The task spec document behind a description CID, when the store has it and it is a
-        valid spec (``TrainingSpec``: anyone can addTask with any document, and the listing and
-        task pages read what is indexed)."""
-        if self.store is None or not cid:
-            return None
-        try:
-            doc = load_json_doc(self.store, cid, max_size=MAX_SPEC_BYTES, fmt=TRAINING_SPEC_FORMAT)
-            TrainingSpec.from_dict(doc)
-            return cast(dict[str, Any], _json_safe(doc))
-        except (StoreUnavailable, TimeoutError, ConnectionError):
-            raise  # the store is down, the spec may be fine: roll the batch back, retry later
-        except Exception as exc:  # not a CID, not stored here, not a spec: keep the raw text
-            log.info("indexer: task description %r is not a readable task spec: %s", cid, exc)
-            return None
 
     def _offer(self, s: Session, a: dict[str, Any]) -> m.OfferRow | None:
         return s.get(m.OfferRow, (int(a["taskId"]), a["worker"]))
@@ -652,6 +728,15 @@ class IndexerThread:
     def stop(self, timeout: float = 10.0) -> None:
         self._stop.set()
         self._thread.join(timeout)
+
+
+def _is_cid(text: str) -> bool:
+    """Whether a task description names content (a CID) rather than being plain text."""
+    try:
+        CID.parse(text)
+    except Exception:
+        return False
+    return True
 
 
 def _clamp64(value: Any) -> int:

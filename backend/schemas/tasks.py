@@ -256,8 +256,17 @@ class TaskExpertPublic(BaseModel):
     review: int | None = Field(description="the requester's review in that allocation")
 
 
+SpecState = Literal["pending", "read", "none", "invalid", "missing"]
+
+
 class TaskDetailPublic(TaskPublic):
     spec: dict[str, Any] | None
+    spec_state: SpecState = Field(
+        default="read",
+        description="where the spec stands in the index: pending (not read from the store yet), "
+        "read, none (the description is no CID), invalid (not a task spec), missing (the "
+        "store did not find it)",
+    )
     experts: list[TaskExpertPublic] = Field(default_factory=list)
     timeline: list[EventPublic]
     offers: list[OfferPublic]

@@ -134,6 +134,12 @@ class ContentStore(ABC):
     def ping(self) -> dict[str, str]:
         """Cheap health check (backend kind and version); :class:`StoreUnavailable` if down."""
 
+    def with_find_timeout(self, seconds: float) -> ContentStore:
+        """This store with reads that give up looking for an absent CID after ``seconds``
+        (what a caller that must not wait long uses: the indexer reading task specs). A store
+        whose reads never search a network answers at once and returns itself."""
+        return self
+
     def close(self) -> None:  # noqa: B027 - optional hook, most backends hold nothing
         """Release connections/resources (no-op by default)."""
 

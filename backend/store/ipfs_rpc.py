@@ -12,6 +12,7 @@ CID, with the size bound enforced while bytes arrive.
 
 from __future__ import annotations
 
+import copy
 import json
 import random
 import re
@@ -125,6 +126,16 @@ class IpfsRpcStore(ContentStore):
 
     def close(self) -> None:
         self._client.close()
+
+    def with_find_timeout(self, seconds: float) -> IpfsRpcStore:
+        """The same node and HTTP client, with the node told to give up looking after at most
+        ``seconds`` (never longer than this store's own ``find_timeout``). It shares the
+        client: close the original, not the copy."""
+        if not seconds > 0:
+            raise ValueError(f"find timeout must be > 0 s, got {seconds}")
+        quick = copy.copy(self)
+        quick.find_timeout = min(self.find_timeout, seconds)
+        return quick
 
     # -- HTTP plumbing -----------------------------------------------------------------------------
     def _retrying(self, what: str, call: Callable[[], T]) -> T:

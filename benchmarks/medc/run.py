@@ -124,6 +124,12 @@ def user_preset(user: str, reward: str, grid: int = 30) -> Any:
     return dataclasses.replace(preset, env=dataclasses.replace(preset.env, sparse_bonus=BONUS))
 
 
+def method_reward(method: str) -> str:
+    """The reward a benchmark method trains on: SR's shaped Eq. 8, every other method the
+    task's sparse Eq. 9 (the experts, not the reward, are what differs)."""
+    return "sr" if method in ("sr", "sr-cae") else "sparse"
+
+
 def thesis_preset(user: str, reward: str, grid: int = 30) -> Any:
     """The Ch. 4 preset of a thesis user name such as A3W2 (agents 3, walls 2), on a
     ``grid`` x ``grid`` map of 50 m cells (30 = the thesis; smaller grids are the same setting
@@ -196,7 +202,7 @@ def faulty_users(task: str, seed: int, actions: int, method: str = "frl-mixed"
 def train_run(task: str, method: str, seed: int, steps: int, experts: list[str],
               qos: list[float], eval_every: int, out: Path, grid: int) -> dict[str, Any]:
     """Train one (task, method, seed) and return its curve and held-out figures."""
-    preset = user_preset(task, "sr" if method in ("sr", "sr-cae") else "sparse", grid)
+    preset = user_preset(task, method_reward(method), grid)
     env, obs, ppo = preset.env, preset.observation, preset.ppo
     if method.endswith("-cae"):
         from workers.mdrl.cae import load_cae_card
@@ -784,11 +790,12 @@ def main(argv: list[str] | None = None) -> int:
                 cached = cache(task, method, seed)
                 if cached.is_file():
                     r = json.loads(cached.read_text())
-                    bonus = float(user_preset(task, "sparse", g).env.sparse_bonus)
-                    if method not in ("sr", "sr-cae") and r.get("bonus", 50.0) != bonus:
+                    preset = user_preset(task, method_reward(method), g)
+                    bonus = float(preset.env.sparse_bonus)
+                    if method_reward(method) == "sparse" and r.get("bonus", 50.0) != bonus:
                         raise SystemExit(f"{cached} was run with S = {r.get('bonus', 50.0):g}, "
                                          f"not {bonus:g}: give another --out")
-                    horizon = user_preset(task, "sparse", g).ppo.horizon
+                    horizon = preset.ppo.horizon
                     if r.get("horizon", horizon) != horizon:
                         raise SystemExit(f"{cached} was run with {r['horizon']} steps per "
                                          f"update, not {horizon}: give another --out")

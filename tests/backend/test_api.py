@@ -18,7 +18,7 @@ def test_health_reports_services_and_schema(settings: Settings) -> None:
     assert r.status_code == 200
     body = r.json()
     assert body["status"] == "ok" and body["database"] == "ok"
-    assert body["schema_revision"] == "0003"  # migrated on start (the latest migration)
+    assert body["schema_revision"] == "0004"  # migrated on start (the latest migration)
     assert body["services"] == {
         "chain": "embedded",
         "ipfs": "embedded",

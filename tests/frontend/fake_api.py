@@ -338,6 +338,7 @@ def task(
         "description": CID_SPEC,
         "offered": len(detail.get("offers", [])),
         "spec": spec,
+        "spec_state": "read",
         "timeline": [],
         "offers": [],
         "outcomes": [],

@@ -100,6 +100,24 @@ def test_model_without_heldout_shows_its_final_evaluation(
     expect(page.locator("#model-selected")).to_have_count(0)  # its last policy
 
 
+@pytest.mark.parametrize(
+    ("state_name", "note"),
+    [("pending", "not read from the content store yet"), ("missing", "could not find it"),
+     ("invalid", "not a task spec")],
+)
+def test_a_task_without_its_spec_says_why(
+    page: Any, server: LiveServer, state: FakeState, state_name: str, note: str
+) -> None:
+    """The task page of a task whose spec the index has not got says why (spec_state), next to
+    the CID; a task with its spec shows no such note."""
+    state.task(1).update(spec=None, env=None, spec_state=state_name)
+    page.goto(f"{server.url}/tasks/1")
+    expect(page.locator("#task-spec-state")).to_contain_text(note)
+    page.goto(f"{server.url}/tasks/2")
+    expect(page.locator("#task-spec-cid")).to_be_visible()
+    expect(page.locator("#task-spec-state")).to_have_count(0)
+
+
 def test_task_list_shows_each_tasks_environment(
     page: Any, server: LiveServer, state: FakeState
 ) -> None:

@@ -330,3 +330,5 @@ def test_events_no_database_can_hold_as_written_never_stop_the_indexer(
     assert rows[ids[0]].description == "evil\ufffddesc"
     assert rows[ids[1]].spec is None and rows[ids[2]].spec is None
     assert rows[ids[3]].spec == base
+    states = [rows[i].spec_state for i in ids]
+    assert states == ["none", "invalid", "invalid", "read"]

@@ -4,8 +4,11 @@ went back under the cursor (embedded rollback, reorg on a node) is re-indexed.""
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import json
+import time
+from collections import Counter
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -19,6 +22,7 @@ from backend.indexer import Indexer
 from backend.indexer import indexer as indexer_module
 from backend.services.chain import ChainService
 from backend.store import EmbeddedStore, StoreUnavailable
+from backend.store.errors import FindTimeout
 from tests.gateway.test_indexer import _activity, _chain_events, _indexed, any_sessions, sessions
 
 __all__ = ["any_sessions", "sessions"]  # fixtures shared with test_indexer
@@ -29,6 +33,17 @@ SPEC = {"format": "drlaas-task/1", "env": {"rows": 6, "cols": 6}, "budget": {"st
 def _tasks(sessions: sessionmaker[Session]) -> dict[int, m.TaskRow]:
     with sessions() as s:
         return {t.id: t for t in s.scalars(select(m.TaskRow))}
+
+
+def _enrolled(service: ChainService) -> tuple[Any, str, str]:
+    """The platform, with user1 registered as a requester and user2 as a worker (domain 0)."""
+    p, keys = service.platform, service.demo_keys
+    assert keys is not None
+    req, worker = keys.address("user1"), keys.address("user2")
+    with service.lock:
+        p.umc.add_requester(req)
+        p.umc.add_worker(worker, [0], 4, 8, 0)
+    return p, req, worker
 
 
 def _offer_rows(sessions: sessionmaker[Session]) -> list[tuple[int, str]]:
@@ -55,12 +70,8 @@ def test_no_model_event_stops_the_index(
 
     monkeypatch.setattr(indexer_module, "summarize_env", summary)
     store = EmbeddedStore(tmp_path / "ipfs")
-    p, keys = service.platform, service.demo_keys
-    assert keys is not None
-    req, worker = keys.address("user1"), keys.address("user2")
+    p, req, worker = _enrolled(service)
     with service.lock:
-        p.umc.add_requester(req)
-        p.umc.add_worker(worker, [0], 4, 8, 0)
         wide, _ = p.mmc.add_model(worker, store.add(b"wide"), 0, [8, 8, 2**32 - 1, 4, 0, 0])
         refused, _ = p.mmc.add_model(worker, store.add(b"refused"), 0, [8, 8, 2, 5, 0, 0])
         task_id, _ = p.tmc.add_task(req, domain=0, num_workers=1, reward=10**12, duration=3_600)
@@ -85,6 +96,9 @@ class FlakyStore:
     def __init__(self, inner: EmbeddedStore, down: int) -> None:
         self.inner, self.down = inner, down
 
+    def with_find_timeout(self, seconds: float) -> FlakyStore:
+        return self
+
     def get(self, *args: Any, **kwargs: Any) -> bytes:
         if self.down > 0:
             self.down -= 1
@@ -98,8 +112,9 @@ class FlakyStore:
 def test_a_store_that_is_down_is_not_taken_for_no_spec(
     service: ChainService, sessions: sessionmaker[Session], tmp_path: Path
 ) -> None:
-    """A task's spec read while the store is unreachable: the batch is rolled back and retried,
-    so the task gets its spec once the store is back (it was indexed with none, for good)."""
+    """A task's spec read while the store is unreachable: the task's event is indexed all the
+    same and its spec stays pending, so the task gets its spec once the store is back (it was
+    indexed with none, for good)."""
     inner = EmbeddedStore(tmp_path / "ipfs")
     cid = inner.add(json.dumps(SPEC).encode())
     p, keys = service.platform, service.demo_keys
@@ -111,12 +126,85 @@ def test_a_store_that_is_down_is_not_taken_for_no_spec(
             req, domain=0, num_workers=1, reward=10**12, duration=3_600, description=cid
         )
     idx = Indexer(service, sessions, store=FlakyStore(inner, down=1))  # type: ignore[arg-type]
-    with pytest.raises(StoreUnavailable):
-        idx.poll()
-    assert _indexed(sessions) == []  # nothing half-indexed: the cursor did not move
     idx.poll()
-    assert _tasks(sessions)[task_id].spec == SPEC
+    assert _indexed(sessions) == _chain_events(service)  # the events do not wait for the store
+    task = _tasks(sessions)[task_id]
+    assert (task.spec, task.spec_state, task.spec_tries) == (None, "pending", 0)
+    idx.poll()
+    task = _tasks(sessions)[task_id]
+    assert (task.spec, task.spec_state) == (SPEC, "read")
+
+
+class MissingCidStore:
+    """``inner``, except for the CIDs in ``missing``, which nobody provides: as on an IPFS node,
+    a read of one looks for it until the find timeout, then fails (``FindTimeout``)."""
+
+    def __init__(self, inner: EmbeddedStore, missing: set[str], find_timeout: float = 10.0):
+        self.inner, self.missing, self.find_timeout = inner, missing, find_timeout
+        self.reads: Counter[str] = Counter()  # shared with the copies below
+        self.log: list[str] = []
+
+    def with_find_timeout(self, seconds: float) -> MissingCidStore:
+        quick = copy.copy(self)
+        quick.find_timeout = min(self.find_timeout, seconds)
+        return quick
+
+    def get(self, cid: str, **kwargs: Any) -> bytes:
+        self.reads[str(cid)] += 1
+        self.log.append(str(cid))
+        if str(cid) in self.missing:
+            time.sleep(self.find_timeout)
+            raise FindTimeout(str(cid), after=self.find_timeout)
+        return self.inner.get(cid, **kwargs)
+
+
+def test_specs_nobody_holds_never_hold_up_the_events(
+    service: ChainService, sessions: sessionmaker[Session], tmp_path: Path
+) -> None:
+    """Tasks whose descriptions name CIDs the node cannot find (anyone can addTask with any
+    text): every event of the poll is indexed and the next task's offer reaches its worker at
+    once; a poll starts spec reads only within its budget (here at most 3 reads of 0.05 s in
+    0.12 s, whatever the number of such tasks); a good spec is not queued behind the missing
+    ones' retries; each missing CID is read ``SPEC_TRIES`` times, then marked missing and left.
+    (Before, each one waited the node's 10 s find timeout inside the batch of events.)"""
+    inner = EmbeddedStore(tmp_path / "ipfs")
+    missing = {inner.add(f"never provided {i}".encode(), pin=False) for i in range(4)}
+    store = MissingCidStore(inner, missing)
+    assert Indexer(service, sessions, store=store)._spec_store.find_timeout == (  # type: ignore[union-attr]
+        indexer_module.SPEC_FIND_TIMEOUT_S
+    ) < store.find_timeout
+    good = inner.add(json.dumps(SPEC).encode())
+    p, req, _ = _enrolled(service)
+    with service.lock:
+        junk = [
+            p.tmc.add_task(req, domain=0, num_workers=1, reward=10**12, duration=3_600,
+                           description=cid)[0]
+            for cid in sorted(missing)
+        ]
+        good_id, _ = p.tmc.add_task(
+            req, domain=0, num_workers=1, reward=10**12, duration=3_600, description=good
+        )
+        offered, _ = p.tmc.allocate(req, good_id)
+    hooked: list[tuple[int, str]] = []
+    idx = Indexer(service, sessions, store=store, on_offer=lambda t, w: hooked.append((t, w)),
+                  spec_budget_s=0.12, spec_find_timeout_s=0.05)
+    idx.poll()
     assert _indexed(sessions) == _chain_events(service)
+    assert hooked == [(good_id, offered[0])]
+    assert 1 <= sum(store.reads.values()) <= 3
+    for _ in range(100):  # at least one read per poll: 13 reads in all
+        if {t.spec_state for t in _tasks(sessions).values()} <= {"read", "missing"}:
+            break
+        idx.poll()
+    first_retry = next(i for i, c in enumerate(store.log) if c in store.log[:i])
+    assert store.log.index(good) < first_retry  # not queued behind the missing CIDs' retries
+    tasks = _tasks(sessions)
+    assert (tasks[good_id].spec, tasks[good_id].spec_state) == (SPEC, "read")
+    assert {tasks[t].spec_state for t in junk} == {"missing"}
+    assert {store.reads[c] for c in missing} == {indexer_module.SPEC_TRIES}
+    reads = sum(store.reads.values())
+    idx.poll()
+    assert sum(store.reads.values()) == reads  # missing for good: never read again
 
 
 def _tx_hashes(sessions: sessionmaker[Session]) -> set[str]:

@@ -49,7 +49,7 @@ def test_create_task_offers_match_chain_and_spec_is_content_addressed(
 
     detail = client.get(f"{P}/tasks/{task_id}").json()
     assert detail["description"] == created["spec_cid"]
-    assert detail["spec"] == spec
+    assert (detail["spec"], detail["spec_state"]) == (spec, "read")
     assert detail["requester"] == addr(service, "user1") == on_chain["requester"]
     assert detail["status"] == on_chain["status"].name.lower() == "open"
     assert int(detail["reward_wei"]) == on_chain["reward"] == 10**15

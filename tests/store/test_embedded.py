@@ -6,6 +6,7 @@ import os
 import random
 from pathlib import Path
 
+import httpx
 import pytest
 
 from backend.store import (
@@ -155,6 +156,32 @@ def test_make_store_specs(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match="ftp://x"):
         make_store("ftp://x")
     assert not os.path.exists("embedded")
+
+
+def test_a_quick_copy_of_a_node_store_tells_the_node_to_give_up_sooner(
+    store: EmbeddedStore,
+) -> None:
+    """``with_find_timeout`` (the indexer's spec reads): the node is asked to stop looking for
+    an absent CID after the shorter time, never after a longer one than the store's, and the
+    original store keeps its own; an embedded store never searches and is its own copy."""
+    asked: list[str | None] = []
+
+    def node(request: httpx.Request) -> httpx.Response:
+        asked.append(request.url.params.get("timeout"))
+        return httpx.Response(500, json={"Message": "context deadline exceeded", "Code": 0})
+
+    rpc = IpfsRpcStore("http://node:5001", retries=0, transport=httpx.MockTransport(node))
+    missing = compute_cid(b"nobody has this")
+    with pytest.raises(NotFound, match="within 2 s"):
+        rpc.with_find_timeout(2.0).get(missing)
+    with pytest.raises(NotFound, match="within 10 s"):
+        rpc.with_find_timeout(60.0).get(missing)
+    with pytest.raises(NotFound, match="within 10 s"):
+        rpc.get(missing)
+    assert asked == ["2s", "10s", "10s"]
+    with pytest.raises(ValueError, match="> 0"):
+        rpc.with_find_timeout(0)
+    assert store.with_find_timeout(1.0) is store
 
 
 def _file_node(links: list[tuple[CID, int]]) -> tuple[CID, bytes]:

@@ -445,6 +445,7 @@ def get_task(task_id: TaskId, session: SessionDep) -> TaskDetailPublic:
     return TaskDetailPublic(
         **task_public(t).model_dump(),
         spec=t.spec,
+        spec_state=t.spec_state,
         experts=[TaskExpertPublic(**e) for e in task_experts(session, t.spec, t.requester)],
         timeline=[EventPublic.model_validate(e) for e in events],
         offers=[

@@ -49,6 +49,12 @@ function argValue(k, v) {
   return typeof v === "object" && v !== null ? JSON.stringify(v) : String(v);
 }
 
+// Why a task shows no spec (spec_state of GET /api/tasks/{id}); "read" and "none" need no note.
+const SPEC_STATE_NOTES = {
+  pending: "not read from the content store yet",
+  invalid: "this document is not a task spec",
+  missing: "the content store could not find it",
+};
 const ARG_LABELS = { qos: "match score", numWorkers: "workers", description: "spec", minCpuCores: "min CPU cores",
   minRamGb: "min RAM (GB)", weiPerHour: "min reward per hour" };
 /** "minReputation" -> "min reputation". */
@@ -143,7 +149,8 @@ export async function render(main, [id], ctx) {
     draw("summary", [JSON.stringify(summaryKey)], () => [
       defList([
         ["Requester", shortAddr(t.requester)],
-        ["Spec CID", h("code", { class: "mono", id: "task-spec-cid" }, cid || "—")],
+        ["Spec CID", [h("code", { class: "mono", id: "task-spec-cid" }, cid || "—"),
+          SPEC_STATE_NOTES[t.spec_state] ? h("span", { class: "muted", id: "task-spec-state" }, ` (${SPEC_STATE_NOTES[t.spec_state]})`) : null]],
         ["Domain", t.domain ?? spec.domain],
         ["Environment", envSummary(spec.env || t.env)],
         ["Observation", spec.observation ? `${String(spec.observation.kind || "").toUpperCase()}${spec.observation.window ? `, window ${spec.observation.window}` : ""}` : undefined],
