@@ -324,9 +324,7 @@ class Indexer:
                 s.commit()
                 return str(values["spec_state"])
             except Exception as exc:  # NaN/NUL the database refuses arrive wrapped (orig)
-                if not isinstance(exc, UNSTORABLE) and not isinstance(
-                    getattr(exc, "orig", None), UNSTORABLE
-                ):
+                if not _unstorable(exc):
                     raise
                 s.rollback()
                 log.info("indexer: task %d's spec cannot be stored: %s", task_id, exc)
@@ -410,7 +408,7 @@ class Indexer:
                 handler(s, args, block)
         except Exception as exc:
             orig = getattr(exc, "orig", None)
-            if not isinstance(exc, UNSTORABLE) and not isinstance(orig, UNSTORABLE):
+            if not _unstorable(exc):
                 raise
             reason = str(orig if orig is not None else exc).splitlines()[0]
             event.error = _text(f"{type(exc).__name__}: {reason}", 512)
@@ -728,6 +726,11 @@ class IndexerThread:
     def stop(self, timeout: float = 10.0) -> None:
         self._stop.set()
         self._thread.join(timeout)
+
+
+def _unstorable(exc: BaseException) -> bool:
+    """Whether ``exc`` is one of ``UNSTORABLE``, itself or as a SQLAlchemy error's ``orig``."""
+    return isinstance(exc, UNSTORABLE) or isinstance(getattr(exc, "orig", None), UNSTORABLE)
 
 
 def _is_cid(text: str) -> bool:
