@@ -37,6 +37,10 @@ taking each one's first choice: what the guided learners are shown), the issue's
 and ``--png`` with the curves (episode length against env steps and against wall-clock, mean
 over seeds, min-max band).
 
+``--review K`` picks the experts as a requester would, without the held-out figures: each
+candidate of ``--experts``, followed by the team, on ``--review-episodes`` episodes of their
+own (``REVIEW_SEED``); the K shortest are kept, with equal QoS (MMC's K best-rated models).
+
 Each finished run is cached as JSON under ``--out`` (``TASK-METHOD-sSEED-STEPS.json``), so an
 interrupted benchmark re-runs only what is missing, and a killed run resumes from its last
 checkpoint (every ``CHECKPOINT_EVERY`` updates, FRL rounds). ``--jobs N`` trains the missing runs
@@ -48,7 +52,7 @@ Usage: python benchmarks/medc/run.py --steps 1000000 --seeds 0,1,2
        [--grid 30] [--belief] [--experts train | DIR,DIR,...] [--expert-steps 1000000]
        [--frl-steps N]
        [--cae DIR] [--bonus S]
-       [--qos 1,1,1] [--rate R_E] [--anneal START,END]
+       [--qos 1,1,1 | --review K [--review-episodes 500]] [--rate R_E] [--anneal START,END]
        [--episodes 1000] [--eval-every 5] [--out runs/medc] [--png benchmarks/medc/curves.png]
        [--jobs 2]
 """
@@ -73,7 +77,7 @@ import numpy as np
 
 from workers.mdrl.baselines import OraclePolicy
 from workers.mdrl.evaluate import evaluate, t_interval
-from workers.mdrl.experts import load_experts
+from workers.mdrl.experts import FollowExpert, load_experts
 from workers.mdrl.medc import THRESHOLD as PAPER_THRESHOLD
 from workers.mdrl.medc import DemonstrationSelector
 from workers.mdrl.presets import get_preset
@@ -280,6 +284,7 @@ def train_run(task: str, method: str, seed: int, steps: int, experts: list[str],
               "bonus": float(env.sparse_bonus), "horizon": ppo.horizon,
               "steps": trainer.global_step,
               "wall_s": wall, "curve": read_curve(run_dir / "metrics.csv"),
+              "experts": experts, "qos": qos,
               "heldout": heldout(learner.policy(), env)}
     if method in FRL:
         result["local_updates"] = trainer.local_updates
@@ -305,11 +310,12 @@ def read_curve(metrics: Path) -> list[dict[str, float]]:
     return points
 
 
-def heldout(policy: Any, env: Any, episodes: int | None = None) -> dict[str, Any]:
+def heldout(policy: Any, env: Any, episodes: int | None = None,
+            seed: int = HELDOUT_SEED) -> dict[str, Any]:
     episodes = episodes or HELDOUT_EPISODES
     test = dataclasses.replace(env, readings="poisson")
-    s = evaluate(policy, test, episodes, seed=HELDOUT_SEED).summary
-    oracle = evaluate(OraclePolicy(), test, episodes, seed=HELDOUT_SEED)
+    s = evaluate(policy, test, episodes, seed=seed).summary
+    oracle = evaluate(OraclePolicy(), test, episodes, seed=seed)
     return {"episodes": episodes, "success": s["success_rate"], "time": s["time_mean"],
             "time_ci": s["time_ci"], "cost": s["cost_mean"], "cost_ci": s["cost_ci"],
             "oracle_time": oracle.time_mean}
@@ -324,37 +330,65 @@ FRL_LOCAL_UPDATES = 1
 """FedAvg every this many local PPO updates of each FRL user (``--frl-local-updates``)."""
 
 
-class FollowExpert:
-    """The whole team taking an expert's best-ranked valid action at every step, the action
-    Alg. 5.1 offers each agent first, through the expert's adapter. The expert is loaded
-    afresh for every batch of episodes, so a stateful one (a baseline) starts clean."""
-
-    def __init__(self, ref: str, seed: int):
-        self.ref, self.seed, self.name = ref, seed, ref
-
-    def reset(self, env: Any) -> None:
-        self.expert = load_experts([self.ref], env.spec, self.seed)[0]
-
-    def act(self, env: Any) -> np.ndarray:
-        scores = self.expert.scores(env)
-        return np.where(np.asarray(env.action_mask()), scores, -np.inf).argmax(-1)
-
-
-def expert_figures(task: str, grid: int, experts: list[str], out: Path) -> list[dict]:
+def expert_figures(task: str, grid: int, experts: list[str], out: Path,
+                   episodes: int | None = None, seed: int = HELDOUT_SEED,
+                   tag: str = "expert") -> list[dict]:
     """Each expert followed by the task user's team (:class:`FollowExpert`) on the held-out
-    episodes: what the guided learners are shown, untrained on the task. Cached under
-    ``out`` per task, grid, expert, environment and episode count."""
+    episodes (or ``episodes`` of ``seed``): what the guided learners are shown, untrained on
+    the task. Cached under ``out`` per task, grid, expert, environment, seed and episodes."""
     env = user_preset(task, "sparse", grid).env
+    episodes = episodes or HELDOUT_EPISODES
     rows, key = [], repr(env)
     for i, ref in enumerate(experts):
         slug = re.sub(r"[^A-Za-z0-9_.-]+", "_", ref).strip("_")[-60:]
-        cached = out / f"{task}-{grid}x{grid}-expert{i}-{slug}-{HELDOUT_EPISODES}.json"
+        cached = out / f"{task}-{grid}x{grid}-{tag}{i}-{slug}-{episodes}.json"
         row = json.loads(cached.read_text()) if cached.is_file() else None
-        if row is None or row.get("env") != key or row.get("ref") != ref:
-            row = {"ref": ref, "env": key, "heldout": heldout(FollowExpert(ref, i), env)}
+        if (row is None or row.get("env") != key or row.get("ref") != ref
+                or row.get("seed", HELDOUT_SEED) != seed):
+            row = {"ref": ref, "env": key, "seed": seed,
+                   "heldout": heldout(FollowExpert(ref, i), env, episodes, seed)}
             cached.write_text(json.dumps(row))
         rows.append(row)
     return rows
+
+
+REVIEW_SEED = 20_261_204
+"""Seed of the review episodes (``--review``): the requester's own trial of the candidate
+experts, apart from the held-out episodes (``HELDOUT_SEED``) and the curve's (``CURVE_SEED``)."""
+
+
+def review_experts(task: str, grid: int, experts: list[str], keep: int, episodes: int,
+                   out: Path) -> tuple[list[str], list[dict]]:
+    """The requester's review before buying (``--review K``): each candidate expert followed
+    by the task's team on review episodes of its own (``REVIEW_SEED``), ranked by mean
+    episode length (a failed episode counts the horizon, so failures weigh in as lost time;
+    the figure the targets judge); the K best, in their given order, become the experts, with
+    equal QoS. What
+    MMC's allocation of the K best-rated models (Eq. 12) buys once the reviews rank the
+    models so, chosen without the held-out figures. Returns (kept, review rows)."""
+    rows = expert_figures(task, grid, experts, out, episodes, REVIEW_SEED, "review")
+    ranked = sorted(range(len(rows)), key=lambda i: rows[i]["heldout"]["time"])
+    best = set(ranked[:keep])
+    for i, row in enumerate(rows):
+        row["kept"] = i in best
+    return [ref for i, ref in enumerate(experts) if i in best], rows
+
+
+def review_table(rows: list[dict], bonus: float) -> list[str]:
+    """The review of ``--review``: what each candidate did on the review episodes."""
+    if not rows:
+        return []
+    h = rows[0]["heldout"]
+    lines = [f"\n### The review: candidate experts followed by the team on {h['episodes']} "
+             f"review episodes (seed {rows[0]['seed']}, oracle {h['oracle_time']:.2f})",
+             "| expert | kept | success | time (95% CI) | moving cost | Eq. 9 return |",
+             "|---|---|---|---|---|---|"]
+    for r in rows:
+        h = r["heldout"]
+        lines.append(f"| {r['ref']} | {'yes' if r['kept'] else 'no'} | "
+                     f"{100 * h['success']:.1f}% | {h['time']:.2f}{_ci(tuple(h['time_ci']))} | "
+                     f"{h['cost']:.2f} | {eq9_return(h, bonus):.2f} |")
+    return lines
 
 
 # ---------------------------------------------------------------------------- analysis
@@ -691,6 +725,11 @@ def main(argv: list[str] | None = None) -> int:
                    "of each user (default 1: every update, the most communication; K must divide "
                    "--eval-every); runs are cached under --out: another --out for another K")
     p.add_argument("--qos", default="", help="QoS weight per expert (default equal)")
+    p.add_argument("--review", type=int, default=None, metavar="K",
+                   help="keep the K best of --experts by a review on the task (the team "
+                   "following each one on --review-episodes episodes of their own, not the "
+                   "held-out ones), with equal QoS; one task; give another --out")
+    p.add_argument("--review-episodes", type=int, default=500, metavar="N")
     p.add_argument("--episodes", type=int, default=HELDOUT_EPISODES)
     p.add_argument("--eval-every", type=int, default=5)
     p.add_argument("--out", type=Path, default=Path("runs/medc"))
@@ -772,6 +811,19 @@ def main(argv: list[str] | None = None) -> int:
     seeds = [int(s) for s in args.seeds.split(",") if s]
     tasks = [t for t in args.tasks.split(",") if t]
     g = args.grid
+    reviewed: list[dict] = []
+    if args.review is not None:
+        if len(tasks) != 1:
+            p.error(f"--review ranks the experts on one task; got --tasks {args.tasks}")
+        if not 1 <= args.review <= len(experts):
+            p.error(f"--review must be in 1..{len(experts)} (the experts given), "
+                    f"got {args.review}")
+        if args.review_episodes < 1:
+            p.error(f"--review-episodes must be >= 1, got {args.review_episodes}")
+        if qos:
+            p.error("--review gives the experts it keeps equal QoS: drop --qos")
+        experts, reviewed = review_experts(tasks[0], g, experts, args.review,
+                                           args.review_episodes, args.out)
 
     def budget(method: str) -> int:
         return args.frl_steps if method in FRL and args.frl_steps else args.steps
@@ -829,6 +881,9 @@ def main(argv: list[str] | None = None) -> int:
              for t in dict.fromkeys(r["task"] for r in results)
              if guided & {r["method"] for r in results if r["task"] == t}}
     print(report(results, shown))
+    if reviewed:
+        bonus = float(user_preset(tasks[0], "sparse", g).env.sparse_bonus)
+        print("\n".join(review_table(reviewed, bonus)))
     if args.png:
         plot(results, args.png)
         print(f"\ncurves: {args.png}")

@@ -500,7 +500,7 @@ def test_the_drlaas_command_keeps_the_normal_recursion_limit(tmp_path) -> None:
     done = subprocess.run(
         [sys.executable, "-m", "drlaas", "eval", "--policy", str(tmp_path), "--episodes", "2"],
         capture_output=True, text=True, timeout=120, cwd=repo,
-        env={**os.environ, "PYTHONPATH": str(repo)},
+        env={**os.environ, "PYTHONPATH": str(repo), "COLUMNS": "1000"},  # no wrapped words
     )
     assert done.returncode == 2, (done.returncode, done.stderr[-500:])
     assert "not JSON" in done.stderr and "Traceback" not in done.stderr

@@ -208,6 +208,36 @@ def test_eval_model_directory_defaults_to_its_card_and_rejects_what_it_cannot_ta
     assert res.exit_code == 2 and "--moves" in res.output
 
 
+def test_eval_as_expert_reviews_a_model_on_a_team_it_was_not_trained_for(tmp_path):
+    """`--as-expert`: the team takes the expert's first choice through the MEDC adapter, so a
+    one-agent model can be reviewed on a three-agent task that plain eval refuses; the oracle
+    as an expert is the oracle, episode for episode; a faulty expert shows as one."""
+    one = _save_random_model(tmp_path / "one", "odmtl", EnvSpec(agents=1))
+    cmtl = _save_random_model(tmp_path / "cmtl", "cmtl", EnvSpec(agents=2))
+    runner, app = CliRunner(), _app()
+
+    def run(*args):
+        return runner.invoke(app, ["eval", "--episodes", "30", *args])
+
+    assert run("--policy", str(one), "--agents", "3").exit_code == 2  # not its actor's input
+    res = run("--policy", str(one), "--agents", "3", "--as-expert", "--json")
+    assert res.exit_code == 0, res.output
+    out = json.loads(res.stdout)
+    assert out["env"]["agents"] == 3 and out["policy"] == f"{one} (as expert)"
+    assert out["result"]["episodes"] == 30
+
+    oracle = json.loads(run("--policy", "oracle", "--as-expert", "--walls", "0-2", "--json").stdout)
+    assert oracle["result"]["time_mean"] == oracle["oracle"]["time_mean"]
+    assert oracle["result"]["cost_mean"] == oracle["oracle"]["cost_mean"]
+    idle = json.loads(run("--policy", "biased:0", "--as-expert", "--walls", "0-2", "--json").stdout)
+    assert idle["result"]["success_rate"] < 0.5 < idle["oracle"]["success_rate"]
+
+    for args in (["--policy", "nonsense"], ["--policy", "malicious:nonsense"],
+                 ["--policy", str(cmtl), "--agents", "3"]):  # a joint actor fixes its team
+        res = run(*args, "--as-expert")
+        assert res.exit_code == 2 and "--policy" in res.output, (args, res.output)
+
+
 def test_the_paired_bootstrap_runs_in_chunks_with_the_same_draws(monkeypatch) -> None:
     """The bootstrap held (2000, n) indices at once (3.7 GB at 100k episodes); in chunks of
     rows it draws the same stream, so the intervals are the same, to the bit."""

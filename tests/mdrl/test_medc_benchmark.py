@@ -119,6 +119,35 @@ def test_frl_averaging_every_k_updates_is_evaluated_at_the_same_steps(tmp_path):
     assert "frl averaging every 2 local updates" in done.stdout
 
 
+def test_the_review_keeps_the_fastest_experts_on_episodes_of_its_own(tmp_path):
+    """--review K: each candidate followed by the team on review episodes of their own (not the
+    held-out ones); the K shortest are kept, in their given order, with equal QoS, and the
+    runs learn from those only."""
+    refused = [bench(tmp_path, *args, methods=("medc",)) for args in (
+        ("--experts", "random,oracle", "--review", "3"),
+        ("--review", "1", "--tasks", "A3W2,A3W3"),
+        ("--review", "1", "--qos", "2,1"))]
+    assert [r.returncode for r in refused] == [2, 2, 2]
+    assert "--review must be in 1..2" in refused[0].stderr
+    assert "one task" in refused[1].stderr and "drop --qos" in refused[2].stderr
+    done = bench(tmp_path, "--experts", "random,biased:0,oracle", "--review", "2",
+                 "--review-episodes", "12", methods=("medc",))
+    assert done.returncode == 0, done.stderr[-3000:]
+    run = json.loads((tmp_path / f"A3W3-10x10-medc-s0-{STEPS}.json").read_text())
+    assert run["experts"] == ["random", "oracle"] and run["qos"] == []  # biased:0 only idles
+    card = json.loads((tmp_path / f"A3W3-10x10-medc-s0-{STEPS}" / "model" / "model.json")
+                      .read_text())["training"]
+    block = card["experts"] if "experts" in card else card["method"]
+    assert [e["ref"] for e in block["experts"]] == ["random", "oracle"]
+    rows = {line.split(" | ")[0].strip("| "): line.split(" | ")
+            for line in done.stdout.split("### The review")[1].splitlines()[3:6]}
+    assert [rows[r][1] for r in ("random", "biased:0", "oracle")] == ["yes", "no", "yes"]
+    review = json.loads(next(tmp_path.glob("A3W3-10x10-review2-oracle-12.json")).read_text())
+    heldout = json.loads(next(tmp_path.glob("A3W3-10x10-expert1-oracle-10.json")).read_text())
+    assert review["heldout"]["episodes"] == 12 and review["seed"] != heldout["seed"]
+    assert review["heldout"]["oracle_time"] == review["heldout"]["time"]  # oracle = oracle
+
+
 def _figures(run: dict) -> dict:
     """A cached run without its wall-clock (the only thing sharing the machine changes)."""
     return {"heldout": run["heldout"], "steps": run["steps"],

@@ -25,6 +25,8 @@ Implementations:
   the oracle that is a step away from the target, the thesis' "opposite action").
 
 ``load_expert(ref, env_spec)`` builds any of them from one string; ``load_experts`` a list.
+``FollowExpert`` runs one as the whole team's policy: how a requester reviews an expert on
+its own task (``drlaas eval --as-expert``).
 
 The model adapter (``ModelExpert``), what it does and where it refuses:
 
@@ -378,6 +380,24 @@ class ModelExpert:
         out = np.full((k, n, self.task_actions), NOT_RANKED, dtype=np.float32)
         out[:, :, self.amap[ok]] = np.where(emask[:, :, ok], elogp[:, :, ok], NOT_RANKED)
         return out
+
+
+class FollowExpert:
+    """A policy: the whole team takes the expert's best-ranked valid action at every step,
+    the action Alg. 5.1 offers each agent first, through the expert's adapter. What a shared
+    model would teach on a task it was not trained for, measured before (or after) using it:
+    how a requester reviews an expert (``drlaas eval --as-expert``). The expert is loaded
+    afresh for every batch of episodes, so a stateful one (a baseline) starts clean."""
+
+    def __init__(self, ref: str, seed: int = 0, name: str | None = None):
+        self.ref, self.seed, self.name = ref, seed, name or ref
+
+    def reset(self, env: Any) -> None:
+        self.expert = load_expert(self.ref, env.spec, self.seed)
+
+    def act(self, env: Any) -> np.ndarray:
+        scores = self.expert.scores(env)
+        return np.where(np.asarray(env.action_mask()), scores, -np.inf).argmax(-1)
 
 
 # ---------------------------------------------------------------------------- loading

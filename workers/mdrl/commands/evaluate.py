@@ -138,9 +138,11 @@ def _field(spec: EnvSpec, key: str) -> Any:
 
 def resolve_policy(
     name: str, agents=None, grid=None, walls=None, intensity=None, moves=None, seed: int = 0,
-    readings: str | None = None,
+    readings: str | None = None, as_expert: bool = False,
 ) -> tuple[Any, EnvSpec, str]:
     """(policy, env spec, label) for a baseline name or a model directory plus flags."""
+    if as_expert:
+        return resolve_expert(name, agents, grid, walls, intensity, moves, seed, readings)
     if name in BASELINES:
         spec = build_spec(EnvSpec(), agents, grid, walls, intensity, moves, readings)
         return make_baseline(name, seed=seed), spec, name
@@ -163,6 +165,43 @@ def resolve_policy(
     card_spec = policy.env_spec
     spec = build_spec(card_spec, agents, grid, walls, intensity, moves, readings)
     return model_policy_for(path, spec, card_spec, policy), spec, str(path)
+
+
+def resolve_expert(
+    name: str, agents=None, grid=None, walls=None, intensity=None, moves=None, seed: int = 0,
+    readings: str | None = None,
+) -> tuple[Any, EnvSpec, str]:
+    """(policy, env spec, label) for ``name`` run as an expert (``FollowExpert``) on the
+    environment of the flags: any model the MEDC adapter takes, whatever its team size, grid
+    or inputs, and the built-in experts (faulty ones too). The flags start from the model's
+    environment (a built-in's: the default one)."""
+    from workers.mdrl.experts import BUILTINS, ExpertError, FollowExpert, load_expert
+
+    base = EnvSpec()
+    if name not in BUILTINS and ":" not in name:
+        path = Path(name)
+        if not path.is_dir():
+            raise typer.BadParameter(
+                f"{name!r} is neither an expert ({', '.join(BUILTINS)}) nor a model directory",
+                param_hint="--policy",
+            )
+        from workers.mdrl.modelio import CARD, load_model
+
+        if not (path / CARD).is_file():
+            _refuse_run_dir(path)
+        try:
+            base = load_model(path).env_spec
+        except (OSError, ValueError, KeyError, RuntimeError) as exc:
+            raise typer.BadParameter(
+                f"cannot load model {name!r}: {exc}", param_hint="--policy"
+            ) from None
+    spec = build_spec(base, agents, grid, walls, intensity, moves, readings)
+    try:
+        load_expert(name, spec, seed)  # the adapter's refusals, before any episode
+    except ExpertError as exc:
+        raise typer.BadParameter(str(exc), param_hint="--policy") from None
+    label = f"{name} (as expert)"
+    return FollowExpert(name, seed, label), spec, label
 
 
 def _refuse_run_dir(path: Path) -> None:
@@ -225,10 +264,16 @@ def eval_command(
         typer.Option(help="reading model: poisson (product default) or expected (noise-free "
                      "counts, what thesis Tables 3.5/3.6 compare with); default: the model's"),
     ] = None,
+    as_expert: Annotated[bool, typer.Option(
+        "--as-expert", help="run --policy as an MEDC expert: every agent takes its best-ranked "
+        "valid action through the expert adapter, so a model trained on another team size, "
+        "grid or input set can be reviewed on this environment; also the built-in experts "
+        "(oracle, bayes, uniform, random, biased:K, malicious:REF)")] = False,
     json_out: Annotated[bool, typer.Option("--json", help="print one JSON object")] = False,
 ) -> None:
     """Evaluate a model directory or a baseline on seeded episodes, next to the oracle."""
-    pol, spec, label = resolve_policy(policy, agents, grid, walls, intensity, moves, seed, readings)
+    pol, spec, label = resolve_policy(policy, agents, grid, walls, intensity, moves, seed, readings,
+                                      as_expert)
     try:
         report = evaluate(pol, spec, episodes, seed=seed, batch=batch, name=label)
     except LayoutError as exc:  # walls the spec allows but no layout can hold the team with
