@@ -178,7 +178,7 @@ def resolve_expert(
     from workers.mdrl.experts import BUILTINS, ExpertError, FollowExpert, load_expert
 
     base = EnvSpec()
-    if name not in BUILTINS and ":" not in name:
+    if name not in BUILTINS and not name.startswith(("biased:", "malicious:")):
         path = Path(name)
         if not path.is_dir():
             raise typer.BadParameter(
