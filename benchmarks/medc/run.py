@@ -362,10 +362,9 @@ def review_experts(task: str, grid: int, experts: list[str], keep: int, episodes
     """The requester's review before buying (``--review K``): each candidate expert followed
     by the task's team on review episodes of its own (``REVIEW_SEED``), ranked by mean
     episode length (a failed episode counts the horizon, so failures weigh in as lost time;
-    the figure the targets judge); the K best, in their given order, become the experts, with
-    equal QoS. What
-    MMC's allocation of the K best-rated models (Eq. 12) buys once the reviews rank the
-    models so, chosen without the held-out figures. Returns (kept, review rows)."""
+    the figure the targets judge). The K best, in their given order, become the experts,
+    with equal QoS: what MMC's allocation of the K best-rated models (Eq. 12) buys once the
+    reviews rank the models so, chosen without the held-out figures. Returns (kept, rows)."""
     rows = expert_figures(task, grid, experts, out, episodes, REVIEW_SEED, "review")
     ranked = sorted(range(len(rows)), key=lambda i: rows[i]["heldout"]["time"])
     best = set(ranked[:keep])
