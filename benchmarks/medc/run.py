@@ -385,7 +385,7 @@ def review_table(rows: list[dict], bonus: float) -> list[str]:
     for r in rows:
         h = r["heldout"]
         lines.append(f"| {r['ref']} | {'yes' if r['kept'] else 'no'} | "
-                     f"{100 * h['success']:.1f}% | {h['time']:.2f}{_ci(tuple(h['time_ci']))} | "
+                     f"{100 * h['success']:.1f}% | {h['time']:.2f}{_ci(h['time_ci'])} | "
                      f"{h['cost']:.2f} | {eq9_return(h, bonus):.2f} |")
     return lines
 

@@ -146,25 +146,30 @@ def resolve_policy(
     if name in BASELINES:
         spec = build_spec(EnvSpec(), agents, grid, walls, intensity, moves, readings)
         return make_baseline(name, seed=seed), spec, name
+    policy = _load_model_dir(name, f"a baseline ({', '.join(BASELINES)})")
+    card_spec = policy.env_spec
+    spec = build_spec(card_spec, agents, grid, walls, intensity, moves, readings)
+    return model_policy_for(Path(name), spec, card_spec, policy), spec, str(Path(name))
+
+
+def _load_model_dir(name: str, else_what: str) -> Any:
+    """The model in directory ``name``; anything else is a usage error naming --policy (what
+    else ``name`` could have been, a run directory's models, or why the model did not load)."""
     path = Path(name)
     if not path.is_dir():
         raise typer.BadParameter(
-            f"{name!r} is neither a baseline ({', '.join(BASELINES)}) nor a model directory",
-            param_hint="--policy",
+            f"{name!r} is neither {else_what} nor a model directory", param_hint="--policy"
         )
     from workers.mdrl.modelio import CARD, load_model
 
     if not (path / CARD).is_file():
         _refuse_run_dir(path)
     try:
-        policy = load_model(path)
+        return load_model(path)
     except (OSError, ValueError, KeyError, RuntimeError) as exc:
         raise typer.BadParameter(
             f"cannot load model {name!r}: {exc}", param_hint="--policy"
         ) from None
-    card_spec = policy.env_spec
-    spec = build_spec(card_spec, agents, grid, walls, intensity, moves, readings)
-    return model_policy_for(path, spec, card_spec, policy), spec, str(path)
 
 
 def resolve_expert(
@@ -179,22 +184,7 @@ def resolve_expert(
 
     base = EnvSpec()
     if name not in BUILTINS and not name.startswith(("biased:", "malicious:")):
-        path = Path(name)
-        if not path.is_dir():
-            raise typer.BadParameter(
-                f"{name!r} is neither an expert ({', '.join(BUILTINS)}) nor a model directory",
-                param_hint="--policy",
-            )
-        from workers.mdrl.modelio import CARD, load_model
-
-        if not (path / CARD).is_file():
-            _refuse_run_dir(path)
-        try:
-            base = load_model(path).env_spec
-        except (OSError, ValueError, KeyError, RuntimeError) as exc:
-            raise typer.BadParameter(
-                f"cannot load model {name!r}: {exc}", param_hint="--policy"
-            ) from None
+        base = _load_model_dir(name, f"an expert ({', '.join(BUILTINS)})").env_spec
     spec = build_spec(base, agents, grid, walls, intensity, moves, readings)
     try:
         load_expert(name, spec, seed)  # the adapter's refusals, before any episode
