@@ -105,6 +105,18 @@ class CardExpertRef(BaseModel):
     ref: VisibleText = Field(min_length=1, max_length=200)
 
 
+class ExpertTrialPublic(BaseModel):
+    """The expert followed by the team on the run's task after the run, next to the oracle on
+    the same episodes (``training.experts.review``, workers/mdrl/review.py): the worker's
+    evidence for the requester's review, and the review it suggests."""
+
+    episodes: int = Field(ge=1, le=10**6)
+    success: Rate
+    time: Steps
+    time_vs_oracle: float | None = Field(default=None, ge=0.0, le=1e6, allow_inf_nan=False)
+    suggested_review: int = Field(ge=0, le=5, description="round(5 x success x oracle/time)")
+
+
 class ExpertUsagePublic(BaseModel):
     """How a DC / MEDC run used one expert (``training.experts.experts[i]``, medc.py): the
     card's word, shown next to the expert."""
@@ -114,14 +126,23 @@ class ExpertUsagePublic(BaseModel):
     followed: int = Field(
         default=0, ge=0, le=10**15, description="of those, where the agent took its action"
     )
+    agreed: int | None = Field(
+        default=None, ge=0, le=10**15,
+        description="of those, where the agent took the expert's own first choice",
+    )
     selection_probability: float | None = Field(
         default=None, ge=0.0, le=1.0, allow_inf_nan=False, description="R_S = QoS / sum QoS"
+    )
+    trial: ExpertTrialPublic | None = Field(
+        default=None, description="the expert on the task after the run; null: not measured"
     )
 
     @model_validator(mode="after")
     def _followed_within_decisions(self) -> ExpertUsagePublic:
         if self.followed > self.decisions:
             raise ValueError("followed > decisions")
+        if self.agreed is not None and self.agreed > self.followed:
+            raise ValueError("agreed > followed")
         return self
 
 
@@ -270,10 +291,31 @@ def _expert_refs(raw: Any) -> list[str]:
     return [r for r in refs if r][:MAX_EXPERTS]
 
 
+def _expert_trials(raw: Any) -> dict[str, ExpertTrialPublic]:
+    """``training.experts.review.experts`` by ref (workers/mdrl/review.py); the episodes are
+    the review's, one count for all."""
+    review = _obj(_obj(raw).get("review"))
+    rows = review.get("experts")
+    if not isinstance(rows, list):
+        return {}
+    out: dict[str, ExpertTrialPublic] = {}
+    for e in rows[:MAX_EXPERTS]:
+        ref = _section(lambda e=e: CardExpertRef.model_validate(e).ref)
+        if not ref or ref in out:
+            continue
+        trial = _section(lambda e=e: ExpertTrialPublic.model_validate(
+            {**{k: e.get(k) for k in ExpertTrialPublic.model_fields if k in e},
+             "episodes": review.get("episodes")}))
+        if trial is not None:
+            out[ref] = trial
+    return out
+
+
 def _expert_usage(raw: Any) -> dict[str, ExpertUsagePublic]:
     experts = _obj(raw).get("experts")
     if not isinstance(experts, list):
         return {}
+    trials = _expert_trials(raw)
     out: dict[str, ExpertUsagePublic | None] = {}
     for e in experts[:MAX_EXPERTS]:
         if not isinstance(e, dict):
@@ -282,8 +324,10 @@ def _expert_usage(raw: Any) -> dict[str, ExpertUsagePublic]:
         if not ref or ref in out:  # a ref's first record decides
             continue
         out[ref] = _section(
-            lambda e=e: ExpertUsagePublic.model_validate(
-                {k: e.get(k) for k in ExpertUsagePublic.model_fields if k in e}
+            lambda e=e, ref=ref: ExpertUsagePublic.model_validate(
+                {**{k: e.get(k) for k in ExpertUsagePublic.model_fields
+                    if k in e and k != "trial"},
+                 "trial": trials.get(ref)}
             )
         )
     return {ref: usage for ref, usage in out.items() if usage is not None}

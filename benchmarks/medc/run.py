@@ -81,6 +81,7 @@ from workers.mdrl.experts import FollowExpert, load_experts
 from workers.mdrl.medc import THRESHOLD as PAPER_THRESHOLD
 from workers.mdrl.medc import DemonstrationSelector
 from workers.mdrl.presets import get_preset
+from workers.mdrl.review import REVIEW_SEED
 from workers.mdrl.train import RunConfig, Trainer
 from workers.mdrl.zoo import HELDOUT_SEED
 
@@ -352,9 +353,9 @@ def expert_figures(task: str, grid: int, experts: list[str], out: Path,
     return rows
 
 
-REVIEW_SEED = 20_261_204
-"""Seed of the review episodes (``--review``): the requester's own trial of the candidate
-experts, apart from the held-out episodes (``HELDOUT_SEED``) and the curve's (``CURVE_SEED``)."""
+# REVIEW_SEED (workers/mdrl/review.py) seeds the review episodes (``--review``): the
+# requester's own trial of the candidate experts, apart from the held-out episodes
+# (``HELDOUT_SEED``) and the curve's (``CURVE_SEED``); the worker's trial uses the same seed.
 
 
 def review_experts(task: str, grid: int, experts: list[str], keep: int, episodes: int,

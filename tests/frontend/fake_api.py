@@ -168,9 +168,14 @@ def initial_models() -> list[dict]:
             c["zoo"] = {"name": "odmtl-3a", "heldout": HELDOUT}
             c["training"]["experts"] = {"experts": [
                 {"ref": CID_B, "qos": 1.0, "selection_probability": 0.5, "episodes": 630,
-                 "decisions": 5000, "followed": 4123},
+                 "decisions": 5000, "followed": 4123, "agreed": 3100},
                 {"ref": "runs/local", "episodes": -1},  # a record that does not validate
-            ]}
+            ], "review": {  # the worker's trial of its experts after the run (mdrl/review.py)
+                "episodes": 100, "seed": 7, "oracle_time": 9.6, "experts": [
+                    {"ref": CID_B, "success": 0.98, "time": 13.7, "time_vs_oracle": 1.43,
+                     "suggested_review": 3},
+                    {"ref": "runs/local", "success": 2.0, "time": 9.0,  # does not validate
+                     "suggested_review": 5}]}}
             # delivered by selection.keep_best: the run's best evaluated policy (Trainer.save_model)
             c["training"]["selected"] = {"by": "time", "update": n - 2, "eval_time": 9.5}
         models.append(

@@ -11,7 +11,7 @@ import pytest
 from fastapi import Request
 
 from tests.frontend.conftest import LiveServer, sign_in_as_alice
-from tests.frontend.fake_api import ALICE, FakeState, make_fake_app
+from tests.frontend.fake_api import ALICE, W1, FakeState, make_fake_app
 
 expect = pytest.importorskip("playwright.sync_api", reason="pip install playwright").expect
 
@@ -94,7 +94,7 @@ def test_the_task_page_lists_experts_and_takes_the_review(page: Any, mmc: Any) -
     tid = next(t["id"] for t in state.tasks if t["requester"] == ALICE)
     state.task(tid)["experts"] = [
         {
-            "cid": CID_B,
+            "cid": CID_A,
             "qos": 0.625,
             "model_id": 2,
             "reputation": 0.0,
@@ -102,7 +102,7 @@ def test_the_task_page_lists_experts_and_takes_the_review(page: Any, mmc: Any) -
             "review": None,
         },
         {
-            "cid": CID_A,
+            "cid": CID_B,
             "qos": None,
             "model_id": None,
             "reputation": None,
@@ -110,17 +110,21 @@ def test_the_task_page_lists_experts_and_takes_the_review(page: Any, mmc: Any) -
             "review": None,
         },
     ]
+    # the task's outcome is listed as model 1, whose card has the worker's trial of CID_A
+    state.task(tid)["outcomes"] = [{"worker": W1, "cid": CID_B, "review": None, "accepted": None}]
     page.goto(f"{server.url}/tasks/{tid}")
     sign_in_as_alice(page)
     rows = page.locator("#experts-table tbody tr")
     expect(rows).to_have_count(2)
     expect(rows.nth(1)).to_contain_text("named by CID")
     expect(rows.nth(1).locator("button")).to_have_count(0)  # no allocation: nothing to review
+    expect(rows.nth(1).locator(".trial")).to_have_text("not measured")
     expect(rows.nth(0)).to_contain_text("#9")
-    rows.nth(0).locator("select").select_option("4")
+    expect(rows.nth(0).locator(".trial")).to_have_text("13.7 steps (1.43× oracle), suggests 3/5")
+    expect(rows.nth(0).locator("select")).to_have_value("3")  # the suggestion, preselected
     rows.nth(0).locator("button").click()
     expect(page.locator("#task-message")).to_contain_text("Expert review: sent")
-    assert calls == [("review", 9, {"model_id": 2, "review": 4})]
+    assert calls == [("review", 9, {"model_id": 2, "review": 3})]
 
 
 def test_the_form_sets_the_walls_cae_and_the_expert_credit(page: Any, mmc: Any) -> None:

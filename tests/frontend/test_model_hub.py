@@ -66,10 +66,14 @@ def test_model_page_shows_heldout_curve_provenance_and_human_units(
     expect(experts.nth(1)).to_contain_text("<b>runs/local</b>")
     # what the run did with each expert, from the card (a record that does not validate: none)
     expect(experts.nth(0).locator(".usage")).to_have_text(
-        " · guided 630 episodes, its action taken in 82.5% of 5,000 decisions, picked with "
-        "probability 0.5"
+        " · guided 630 episodes, its action taken in 82.5% of 5,000 decisions (its first choice "
+        "in 62%), picked with probability 0.5"
     )
     expect(experts.nth(1).locator(".usage")).to_have_count(0)
+    # the worker's trial of the expert on the task after the run, with the review it suggests
+    expect(experts.nth(0).locator(".trial")).to_contain_text("time 13.7 steps (1.43× the oracle)")
+    expect(experts.nth(0).locator(".suggested-review")).to_have_text("suggested review 3/5")
+    expect(experts.nth(1).locator(".trial")).to_have_count(0)
     # the card's training.selected: the delivered policy is the best evaluated, not the last
     expect(page.locator("#model-selected")).to_contain_text("best evaluated policy by episode time")
 

@@ -90,8 +90,13 @@ def test_model_page_links_task_experts_and_reads_the_card(
         training={"env_steps": 8192, "updates": 2, "wall_time_s": 3.0,
                   "experts": {"method": "DC", "experts": [
                       {"ref": expert["cid"], "episodes": 12, "decisions": 300, "followed": 250,
-                       "selection_probability": 1.0},
-                      {"ref": "runs/local-expert", "decisions": 2, "followed": 3}]}},
+                       "agreed": 200, "selection_probability": 1.0},
+                      {"ref": "runs/local-expert", "decisions": 2, "followed": 3}],
+                      "review": {"episodes": 100, "seed": 1, "oracle_time": 9.6, "experts": [
+                          {"ref": expert["cid"], "success": 1.0, "time": 12.0, "cost": 30.0,
+                           "time_vs_oracle": 1.25, "suggested_review": 4},
+                          {"ref": "runs/local-expert", "success": 1.0, "time": 9.0,
+                           "suggested_review": 9}]}}},
         metrics={"eval_success": 0.5, "eval_time": 30.0, "eval_cost": 40.0, "loss": 0.1},
     )  # fmt: skip
     store = client.app.state.store  # type: ignore[attr-defined]
@@ -124,8 +129,12 @@ def test_model_page_links_task_experts_and_reads_the_card(
     # each expert with what the card says the run did with it (followed > decisions: none)
     assert d["experts"] == [
         {"ref": expert["cid"], "cid": expert["cid"], "model_id": expert["id"],
-         "source": "task_spec", "usage": {"episodes": 12, "decisions": 300, "followed": 250,
-                                          "selection_probability": 1.0}},
+         "source": "task_spec", "usage": {
+             "episodes": 12, "decisions": 300, "followed": 250, "agreed": 200,
+             "selection_probability": 1.0,
+             # the worker's trial after the run (a suggestion out of 0-5: dropped)
+             "trial": {"episodes": 100, "success": 1.0, "time": 12.0, "time_vs_oracle": 1.25,
+                       "suggested_review": 4}}},
         {"ref": "runs/local-expert", "cid": None, "model_id": None, "source": "card",
          "usage": None},
     ]  # fmt: skip

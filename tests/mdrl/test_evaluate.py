@@ -229,8 +229,13 @@ def test_eval_as_expert_reviews_a_model_on_a_team_it_was_not_trained_for(tmp_pat
     oracle = json.loads(run("--policy", "oracle", "--as-expert", "--walls", "0-2", "--json").stdout)
     assert oracle["result"]["time_mean"] == oracle["oracle"]["time_mean"]
     assert oracle["result"]["cost_mean"] == oracle["oracle"]["cost_mean"]
+    assert oracle["suggested_review"] == 5  # the review it suggests, 0-5
     idle = json.loads(run("--policy", "biased:0", "--as-expert", "--walls", "0-2", "--json").stdout)
     assert idle["result"]["success_rate"] < 0.5 < idle["oracle"]["success_rate"]
+    assert idle["suggested_review"] <= 1
+    text = run("--policy", "biased:0", "--as-expert", "--walls", "0-2").stdout
+    assert f"suggested review as this task's expert: {idle['suggested_review']}/5" in text
+    assert "suggested_review" not in json.loads(run("--policy", "oracle", "--json").stdout)
 
     for args in (["--policy", "nonsense"], ["--policy", "malicious:nonsense"],
                  ["--policy", str(cmtl), "--agents", "3"]):  # a joint actor fixes its team

@@ -94,6 +94,8 @@ def test_agent_takes_best_ranked_expert_action_above_l_else_its_own_sample():
     assert got[0, 0] == 1 and got[0, 1] == 4 and got[1, 1] == 3
     assert got[1, 0] == own[1, 0]  # fallback: the very sample plain PPO would have drawn
     assert sel.decisions.tolist() == [4] and sel.followed.tolist() == [3]
+    # the expert's own first valid choice only at env 0, agent 1 (3 and 4 fell under l)
+    assert sel.agreed.tolist() == [1] and sel.card()["experts"][0]["agreed"] == 1
 
 
 def test_unguided_episodes_sample_and_the_stored_logp_is_the_learners():

@@ -151,6 +151,34 @@ def test_a_resumed_medc_job_keeps_its_selector(store, tmp_path: Path) -> None:
     assert all(torch.equal(wa[k], wb[k]) for k in wa)
 
 
+def test_the_job_delivers_its_experts_trial_or_the_model_without_it(
+    store, tmp_path: Path, monkeypatch, caplog
+) -> None:
+    """An expert-guided job's card carries the worker's trial of each expert on the task (the
+    requester's evidence for its review); when the trial fails, the trained model is still
+    delivered, without it."""
+    import workers.mdrl.review as review
+
+    cid = upload_model(store, EXPERT)
+    spec = medc_spec(cid)
+    dirs = fetch_experts(store, spec.experts, tmp_path / "a")
+    model = jobs.run_job(spec, tmp_path / "a", experts=dirs)[0]
+    trial = json.loads((model / "model.json").read_text())["training"]["experts"]["review"]
+    assert trial == json.loads(json.dumps(review.review_experts([(cid, str(dirs[cid]))],
+                                                                spec.env)))
+
+    def broken(*args, **kwargs):
+        raise RuntimeError("out of memory")
+
+    monkeypatch.setattr(review, "review_experts", broken)
+    dirs = fetch_experts(store, spec.experts, tmp_path / "b")
+    model = jobs.run_job(spec, tmp_path / "b", experts=dirs)[0]
+    card = json.loads((model / "model.json").read_text())
+    assert "review" not in card["training"]["experts"] and card["training"]["experts"]["experts"]
+    assert "no expert review in the card: RuntimeError: out of memory" in caplog.text
+    assert (tmp_path / "b" / jobs.FINISHED_MARK).is_file()
+
+
 # -- the offer pipeline -----------------------------------------------------------------------
 
 

@@ -22,6 +22,7 @@ from drlaas.cli import app
 from drlaas.commands.up import running_platform
 from workers.daemon.gateway import Gateway
 from workers.daemon.keys import load_or_create_key
+from workers.mdrl.review import REVIEW_EPISODES, review_experts
 from workers.mdrl.trainingspec import TrainingSpec
 
 from .conftest import worker_logs
@@ -108,8 +109,21 @@ def test_medc_task_with_an_mmc_expert_end_to_end(data_dir: Path, tmp_path: Path)
         (job,) = (p.data_dir / "workers").glob(f"*/jobs/*/{task['task_id']}")
         assert json.loads((job / "state.json").read_text())["experts"] == [cid]
         assert not (job / "experts").exists()
+        # the worker's trial of the expert on the task after the run: the requester's evidence,
+        # the same figures as the expert followed by the team on the same episodes here
+        tid = str(task["task_id"])
+        shown = cli.invoke(app, ["task", "show", tid, "--spec", "--gateway", p.url])
+        assert shown.exit_code == 0, shown.output
+        expected = review_experts(
+            [(cid, str(EXPERT))], TrainingSpec.from_dict(json.loads(shown.stdout)).env
+        )
+        assert used["review"] == json.loads(json.dumps(expected))
+        (trial,) = used["review"]["experts"]
+        assert used["review"]["episodes"] == REVIEW_EPISODES and trial["ref"] == cid
+        suggested = trial["suggested_review"]
+        assert 0 <= suggested <= 5 and trial["time"] >= used["review"]["oracle_time"]
 
-        # the requester reviews the expert it used
+        # the requester reviews the expert it used, as the worker's trial suggests
         mmc = p.chain.platform.mmc
         before = mmc.contract.functions.getModel(model_id).call()[0]
         run(
@@ -119,18 +133,21 @@ def test_medc_task_with_an_mmc_expert_end_to_end(data_dir: Path, tmp_path: Path)
             "--model",
             str(model_id),
             "--review",
-            "4",
+            str(suggested),
             "--key",
             str(req),
         )
         after = mmc.contract.functions.getModel(model_id).call()[0]
-        assert (before[-1], after[-1]) == (0, 4)  # totalReview on chain
+        assert (before[-1], after[-1]) == (0, suggested)  # totalReview on chain
         assert int(mmc.contract.functions.modelOfCid(cid_hash(cid)).call()) == model_id
         anon = Gateway(p.url)
         listed = {m["id"]: m for m in anon.get("/models")["data"]}
-        assert listed[model_id]["reputation"] == pytest.approx(4 / 5)  # Eq. 11: 4 / (1 * 5)
+        # Eq. 11: review / (1 * 5)
+        assert listed[model_id]["reputation"] == pytest.approx(suggested / 5)
         experts = anon.get(f"/tasks/{task['task_id']}")["experts"]
-        assert [(e["cid"], e["alloc_id"], e["review"]) for e in experts] == [(cid, alloc_id, 4)]
+        assert [(e["cid"], e["alloc_id"], e["review"]) for e in experts] == [
+            (cid, alloc_id, suggested)
+        ]
         shown = cli.invoke(app, ["task", "show", str(task["task_id"]), "--gateway", p.url])
         assert shown.exit_code == 0 and "experts" in shown.stdout and cid[:20] in shown.stdout
         # the spec document alone (for `drlaas train --task`): the one the chain's CID names

@@ -302,6 +302,7 @@ def run_job(
     metrics = trainer.train()
     model = delivered_model(job, spec)
     attach_curve(model, run_dir(job) / "metrics.csv")  # the card's training curve
+    attach_expert_review(model, spec, experts)
     mark = job / (FINISHED_MARK + ".tmp")
     mark.write_text(json.dumps({"model": model.name, "global_step": trainer.global_step}))
     os.replace(mark, job / FINISHED_MARK)
@@ -313,6 +314,23 @@ def run_job(
         "job_seconds": time.perf_counter() - t0,
         "resumed_from_update": None,
     }
+
+
+def attach_expert_review(model: Path, spec: TrainingSpec,
+                         experts: dict[str, Path] | None) -> None:
+    """The requester's evidence for reviewing the experts of an expert-guided job: each one
+    followed by the team on the task (``workers.mdrl.review``), in the delivered card. A
+    failure here costs the evidence, not the outcome (the model is trained and kept)."""
+    demo = spec.demonstration()
+    if demo is None or not experts:
+        return
+    from workers.mdrl.review import attach_review, review_experts
+
+    try:
+        review = review_experts([(ref, str(experts[ref])) for ref in demo.experts], spec.env)
+        attach_review(model, review)
+    except Exception as exc:  # noqa: BLE001 - any failure: deliver without the evidence
+        log.warning("%s: no expert review in the card: %s: %s", model, type(exc).__name__, exc)
 
 
 def warm_up() -> None:

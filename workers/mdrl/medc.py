@@ -159,7 +159,9 @@ class DemonstrationSelector:
     ``experts``: objects with ``name``, ``scores(env, rows) -> (k, N, A)`` and ``every_step``
     (``experts.load_experts``). Attributes ``episodes`` (episodes each expert guided),
     ``own_episodes``, ``decisions`` (agent decisions in guided episodes per expert) and
-    ``followed`` (how many of them took the expert's action) are what the card reports.
+    ``followed`` (how many of them took an action the expert ranked, its first eligible one) and
+    ``agreed`` (how many took the expert's own first choice: with a sharp learner the first
+    choice falls under l and guidance fades) are what the card reports.
     """
 
     def __init__(self, experts: Sequence[Any], qos: Sequence[float] | None = None,
@@ -189,6 +191,7 @@ class DemonstrationSelector:
         self.episodes = np.zeros(k, dtype=np.int64)
         self.decisions = np.zeros(k, dtype=np.int64)
         self.followed = np.zeros(k, dtype=np.int64)
+        self.agreed = np.zeros(k, dtype=np.int64)
         self.own_episodes = 0
 
     @classmethod
@@ -347,12 +350,16 @@ class DemonstrationSelector:
             mine = _decode(own[idx, 0], n, a)
         else:
             p, agent_mask, mine = logp[idx].exp(), mask[idx], own[idx]
-        eligible = agent_mask & (p > self.threshold) & torch.isfinite(scores)
-        best = torch.where(eligible, scores, torch.full_like(scores, -torch.inf)).argmax(-1)
+        ranked = agent_mask & torch.isfinite(scores)
+        eligible = ranked & (p > self.threshold)
+        no = torch.full_like(scores, -torch.inf)
+        best = torch.where(eligible, scores, no).argmax(-1)
+        first = torch.where(ranked, scores, no).argmax(-1)
         has = eligible.any(-1)
         chosen = torch.where(has, best, mine)
         self.decisions[i] += has.numel()
         self.followed[i] += int(has.sum())
+        self.agreed[i] += int((has & (best == first)).sum())
         own = own.clone()
         own[idx] = _encode(chosen, a).unsqueeze(-1) if joint else chosen
         return own
@@ -365,7 +372,8 @@ class DemonstrationSelector:
         return {"config": self.config.to_dict(), "rng": self.rng.bit_generator.state,
                 "current": self.current.tolist(), "episodes": self.episodes.tolist(),
                 "own_episodes": self.own_episodes, "decisions": self.decisions.tolist(),
-                "followed": self.followed.tolist(), "experts": experts,
+                "followed": self.followed.tolist(), "agreed": self.agreed.tolist(),
+                "experts": experts,
                 "steps_in_episode": self.steps_in_episode.tolist(),
                 "mean_length": self.mean_length.tolist(), "judged": self.judged.tolist(),
                 "weight": self.weight.tolist(), "progress": self.progress}
@@ -380,6 +388,8 @@ class DemonstrationSelector:
         self.own_episodes = int(d["own_episodes"])
         self.decisions = np.asarray(d["decisions"], dtype=np.int64)
         self.followed = np.asarray(d["followed"], dtype=np.int64)
+        # checkpoints from before the agreement count lack it
+        self.agreed = np.asarray(d.get("agreed", np.zeros(len(self.experts))), dtype=np.int64)
         if "mean_length" in d:  # checkpoints from before the credit rule lack it
             self.steps_in_episode = np.asarray(d["steps_in_episode"], dtype=np.int64)
             self.mean_length = np.asarray(d["mean_length"], dtype=np.float64)
@@ -409,7 +419,7 @@ class DemonstrationSelector:
                 {"ref": e.name, **({"digest": e.digest} if hasattr(e, "digest") else {}),
                  "qos": float(w[i]), "selection_probability": float(w[i] / w.sum()),
                  "episodes": int(self.episodes[i]), "decisions": int(self.decisions[i]),
-                 "followed": int(self.followed[i])}
+                 "followed": int(self.followed[i]), "agreed": int(self.agreed[i])}
                 | ({"mean_length": float(self.mean_length[i]), "credit": float(factors[i]),
                     "learning_weight": float(learning[i])}
                    if self.credit else {})

@@ -80,7 +80,18 @@ function expertItem(x) {
     h("span", { class: "muted" }, x.source === "task_spec" ? " · named by the task's spec" : " · listed by the card"),
     x.usage ? h("span", { class: "usage" }, ` · guided ${num(x.usage.episodes)} episode${x.usage.episodes === 1 ? "" : "s"}`
       + (x.usage.decisions ? `, its action taken in ${num(100 * x.usage.followed / x.usage.decisions, 1)}% of ${num(x.usage.decisions)} decisions` : "")
-      + (x.usage.selection_probability !== null && x.usage.selection_probability !== undefined ? `, picked with probability ${num(x.usage.selection_probability, 3)}` : "")) : null);
+      + (x.usage.decisions && x.usage.agreed !== null && x.usage.agreed !== undefined ? ` (its first choice in ${num(100 * x.usage.agreed / x.usage.decisions, 1)}%)` : "")
+      + (x.usage.selection_probability !== null && x.usage.selection_probability !== undefined ? `, picked with probability ${num(x.usage.selection_probability, 3)}` : "")) : null,
+    x.usage && x.usage.trial ? expertTrial(x.usage.trial) : null);
+}
+
+/** The worker's trial of an expert on the task after the run (card training.experts.review). */
+function expertTrial(t) {
+  return h("div", { class: "trial" },
+    `Followed by the team on ${num(t.episodes)} episodes of the task after the run: success ${percent(t.success)}, `
+    + `time ${num(t.time, 2)} steps` + (t.time_vs_oracle !== null && t.time_vs_oracle !== undefined ? ` (${num(t.time_vs_oracle, 2)}× the oracle)` : "")
+    + "; ", h("strong", { class: "suggested-review" }, `suggested review ${t.suggested_review}/5`),
+    h("span", { class: "muted" }, " (the worker's measurement: 5 × success × oracle time / time, rounded)"));
 }
 
 /** A label in plain words; the reference for experts (an equation number) in its tooltip. */

@@ -97,6 +97,7 @@ export async function render(main, [id], ctx) {
     sections.curve.el, sections.offers.el, sections.outcomes.el, sections.experts.el));
 
   let task = null;
+  const trials = new Map(); // outcome model id -> {expert CID: trial}, fetched once per model
   const draw = (name, key, build) => {
     const sct = sections[name];
     if (sct.el._key && SAME(sct.el._key, key)) return;
@@ -116,6 +117,22 @@ export async function render(main, [id], ctx) {
         : err));
     }
   };
+
+  /** The worker's trial of each expert (``usage.trial`` of the outcome model's experts, from
+   *  its card), for the outcomes listed as models; a model that does not load has none. */
+  async function fetchTrials(outcomes) {
+    for (const o of outcomes) {
+      if (o.model_id === undefined || o.model_id === null || trials.has(o.model_id)) continue;
+      const byCid = {};
+      try {
+        const m = await api(`/models/${encodeURIComponent(o.model_id)}`, { signal: ctx.signal });
+        for (const x of m.experts || []) if (x.cid && x.usage && x.usage.trial) byCid[x.cid] = x.usage.trial;
+      } catch (err) {
+        if (err.name === "AbortError") throw err;
+      }
+      trials.set(o.model_id, byCid);
+    }
+  }
 
   async function refresh() {
     let t;
@@ -193,15 +210,26 @@ export async function render(main, [id], ctx) {
       : h("p", { class: "muted" }, "No offers yet."));
 
     const experts = Array.isArray(t.experts) ? t.experts : [];
+    if (experts.length) await fetchTrials(outcomes);
+    const trialOf = (cid) => {
+      for (const o of outcomes) {
+        const found = (trials.get(o.model_id) || {})[cid];
+        if (found) return found;
+      }
+      return null;
+    };
     sections.experts.el.hidden = !experts.length;
-    draw("experts", [JSON.stringify(experts), isRequester], () => experts.length
+    draw("experts", [JSON.stringify(experts), isRequester, JSON.stringify(experts.map((x) => trialOf(x.cid)))], () => experts.length
       ? h("table", { class: "list", id: "experts-table" },
-        h("thead", {}, h("tr", {}, ["Model", "Weight", "Reputation", "Bought in request", "Review", ""].map((c) => h("th", {}, c)))),
+        h("thead", {}, h("tr", {}, ["Model", "Weight", "Reputation", "Bought in request", "On the task after the run", "Review", ""].map((c) => h("th", {}, c)))),
         h("tbody", {}, experts.map((x) => {
           const reviewed = x.review !== undefined && x.review !== null;
+          const trial = trialOf(x.cid);
           let cell = null;
           if (isRequester && !reviewed && x.alloc_id && x.model_id) {
-            const sel = h("select", { "aria-label": "Expert review 0-5" }, [5, 4, 3, 2, 1, 0].map((v) => h("option", { value: String(v) }, `${v}/5`)));
+            const suggested = trial ? trial.suggested_review : 5;
+            const sel = h("select", { "aria-label": "Expert review 0-5", value: String(suggested) },
+              [5, 4, 3, 2, 1, 0].map((v) => h("option", { value: String(v) }, `${v}/5`)));
             cell = h("span", {}, sel, h("button", { type: "button", class: "small", onclick: () =>
               act("Expert review", `/models/requests/${encodeURIComponent(x.alloc_id)}/reviews`, { model_id: x.model_id, review: Number(sel.value) }) }, "Review"));
           }
@@ -210,6 +238,11 @@ export async function render(main, [id], ctx) {
             h("td", { class: "num", title: "the expert's QoS weight in the task's spec" }, x.qos === null || x.qos === undefined ? "equal" : num(x.qos, 4)),
             h("td", { class: "num" }, num(x.reputation, 3)),
             h("td", {}, x.alloc_id ? `#${x.alloc_id}` : h("span", { class: "muted" }, "named by CID")),
+            h("td", { class: "trial", title: "the expert followed by the team on the task's episodes after the run, "
+              + "measured by the worker (the outcome's card): the suggested review is 5 × success × oracle time / time" },
+              trial ? `${num(trial.time, 2)} steps` + (trial.time_vs_oracle !== null && trial.time_vs_oracle !== undefined
+                ? ` (${num(trial.time_vs_oracle, 2)}× oracle)` : "") + `, suggests ${trial.suggested_review}/5`
+                : h("span", { class: "muted" }, "not measured")),
             h("td", {}, reviewed ? `${x.review}/5` : h("span", { class: "muted" }, "not reviewed")),
             h("td", {}, cell));
         })))

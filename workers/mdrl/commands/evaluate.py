@@ -14,6 +14,7 @@ import typer
 from workers.mdrl.baselines import BASELINES, OraclePolicy, make_baseline
 from workers.mdrl.env import LayoutError
 from workers.mdrl.evaluate import EvalReport, compare, evaluate
+from workers.mdrl.review import suggested_review
 from workers.mdrl.spec import EnvSpec, IntensitySpec, parse_grid, parse_walls
 
 # flag of each EnvSpec field a user can set here (to name the flag in errors)
@@ -270,6 +271,8 @@ def eval_command(
         raise typer.BadParameter(str(exc), param_hint="--walls") from None
     oracle = evaluate(OraclePolicy(), spec, episodes, seed=seed, batch=batch, name="oracle")
     ratios = compare(report, oracle)
+    # a review of the model as this task's expert (MMC updateModelRep takes 0-5)
+    suggested = suggested_review(report.success_rate, ratios.time_ratio) if as_expert else None
     if json_out:
         out = {
             "policy": label,
@@ -279,6 +282,7 @@ def eval_command(
             "result": {k: v for k, v in report.to_dict().items() if k != "env"},
             "oracle": {k: v for k, v in oracle.to_dict().items() if k != "env"},
             "ratios": ratios.to_dict(),
+            **({"suggested_review": suggested} if as_expert else {}),
         }
         typer.echo(json.dumps(out))
         return
@@ -294,3 +298,6 @@ def eval_command(
         f"cost {ratios.cost_ratio:.2f} {_fmt_ci(list(ratios.cost_ratio_ci))}  (95% CI: Wilson for "
         f"rates, Student t for means, paired bootstrap for ratios)"
     )
+    if suggested is not None:
+        typer.echo(f"suggested review as this task's expert: {suggested}/5 (5 x success x oracle "
+                   f"time / time, rounded; drlaas model review ... --review {suggested})")
