@@ -178,6 +178,13 @@ def test_the_job_delivers_its_experts_trial_or_the_model_without_it(
     assert "no expert review in the card: RuntimeError: out of memory" in caplog.text
     assert (tmp_path / "b" / jobs.FINISHED_MARK).is_file()
 
+    # a job that trained up to its deadline delivers without the trial, in time
+    monkeypatch.undo()
+    dirs = fetch_experts(store, spec.experts, tmp_path / "c")
+    model = jobs.run_job(spec, tmp_path / "c", experts=dirs, minutes_left=0.02)[0]
+    assert "review" not in json.loads((model / "model.json").read_text())["training"]["experts"]
+    assert "no expert review in the card: the deadline is too near" in caplog.text
+
 
 # -- the offer pipeline -----------------------------------------------------------------------
 

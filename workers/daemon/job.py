@@ -37,6 +37,10 @@ CHECKPOINT_EVERY = 2
 
 ProgressHook = Callable[[dict[str, Any]], None]
 
+#: Seconds the trial of an expert-guided job's experts (``attach_expert_review``) may need: a
+#: job that trained to within this of its deadline delivers without the trial.
+TRIAL_TIME_S = 60.0
+
 
 class JobTrainer(Trainer):
     """The MDRL trainer with two hooks: ``on_first_step`` (before the first env step of this
@@ -287,11 +291,11 @@ def run_job(
         experts=experts,
         walls_cae=walls_cae,
     )
-    log = job / "progress.jsonl"
+    points = job / "progress.jsonl"
 
     def on_row(row: dict[str, Any]) -> None:
         point = progress_point(row)
-        with log.open("a") as f:
+        with points.open("a") as f:
             f.write(json.dumps(point) + "\n")
         if on_progress is not None:
             on_progress(point)
@@ -302,7 +306,11 @@ def run_job(
     metrics = trainer.train()
     model = delivered_model(job, spec)
     attach_curve(model, run_dir(job) / "metrics.csv")  # the card's training curve
-    attach_expert_review(model, spec, experts)
+    left_s = None if minutes_left is None else minutes_left * 60.0 - (time.perf_counter() - t0)
+    if left_s is not None and left_s < TRIAL_TIME_S:
+        log.warning("%s: no expert review in the card: the deadline is too near", model)
+    else:
+        attach_expert_review(model, spec, experts)
     mark = job / (FINISHED_MARK + ".tmp")
     mark.write_text(json.dumps({"model": model.name, "global_step": trainer.global_step}))
     os.replace(mark, job / FINISHED_MARK)
