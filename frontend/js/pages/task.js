@@ -129,6 +129,7 @@ export async function render(main, [id], ctx) {
         for (const x of m.experts || []) if (x.cid && x.usage && x.usage.trial) byCid[x.cid] = x.usage.trial;
       } catch (err) {
         if (err.name === "AbortError") throw err;
+        if (err.status !== 404) continue; // a failure that may pass: asked again at the next poll
       }
       trials.set(o.model_id, byCid);
     }
