@@ -289,6 +289,8 @@ def train_run(task: str, method: str, seed: int, steps: int, experts: list[str],
               "heldout": heldout(learner.policy(), env)}
     if method in FRL:
         result["local_updates"] = trainer.local_updates
+    if getattr(learner, "selector", None) is not None and hasattr(learner.selector, "card"):
+        result["guidance"] = learner.selector.card()  # episodes, decisions, followed, agreed
     if selected and learner.best is not None:  # the policy of the curve's shortest time
         result["best"] = {"step": learner.best["global_step"],
                           "curve_time": learner.best["eval_time"],

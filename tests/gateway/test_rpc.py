@@ -4,6 +4,7 @@ indexer thread picks the events up."""
 
 from __future__ import annotations
 
+import functools
 import time
 
 import httpx
@@ -17,6 +18,9 @@ from backend.services.chain import ChainService
 from backend.settings import Settings
 from backend.store.cid import CID, RAW
 
+# one generous timeout: a loaded CI machine can take seconds to answer, which is not what
+# these tests judge (httpx's default is 5 s)
+http = functools.partial(httpx.request, timeout=60.0)
 REVEAL_CID = str(CID.for_block(b"revealed", RAW))  # a canonical text: the chain refuses others
 
 
@@ -57,7 +61,7 @@ def test_chain_rpc_through_the_gateway(gateway: str, service: ChainService) -> N
     # the gateway's indexer thread saw what the remote client did
     deadline = time.monotonic() + 20
     while True:
-        r = httpx.get(f"{gateway}/api/tasks/{task_id}")
+        r = http("GET", f"{gateway}/api/tasks/{task_id}")
         if r.status_code == 200 and r.json()["offers"]:
             break
         assert time.monotonic() < deadline, r.text
@@ -97,14 +101,14 @@ def test_commit_then_reveal_through_the_gateway(gateway: str, service: ChainServ
 
 def test_rpc_refuses_node_signing_and_bad_requests(gateway: str) -> None:
     url = f"{gateway}/rpc"
-    r = httpx.post(
+    r = http("POST",
         url, json={"jsonrpc": "2.0", "id": 1, "method": "eth_sendTransaction", "params": [{}]}
     )
     assert r.json()["error"]["code"] == -32601
     json_type = {"Content-Type": "application/json"}
-    assert httpx.post(url, content=b"{nope", headers=json_type).json()["error"]["code"] == -32700
+    assert http("POST", url, content=b"{nope", headers=json_type).json()["error"]["code"] == -32700
     # a body a web page can send across sites without a CORS preflight is refused
-    r = httpx.post(url, content=b'{"jsonrpc":"2.0","id":1,"method":"eth_chainId"}',
+    r = http("POST", url, content=b'{"jsonrpc":"2.0","id":1,"method":"eth_chainId"}',
                    headers={"Content-Type": "text/plain"})
     assert r.status_code == 415 and r.json()["detail"]["rule"] == "rpc_content_type", r.text
     batch = [
@@ -112,11 +116,11 @@ def test_rpc_refuses_node_signing_and_bad_requests(gateway: str) -> None:
         {"jsonrpc": "2.0", "id": 2, "method": "eth_accounts", "params": []},
         {"jsonrpc": "2.0", "id": 3, "method": "eth_getBalance", "params": ["0x12"]},
     ]
-    out = httpx.post(url, json=batch).json()
+    out = http("POST", url, json=batch).json()
     assert out[0]["result"] == hex(Settings().effective_chain_id or 0)
     assert out[1]["result"] == []  # the node holds nobody's keys
     assert "error" in out[2]
-    r = httpx.post(url, json={"jsonrpc": "2.0", "id": 4, "method": "eth_chainId", "params": [1]})
+    r = http("POST", url, json={"jsonrpc": "2.0", "id": 4, "method": "eth_chainId", "params": [1]})
     assert r.json()["error"]["code"] == -32602  # eth_chainId takes no params
 
 
@@ -143,7 +147,7 @@ def test_rpc_serves_no_test_or_admin_method(
     """Anonymous clients reach /rpc: a method that rewrites chain time, state or history (or
     makes the node sign) is "method not found", and the chain is left exactly as it was."""
     head = service.chain.w3.eth.get_block("latest")
-    r = httpx.post(
+    r = http("POST",
         f"{gateway}/rpc", json={"jsonrpc": "2.0", "id": 7, "method": method, "params": params}
     )
     assert r.status_code == 200
@@ -195,7 +199,7 @@ def test_second_gateway_in_rpc_mode_follows_the_first(
 def test_contracts_endpoint_lets_another_process_attach(
     gateway: str, service: ChainService
 ) -> None:
-    info = httpx.get(f"{gateway}/api/chain/contracts").json()
+    info = http("GET", f"{gateway}/api/chain/contracts").json()
     assert info["rpc"] == "/rpc" and info["chain_id"] == service.chain.chain_id
     # a fresh key (a worker daemon's own key file) is topped up by the dev faucet first:
     # eth-tester refuses even eth_call from an account that could not pay for the gas
