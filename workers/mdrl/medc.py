@@ -160,8 +160,8 @@ class DemonstrationSelector:
     (``experts.load_experts``). Attributes ``episodes`` (episodes each expert guided),
     ``own_episodes``, ``decisions`` (agent decisions in guided episodes per expert) and
     ``followed`` (how many of them took an action the expert ranked, its first eligible one) and
-    ``agreed`` (how many took the expert's own first choice: with a sharp learner the first
-    choice falls under l and guidance fades) are what the card reports.
+    ``agreed`` (how many took the expert's own first choice; the rest are where l overruled
+    it) are what the card reports.
     """
 
     def __init__(self, experts: Sequence[Any], qos: Sequence[float] | None = None,
