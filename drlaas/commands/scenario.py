@@ -7,8 +7,8 @@ content store and its CID on chain; the requester reviews it; reputations change
 owner shares it and it shows in the listing; a second requester asks for experts (a
 model-sharing task), receives that model's CID and trains a second task with it as the
 expert (MEDC, thesis Alg. 5.1: the outcome's card lists the expert and the episodes it
-guided), then accepts that outcome and reviews the expert, which moves its reputation on
-chain. Finally the workers
+guided, and the worker's trial of it on the task), then accepts that outcome and reviews the
+expert as the trial suggests, which moves its reputation on chain. Finally the workers
 publish the model zoo (``models/``: one trained model per thesis row, uploaded with its card),
 so the listing shows what the platform sells.
 
@@ -316,21 +316,37 @@ def _medc_task(
     )
     _accept_outcome(req, anon, task_id, worker, review=5)
     say(f"  outcome of {worker} accepted, 5/5")
+    # the worker's trial of each expert on the task after the run: the review's evidence
+    trials = {t["ref"]: t for t in card["training"]["experts"].get("review", {}).get("experts", [])}
+    trial = trials.get(used[0]["ref"])
+    if trial is None:
+        raise RuntimeError(f"task {task_id}: the outcome's card has no trial of its expert")
+    review = trial["suggested_review"]
+    say(
+        f"  the worker's trial of the expert on the task: success {trial['success']:.0%}, "
+        f"time {trial['time']:.1f} steps ({trial['time_vs_oracle']:.2f}x the oracle): "
+        f"suggests {review}/5"
+    )
     before = anon.get(f"/models/{model_id}")["reputation"]
-    write(req, "POST", f"/models/requests/{alloc_id}/reviews", {"model_id": model_id, "review": 4})
-    after = wait_for(
-        "the expert's reputation to change",
-        lambda: anon.get(f"/models/{model_id}"),
-        lambda m: m["reputation"] != before,
+    write(req, "POST", f"/models/requests/{alloc_id}/reviews",
+          {"model_id": model_id, "review": review})
+    wait_for(
+        "the expert's review to be indexed",
+        lambda: anon.get(f"/tasks/{task_id}"),
+        lambda d: any(x.get("review") is not None for x in d.get("experts", [])),
         timeout=30,
-    )["reputation"]
-    say(f"review 4/5 of expert model {model_id}: reputation {before} -> {after}")
+    )
+    after = anon.get(f"/models/{model_id}")["reputation"]
+    say(f"review {review}/5 of expert model {model_id}, as suggested: reputation {before} -> "
+        f"{after}")
     return {
         "task_id": task_id,
         "worker": worker,
         "cid": detail["outcomes"][0]["cid"],
         "experts": [{"ref": e["ref"], "episodes": e["episodes"]} for e in used],
         "selected": {k: selected[k] for k in ("by", "update", "global_step", "eval_time")},
+        "expert_review": review,
+        "expert_trial": trial,
         "expert_reputation": [before, after],
     }
 

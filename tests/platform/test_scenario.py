@@ -80,11 +80,15 @@ def test_scenario_end_to_end(
     assert report["reputation_after"] > report["reputation_before"]
     assert report["allocated"] == [report["cid"]]
     # MEDC: the second task trained with the allocated model and its card says so; the
-    # requester's review of the expert moved the model's reputation (Eq. 11: 4 / (1 * 5))
+    # requester's review of the expert, the one the worker's trial suggests, moved the model's
+    # reputation (Eq. 11: review / (1 * 5))
     medc = report["medc"]
     assert [e["ref"] for e in medc["experts"]] == [report["cid"]]
     assert medc["experts"][0]["episodes"] > 0
-    assert medc["expert_reputation"][1] == pytest.approx(4 / 5)
+    trial = medc["expert_trial"]
+    assert trial["ref"] == report["cid"] and 0 <= medc["expert_review"] <= 5
+    assert medc["expert_review"] == trial["suggested_review"]
+    assert medc["expert_reputation"][1] == pytest.approx(medc["expert_review"] / 5)
     assert medc["cid"] != report["cid"]
     # the MEDC task asks for the best evaluated policy: the outcome's card says when it was kept
     assert medc["selected"]["by"] == "time" and medc["selected"]["update"] >= 1
