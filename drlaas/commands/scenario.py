@@ -8,7 +8,7 @@ owner shares it and it shows in the listing; a second requester asks for experts
 model-sharing task), receives that model's CID and trains a second task with it as the
 expert (MEDC, thesis Alg. 5.1: the outcome's card lists the expert and the episodes it
 guided, and the worker's trial of it on the task), then accepts that outcome and reviews the
-expert as the trial suggests, which moves its reputation on chain. Finally the workers
+expert as the trial suggests, which sets its reputation on chain (Eq. 11). Finally the workers
 publish the model zoo (``models/``: one trained model per thesis row, uploaded with its card),
 so the listing shows what the platform sells.
 
