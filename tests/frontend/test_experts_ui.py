@@ -10,7 +10,7 @@ from typing import Any
 import pytest
 from fastapi import Request
 
-from tests.frontend.conftest import LiveServer, sign_in_as_alice
+from tests.frontend.conftest import LiveServer, screenshot, sign_in_as_alice
 from tests.frontend.fake_api import ALICE, W1, FakeState, make_fake_app
 
 expect = pytest.importorskip("playwright.sync_api", reason="pip install playwright").expect
@@ -134,6 +134,7 @@ def test_the_task_page_lists_experts_and_takes_the_review(page: Any, mmc: Any) -
     expect(rows.nth(0)).to_contain_text("#9")
     expect(rows.nth(0).locator(".trial")).to_have_text("13.7 steps (1.43× oracle), suggests 3/5")
     expect(rows.nth(0).locator("select")).to_have_value("3")  # the suggestion, preselected
+    screenshot(page, "task-experts")
     rows.nth(0).locator("button").click()
     expect(page.locator("#task-message")).to_contain_text("Expert review: sent")
     assert calls == [("review", 9, {"model_id": 2, "review": 3})]
