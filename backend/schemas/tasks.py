@@ -9,6 +9,7 @@ from pydantic import BaseModel, ConfigDict, Field, WithJsonSchema, model_validat
 
 from workers.mdrl.trainingspec import EXPERT_PATTERN, trainingspec_json_schema
 
+from .cards import ExpertTrialPublic
 from .common import (
     CID_LENGTH,
     CID_PATTERN,
@@ -245,6 +246,13 @@ class TaskReviewCreate(BaseModel):
     accepted: Flag = True
 
 
+class OutcomeTrialPublic(ExpertTrialPublic):
+    """The worker's trial of an expert on the task after its run (its outcome's card,
+    ``training.experts.review``): the evidence for the requester's review of the expert."""
+
+    worker: str = Field(description="the worker whose outcome card says so (its word)")
+
+
 class TaskExpertPublic(BaseModel):
     """An expert model the task's spec names (MEDC), with what the index knows of it."""
 
@@ -254,6 +262,11 @@ class TaskExpertPublic(BaseModel):
     reputation: float | None = Field(description="the model's Eq. 11 reputation")
     alloc_id: int | None = Field(description="the requester's latest allocation of it")
     review: int | None = Field(description="the requester's review in that allocation")
+    trials: list[OutcomeTrialPublic] = Field(
+        default_factory=list,
+        description="the worker's trial of it on the task after the run, one per outcome "
+        "whose card has one: figures and a suggested 0-5 review",
+    )
 
 
 SpecState = Literal["pending", "read", "none", "invalid", "missing"]

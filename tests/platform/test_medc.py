@@ -148,8 +148,16 @@ def test_medc_task_with_an_mmc_expert_end_to_end(data_dir: Path, tmp_path: Path)
         assert [(e["cid"], e["alloc_id"], e["review"]) for e in experts] == [
             (cid, alloc_id, suggested)
         ]
+        # the task page shows the trial from the outcome card (sealed: its card is plain text)
+        (shown_trial,) = experts[0]["trials"]
+        (outcome,) = anon.get(f"/tasks/{task['task_id']}")["outcomes"]
+        assert shown_trial == {
+            "worker": outcome["worker"], "episodes": REVIEW_EPISODES,
+            **{k: trial[k] for k in ("success", "time", "time_vs_oracle", "suggested_review")},
+        }
         shown = cli.invoke(app, ["task", "show", str(task["task_id"]), "--gateway", p.url])
         assert shown.exit_code == 0 and "experts" in shown.stdout and cid[:20] in shown.stdout
+        assert "SUGGESTED (TRIAL)" in shown.stdout and f"{suggested}/5 (" in shown.stdout
         # the spec document alone (for `drlaas train --task`): the one the chain's CID names
         spec = cli.invoke(app, ["task", "show", str(task["task_id"]), "--spec", "--gateway", p.url])
         assert spec.exit_code == 0, spec.output

@@ -22,10 +22,10 @@ from fastapi.responses import JSONResponse, StreamingResponse
 from sqlalchemy import func, or_, select
 
 from backend.api.bundles import BundleRefused, check_model_bundle
+from backend.api.cards import read_card
 from backend.api.client_key import client_key
 from backend.api.deps import ChainDep, CurrentUser, IndexerDep, SessionDep, SettingsDep, StoreDep
 from backend.api.errors import RuleError, rule_responses
-from backend.api.limits import json_depth_exceeds
 from backend.api.pagecache import cached_page
 from backend.api.schemas import Address
 from backend.api.slots import ClientSlots
@@ -73,7 +73,6 @@ ModelId = Annotated[int, Path(ge=1, le=MAX_ID), ID_DIGITS]
 AllocId = Annotated[int, Path(ge=1, le=MAX_ID), ID_DIGITS]
 TaskId = Annotated[int, Path(ge=1, le=MAX_ID), ID_DIGITS]
 BundleFile = Literal["model.safetensors", "model.json"]
-MAX_CARD_DEPTH = 32
 HALF = 500_000
 MAX_REQUESTS_SHOWN = 20
 
@@ -368,24 +367,6 @@ def _model(session: SessionDep, model_id: int) -> m.ModelRow:
     return row
 
 
-def _card(store: StoreDep, cid: str) -> dict[str, Any] | None:
-    """The bundle's card, or None when it is missing, too large, too deep or not a JSON object
-    (it is anyone's file: the answer must serialise whatever it holds; NaN/Infinity, which
-    Python's parser accepts and JSON does not, become null)."""
-    try:
-        card_cid, size = bundle_entry(store, cid, "model.json")
-        if size > MAX_CARD_BYTES:
-            return None
-        raw = store.get(card_cid, max_size=MAX_CARD_BYTES)
-        if json_depth_exceeds(raw, MAX_CARD_DEPTH):
-            raise ValueError(f"nested deeper than {MAX_CARD_DEPTH} levels")
-        card = json.loads(raw, parse_constant=lambda _: None)
-        return card if isinstance(card, dict) else None
-    except (KeyError, ValueError, RecursionError, StoreError) as exc:
-        log.info("model card of %s unavailable: %s", cid, exc)
-        return None
-
-
 @router.get("/{model_id}", response_model=ModelDetailPublic, responses=rule_responses(404))
 def get_model(model_id: ModelId, session: SessionDep, store: StoreDep) -> ModelDetailPublic:
     """A model as a model hub shows it: chain values in human units (reputations and QoS as
@@ -394,7 +375,7 @@ def get_model(model_id: ModelId, session: SessionDep, store: StoreDep) -> ModelD
     next to the raw card (model.json of the bundle, when the store has it)."""
     row = _model(session, model_id)
     owner = session.get(m.WorkerRow, row.owner)
-    card = _card(store, row.cid)
+    card = read_card(store, row.cid)
     view = CardView.from_card(card)
     # The outcome this model came from: submitted no later than the listing, by its owner
     # (MMC.addModel's provenance rule). An outcome submitted later with the same CID is

@@ -4,13 +4,14 @@ timeline/offers/outcomes/progress, progress points from assigned workers, review
 from __future__ import annotations
 
 import logging
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from typing import Annotated, Any, Literal
 
 from fastapi import APIRouter, Path, Query, Request, status
 from sqlalchemy import func, select, update
 from sqlalchemy.exc import IntegrityError
 
+from backend.api.cards import expert_trials
 from backend.api.deps import ChainDep, CurrentUser, IndexerDep, SessionDep, SettingsDep, StoreDep
 from backend.api.errors import RuleError, rule_responses
 from backend.api.experts import (
@@ -39,6 +40,7 @@ from backend.schemas.common import (
 from backend.schemas.tasks import (
     OfferPublic,
     OutcomePublic,
+    OutcomeTrialPublic,
     ProgressCreate,
     ProgressPublic,
     TaskCreate,
@@ -57,6 +59,7 @@ from backend.services.specs import (
     validate_env,
 )
 from backend.settings import Settings
+from backend.store import ContentStore
 from backend.store.bundle import canonical_json
 from backend.store.sealed import address_of, parse_public_key
 from workers.mdrl.trainingspec import TrainingSpec
@@ -417,8 +420,26 @@ _LIST_COLUMNS = tuple(
 )
 
 
+def _with_trials(
+    experts: list[dict[str, Any]], store: ContentStore, outcomes: Sequence[m.OutcomeRow]
+) -> list[TaskExpertPublic]:
+    """The spec's experts, each with the workers' trials of it in their outcome cards (read
+    from the store once per CID: ``backend.api.cards``); no store read for a task without
+    experts or outcomes."""
+    trials = expert_trials(store, [(o.worker, o.cid) for o in outcomes]) if experts else {}
+    return [
+        TaskExpertPublic(
+            **e,
+            trials=[
+                OutcomeTrialPublic(worker=w, **t.model_dump()) for w, t in trials.get(e["cid"], [])
+            ],
+        )
+        for e in experts
+    ]
+
+
 @router.get("/{task_id}", response_model=TaskDetailPublic, responses=rule_responses(404))
-def get_task(task_id: TaskId, session: SessionDep) -> TaskDetailPublic:
+def get_task(task_id: TaskId, session: SessionDep, store: StoreDep) -> TaskDetailPublic:
     t = _task(session, task_id)
     events = session.scalars(
         select(m.ChainEvent)
@@ -446,7 +467,7 @@ def get_task(task_id: TaskId, session: SessionDep) -> TaskDetailPublic:
         **task_public(t).model_dump(),
         spec=t.spec,
         spec_state=t.spec_state,
-        experts=[TaskExpertPublic(**e) for e in task_experts(session, t.spec, t.requester)],
+        experts=_with_trials(task_experts(session, t.spec, t.requester), store, outcomes),
         timeline=[EventPublic.model_validate(e) for e in events],
         offers=[
             OfferPublic(worker=o.worker, state=o.state, qos=from_fixed(o.qos), expiry=o.expiry)

@@ -489,16 +489,18 @@ def task_show(
                 + table(d["outcomes"], [("worker", "WORKER"), ("cid", "CID"), ("review", "REVIEW")])
             )
         if d.get("experts"):
+            rows = [x | {"suggested": trial_text(x)} for x in d["experts"]]
             typer.echo(
                 "\nexperts\n"
                 + table(
-                    d["experts"],
+                    rows,
                     [
                         ("cid", "CID"),
                         ("qos", "QOS"),
                         ("model_id", "MODEL"),
                         ("reputation", "REPUTATION"),
                         ("alloc_id", "ALLOCATION"),
+                        ("suggested", "SUGGESTED (TRIAL)"),
                         ("review", "REVIEW"),
                     ],
                 )
@@ -519,6 +521,17 @@ def task_show(
             )
 
     emit(out, as_json, render)
+
+
+def trial_text(expert: dict[str, Any]) -> str:
+    """The first worker's trial of an expert (``experts[].trials``): "K/5 (time steps, ratio x
+    oracle)", or "" when no outcome card has one."""
+    trials = expert.get("trials") or []
+    if not trials:
+        return ""
+    t, ratio = trials[0], trials[0].get("time_vs_oracle")
+    return (f"{t['suggested_review']}/5 ({t['time']:.1f} steps"
+            + (f", {ratio:.2f}x oracle)" if ratio is not None else ")"))
 
 
 @task_app.command("review")

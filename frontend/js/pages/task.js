@@ -2,7 +2,8 @@
 // polled every 2 s; each section is redrawn only when its data changed, so a half-filled review
 // form survives the polling. Experts (MEDC): the models the spec names, with their QoS weight,
 // the MMC model and allocation they came from, and the requester's review of each
-// (POST /models/requests/{alloc_id}/reviews, MMC updateModelRep).
+// (POST /models/requests/{alloc_id}/reviews, MMC updateModelRep), started at the review the
+// worker's trial of the expert suggests (experts[].trials, from the outcome's card).
 // Cancelling asks for confirmation first; the timeline's chain values are in human units (ETH,
 // UTC dates, fractions); an outcome links to its model only where that model is listed.
 
@@ -97,7 +98,6 @@ export async function render(main, [id], ctx) {
     sections.curve.el, sections.offers.el, sections.outcomes.el, sections.experts.el));
 
   let task = null;
-  const trials = new Map(); // outcome model id -> {expert CID: trial}, fetched once per model
   const draw = (name, key, build) => {
     const sct = sections[name];
     if (sct.el._key && SAME(sct.el._key, key)) return;
@@ -117,23 +117,6 @@ export async function render(main, [id], ctx) {
         : err));
     }
   };
-
-  /** The worker's trial of each expert (``usage.trial`` of the outcome model's experts, from
-   *  its card), for the outcomes listed as models; a model that does not load has none. */
-  async function fetchTrials(outcomes) {
-    for (const o of outcomes) {
-      if (o.model_id === undefined || o.model_id === null || trials.has(o.model_id)) continue;
-      const byCid = {};
-      try {
-        const m = await api(`/models/${encodeURIComponent(o.model_id)}`, { signal: ctx.signal });
-        for (const x of m.experts || []) if (x.cid && x.usage && x.usage.trial) byCid[x.cid] = x.usage.trial;
-      } catch (err) {
-        if (err.name === "AbortError") throw err;
-        if (err.status !== 404) continue; // a failure that may pass: asked again at the next poll
-      }
-      trials.set(o.model_id, byCid);
-    }
-  }
 
   async function refresh() {
     let t;
@@ -211,21 +194,13 @@ export async function render(main, [id], ctx) {
       : h("p", { class: "muted" }, "No offers yet."));
 
     const experts = Array.isArray(t.experts) ? t.experts : [];
-    if (experts.length) await fetchTrials(outcomes);
-    const trialOf = (cid) => {
-      for (const o of outcomes) {
-        const found = (trials.get(o.model_id) || {})[cid];
-        if (found) return found;
-      }
-      return null;
-    };
     sections.experts.el.hidden = !experts.length;
-    draw("experts", [JSON.stringify(experts), isRequester, JSON.stringify(experts.map((x) => trialOf(x.cid)))], () => experts.length
+    draw("experts", [JSON.stringify(experts), isRequester], () => experts.length
       ? h("table", { class: "list", id: "experts-table" },
         h("thead", {}, h("tr", {}, ["Model", "Weight", "Reputation", "Bought in request", "On the task after the run", "Review", ""].map((c) => h("th", {}, c)))),
         h("tbody", {}, experts.map((x) => {
           const reviewed = x.review !== undefined && x.review !== null;
-          const trial = trialOf(x.cid);
+          const trial = (x.trials || [])[0] || null; // the first outcome's worker's trial
           let cell = null;
           if (isRequester && !reviewed && x.alloc_id && x.model_id) {
             const suggested = trial ? trial.suggested_review : 5;
