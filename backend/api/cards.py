@@ -64,12 +64,14 @@ class OutcomeCards:
         self._missed: dict[str, float] = {}  # cid -> when to ask again
         self._lock = threading.Lock()
 
-    def view(self, cid: str) -> CardView | None:
+    def view(self, cid: str, read: bool = True) -> CardView | None:
+        """The card of ``cid`` as validated; None when the store does not give it (or, with
+        ``read`` False, when it is not kept already)."""
         with self._lock:
             if cid in self._views:
                 self._views.move_to_end(cid)
                 return self._views[cid]
-            if self._missed.get(cid, 0.0) > self.clock():
+            if not read or self._missed.get(cid, 0.0) > self.clock():
                 return None
         card = read_card(self.store, cid)  # outside the lock: a slow store stalls no other cid
         with self._lock:
@@ -100,14 +102,15 @@ def outcome_cards(store: ContentStore) -> OutcomeCards:
 
 
 def expert_trials(
-    store: ContentStore, outcomes: list[tuple[str, str]]
+    store: ContentStore, outcomes: list[tuple[str, str]], read: bool = True
 ) -> dict[str, list[tuple[str, ExpertTrialPublic]]]:
     """{expert ref: [(worker, its trial in that worker's outcome card)]} over ``outcomes``
-    ((worker, outcome CID)): ``training.experts.review`` of each card, as validated."""
+    ((worker, outcome CID)): ``training.experts.review`` of each card, as validated; with
+    ``read`` False only from the cards kept already."""
     out: dict[str, list[tuple[str, ExpertTrialPublic]]] = {}
     cards = outcome_cards(store)
     for worker, cid in outcomes:
-        view = cards.view(cid)
+        view = cards.view(cid, read)
         if view is None:
             continue
         for ref, usage in view.expert_usage.items():

@@ -70,3 +70,16 @@ def test_a_card_is_read_once_and_a_miss_is_retried_after_a_while(tmp_path) -> No
     reads = store.gets
     cards.view(cid)  # pushed out by the two newer ones: read again
     assert store.gets > reads
+
+
+def test_without_a_store_read_only_the_kept_cards_answer(tmp_path) -> None:
+    """The task page takes a store-read slot to read a card; when none is free it answers
+    from the cards kept already (read=False), without touching the store."""
+    store = CountingStore(tmp_path)
+    kept, new = outcome(store, 4), outcome(store, 2)
+    cards = OutcomeCards(store)
+    cards.view(kept)
+    reads = store.gets
+    assert cards.view(new, read=False) is None and cards.view(kept, read=False) is not None
+    assert store.gets == reads
+    assert cards.view(new) is not None  # not remembered as a miss: read when a slot is free

@@ -12,6 +12,7 @@ from sqlalchemy import func, select, update
 from sqlalchemy.exc import IntegrityError
 
 from backend.api.cards import expert_trials
+from backend.api.client_key import client_key
 from backend.api.deps import ChainDep, CurrentUser, IndexerDep, SessionDep, SettingsDep, StoreDep
 from backend.api.errors import RuleError, rule_responses
 from backend.api.experts import (
@@ -421,12 +422,23 @@ _LIST_COLUMNS = tuple(
 
 
 def _with_trials(
-    experts: list[dict[str, Any]], store: ContentStore, outcomes: Sequence[m.OutcomeRow]
+    experts: list[dict[str, Any]], request: Request, outcomes: Sequence[m.OutcomeRow]
 ) -> list[TaskExpertPublic]:
     """The spec's experts, each with the workers' trials of it in their outcome cards (read
-    from the store once per CID: ``backend.api.cards``); no store read for a task without
-    experts or outcomes."""
-    trials = expert_trials(store, [(o.worker, o.cid) for o in outcomes]) if experts else {}
+    from the store once per CID: ``backend.api.cards``). A store read takes one of the
+    store-read slots (``deps.get_store``) when one is free; when none is, the page answers
+    with the cards kept already, never refused: the task page does not depend on the store."""
+    store: ContentStore | None = getattr(request.app.state, "store", None)
+    trials: dict[str, list[Any]] = {}
+    if experts and outcomes and store is not None:
+        pairs = [(o.worker, o.cid) for o in outcomes]
+        reads, client = request.app.state.store_reads, client_key(request)
+        slot = reads.take(client) is None
+        try:
+            trials = expert_trials(store, pairs, read=slot)
+        finally:
+            if slot:
+                reads.release(client)
     return [
         TaskExpertPublic(
             **e,
@@ -439,7 +451,7 @@ def _with_trials(
 
 
 @router.get("/{task_id}", response_model=TaskDetailPublic, responses=rule_responses(404))
-def get_task(task_id: TaskId, session: SessionDep, store: StoreDep) -> TaskDetailPublic:
+def get_task(task_id: TaskId, session: SessionDep, request: Request) -> TaskDetailPublic:
     t = _task(session, task_id)
     events = session.scalars(
         select(m.ChainEvent)
@@ -467,7 +479,7 @@ def get_task(task_id: TaskId, session: SessionDep, store: StoreDep) -> TaskDetai
         **task_public(t).model_dump(),
         spec=t.spec,
         spec_state=t.spec_state,
-        experts=_with_trials(task_experts(session, t.spec, t.requester), store, outcomes),
+        experts=_with_trials(task_experts(session, t.spec, t.requester), request, outcomes),
         timeline=[EventPublic.model_validate(e) for e in events],
         offers=[
             OfferPublic(worker=o.worker, state=o.state, qos=from_fixed(o.qos), expiry=o.expiry)
