@@ -5,7 +5,8 @@ bundle's card is plain text).
 
 A card is anyone's file: it is bounded in size and depth, and only what validates is shown
 (``backend.schemas.cards.CardView``). A CID names its content for good, so the parsed card of
-an outcome is kept (:class:`OutcomeCards`, per store, at most :data:`KEPT_CARDS`); a card the
+an outcome is kept (:class:`OutcomeCards`, ``app.state.outcome_cards``, at most
+:data:`KEPT_CARDS`); a card the
 store cannot give now is asked for again after :data:`RETRY_S`, not on every poll of the task
 page (the UI polls every 2 s, and a real node may take its find timeout to say "not found").
 """
@@ -16,7 +17,6 @@ import json
 import logging
 import threading
 import time
-import weakref
 from collections import OrderedDict
 from collections.abc import Callable
 from typing import Any
@@ -30,7 +30,7 @@ log = logging.getLogger(__name__)
 
 MAX_CARD_DEPTH = 32
 KEPT_CARDS = 512
-"""Outcome cards kept parsed per store (a few hundred bytes each once parsed)."""
+"""Outcome cards kept parsed per gateway (a few hundred bytes each once parsed)."""
 RETRY_S = 60.0
 """Seconds before a card the store did not give is asked for again."""
 
@@ -57,15 +57,15 @@ class OutcomeCards:
     """The validated cards of outcomes by CID, kept (content-addressed: they never change);
     a miss is retried after ``retry_s``."""
 
-    def __init__(self, store: ContentStore, kept: int = KEPT_CARDS, retry_s: float = RETRY_S,
+    def __init__(self, kept: int = KEPT_CARDS, retry_s: float = RETRY_S,
                  clock: Callable[[], float] = time.monotonic):
-        self.store, self.kept, self.retry_s, self.clock = store, kept, retry_s, clock
+        self.kept, self.retry_s, self.clock = kept, retry_s, clock
         self._views: OrderedDict[str, CardView] = OrderedDict()
         self._missed: dict[str, float] = {}  # cid -> when to ask again
         self._lock = threading.Lock()
 
-    def view(self, cid: str, read: bool = True) -> CardView | None:
-        """The card of ``cid`` as validated; None when the store does not give it (or, with
+    def view(self, store: ContentStore, cid: str, read: bool = True) -> CardView | None:
+        """The card of ``cid`` as validated; None when ``store`` does not give it (or, with
         ``read`` False, when it is not kept already)."""
         with self._lock:
             if cid in self._views:
@@ -73,7 +73,7 @@ class OutcomeCards:
                 return self._views[cid]
             if not read or self._missed.get(cid, 0.0) > self.clock():
                 return None
-        card = read_card(self.store, cid)  # outside the lock: a slow store stalls no other cid
+        card = read_card(store, cid)  # outside the lock: a slow store stalls no other cid
         with self._lock:
             if card is None:
                 self._missed[cid] = self.clock() + self.retry_s
@@ -88,29 +88,15 @@ class OutcomeCards:
             return view
 
 
-_PER_STORE: weakref.WeakKeyDictionary[Any, OutcomeCards] = weakref.WeakKeyDictionary()
-_PER_STORE_LOCK = threading.Lock()
-
-
-def outcome_cards(store: ContentStore) -> OutcomeCards:
-    """The one :class:`OutcomeCards` of ``store``."""
-    with _PER_STORE_LOCK:
-        cards = _PER_STORE.get(store)
-        if cards is None:
-            cards = _PER_STORE[store] = OutcomeCards(store)
-        return cards
-
-
 def expert_trials(
-    store: ContentStore, outcomes: list[tuple[str, str]], read: bool = True
+    cards: OutcomeCards, store: ContentStore, outcomes: list[tuple[str, str]], read: bool = True
 ) -> dict[str, list[tuple[str, ExpertTrialPublic]]]:
     """{expert ref: [(worker, its trial in that worker's outcome card)]} over ``outcomes``
     ((worker, outcome CID)): ``training.experts.review`` of each card, as validated; with
     ``read`` False only from the cards kept already."""
     out: dict[str, list[tuple[str, ExpertTrialPublic]]] = {}
-    cards = outcome_cards(store)
     for worker, cid in outcomes:
-        view = cards.view(cid, read)
+        view = cards.view(store, cid, read)
         if view is None:
             continue
         for ref, usage in view.expert_usage.items():

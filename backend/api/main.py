@@ -19,6 +19,7 @@ from fastapi import Depends, FastAPI, Request
 from fastapi.responses import HTMLResponse, JSONResponse
 from starlette.concurrency import run_in_threadpool
 
+from backend.api.cards import OutcomeCards
 from backend.api.deps import require_metrics_token
 from backend.api.docs_page import docs_page
 from backend.api.errors import document_shared_responses, install_error_handlers
@@ -137,6 +138,7 @@ def create_app(
     app.state.faucet = None
     app.state.store = None
     app.state.page_cache = PageCache()  # list pages while the index stands still
+    app.state.outcome_cards = OutcomeCards()  # outcome cards the task page read (by CID)
     # requests reading the store (a slow node) and streamed downloads (a slow client) at once
     app.state.store_reads = ClientSlots(
         settings.max_store_reads, settings.max_store_reads_per_client

@@ -19,6 +19,7 @@ from typing import Any
 from workers.mdrl.baselines import OraclePolicy
 from workers.mdrl.evaluate import compare, evaluate
 from workers.mdrl.experts import FollowExpert
+from workers.mdrl.modelio import CARD
 
 REVIEW_EPISODES = 100
 """Episodes per expert of the review a worker appends to an expert-guided outcome's card."""
@@ -70,8 +71,6 @@ def review_experts(experts: list[tuple[str, str]], env_spec: Any,
 def attach_review(model_dir: str | Path, review: dict[str, Any]) -> bool:
     """Write ``review`` into the card (``model.json``) of ``model_dir`` under
     ``training.experts.review``; False (card unchanged) when the card names no experts."""
-    from workers.mdrl.modelio import CARD
-
     path = Path(model_dir) / CARD
     card = json.loads(path.read_text())
     experts = card.get("training", {}).get("experts")

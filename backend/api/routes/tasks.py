@@ -435,7 +435,7 @@ def _with_trials(
         reads, client = request.app.state.store_reads, client_key(request)
         slot = reads.take(client) is None
         try:
-            trials = expert_trials(store, pairs, read=slot)
+            trials = expert_trials(request.app.state.outcome_cards, store, pairs, read=slot)
         finally:
             if slot:
                 reads.release(client)
