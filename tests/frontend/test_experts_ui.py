@@ -11,7 +11,7 @@ import pytest
 from fastapi import Request
 
 from tests.frontend.conftest import LiveServer, screenshot, sign_in_as_alice
-from tests.frontend.fake_api import ALICE, W1, FakeState, make_fake_app
+from tests.frontend.fake_api import ALICE, W1, W2, W3, FakeState, make_fake_app
 
 expect = pytest.importorskip("playwright.sync_api", reason="pip install playwright").expect
 
@@ -127,6 +127,39 @@ def test_the_task_page_lists_experts_and_takes_the_review(page: Any, mmc: Any) -
     rows.nth(0).locator("button").click()
     expect(page.locator("#task-message")).to_contain_text("Expert review: sent")
     assert calls == [("review", 9, {"model_id": 2, "review": 3})]
+
+
+def test_the_task_page_shows_every_workers_trial_and_starts_at_their_median(
+    page: Any, mmc: Any
+) -> None:
+    """A task with several workers has a trial per outcome: each is listed with its worker, and
+    the review control starts at the middle suggestion (the lower middle for an even count), not
+    at whichever outcome came first."""
+    server, state, _ = mmc
+    tid = next(t["id"] for t in state.tasks if t["requester"] == ALICE)
+
+    def trial(worker: str, time: float, suggested: int) -> dict:
+        return {"worker": worker, "episodes": 100, "success": 1.0, "time": time,
+                "time_vs_oracle": round(time / 9.6, 2), "suggested_review": suggested}
+
+    state.task(tid)["experts"] = [
+        {"cid": CID_A, "qos": None, "model_id": 2, "reputation": 0.5, "alloc_id": 9,
+         "review": None, "trials": [trial(W1, 48.0, 1), trial(W2, 12.0, 4), trial(W3, 10.0, 5)]},
+        {"cid": CID_B, "qos": None, "model_id": 3, "reputation": 0.5, "alloc_id": 9,
+         "review": None, "trials": [trial(W1, 24.0, 2), trial(W2, 12.0, 4)]},
+    ]
+    page.goto(f"{server.url}/tasks/{tid}")
+    sign_in_as_alice(page)
+    rows = page.locator("#experts-table tbody tr")
+    expect(rows).to_have_count(2)
+    lines = rows.nth(0).locator(".trial-line")
+    expect(lines).to_have_count(3)
+    expect(lines.nth(0)).to_have_attribute("data-worker", W1)
+    expect(lines.nth(0)).to_have_text(f"{W1[:6]}…{W1[-4:]}: 48 steps (5× oracle), suggests 1/5")
+    expect(lines.nth(2)).to_contain_text("suggests 5/5")
+    expect(rows.nth(0).locator("select")).to_have_value("4")  # median of 1, 4, 5
+    expect(rows.nth(1).locator(".trial-line")).to_have_count(2)
+    expect(rows.nth(1).locator("select")).to_have_value("2")  # lower middle of 2, 4
 
 
 def test_the_form_sets_the_walls_cae_and_the_expert_credit(page: Any, mmc: Any) -> None:

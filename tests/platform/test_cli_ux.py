@@ -223,3 +223,18 @@ def test_model_share_takes_the_environment_from_the_card(
     listed = cli(platform, "model", "list", "--q", cid).stdout
     assert cid in listed, listed
 
+
+
+def test_task_show_gives_one_trial_and_the_middle_of_several() -> None:
+    """``task show``'s SUGGESTED (TRIAL) column: a single worker's trial with its figures;
+    several (one per outcome) as their middle suggestion, as the task page starts its review
+    control, with each one's listed."""
+    def trial(suggested: int, time: float = 12.0) -> dict:
+        return {"worker": "0x" + "1" * 40, "episodes": 100, "success": 1.0, "time": time,
+                "time_vs_oracle": time / 9.6, "suggested_review": suggested}
+
+    text = task_commands.trial_text
+    assert text({"trials": []}) == "" and text({}) == ""
+    assert text({"trials": [trial(4)]}) == "4/5 (12.0 steps, 1.25x oracle)"
+    assert text({"trials": [trial(5), trial(1), trial(4)]}) == "4/5 (middle of 3: 1, 4, 5)"
+    assert text({"trials": [trial(4), trial(2)]}) == "2/5 (middle of 2: 2, 4)"

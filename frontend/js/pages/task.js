@@ -3,7 +3,7 @@
 // form survives the polling. Experts (MEDC): the models the spec names, with their QoS weight,
 // the MMC model and allocation they came from, and the requester's review of each
 // (POST /models/requests/{alloc_id}/reviews, MMC updateModelRep), started at the review the
-// worker's trial of the expert suggests (experts[].trials, from the outcome's card).
+// workers' trials of the expert suggest (experts[].trials, one per outcome's card; the median).
 // Cancelling asks for confirmation first; the timeline's chain values are in human units (ETH,
 // UTC dates, fractions); an outcome links to its model only where that model is listed.
 
@@ -75,6 +75,20 @@ function outcomeCid(cid, modelId) {
   if (modelId !== undefined && modelId !== null) return link(`/models/${encodeURIComponent(modelId)}`, shortCid(cid));
   return h("span", { class: "cid-text" }, h("code", { class: "mono" }, cid), " ", copyButton(cid),
     h("div", { class: "muted note" }, "Not listed as a shared model (its worker has not shared it)."));
+}
+
+/** One worker's trial of an expert (its outcome card): time, ratio to the oracle, suggestion. */
+function trialText(trial) {
+  const ratio = trial.time_vs_oracle !== null && trial.time_vs_oracle !== undefined
+    ? ` (${num(trial.time_vs_oracle, 2)}× oracle)` : "";
+  return `${num(trial.time, 2)} steps${ratio}, suggests ${trial.suggested_review}/5`;
+}
+
+/** The review control starts at the workers' middle suggestion (the lower of the two middle
+ * ones for an even count), so one outlier among several trials does not set it. */
+function medianSuggestion(trials) {
+  const sorted = trials.map((t) => Number(t.suggested_review)).sort((a, b) => a - b);
+  return sorted[Math.floor((sorted.length - 1) / 2)];
 }
 
 export async function render(main, [id], ctx) {
@@ -200,10 +214,10 @@ export async function render(main, [id], ctx) {
         h("thead", {}, h("tr", {}, ["Model", "Weight", "Reputation", "Bought in request", "On the task after the run", "Review", ""].map((c) => h("th", {}, c)))),
         h("tbody", {}, experts.map((x) => {
           const reviewed = x.review !== undefined && x.review !== null;
-          const trial = (x.trials || [])[0] || null; // the first outcome's worker's trial
+          const trials = Array.isArray(x.trials) ? x.trials : []; // one per outcome's worker
           let cell = null;
           if (isRequester && !reviewed && x.alloc_id && x.model_id) {
-            const suggested = trial ? trial.suggested_review : 5;
+            const suggested = trials.length ? medianSuggestion(trials) : 5;
             const sel = h("select", { "aria-label": "Expert review 0-5", value: String(suggested) },
               [5, 4, 3, 2, 1, 0].map((v) => h("option", { value: String(v) }, `${v}/5`)));
             cell = h("span", {}, sel, h("button", { type: "button", class: "small", onclick: () =>
@@ -216,8 +230,8 @@ export async function render(main, [id], ctx) {
             h("td", {}, x.alloc_id ? `#${x.alloc_id}` : h("span", { class: "muted" }, "named by CID")),
             h("td", { class: "trial", title: "the expert followed by the team on the task's episodes after the run, "
               + "measured by the worker (the outcome's card): the suggested review is 5 × success × oracle time / time" },
-              trial ? `${num(trial.time, 2)} steps` + (trial.time_vs_oracle !== null && trial.time_vs_oracle !== undefined
-                ? ` (${num(trial.time_vs_oracle, 2)}× oracle)` : "") + `, suggests ${trial.suggested_review}/5`
+              trials.length ? trials.map((trial) => h("div", { class: "trial-line", "data-worker": trial.worker },
+                trials.length > 1 ? [shortAddr(trial.worker), ": "] : null, trialText(trial)))
                 : h("span", { class: "muted" }, "not measured")),
             h("td", {}, reviewed ? `${x.review}/5` : h("span", { class: "muted" }, "not reviewed")),
             h("td", {}, cell));
