@@ -175,8 +175,11 @@ class TaskRow(Base):
         String(8), default="pending", server_default="pending", index=True
     )
     """pending (to be read from the store), read, none (the description is no CID), invalid (no
-    task spec), missing (not found in ``SPEC_TRIES`` reads): backend.indexer."""
+    task spec), missing (not found in ``SPEC_TRIES`` reads; read again at ``spec_retry_at``):
+    backend.indexer."""
     spec_tries: Mapped[int] = mapped_column(Integer, default=0, server_default="0")
+    spec_retry_at: Mapped[int | None] = mapped_column(BigInteger, default=None)
+    """Unix time of a ``missing`` spec's next read (migration 0005)."""
     status: Mapped[str] = mapped_column(String(16), index=True)
     offered: Mapped[int] = mapped_column(Integer, default=0)
     block_number: Mapped[int] = mapped_column(BigInteger)

@@ -79,6 +79,11 @@ HANDED_OVER = "offers_handed_over"  # IndexMeta: offers up to this block reached
 INT64_MAX = 2**63 - 1
 SPEC_TRIES = 3
 """Reads of a task's spec that found nothing before the task is marked ``missing``."""
+SPEC_RETRY_S = 60
+"""A ``missing`` spec is read again this long after it was marked, then twice as long after
+each read that finds nothing, up to ``SPEC_RETRY_MAX_S``: a requester's node that was slow or
+offline for a while does not leave its task without a spec for good."""
+SPEC_RETRY_MAX_S = 3600
 SPEC_FIND_TIMEOUT_S = 2.0
 """How long one spec read may look for an absent CID on an IPFS node (the node's default is 10
 s; a spec posted through the gateway is on its own node and is found at once)."""
@@ -125,6 +130,7 @@ class Indexer:
         store: ContentStore | None = None,
         spec_budget_s: float = SPEC_BUDGET_S,
         spec_find_timeout_s: float = SPEC_FIND_TIMEOUT_S,
+        clock: Callable[[], float] = time.time,
     ) -> None:
         if confirmations < 0:
             raise ValueError(f"confirmations must be >= 0, got {confirmations}")
@@ -138,6 +144,7 @@ class Indexer:
         self.store = store
         self._spec_store = store.with_find_timeout(spec_find_timeout_s) if store else None
         self.spec_budget_s = spec_budget_s
+        self.clock = clock  # when a missing spec is due (tests move it)
         self._poll_lock = threading.Lock()
         self._checked_anchor = False
         p = service.platform
@@ -268,32 +275,43 @@ class Indexer:
 
     def fill_specs(self, budget_s: float | None = None) -> int:
         """Read the specs of ``pending`` tasks, fewest reads first (a new task is not queued
-        behind CIDs that were not found), starting reads only within ``budget_s`` (default
-        ``spec_budget_s``); returns how many specs were read. Each task is updated in its own
-        transaction; a store that is down ends the round and leaves the rest pending."""
+        behind CIDs that were not found), then of ``missing`` ones whose retry time came,
+        starting reads only within ``budget_s`` (default ``spec_budget_s``); returns how many
+        specs were read. Each task is updated in its own transaction; a store that is down ends
+        the round and leaves the rest as they were."""
         if self._spec_store is None:
             return 0
+        now = int(self.clock())
         with self.sessions() as s:
+            columns = (m.TaskRow.id, m.TaskRow.description, m.TaskRow.spec_tries,
+                       m.TaskRow.spec_state)
             pending = s.execute(
-                select(m.TaskRow.id, m.TaskRow.description, m.TaskRow.spec_tries)
+                select(*columns)
                 .where(m.TaskRow.spec_state == "pending")
                 .order_by(m.TaskRow.spec_tries, m.TaskRow.id)
                 .limit(SPEC_BATCH)
             ).all()
+            due = s.execute(
+                select(*columns)
+                .where(m.TaskRow.spec_state == "missing", m.TaskRow.spec_retry_at <= now)
+                .order_by(m.TaskRow.spec_retry_at, m.TaskRow.id)
+                .limit(SPEC_BATCH)
+            ).all()
         give_up = time.monotonic() + (self.spec_budget_s if budget_s is None else budget_s)
         read = 0
-        for task_id, cid, tries in pending:
+        for task_id, cid, tries, state in [*pending, *due]:
             if time.monotonic() >= give_up:
                 break
             try:
-                values = self._read_spec(cid, tries)
+                values = self._read_spec(cid, tries, now)
             except (StoreUnavailable, TimeoutError, ConnectionError) as exc:
-                log.warning("indexer: task specs stay pending, the store is unavailable: %s", exc)
+                log.warning("indexer: task specs stay %s, the store is unavailable: %s",
+                            state, exc)
                 break
-            read += self._set_spec(task_id, values) == "read"
+            read += self._set_spec(task_id, values, was=state) == "read"
         return read
 
-    def _read_spec(self, cid: str, tries: int) -> dict[str, Any]:
+    def _read_spec(self, cid: str, tries: int, now: int) -> dict[str, Any]:
         """The columns a read of the spec behind ``cid`` sets (anyone can addTask with any
         document, and the listing and task pages read what is indexed)."""
         assert self._spec_store is not None
@@ -305,22 +323,24 @@ class Indexer:
         except (StoreUnavailable, TimeoutError, ConnectionError):
             raise
         except NotFound as exc:  # absent, or not found within the find timeout: maybe later
-            state = "missing" if tries + 1 >= SPEC_TRIES else "pending"
-            log.info("indexer: task spec %s not found (read %d of %d): %s", cid, tries + 1,
-                     SPEC_TRIES, exc)
-            return {"spec_state": state, "spec_tries": tries + 1}
+            log.info("indexer: task spec %s not found (read %d): %s", cid, tries + 1, exc)
+            if tries + 1 < SPEC_TRIES:
+                return {"spec_state": "pending", "spec_tries": tries + 1}
+            wait = min(SPEC_RETRY_S * 2 ** (tries + 1 - SPEC_TRIES), SPEC_RETRY_MAX_S)
+            return {"spec_state": "missing", "spec_tries": tries + 1, "spec_retry_at": now + wait}
         except Exception as exc:  # not a spec: keep the raw text only
             log.info("indexer: task description %r is not a readable task spec: %s", cid, exc)
-            return {"spec_state": "invalid", "spec_tries": tries + 1}
-        return {"spec": _json_safe(doc), "spec_state": "read", "spec_tries": tries + 1}
+            return {"spec_state": "invalid", "spec_tries": tries + 1, "spec_retry_at": None}
+        return {"spec": _json_safe(doc), "spec_state": "read", "spec_tries": tries + 1,
+                "spec_retry_at": None}
 
-    def _set_spec(self, task_id: int, values: dict[str, Any]) -> str:
-        """Write ``values`` on a task still ``pending`` (another poller may have read it); a
-        spec the database refuses marks the task ``invalid``. Returns the state written."""
-        still_pending = (m.TaskRow.id == task_id, m.TaskRow.spec_state == "pending")
+    def _set_spec(self, task_id: int, values: dict[str, Any], was: str = "pending") -> str:
+        """Write ``values`` on a task still in state ``was`` (another poller may have read it);
+        a spec the database refuses marks the task ``invalid``. Returns the state written."""
+        unchanged = (m.TaskRow.id == task_id, m.TaskRow.spec_state == was)
         with self.sessions() as s:
             try:
-                s.execute(update(m.TaskRow).where(*still_pending).values(**values))
+                s.execute(update(m.TaskRow).where(*unchanged).values(**values))
                 s.commit()
                 return str(values["spec_state"])
             except Exception as exc:  # NaN/NUL the database refuses arrive wrapped (orig)
@@ -328,7 +348,8 @@ class Indexer:
                     raise
                 s.rollback()
                 log.info("indexer: task %d's spec cannot be stored: %s", task_id, exc)
-            s.execute(update(m.TaskRow).where(*still_pending).values(spec_state="invalid"))
+            s.execute(update(m.TaskRow).where(*unchanged)
+                      .values(spec_state="invalid", spec_retry_at=None))
             s.commit()
             return "invalid"
 

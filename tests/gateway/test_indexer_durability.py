@@ -165,8 +165,9 @@ def test_specs_nobody_holds_never_hold_up_the_events(
     text): every event of the poll is indexed and the next task's offer reaches its worker at
     once; a poll starts spec reads only within its budget (here at most 3 reads of 0.05 s in
     0.12 s, whatever the number of such tasks); a good spec is not queued behind the missing
-    ones' retries; each missing CID is read ``SPEC_TRIES`` times, then marked missing and left.
-    (Before, each one waited the node's 10 s find timeout inside the batch of events.)"""
+    ones' retries; each missing CID is read ``SPEC_TRIES`` times, then marked missing and not
+    read again before its retry time. (Before, each one waited the node's 10 s find timeout
+    inside the batch of events.)"""
     inner = EmbeddedStore(tmp_path / "ipfs")
     missing = {inner.add(f"never provided {i}".encode(), pin=False) for i in range(4)}
     store = MissingCidStore(inner, missing)
@@ -204,7 +205,48 @@ def test_specs_nobody_holds_never_hold_up_the_events(
     assert {store.reads[c] for c in missing} == {indexer_module.SPEC_TRIES}
     reads = sum(store.reads.values())
     idx.poll()
-    assert sum(store.reads.values()) == reads  # missing for good: never read again
+    assert sum(store.reads.values()) == reads  # not before its retry time
+
+
+def test_a_missing_spec_is_asked_for_again_later_backing_off(
+    service: ChainService, sessions: sessionmaker[Session], tmp_path: Path
+) -> None:
+    """A spec the store did not find in ``SPEC_TRIES`` reads (the requester's node was
+    offline) is read again ``SPEC_RETRY_S`` after, then twice as long after each miss up to
+    ``SPEC_RETRY_MAX_S``, and indexed as read once the store has it: the task gets its
+    environment in the listing instead of staying ``missing`` for good."""
+    inner = EmbeddedStore(tmp_path / "ipfs")
+    late = inner.add(json.dumps(SPEC).encode())
+    store = MissingCidStore(inner, {late})
+    p, req, _ = _enrolled(service)
+    with service.lock:
+        task_id, _ = p.tmc.add_task(req, domain=0, num_workers=1, reward=10**12,
+                                    duration=3_600, description=late)
+    now = [1_000_000.0]
+    idx = Indexer(service, sessions, store=store, spec_find_timeout_s=0.01,
+                  clock=lambda: now[0])
+    for _ in range(indexer_module.SPEC_TRIES):
+        idx.poll()
+    task = _tasks(sessions)[task_id]
+    assert (task.spec_state, task.spec_retry_at) == ("missing", 1_000_000 + 60)
+    waits = []
+    for _ in range(8):  # due reads that still find nothing: 60 s, 120 s, ... 3600 s at most
+        retry_at = _tasks(sessions)[task_id].spec_retry_at
+        now[0] = retry_at - 1
+        reads = store.reads[late]
+        idx.poll()
+        assert store.reads[late] == reads  # not due yet
+        now[0] = retry_at
+        idx.poll()
+        assert store.reads[late] == reads + 1
+        waits.append(_tasks(sessions)[task_id].spec_retry_at - retry_at)
+    assert waits == [120, 240, 480, 960, 1920, 3600, 3600, 3600]
+    assert indexer_module.SPEC_RETRY_S == 60 and indexer_module.SPEC_RETRY_MAX_S == 3600
+    store.missing.clear()  # the requester's node is back
+    now[0] = _tasks(sessions)[task_id].spec_retry_at
+    idx.poll()
+    task = _tasks(sessions)[task_id]
+    assert (task.spec, task.spec_state, task.spec_retry_at) == (SPEC, "read", None)
 
 
 def _tx_hashes(sessions: sessionmaker[Session]) -> set[str]:

@@ -54,7 +54,7 @@ function argValue(k, v) {
 const SPEC_STATE_NOTES = {
   pending: "not read from the content store yet",
   invalid: "this document is not a task spec",
-  missing: "the content store could not find it",
+  missing: "the content store could not find it yet; it is asked for again later",
 };
 const ARG_LABELS = { qos: "match score", numWorkers: "workers", description: "spec", minCpuCores: "min CPU cores",
   minRamGb: "min RAM (GB)", weiPerHour: "min reward per hour" };
