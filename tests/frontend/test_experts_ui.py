@@ -160,6 +160,7 @@ def test_the_task_page_shows_every_workers_trial_and_starts_at_their_median(
     expect(rows.nth(0).locator("select")).to_have_value("4")  # median of 1, 4, 5
     expect(rows.nth(1).locator(".trial-line")).to_have_count(2)
     expect(rows.nth(1).locator("select")).to_have_value("2")  # lower middle of 2, 4
+    screenshot(page, "task-experts-trials")
 
 
 def test_the_form_sets_the_walls_cae_and_the_expert_credit(page: Any, mmc: Any) -> None:
