@@ -6,12 +6,13 @@ from __future__ import annotations
 
 import json
 import math
+import time
 
 import pytest
 
 from workers.mdrl.evaluate import compare, evaluate
 from workers.mdrl.experts import FollowExpert
-from workers.mdrl.review import attach_review, review_experts, suggested_review
+from workers.mdrl.review import TrialTimeout, attach_review, review_experts, suggested_review
 from workers.mdrl.spec import EnvSpec
 
 
@@ -49,6 +50,21 @@ def test_the_trial_measures_each_expert_on_the_same_episodes_as_the_oracle():
     assert rand["time_vs_oracle"] == pytest.approx(ratio)
     assert rand["suggested_review"] == suggested_review(follow.success_rate, ratio)
     json.dumps(review, allow_nan=False)  # a card section: strict JSON
+
+
+def test_the_trial_stops_at_its_deadline_and_is_unchanged_before_it():
+    """An idling expert on long episodes takes every step of the horizon: the trial raises
+    TrialTimeout at its first step after the deadline instead of running on, and with time
+    to spare it gives the same figures as without a deadline."""
+    spec = EnvSpec(agents=2, rows=12, cols=12, max_steps=5000)
+    with pytest.raises(TrialTimeout):  # unbounded, it runs 40 x 5,000 steps and returns
+        review_experts([("idle", "biased:0")], spec, episodes=40, seed=3,
+                       deadline=time.monotonic() + 0.05)
+    small = EnvSpec(agents=2, rows=6, cols=6)
+    experts = [("random", "random")]
+    assert review_experts(experts, small, episodes=20, seed=3,
+                          deadline=time.monotonic() + 600) == review_experts(
+        experts, small, episodes=20, seed=3)
 
 
 def test_the_trial_goes_into_the_card_of_an_expert_guided_model(tmp_path):

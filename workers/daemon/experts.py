@@ -456,7 +456,27 @@ def check_card(path: Path, ref: str) -> dict[str, Any]:
             ref,
             f"model.json: its env/observation cannot be rebuilt here ({type(exc).__name__}: {exc})",
         ) from None
+    check_card_walls_encoder(card, ref)
     return card
+
+
+def check_card_walls_encoder(card: dict[str, Any], ref: str) -> None:
+    """A policy card's ``walls_encoder`` (a model trained with a walls CAE carries its encoder)
+    within the bounds of a walls CAE's card (``cae.check_cae_fields``): loading the expert
+    builds one conv layer per entry of its ``channels`` before the weights are compared, and
+    a 1 MiB card lists ~500,000 of them (minutes of CPU and GBs of memory per offer)."""
+    from workers.mdrl.cae import check_cae_fields
+
+    if "walls_encoder" not in card:
+        return
+    enc = card["walls_encoder"]
+    try:
+        if not isinstance(enc, dict):
+            raise ValueError(f"expected an object, got {type(enc).__name__}")
+        check_cae_fields({"grid": enc.get("grid"), "embedding": enc.get("embedding"),
+                          "architecture": {"channels": enc.get("channels")}})
+    except ValueError as exc:
+        raise ExpertFetchError(ref, f"model.json: walls_encoder: {exc}") from None
 
 
 def check_cae_card(path: Path, ref: str) -> dict[str, Any]:

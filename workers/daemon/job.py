@@ -279,6 +279,7 @@ def run_job(
     its metrics: the last update's, with the delivered policy's evaluation).
 
     Each update appends a progress point to ``progress.jsonl`` and calls ``on_progress``."""
+    started = time.perf_counter()  # minutes_left counts from here (loading the models too)
     job = Path(job_dir)
     job.mkdir(parents=True, exist_ok=True)
     (job / FINISHED_MARK).unlink(missing_ok=True)  # this run delivers anew
@@ -306,11 +307,12 @@ def run_job(
     metrics = trainer.train()
     model = delivered_model(job, spec)
     attach_curve(model, run_dir(job) / "metrics.csv")  # the card's training curve
-    left_s = None if minutes_left is None else minutes_left * 60.0 - (time.perf_counter() - t0)
+    left_s = (None if minutes_left is None
+              else minutes_left * 60.0 - (time.perf_counter() - started))
     if left_s is not None and left_s < TRIAL_TIME_S:
         log.warning("%s: no expert review in the card: the deadline is too near", model)
     else:
-        attach_expert_review(model, spec, experts)
+        attach_expert_review(model, spec, experts, seconds=left_s)
     mark = job / (FINISHED_MARK + ".tmp")
     mark.write_text(json.dumps({"model": model.name, "global_step": trainer.global_step}))
     os.replace(mark, job / FINISHED_MARK)
@@ -324,18 +326,23 @@ def run_job(
     }
 
 
-def attach_expert_review(model: Path, spec: TrainingSpec,
-                         experts: dict[str, Path] | None) -> None:
+def attach_expert_review(model: Path, spec: TrainingSpec, experts: dict[str, Path] | None,
+                         *, seconds: float | None = None) -> None:
     """The requester's evidence for reviewing the experts of an expert-guided job: each one
     followed by the team on the task (``workers.mdrl.review``), in the delivered card. A
-    failure here costs the evidence, not the outcome (the model is trained and kept)."""
+    failure here costs the evidence, not the outcome (the model is trained and kept); so does
+    a trial longer than ``seconds`` (the time left before the deadline's margin): 100
+    episodes of up to 10,000 steps per expert can take hours, and a model delivered late is
+    a task lost."""
     demo = spec.demonstration()
     if demo is None or not experts:
         return
     from workers.mdrl.review import attach_review, review_experts
 
+    deadline = None if seconds is None else time.monotonic() + seconds
     try:
-        review = review_experts([(ref, str(experts[ref])) for ref in demo.experts], spec.env)
+        review = review_experts([(ref, str(experts[ref])) for ref in demo.experts], spec.env,
+                                deadline=deadline)
         attach_review(model, review)
     except Exception as exc:  # noqa: BLE001 - any failure: deliver without the evidence
         log.warning("%s: no expert review in the card: %s: %s", model, type(exc).__name__, exc)

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import json
 import math
+import time
 from pathlib import Path
 from typing import Any
 
@@ -43,16 +44,45 @@ def suggested_review(success_rate: float, time_vs_oracle: float | None) -> int:
     return int(round(MAX_REVIEW * success_rate * min(1.0, 1.0 / time_vs_oracle)))
 
 
+class TrialTimeout(Exception):
+    """The trial was not done by its deadline."""
+
+
+class Until:
+    """``policy`` that raises :class:`TrialTimeout` at its first step after ``deadline``
+    (``time.monotonic()``): 100 episodes of up to 10,000 steps per expert can take hours,
+    and a worker's trial must not make its outcome late. Checked once per batched step."""
+
+    def __init__(self, policy: Any, deadline: float) -> None:
+        self.policy, self.deadline = policy, deadline
+
+    def __getattr__(self, name: str) -> Any:  # rows_independent, name, ...
+        return getattr(self.policy, name)
+
+    def reset(self, env: Any) -> None:
+        self.policy.reset(env)
+
+    def act(self, env: Any) -> Any:
+        if time.monotonic() > self.deadline:
+            raise TrialTimeout("not done by its deadline")
+        return self.policy.act(env)
+
+
 def review_experts(experts: list[tuple[str, str]], env_spec: Any,
-                   episodes: int = REVIEW_EPISODES, seed: int = REVIEW_SEED) -> dict[str, Any]:
+                   episodes: int = REVIEW_EPISODES, seed: int = REVIEW_SEED,
+                   deadline: float | None = None) -> dict[str, Any]:
     """Each of ``experts`` ((name shown, ref ``load_expert`` takes: a model directory or a
     built-in)) followed by the team of ``env_spec`` on ``episodes`` seeded episodes, with the
-    oracle on the same episodes; JSON-able, the card's ``training.experts.review``."""
-    oracle = evaluate(OraclePolicy(), env_spec, episodes, seed=seed, name="oracle")
+    oracle on the same episodes; JSON-able, the card's ``training.experts.review``. Past
+    ``deadline`` (``time.monotonic()``), :class:`TrialTimeout`."""
+    def bounded(policy: Any) -> Any:
+        return policy if deadline is None else Until(policy, deadline)
+
+    oracle = evaluate(bounded(OraclePolicy()), env_spec, episodes, seed=seed, name="oracle")
     rows = []
     for i, (name, ref) in enumerate(experts):
-        report = evaluate(FollowExpert(ref, seed + i, name=name), env_spec, episodes, seed=seed,
-                          name=name)
+        report = evaluate(bounded(FollowExpert(ref, seed + i, name=name)), env_spec, episodes,
+                          seed=seed, name=name)
         ratio = compare(report, oracle).time_ratio
         s = report.to_dict()
         rows.append({
