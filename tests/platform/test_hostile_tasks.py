@@ -14,6 +14,7 @@ import torch
 from safetensors.torch import load, save
 
 from backend.chain.platform import OfferState
+from backend.store import CID
 from backend.store.bundle import add_bundle
 from workers.daemon import job as jobs
 from workers.daemon.experts import expert_key
@@ -102,3 +103,22 @@ def test_the_experts_trial_cannot_run_past_the_deadline(
     assert "review" not in card["training"]["experts"]
     assert "TrialTimeout" in caplog.text
     assert (tmp_path / "job" / jobs.FINISHED_MARK).is_file()
+
+
+def test_one_expert_named_twice_by_its_two_cid_versions_is_declined(
+    env, tmp_path: Path
+) -> None:
+    """The spec's duplicate check compares text; a spec written straight to the store (the
+    gateway takes canonical CIDs only) can name one bundle in two spellings (base32 in lower
+    and upper case): the worker would train with it as two experts and the card list it
+    twice. It declines instead."""
+    p, actors, store = env
+    cid = add_bundle(store, _bundle(load((EXPERT / "model.safetensors").read_bytes()),
+                                    json.loads((EXPERT / "model.json").read_text())))
+    alias = cid.upper()
+    assert alias != cid and CID.parse(alias) == CID.parse(cid)
+    spec = {**TINY_SPEC, "env": {"rows": 10, "cols": 10, "agents": 2}, "experts": [cid, alias]}
+    task_id, offered, _ = post_task(p, store, actors.requester, spec=spec)
+    out = handler_for(p, offered[0], store, tmp_path).handle(task_id, offered[0])
+    assert out["status"] == "declined" and "the same model twice" in out["reason"], out
+    assert p.tmc.offer(task_id, offered[0])["state"] == OfferState.DECLINED

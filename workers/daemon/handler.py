@@ -488,8 +488,9 @@ class OfferHandler:
         cache = self.cache
         try:  # a reference no worker can fetch, models over the bounds (on their manifests,
             # before any card or weights), and an expert whose card no worker can use
-            for ref in spec.experts:
-                expert_key(ref)
+            keys = [expert_key(ref) for ref in spec.experts]
+            if len(set(keys)) != len(keys):  # the spec's check compares text; CIDs have spellings
+                return "experts: the same model twice (one CID in two spellings)"
             demo = spec.demonstration()
             cae = spec.observation.walls_embedding
             models = ([cae] if cae is not None else []) + list(demo.experts if demo else ())
