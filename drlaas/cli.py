@@ -7,6 +7,9 @@ an embedded EVM.
 
 from __future__ import annotations
 
+import os
+import sys
+
 import httpx
 import typer
 from typer.core import TyperGroup
@@ -52,6 +55,10 @@ class DrlaasGroup(TyperGroup):
                 err=True,
             )
             raise typer.Exit(1) from None
+        except BrokenPipeError:  # `drlaas ... | head`: the reader left, nothing to report
+            devnull = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(devnull, sys.stdout.fileno())  # the interpreter's final flush fails quietly
+            raise typer.Exit(0) from None
         except (SetupError, NodeRefused, ConnectionError) as exc:
             typer.echo(f"error: {exc}", err=True)
             raise typer.Exit(1) from None

@@ -409,7 +409,8 @@ def test_a_policy_card_with_a_malformed_walls_encoder_is_refused():
                         ({**good, "embedding": "big"}, "unusable"),
                         ({**good, "embedding": 16}, "do not hold"),
                         # a few numbers that would ask for ~10 GB: refused before allocating
-                        ({**good, "grid": [40000, 40000]}, "do not hold"),
+                        ({**good, "grid": [40000, 40000]}, "out of range"),
+                        ({**good, "channels": [1] * 100_000}, "out of range"),
                         ({**good, "channels": [1024, 1024, 1024]}, "do not hold")):
         with pytest.raises(ValueError, match=named):
             encoder_from_tensors(card, enc.state_dict())

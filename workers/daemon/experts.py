@@ -462,9 +462,10 @@ def check_card(path: Path, ref: str) -> dict[str, Any]:
 
 def check_card_walls_encoder(card: dict[str, Any], ref: str) -> None:
     """A policy card's ``walls_encoder`` (a model trained with a walls CAE carries its encoder)
-    within the bounds of a walls CAE's card (``cae.check_cae_fields``): loading the expert
-    builds one conv layer per entry of its ``channels`` before the weights are compared, and
-    a 1 MiB card lists ~500,000 of them (minutes of CPU and GBs of memory per offer)."""
+    within the bounds of a walls CAE's card (``cae.check_cae_fields``), on the card alone,
+    before any weights are fetched: a 1 MiB card lists ~500,000 conv layers, each built when
+    the expert loads (minutes of CPU and GBs of memory per offer before the loader's own
+    bound)."""
     from workers.mdrl.cae import check_cae_fields
 
     if "walls_encoder" not in card:

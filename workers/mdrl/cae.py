@@ -60,10 +60,19 @@ def layout_stream(seed: int) -> np.random.Generator:
     return np.random.Generator(np.random.PCG64(layout))
 
 
+MAX_LAYOUT_CELLS = 1 << 29
+"""Most cells of the layouts ``wall_layouts`` draws at once (512 MiB of bool; ~600,000 maps of
+30 x 30, six times Table 4.1's): they are held in memory, and training copies them."""
+
+
 def wall_layouts(spec: EnvSpec, count: int, seed: int = 0, chunk: int = 1000) -> np.ndarray:
     """bool (count, rows, cols): wall maps drawn as the env draws them (see module doc)."""
     if count < 1:
         raise ValueError(f"layout count must be >= 1, got {count}")
+    if count * spec.num_cells > MAX_LAYOUT_CELLS:
+        raise ValueError(f"{count:,} layouts of {spec.rows}x{spec.cols} are more than the "
+                         f"{MAX_LAYOUT_CELLS // spec.num_cells:,} whose maps are held in memory "
+                         f"({MAX_LAYOUT_CELLS:,} cells): draw fewer layouts")
     if spec.walls[1] == 0:
         raise ValueError(f"env spec has no walls (walls = {tuple(spec.walls)}): nothing to encode")
     out = np.empty((count, spec.rows, spec.cols), dtype=bool)
@@ -361,15 +370,17 @@ def check_cae_fields(card: dict[str, Any]) -> None:
         channels = card["architecture"]["channels"]
     except (KeyError, TypeError) as exc:
         raise ValueError(f"no grid, embedding or architecture.channels ({exc})") from None
+    def whole(v: Any, lo: int, hi: int) -> bool:  # JSON true is not a 1
+        return isinstance(v, int) and not isinstance(v, bool) and lo <= v <= hi
+
     ok = (
         isinstance(grid, list)
         and len(grid) == 2
-        and all(isinstance(g, int) and 2 <= g <= MAX_CAE_GRID for g in grid)
-        and isinstance(d, int)
-        and 1 <= d <= MAX_CAE_EMBEDDING
+        and all(whole(g, 2, MAX_CAE_GRID) for g in grid)
+        and whole(d, 1, MAX_CAE_EMBEDDING)
         and isinstance(channels, list)
         and 1 <= len(channels) <= MAX_CAE_LAYERS
-        and all(isinstance(c, int) and 1 <= c <= MAX_CAE_CHANNELS for c in channels)
+        and all(whole(c, 1, MAX_CAE_CHANNELS) for c in channels)
     )
     if not ok:
         raise ValueError("grid, embedding or architecture.channels out of range")
@@ -405,6 +416,12 @@ def encoder_from_tensors(card: dict[str, Any], tensors: dict[str, torch.Tensor])
         raise ValueError(f"the card's walls_encoder must be an object, got {type(card).__name__}")
     if card.get("kind") != KIND:
         raise ValueError(f"walls encoder card has kind {card.get('kind')!r}, want {KIND!r}")
+    try:  # bounded first: building the layout costs a layer per listed channel
+        if all(k in card for k in ("grid", "embedding", "channels")):  # else named below
+            check_cae_fields({"grid": card["grid"], "embedding": card["embedding"],
+                              "architecture": {"channels": card["channels"]}})
+    except ValueError as exc:
+        raise ValueError(f"the card's walls_encoder is unusable: {exc}") from None
     try:
         enc = _build_for(WallsEncoder, tensors, _grid_field(card["grid"]),
                          int(card["embedding"]), tuple(card["channels"]))

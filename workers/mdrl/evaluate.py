@@ -31,6 +31,9 @@ Z95 = 1.959963984540054
 #: Most envs stepped together by ``evaluate`` when it groups chunks (~1 MB each at 64 x 64,
 #: env and observer).
 STEP_ENVS = 100
+MAX_EPISODES = 1_000_000
+"""Most episodes one ``evaluate`` runs: the chunk list and the per-episode arrays are built
+up front, so 10^11 episodes took the machine's memory (the OOM killer) before the first step."""
 
 
 def default_batch(spec: EnvSpec, episodes: int) -> int:
@@ -170,8 +173,8 @@ def evaluate(
     name: str | None = None,
 ) -> EvalReport:
     """Run ``episodes`` seeded episodes of ``policy`` (``reset(env)`` / ``act(env)``)."""
-    if episodes < 1:
-        raise ValueError(f"episodes must be >= 1, got {episodes}")
+    if not 1 <= episodes <= MAX_EPISODES:
+        raise ValueError(f"episodes must be in 1..{MAX_EPISODES:,}, got {episodes:,}")
     batch = default_batch(env_spec, episodes) if batch is None else int(batch)
     if batch < 1:
         raise ValueError(f"batch must be >= 1, got {batch}")

@@ -226,6 +226,9 @@ def preset_from_dict(doc: dict[str, Any], name: str = "custom") -> Preset:
     unknown = sorted(set(doc) - allowed)
     if unknown:
         raise ValueError(f"config: unknown top-level key(s) {unknown}; allowed: {sorted(allowed)}")
+    for key in ("preset", "name", "description"):  # a list preset read "unhashable type: 'list'"
+        if not isinstance(doc.get(key, ""), str) and not (key == "preset" and doc[key] is None):
+            raise ValueError(f"config: {key} must be a string, got {doc[key]!r}")
     base = get_preset(doc["preset"]) if doc.get("preset") else None
     env = _merge(base.env.to_dict() if base else {}, doc.get("env", {}), "env")
     obs = _merge(base.observation.to_dict() if base else {}, doc.get("observation", {}),

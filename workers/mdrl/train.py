@@ -27,7 +27,7 @@ import torch
 
 from workers.mdrl import checkpoint as ckpt
 from workers.mdrl.env import TargetLocalizationEnv
-from workers.mdrl.evaluate import evaluate
+from workers.mdrl.evaluate import MAX_EPISODES, evaluate
 from workers.mdrl.networks import ActorCritic
 from workers.mdrl.observations import ObservationSpec, make_observer
 from workers.mdrl.ppo import PPOConfig, entropy_from_log_probs, gae, masked_log_probs, ppo_losses
@@ -85,7 +85,8 @@ class RunConfig:
             raise RunConfigError("keep_best", f"RunConfig.keep_best must be 'time', 'cost' or "
                                  f"None, got {self.keep_best!r}")
         ints = {"seed": (0, MAX_SEED), "eval_seed": (0, MAX_SEED), "eval_every": (0, None),
-                "eval_episodes": (1, None), "checkpoint_every": (0, None), "threads": (1, None)}
+                "eval_episodes": (1, MAX_EPISODES), "checkpoint_every": (0, None),
+                "threads": (1, None)}
         if self.total_steps is not None:
             ints["total_steps"] = (1, None)
         for name, (lo, hi) in ints.items():

@@ -55,6 +55,25 @@ def table(figures: dict[str, dict[str, Any]]) -> str:
     return "\n".join(lines)
 
 
+def _check_out(out: Path) -> None:
+    """Refuse an --out the CAE cannot or must not be written to, before training: a file or a
+    path under one (the save failed after training), or a directory holding another kind of
+    model (it was overwritten). A CAE directory is rewritten, as the shipped ones are built."""
+    from workers.mdrl.cae import CARD, load_cae_card
+
+    parent = out
+    while not parent.exists() and parent != parent.parent:
+        parent = parent.parent
+    if not parent.is_dir():
+        raise typer.BadParameter(f"{parent} is a file, not a directory", param_hint="--out")
+    if (out / CARD).is_file():
+        try:
+            load_cae_card(out)
+        except (OSError, ValueError) as exc:
+            raise typer.BadParameter(f"{out} holds a model that is not a walls CAE ({exc}): "
+                                     "give another directory", param_hint="--out") from None
+
+
 @app.command("train")
 def train_command(
     out: Annotated[Path, typer.Option(help="Model directory (model.safetensors + model.json).")],
@@ -70,7 +89,8 @@ def train_command(
     heldout: Annotated[float, typer.Option(help="Held-out share of the layouts.")] = 0.1,
     pos_weight: Annotated[float, typer.Option(help="BCE weight of wall cells (walls are ~3% "
                                                    "of the cells; 1 = plain BCE).")] = 1.0,
-    seed: Annotated[int, typer.Option(help="Seeds layouts, split, init and batch order.")] = 0,
+    seed: Annotated[int, typer.Option(min=0, help="Seeds layouts, split, init and batch "
+                                              "order.")] = 0,
     threads: Annotated[int, typer.Option(help="torch threads.")] = 1,
     progress: Annotated[bool, typer.Option(help="Show a progress bar.")] = True,
 ) -> None:
@@ -87,6 +107,7 @@ def train_command(
     if not (math.isfinite(pos_weight) and pos_weight > 0):
         raise typer.BadParameter(f"must be a finite number > 0, got {pos_weight}",
                                  param_hint="--pos-weight")
+    _check_out(out)
     torch.set_num_threads(threads)
     if preset is not None:
         from workers.mdrl.presets import get_preset
@@ -138,7 +159,7 @@ def eval_command(
     path: Annotated[Path, typer.Argument(help="CAE directory (model.json + model.safetensors).")],
     layouts: Annotated[int | None, typer.Option(help="Also score this many fresh layouts.")
                        ] = None,
-    seed: Annotated[int, typer.Option(help="Seed of the fresh layouts.")] = 1_000_003,
+    seed: Annotated[int, typer.Option(min=0, help="Seed of the fresh layouts.")] = 1_000_003,
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON.")] = False,
 ) -> None:
     """The held-out figures of a trained CAE (its card), optionally re-measured on fresh
@@ -170,8 +191,11 @@ def eval_command(
     valid = isinstance(heldout, dict) and all(isinstance(v, dict) for v in heldout.values())
     result: dict[str, Any] = {"card": heldout if valid else {}}
     if layouts is not None:
-        fresh = wall_layouts(spec, layouts, seed)
-        other = wall_layouts(spec, layouts, seed + 1)  # the mean map comes from other layouts
+        try:
+            fresh = wall_layouts(spec, layouts, seed)
+            other = wall_layouts(spec, layouts, seed + 1)  # the mean map: from other layouts
+        except ValueError as exc:  # more layouts than memory holds
+            raise typer.BadParameter(str(exc), param_hint="--layouts") from None
         result["fresh"] = {"cae": reconstruction_figures(predict(model, fresh), fresh),
                            **baseline_figures(other, fresh)}
     if as_json:

@@ -13,7 +13,7 @@ import typer
 
 from workers.mdrl.baselines import BASELINES, OraclePolicy, make_baseline
 from workers.mdrl.env import LayoutError
-from workers.mdrl.evaluate import EvalReport, compare, evaluate
+from workers.mdrl.evaluate import MAX_EPISODES, EvalReport, compare, evaluate
 from workers.mdrl.review import suggested_review
 from workers.mdrl.spec import EnvSpec, IntensitySpec, parse_grid, parse_walls
 
@@ -244,7 +244,8 @@ def eval_command(
     intensity: Annotated[
         str | None, typer.Option(help="photons/min: 1e9, a set 1e8,5e8,1e9 or a range 1e8:1e9")
     ] = None,
-    episodes: Annotated[int, typer.Option(min=1, help="seeded test episodes")] = 1000,
+    episodes: Annotated[int, typer.Option(min=1, max=MAX_EPISODES, help="seeded test episodes")
+                        ] = 1000,
     seed: Annotated[int, typer.Option(min=0, help="seed of the episode layouts")] = 0,
     moves: Annotated[int | None, typer.Option(help="4 or 8 directions (+ idle)")] = None,
     batch: Annotated[int | None, typer.Option(

@@ -455,7 +455,10 @@ def _selector(chosen, seed, experts, qos, rate, threshold, credit, rate_end):
         demo = dataclasses.replace(demo, **changes)
         return DemonstrationSelector.from_config(
             demo, chosen.env, seed=seed, experts=_load_experts(demo.experts, chosen.env, seed))
-    except (ValueError, ExpertError) as exc:
+    except ExpertError as exc:  # a model that cannot guide: named by the flag or the file
+        raise typer.BadParameter(str(exc), param_hint="--experts" if experts is not None
+                                 else "--config") from None
+    except ValueError as exc:
         raise typer.BadParameter(str(exc)) from None
 
 
