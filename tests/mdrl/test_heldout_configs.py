@@ -153,3 +153,20 @@ def test_a_policy_card_listing_a_huge_walls_encoder_is_refused_before_it_is_buil
     with pytest.raises(ValueError, match="out of range"):
         check_cae_fields({"grid": [10, 10], "embedding": True,
                           "architecture": {"channels": [8, 16]}})
+
+
+def test_a_card_that_lies_about_its_network_is_named_as_such(tmp_path):
+    """A card whose observation was edited (window 5 -> 7) loaded with torch's state-dict
+    dump ("size mismatch for actor.net.6.weight ...") as the only explanation."""
+    from workers.mdrl.modelio import load_model
+
+    model = tmp_path / "model"
+    shutil.copytree(POLICY, model)
+    card = json.loads((model / "model.json").read_text())
+    card["observation"]["window"] = 7
+    (model / "model.json").write_text(json.dumps(card))
+    with pytest.raises(ValueError, match="do not fit the network its card describes.*size "
+                                         "mismatch for actor"):
+        load_model(model)
+    assert_usage_error(invoke("eval", "--policy", model, "--episodes", 5), "--policy",
+                       "its card describes")

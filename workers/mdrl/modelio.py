@@ -300,7 +300,14 @@ def load_model(path: str | Path) -> GreedyPolicy:
     observer = make_observer(env_spec, obs_spec, walls_encoder=embedder)
     head = PolicyHead(env_spec.num_actions, env_spec.agents, joint=bool(observer.joint_actions))
     agent = ActorCritic(observer, head.policy_actions)
-    agent.load_state_dict(tensors)
+    try:
+        agent.load_state_dict(tensors)
+    except RuntimeError as exc:  # torch's text lists every tensor: name the cause, then one
+        first = next((line.strip() for line in str(exc).splitlines()
+                      if "size mismatch" in line or "key(s)" in line), str(exc)[:300])
+        raise ValueError(f"{path}: the weights do not fit the network its card describes "
+                         "(env and observation: the card was edited or is another model's); "
+                         f"{first}") from None
     agent.eval()
     policy = GreedyPolicy(agent, observer, head)
     policy.card = card  # type: ignore[attr-defined]

@@ -237,7 +237,9 @@ def eval_command(
     agents: Annotated[
         int | None, typer.Option(help="number of agents (default: 3, or the model's)")
     ] = None,
-    grid: Annotated[str | None, typer.Option(help="ROWSxCOLS, e.g. 10x10")] = None,
+    grid: Annotated[str | None, typer.Option(
+        help="ROWSxCOLS, e.g. 10x10, over the same area (the model's area_m): more cells are "
+             "smaller cells")] = None,
     walls: Annotated[
         str | None, typer.Option(help="walls per episode: a count (0) or a range (1-3)")
     ] = None,
