@@ -5,8 +5,16 @@ import re
 import unicodedata
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, WithJsonSchema, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    WithJsonSchema,
+    computed_field,
+    model_validator,
+)
 
+from workers.mdrl.review import middle_review
 from workers.mdrl.trainingspec import EXPERT_PATTERN, trainingspec_json_schema
 
 from .cards import ExpertTrialPublic
@@ -267,6 +275,14 @@ class TaskExpertPublic(BaseModel):
         description="the worker's trial of it on the task after the run, one per outcome "
         "whose card has one: figures and a suggested 0-5 review",
     )
+
+    @computed_field(  # type: ignore[prop-decorator]
+        description="the review the trials suggest together: their middle suggestion (the "
+        "lower middle for an even count), null without trials"
+    )
+    @property
+    def suggested_review(self) -> int | None:
+        return middle_review([t.suggested_review for t in self.trials])
 
 
 SpecState = Literal["pending", "read", "none", "invalid", "missing"]

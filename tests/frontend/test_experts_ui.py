@@ -10,6 +10,7 @@ from typing import Any
 import pytest
 from fastapi import Request
 
+from backend.schemas.tasks import TaskExpertPublic
 from tests.frontend.conftest import LiveServer, screenshot, sign_in_as_alice
 from tests.frontend.fake_api import ALICE, W1, W2, W3, FakeState, make_fake_app
 
@@ -103,6 +104,7 @@ def test_the_task_page_lists_experts_and_takes_the_review(page: Any, mmc: Any) -
             # the worker's trial of it in its outcome card (GET /tasks/{id}: backend/api/cards.py)
             "trials": [{"worker": W1, "episodes": 100, "success": 0.98, "time": 13.7,
                         "time_vs_oracle": 1.43, "suggested_review": 3}],
+            "suggested_review": 3,  # the trials' together (the gateway's computed field)
         },
         {
             "cid": CID_B,
@@ -129,12 +131,12 @@ def test_the_task_page_lists_experts_and_takes_the_review(page: Any, mmc: Any) -
     assert calls == [("review", 9, {"model_id": 2, "review": 3})]
 
 
-def test_the_task_page_shows_every_workers_trial_and_starts_at_their_median(
+def test_the_task_page_shows_every_workers_trial_and_starts_at_their_middle_review(
     page: Any, mmc: Any
 ) -> None:
     """A task with several workers has a trial per outcome: each is listed with its worker, and
-    the review control starts at the middle suggestion (the lower middle for an even count), not
-    at whichever outcome came first."""
+    the review control starts at the review they suggest together (``suggested_review``, the
+    gateway's middle one, not whichever outcome came first)."""
     server, state, _ = mmc
     tid = next(t["id"] for t in state.tasks if t["requester"] == ALICE)
 
@@ -148,6 +150,8 @@ def test_the_task_page_shows_every_workers_trial_and_starts_at_their_median(
         {"cid": CID_B, "qos": None, "model_id": 3, "reputation": 0.5, "alloc_id": 9,
          "review": None, "trials": [trial(W1, 24.0, 2), trial(W2, 12.0, 4)]},
     ]
+    for x in state.task(tid)["experts"]:  # as the gateway serves them
+        x["suggested_review"] = TaskExpertPublic(**x).suggested_review
     page.goto(f"{server.url}/tasks/{tid}")
     sign_in_as_alice(page)
     rows = page.locator("#experts-table tbody tr")

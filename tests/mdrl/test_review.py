@@ -12,7 +12,13 @@ import pytest
 
 from workers.mdrl.evaluate import compare, evaluate
 from workers.mdrl.experts import FollowExpert
-from workers.mdrl.review import TrialTimeout, attach_review, review_experts, suggested_review
+from workers.mdrl.review import (
+    TrialTimeout,
+    attach_review,
+    middle_review,
+    review_experts,
+    suggested_review,
+)
 from workers.mdrl.spec import EnvSpec
 
 
@@ -50,6 +56,15 @@ def test_the_trial_measures_each_expert_on_the_same_episodes_as_the_oracle():
     assert rand["time_vs_oracle"] == pytest.approx(ratio)
     assert rand["suggested_review"] == suggested_review(follow.success_rate, ratio)
     json.dumps(review, allow_nan=False)  # a card section: strict JSON
+
+
+def test_several_trials_suggest_their_middle_review():
+    """One outlying worker does not set the review the task page starts at."""
+    assert middle_review([]) is None
+    assert middle_review([3]) == 3
+    assert middle_review([5, 1, 4]) == 4
+    assert middle_review([4, 2]) == 2  # the lower middle
+    assert middle_review([0, 5, 5, 5]) == 5
 
 
 def test_the_trial_stops_at_its_deadline_and_is_unchanged_before_it():

@@ -155,6 +155,7 @@ def test_medc_task_with_an_mmc_expert_end_to_end(data_dir: Path, tmp_path: Path)
             "worker": outcome["worker"], "episodes": REVIEW_EPISODES,
             **{k: trial[k] for k in ("success", "time", "time_vs_oracle", "suggested_review")},
         }
+        assert experts[0]["suggested_review"] == trial["suggested_review"]  # one trial's own
         shown = cli.invoke(app, ["task", "show", str(task["task_id"]), "--gateway", p.url])
         assert shown.exit_code == 0 and "experts" in shown.stdout and cid[:20] in shown.stdout
         assert "SUGGESTED (TRIAL)" in shown.stdout and f"{suggested}/5 (" in shown.stdout

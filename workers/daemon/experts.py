@@ -466,7 +466,7 @@ def check_card_walls_encoder(card: dict[str, Any], ref: str) -> None:
     before any weights are fetched: a 1 MiB card lists ~500,000 conv layers, each built when
     the expert loads (minutes of CPU and GBs of memory per offer before the loader's own
     bound)."""
-    from workers.mdrl.cae import check_cae_fields
+    from workers.mdrl.cae import check_encoder_fields
 
     if "walls_encoder" not in card:
         return
@@ -474,8 +474,7 @@ def check_card_walls_encoder(card: dict[str, Any], ref: str) -> None:
     try:
         if not isinstance(enc, dict):
             raise ValueError(f"expected an object, got {type(enc).__name__}")
-        check_cae_fields({"grid": enc.get("grid"), "embedding": enc.get("embedding"),
-                          "architecture": {"channels": enc.get("channels")}})
+        check_encoder_fields(enc)
     except ValueError as exc:
         raise ExpertFetchError(ref, f"model.json: walls_encoder: {exc}") from None
 

@@ -386,6 +386,13 @@ def check_cae_fields(card: dict[str, Any]) -> None:
         raise ValueError("grid, embedding or architecture.channels out of range")
 
 
+def check_encoder_fields(info: dict[str, Any]) -> None:
+    """``check_cae_fields`` for a policy card's ``walls_encoder`` (``encoder_card``: grid,
+    embedding and channels at its top level)."""
+    check_cae_fields({"grid": info.get("grid"), "embedding": info.get("embedding"),
+                      "architecture": {"channels": info.get("channels")}})
+
+
 def load_cae(path: str | Path) -> WallsCAE:
     """Rebuild a CAE from its directory (safetensors + JSON card only; never unpickles).
     A damaged directory (card fields missing or of the wrong type, weights truncated, of other
@@ -416,12 +423,11 @@ def encoder_from_tensors(card: dict[str, Any], tensors: dict[str, torch.Tensor])
         raise ValueError(f"the card's walls_encoder must be an object, got {type(card).__name__}")
     if card.get("kind") != KIND:
         raise ValueError(f"walls encoder card has kind {card.get('kind')!r}, want {KIND!r}")
-    try:  # bounded first: building the layout costs a layer per listed channel
-        if all(k in card for k in ("grid", "embedding", "channels")):  # else named below
-            check_cae_fields({"grid": card["grid"], "embedding": card["embedding"],
-                              "architecture": {"channels": card["channels"]}})
-    except ValueError as exc:
-        raise ValueError(f"the card's walls_encoder is unusable: {exc}") from None
+    if all(k in card for k in ("grid", "embedding", "channels")):  # else named below
+        try:  # bounded first: building the layout costs a layer per listed channel
+            check_encoder_fields(card)
+        except ValueError as exc:
+            raise ValueError(f"the card's walls_encoder is unusable: {exc}") from None
     try:
         enc = _build_for(WallsEncoder, tensors, _grid_field(card["grid"]),
                          int(card["embedding"]), tuple(card["channels"]))

@@ -44,6 +44,13 @@ def suggested_review(success_rate: float, time_vs_oracle: float | None) -> int:
     return int(round(MAX_REVIEW * success_rate * min(1.0, 1.0 / time_vs_oracle)))
 
 
+def middle_review(suggestions: list[int]) -> int | None:
+    """The review several workers' trials suggest together: their middle one (the lower
+    middle for an even count), so one outlying trial does not set it; None without any."""
+    ordered = sorted(suggestions)
+    return ordered[(len(ordered) - 1) // 2] if ordered else None
+
+
 class TrialTimeout(Exception):
     """The trial was not done by its deadline."""
 

@@ -525,15 +525,15 @@ def task_show(
 
 def trial_text(expert: dict[str, Any]) -> str:
     """The workers' trials of an expert (``experts[].trials``, one per outcome card): one as
-    "K/5 (time steps, ratio x oracle)"; several as their middle suggestion (the lower middle for
-    an even count, as the task page's review control) and each one's; "" when none has one."""
+    "K/5 (time steps, ratio x oracle)"; several as the gateway's ``suggested_review`` (their
+    middle one, ``review.middle_review``) and each one's; "" when none has one."""
     trials = expert.get("trials") or []
     if not trials:
         return ""
     if len(trials) > 1:
         each = sorted(int(t["suggested_review"]) for t in trials)
-        middle = each[(len(each) - 1) // 2]
-        return f"{middle}/5 (middle of {len(each)}: " + ", ".join(map(str, each)) + ")"
+        return (f"{expert.get('suggested_review')}/5 (middle of {len(each)}: "
+                + ", ".join(map(str, each)) + ")")
     t, ratio = trials[0], trials[0].get("time_vs_oracle")
     return (f"{t['suggested_review']}/5 ({t['time']:.1f} steps"
             + (f", {ratio:.2f}x oracle)" if ratio is not None else ")"))

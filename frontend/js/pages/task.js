@@ -3,7 +3,7 @@
 // form survives the polling. Experts (MEDC): the models the spec names, with their QoS weight,
 // the MMC model and allocation they came from, and the requester's review of each
 // (POST /models/requests/{alloc_id}/reviews, MMC updateModelRep), started at the review the
-// workers' trials of the expert suggest (experts[].trials, one per outcome's card; the median).
+// workers' trials of the expert suggest together (experts[].suggested_review, the middle one).
 // Cancelling asks for confirmation first; the timeline's chain values are in human units (ETH,
 // UTC dates, fractions); an outcome links to its model only where that model is listed.
 
@@ -82,13 +82,6 @@ function trialText(trial) {
   const ratio = trial.time_vs_oracle !== null && trial.time_vs_oracle !== undefined
     ? ` (${num(trial.time_vs_oracle, 2)}× oracle)` : "";
   return `${num(trial.time, 2)} steps${ratio}, suggests ${trial.suggested_review}/5`;
-}
-
-/** The review control starts at the workers' middle suggestion (the lower of the two middle
- * ones for an even count), so one outlier among several trials does not set it. */
-function medianSuggestion(trials) {
-  const sorted = trials.map((t) => Number(t.suggested_review)).sort((a, b) => a - b);
-  return sorted[Math.floor((sorted.length - 1) / 2)];
 }
 
 export async function render(main, [id], ctx) {
@@ -217,7 +210,7 @@ export async function render(main, [id], ctx) {
           const trials = Array.isArray(x.trials) ? x.trials : []; // one per outcome's worker
           let cell = null;
           if (isRequester && !reviewed && x.alloc_id && x.model_id) {
-            const suggested = trials.length ? medianSuggestion(trials) : 5;
+            const suggested = x.suggested_review ?? 5; // the trials' middle one (gateway)
             const sel = h("select", { "aria-label": "Expert review 0-5", value: String(suggested) },
               [5, 4, 3, 2, 1, 0].map((v) => h("option", { value: String(v) }, `${v}/5`)));
             cell = h("span", {}, sel, h("button", { type: "button", class: "small", onclick: () =>
