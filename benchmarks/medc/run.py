@@ -59,6 +59,11 @@ Usage: python benchmarks/medc/run.py --steps 1000000 --seeds 0,1,2
 
 from __future__ import annotations
 
+import os
+
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")  # before numpy: one BLAS thread (workers/__init__.py)
+
 import argparse
 import dataclasses
 import json

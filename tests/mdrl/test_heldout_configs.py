@@ -170,3 +170,19 @@ def test_a_card_that_lies_about_its_network_is_named_as_such(tmp_path):
         load_model(model)
     assert_usage_error(invoke("eval", "--policy", model, "--episodes", 5), "--policy",
                        "its card describes")
+
+
+@pytest.mark.parametrize(("section", "changes", "named"), [
+    ("env", {"sparse_bonus": -50.0}, "sparse_bonus"),
+    ("env", {"sparse_bonus": 1e300}, "sparse_bonus"),
+    ("observation", {"walls_embedding_size": 64}, "walls_embedding"),
+])
+def test_a_config_value_that_would_train_something_else_is_refused(tmp_path, section, changes,
+                                                                   named):
+    """A negative Eq. 9 bonus trained the team to avoid the source, 1e300 made the returns
+    infinite, and a walls-embedding size without its CAE was dropped without a word: each
+    trained a run other than the one asked for."""
+    res = invoke("train", "--config", config(tmp_path, **{section: changes}), "--steps", 64,
+                 "--out", tmp_path / "run", *QUIET)
+    assert_usage_error(res, "--config", named)
+    assert not (tmp_path / "run").exists()

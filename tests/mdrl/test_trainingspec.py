@@ -74,6 +74,9 @@ def test_round_trip_and_defaults() -> None:
         ({"format": "other/2"}, "format"),
         ({"observation": {"walls_embedding": "/etc/cae"}}, "observation.walls_embedding"),
         ({"observation": {"walls_embedding_size": 0}}, "observation.walls_embedding_size"),
+        # without its CAE the size was accepted and ignored: the UI refused it, the API not
+        ({"observation": {"walls_embedding_size": 64}}, "observation.walls_embedding_size"),
+        ({"env": {"sparse_bonus": -50}}, "env.sparse_bonus"),
         ({"observation": {"route": True}}, "observation.route"),
         ({"observation": {"route": True, "belief": True, "kind": "dmtl"}}, "observation.route"),
         ({"selection": {"keep_best": "fastest"}}, "selection.keep_best"),

@@ -99,6 +99,38 @@ def test_a_trained_model_outlives_a_store_outage_longer_than_the_retries(
     assert p.tmc.offer(t2, worker)["state"] == OfferState.FAILED
 
 
+class StoreDown:
+    """An IPFS node that stays down: every read and write is refused."""
+
+    def __init__(self, inner: EmbeddedStore) -> None:
+        self.inner, self.refused = inner, 0
+
+    def _refuse(self, *args: Any, **kw: Any) -> Any:
+        self.refused += 1
+        raise StoreUnavailable("http://ipfs:5001", "connection refused")
+
+    get = add = _refuse
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.inner, name)
+
+
+def test_an_offer_whose_spec_stays_unreadable_is_declined_once_the_retries_run_out(
+    env, tmp_path: Path, eager_daemon
+) -> None:
+    """The store is down while the worker checks an offer: retried with backoff, then the
+    offer is declined on chain (the requester can re-offer the slot), not left to expire."""
+    p, actors, store = env
+    task_id, offered, _ = post_task(p, store, actors.requester, duration=3600)
+    worker = offered[0]
+    down = StoreDown(store)
+    eager_daemon(handler_for(p, worker, down, tmp_path))
+    out = tasks.handle_offer.apply(args=[task_id, worker]).get()
+    assert out["status"] == "declined" and "gave up after" in out["reason"], out
+    assert "task spec" in out["reason"] and down.refused == tasks.MAX_RETRIES + 1
+    assert p.tmc.offer(task_id, worker)["state"] == OfferState.DECLINED
+
+
 # -- F4: killed while checking an offer --------------------------------------------------------
 def test_a_daemon_killed_while_checking_an_offer_gets_it_again_from_recover(
     env, tmp_path: Path

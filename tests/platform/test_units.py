@@ -253,15 +253,23 @@ def test_progress_points_queued_through_an_outage_are_bounded(
     assert h._progress.pending(7) == []
 
 
-def test_give_up_abandons_only_a_job_in_hand(tmp_path: Path) -> None:
+def test_give_up_abandons_a_job_in_hand_and_declines_an_offer_being_checked(
+    tmp_path: Path,
+) -> None:
     """Out of retries: an accepted (trained, uploaded) job fails and is given back on chain;
-    one never accepted or already submitted is left as it is (nothing to give back)."""
+    an offer still being checked is declined while the chain still offers it; one with no
+    job, already submitted, or whose offer the chain no longer holds, is left as it is."""
     from types import SimpleNamespace
 
+    from backend.chain.platform import OfferState, TaskStatus
     from workers.daemon.handler import OfferHandler
 
-    chain = SimpleNamespace(identity="chain-1")  # only the job directories' key is read
-    h = OfferHandler(account=None, platform=chain, store=None, data_dir=tmp_path)  # type: ignore[arg-type]
+    offers = {4: OfferState.OFFERED, 5: OfferState.EXPIRED}
+    tmc = SimpleNamespace(offer=lambda task_id, worker: {"state": int(offers[task_id])},
+                          task=lambda task_id: {"status": int(TaskStatus.OPEN)})
+    chain = SimpleNamespace(identity="chain-1", tmc=tmc)
+    h = OfferHandler(account=SimpleNamespace(address="0xWorker"), platform=chain,  # type: ignore[arg-type]
+                     store=None, data_dir=tmp_path)
     sent: list[tuple[str, int]] = []
     h._transact = lambda fn, task_id: sent.append((fn, task_id))  # type: ignore[method-assign]
     assert h.give_up(1, "store down")["status"] == "given up"  # no job state: never accepted
@@ -272,6 +280,12 @@ def test_give_up_abandons_only_a_job_in_hand(tmp_path: Path) -> None:
     out = h.give_up(3, "gave up after 8 retries: store down")
     assert out["status"] == "failed" and sent == [("abandonOffer", 3)]
     assert h._state(3)["phase"] == "failed" and "8 retries" in h._state(3)["reason"]
+    h._save(4, phase="offered", offer_expiry=10**10)
+    out = h.give_up(4, "gave up after 8 retries: cannot fetch task spec")
+    assert out["status"] == "declined" and sent[-1] == ("declineOffer", 4)
+    assert h._state(4)["phase"] == "declined" and "task spec" in h._state(4)["reason"]
+    h._save(5, phase="offered", offer_expiry=1)
+    assert h.give_up(5, "store down")["status"] == "given up" and len(sent) == 2
 
 
 def test_recovery_at_start_never_stops_the_daemon_when_the_node_is_down(capsys) -> None:

@@ -599,9 +599,21 @@ class OfferHandler:
     def give_up(self, task_id: int, reason: str) -> dict[str, Any]:
         """The job's retries ran out (the store or the node stayed down): a job accepted and
         not yet submitted fails and is given back on chain, instead of its offer staying
-        accepted, and the worker busy, until the deadline with nobody working on it."""
-        if self._state(task_id).get("phase") in IN_HAND:
+        accepted, and the worker busy, until the deadline with nobody working on it. An offer
+        still being checked (the spec or an expert could not be fetched) is declined, so the
+        requester can offer the slot to the next worker at once instead of at its expiry."""
+        phase = self._state(task_id).get("phase")
+        if phase in IN_HAND:
             return self._fail(task_id, reason)
+        if phase == OFFERED:
+            with chain_call(f"reading the offer of task {task_id}"):
+                offer = self.platform.tmc.offer(task_id, self.address)
+                task = self.platform.tmc.task(task_id)
+            if (OfferState(offer["state"]) == OfferState.OFFERED
+                    and task["status"] == TaskStatus.OPEN):
+                self._transact("declineOffer", task_id)
+                self._save(task_id, phase="declined", reason=reason[:2000])
+                return {"task_id": task_id, "status": "declined", "reason": reason}
         return {"task_id": task_id, "status": "given up", "reason": reason}
 
     def _fail(self, task_id: int, reason: str) -> dict[str, Any]:

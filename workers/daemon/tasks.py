@@ -7,7 +7,8 @@ mid-training gets the job again when it comes back, and :class:`OfferHandler` re
 job's checkpoint. Only :class:`~workers.daemon.handler.Transient` errors (store or node down)
 are retried, with capped exponential backoff and jitter (STYLE.md, "Workers"); when the last
 retry fails too, the handler gives the job back (``OfferHandler.give_up``: abandonOffer) rather
-than leave its offer accepted with nobody working on it. A job whose model is trained (only an
+than leave its offer accepted with nobody working on it, and declines an offer it was still
+checking (declineOffer) rather than leave it to expire. A job whose model is trained (only an
 upload or a transaction is missing) is not given back while its deadline can still be met:
 it is retried past MAX_RETRIES, at most every RETRY_CAP_S and within half the time left
 (``OfferHandler.delivery_time_left``).

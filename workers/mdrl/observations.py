@@ -195,6 +195,9 @@ class ObservationSpec:
         unknown = set(d) - {f.name for f in fields(cls)}
         if unknown:
             raise ValueError(f"unknown ObservationSpec fields: {sorted(unknown)}")
+        if "walls_embedding_size" in d and d.get("walls_embedding") is None:
+            raise ValueError("ObservationSpec.walls_embedding_size is the walls CAE's d: it "
+                             "needs walls_embedding (the CAE's directory or CID)")
         return cls(**d)
 
 

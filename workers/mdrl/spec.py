@@ -42,6 +42,8 @@ ACTION_NAMES = {
 MAX_STEP_COUNT = 2**31 - 1
 """Largest max_steps / idle_limit: the env's kernels count steps in int64 and compare them."""
 MAX_AREA_M = 1e7
+# Eq. 9's success bonus S (the thesis: 50); a bound keeps the returns finite in float32.
+MAX_SPARSE_BONUS = 1e6
 """Largest side of the search area (10,000 km): 1e300 m overflowed Eq. 6's distances."""
 
 @dataclass(frozen=True)
@@ -193,6 +195,9 @@ class EnvSpec:
                 f"(dwell_min {self.dwell_min:g}, detector_area_cm2 {self.detector_area_cm2:g}, "
                 f"cells of {min(self.cell_size_m):g} m), more than the readings can take "
                 f"({MAX_EXPECTED_COUNT:g}): lower the intensity")
+        if not 0 <= self.sparse_bonus <= MAX_SPARSE_BONUS:
+            problems.append(f"sparse_bonus (Eq. 9's S) must be in 0..{MAX_SPARSE_BONUS:g}, "
+                            f"got {self.sparse_bonus:g}")
         for name in ("detector_area_cm2", "dwell_min"):
             if getattr(self, name) <= 0:
                 problems.append(f"{name} must be positive")

@@ -28,7 +28,7 @@ from workers.mdrl.env import LayoutError, check_layout_fit
 from workers.mdrl.observations import KINDS, ObservationSpec
 from workers.mdrl.ppo import PPOConfig
 from workers.mdrl.presets import FAST_PPO, PRESETS, get_preset
-from workers.mdrl.spec import EnvSpec, IntensitySpec
+from workers.mdrl.spec import MAX_SPARSE_BONUS, EnvSpec, IntensitySpec
 from workers.mdrl.specfields import (
     Bool,
     Choice,
@@ -82,7 +82,7 @@ ENV_RULES: dict[str, Any] = {
     "walls": Pair(_WALLS, doc="[min, max] walls per episode; max <= max(rows, cols)"),
     "wall_length": Nullable(Pair(Int(1, MAX_GRID), doc="[min, max] cells")),
     "reward": Choice(("shaped", "sparse")),
-    "sparse_bonus": Real(0.0, 1e6),
+    "sparse_bonus": Real(0.0, MAX_SPARSE_BONUS),
     "max_steps": Int(1, 10_000, doc="steps per episode"),
     "idle_limit": Int(1, 10_000),
     "detector_area_cm2": Real(1e-3, 1e4),
@@ -359,6 +359,9 @@ class TrainingSpec:
         if (algo.get("ppo") or {}).get("anneal_lr") and budget.get("steps") is None:
             raise SpecError("algorithm.ppo.anneal_lr",
                             "a learning-rate schedule needs budget.steps (it anneals over them)")
+        if "walls_embedding_size" in obs and obs.get("walls_embedding") is None:
+            raise SpecError("observation.walls_embedding_size", "applies only with "
+                            "observation.walls_embedding (it is that walls CAE's d)")
         if obs.get("route") and not (obs.get("belief") and obs.get("kind", "odmtl") == "odmtl"):
             raise SpecError("observation.route", "needs observation.kind = odmtl and "
                             "observation.belief = true (the walking distance to the belief)")
