@@ -50,11 +50,18 @@ def _iso(t: dt.datetime) -> str:
     return t.astimezone(dt.UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
 
 
-def _parse_iso(s: str) -> dt.datetime:
-    t = dt.datetime.fromisoformat(s.replace("Z", "+00:00"))
-    if t.tzinfo is None:
-        raise ValueError(f"timestamp without time zone: {s!r}")
-    return t.astimezone(dt.UTC)
+def _parse_iso(s: str, field: str) -> dt.datetime:
+    """An ISO 8601 timestamp with a time zone, in UTC; ``ValueError`` naming ``field`` (the
+    message's line) otherwise, also for one that UTC cannot hold (9999-12-31T23:59:59-14:00 is
+    in year 10000: ``astimezone`` raises OverflowError, which answered 500)."""
+    try:
+        t = dt.datetime.fromisoformat(s.replace("Z", "+00:00"))
+        if t.tzinfo is None:
+            raise ValueError("no time zone")
+        return t.astimezone(dt.UTC)
+    except (ValueError, OverflowError) as exc:
+        raise ValueError(f"{field}: {s[:64]!r} is not a UTC-representable timestamp with a "
+                         f"time zone ({exc})") from None
 
 
 @dataclass(frozen=True)
@@ -105,8 +112,8 @@ class SiweMessage:
                 version=m["version"],
                 chain_id=int(m["chain_id"]),
                 nonce=m["nonce"],
-                issued_at=_parse_iso(m["issued_at"]),
-                expiration_time=_parse_iso(m["expiration_time"]),
+                issued_at=_parse_iso(m["issued_at"], "Issued At"),
+                expiration_time=_parse_iso(m["expiration_time"], "Expiration Time"),
             )
         except ValueError as exc:
             raise Invalid("siwe_message_malformed", str(exc)) from None

@@ -180,7 +180,11 @@ def is_loopback(request: Request) -> bool:
     origin = request.headers.get("origin")
     if origin is None:
         return True
-    return _hostname(urlsplit(origin).netloc) in LOOPBACK
+    try:
+        netloc = urlsplit(origin).netloc
+    except ValueError:  # "http://[": no browser sends it, so no page of this machine did
+        return False
+    return _hostname(netloc) in LOOPBACK
 
 
 def _hostname(authority: str) -> str:

@@ -90,10 +90,11 @@ Review = Annotated[
 ]
 Fraction = Annotated[
     float,
-    Field(ge=0.0, le=1.0, description="QoS value in [0, 1]"),
+    Field(ge=0.0, le=1.0, allow_inf_nan=False, description="QoS value in [0, 1]"),
     json_number_only("a fraction"),
 ]
-"""A QoS value as JSON Schema has it: ``0.5``, never ``true`` or ``"0.5"``."""
+"""A QoS value as JSON Schema has it: ``0.5``, never ``true`` or ``"0.5"``; NaN is "should be
+a finite number", not a bound it does not break ("should be less than or equal to 1")."""
 JSON_BOOL_ONLY = BeforeValidator(_json_bool)
 """A JSON boolean only: pydantic's lax bool reads 0/1 and "yes"/"no" as flags."""
 Flag = Annotated[bool, JSON_BOOL_ONLY]
@@ -143,14 +144,31 @@ ID_DIGITS = BeforeValidator(_digits)
 takes "1.0" and " 1", so one resource would have many URLs."""
 
 
+MAX_EXACT_FLOAT = 2**53
+"""Integers below this are exact as a JSON number with a decimal point or an exponent (read
+as a double); from it on such a number may be a neighbouring integer rounded to it."""
+
+
+def _exact_wei(v: Any) -> Any:
+    if isinstance(v, float) and abs(v) >= MAX_EXACT_FLOAT:
+        raise ValueError(
+            f"an amount of wei from 2^53 on is a JSON integer (digits only): {v!r}, with a "
+            "decimal point or an exponent, is read as a rounded double"
+        )
+    return v
+
+
 def Wei(upper_bits: int) -> Any:  # noqa: N802 - a type factory
     """An amount of wei at most the largest power of ten below 2^``upper_bits`` (so it fits the
     contract's uint): a bound like 2^96 becomes a rounded double in JSON tools, and clients
-    would then send values just above it as valid."""
+    would then send values just above it as valid. From 2^53 on only as an integer literal:
+    ``1.00000000000000001e17`` was escrowed as 1e17 wei, and ``1e23`` refused as "unable to
+    parse input string as an integer" (of a string nobody sent)."""
     bound = 10 ** (len(str(2**upper_bits - 1)) - 1)
     return Annotated[
         int,
         Field(ge=0, le=bound, description=f"wei, at most 1e{len(str(bound)) - 1}"),
+        BeforeValidator(_exact_wei),
         json_number_only("an amount of wei"),
     ]
 

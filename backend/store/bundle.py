@@ -39,8 +39,9 @@ def add_bundle(store: Any, files: dict[str, bytes]) -> str:
     return store.add(canonical_json({"format": BUNDLE_FORMAT, "files": entries}))
 
 
-def read_bundle(store: Any, cid: str) -> dict[str, tuple[str, int]]:
-    """{name: (file CID, size)} of the bundle ``cid`` (manifest verified and checked)."""
+def manifest_document(store: Any, cid: str) -> dict[str, Any]:
+    """The manifest of bundle ``cid`` as a JSON object of format :data:`BUNDLE_FORMAT`
+    (verified, at most :data:`MAX_MANIFEST_BYTES`); InvalidContent otherwise."""
     raw = store.get(cid, max_size=MAX_MANIFEST_BYTES)
     try:
         doc = json.loads(raw)
@@ -48,6 +49,12 @@ def read_bundle(store: Any, cid: str) -> dict[str, tuple[str, int]]:
         raise InvalidContent(f"{cid} is not a JSON bundle manifest") from None
     if not isinstance(doc, dict) or doc.get("format") != BUNDLE_FORMAT:
         raise InvalidContent(f"{cid} is not a {BUNDLE_FORMAT} manifest")
+    return doc
+
+
+def read_bundle(store: Any, cid: str) -> dict[str, tuple[str, int]]:
+    """{name: (file CID, size)} of the bundle ``cid`` (manifest verified and checked)."""
+    doc = manifest_document(store, cid)
     files = doc.get("files")
     if not isinstance(files, dict) or not files:
         raise InvalidContent(f"bundle {cid}: 'files' must be a non-empty object")
@@ -55,7 +62,8 @@ def read_bundle(store: Any, cid: str) -> dict[str, tuple[str, int]]:
     for name, entry in files.items():
         file_cid = entry.get("cid") if isinstance(entry, dict) else None
         size = entry.get("size") if isinstance(entry, dict) else None
-        if not isinstance(file_cid, str) or not isinstance(size, int) or size < 0:
+        if (not isinstance(file_cid, str) or not isinstance(size, int)
+                or isinstance(size, bool) or size < 0):
             raise InvalidContent(f"bundle {cid}: bad entry for {name!r}")
         try:
             CID.parse(file_cid)
@@ -130,6 +138,19 @@ def pull_model(store: Any, cid: str, dest: str | os.PathLike[str]) -> Path:
     out = Path(dest)
     out.mkdir(parents=True, exist_ok=True)
     for name in MODEL_FILES:
-        file_cid, size = files[name]
-        store.get_to_file(file_cid, out / name, max_size=size)
+        fetch_model_file(store, cid, name, files[name], out / name)
     return out
+
+
+def fetch_model_file(
+    store: Any, cid: str, name: str, entry: tuple[str, int], path: str | os.PathLike[str]
+) -> None:
+    """Write file ``name`` of bundle ``cid`` (its manifest ``entry``: file CID, size) to
+    ``path``, verified against its CID and of exactly the size the manifest declares:
+    InvalidContent naming it otherwise, and nothing left at ``path`` (a manifest saying
+    5,000 bytes of a 3,000-byte file was written as it was)."""
+    file_cid, size = entry
+    got = store.get_to_file(file_cid, path, max_size=max(size, 1))
+    if got != size:
+        Path(path).unlink(missing_ok=True)
+        raise InvalidContent(f"{name} of bundle {cid} has {got} bytes, its manifest says {size}")

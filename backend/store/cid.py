@@ -22,6 +22,15 @@ DAG_PB = 0x70
 SHA2_256 = 0x12
 """Multihash code of sha2-256."""
 
+MAX_CID_TEXT = 100
+"""Longest CID text parsed (surrounding whitespace aside): a CID of the kinds above is 59
+characters in base32, 51 in base58btc, 46 as a CIDv0. Longer text is refused before it is
+decoded: base58 decoding takes time quadratic in the length (300 kB of ``z2222...``, a
+task description any user can put on chain, took 17 s), and an error names the input by
+its first characters only."""
+MAX_CID_SHOWN = 80
+"""Characters of an invalid CID's ``repr`` that its error message shows."""
+
 _CODEC_NAMES = {RAW: "raw", DAG_PB: "dag-pb"}
 _B58_ALPHABET = "123456789ABCDEFGHJKLMNPQRSTUVWXYZabcdefghijkmnopqrstuvwxyz"
 _B58_INDEX = {c: i for i, c in enumerate(_B58_ALPHABET)}
@@ -136,6 +145,10 @@ class CID:
                     raise ValueError("trailing bytes after CID")
                 return cid
             text = value.strip()
+            if len(text) > MAX_CID_TEXT:
+                raise ValueError(
+                    f"{len(text)} characters, longer than any CID ({MAX_CID_TEXT} at most)"
+                )
             if len(text) == 46 and text.startswith("Qm"):
                 raw = _b58decode(text)
             elif text[:1] == "b":
@@ -150,10 +163,8 @@ class CID:
             if end != len(raw):
                 raise ValueError("trailing bytes after CID")
             return cid
-        except InvalidCID as e:
-            raise InvalidCID(f"invalid CID {value!r}: {e}") from None
-        except (ValueError, TypeError, AttributeError) as e:
-            raise InvalidCID(f"invalid CID {value!r}: {e}") from None
+        except (InvalidCID, ValueError, TypeError, AttributeError) as e:
+            raise InvalidCID(f"invalid CID {_shown(value)}: {e}") from None
 
     @classmethod
     def from_bytes(cls, buf: bytes, pos: int = 0) -> tuple[CID, int]:
@@ -210,6 +221,15 @@ class CID:
         if digest != self.digest:
             actual = CID(self.version, self.codec, digest)
             raise CIDMismatch(str(self), str(actual), where)
+
+
+def _shown(value: object) -> str:
+    """``repr(value)``, cut to :data:`MAX_CID_SHOWN` characters with its length said."""
+    text = repr(value)
+    if len(text) <= MAX_CID_SHOWN:
+        return text
+    size = f" ({len(value)} long)" if isinstance(value, str | bytes | bytearray) else ""
+    return f"{text[:MAX_CID_SHOWN]}...{size}"
 
 
 def cid_key(cid: str | CID) -> str:

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import json
 import os
+import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -33,10 +34,11 @@ from eth_utils import keccak, to_checksum_address
 
 from .bundle import (
     BUNDLE_FORMAT,
-    MAX_MANIFEST_BYTES,
     MODEL_FILES,
     canonical_json,
     check_model_card,
+    fetch_model_file,
+    manifest_document,
     model_files,
     read_bundle,
 )
@@ -139,9 +141,10 @@ def seal_model(store: Any, model_dir: str | os.PathLike[str], recipient_pub: byt
 
 
 def sealed_envelopes(store: Any, cid: str) -> dict[str, str]:
-    """{file name: envelope CID} of bundle ``cid`` ({} for a bundle with nothing sealed)."""
-    doc = json.loads(store.get(cid, max_size=MAX_MANIFEST_BYTES))  # read_bundle checked it
-    sealed = doc.get("sealed") if isinstance(doc, dict) else None
+    """{file name: envelope CID} of bundle ``cid`` ({} for a bundle with nothing sealed);
+    InvalidContent when ``cid`` is no bundle manifest (a manifest nested past the JSON
+    parser's depth raised RecursionError, a 500 of the gateway's ``POST /models``)."""
+    sealed = manifest_document(store, cid).get("sealed")
     if not sealed:
         return {}
     if not isinstance(sealed, dict) or not all(isinstance(v, str) for v in sealed.values()):
@@ -153,7 +156,7 @@ def read_envelope(store: Any, envelope_cid: str) -> dict[str, Any]:
     """The envelope document, checked field by field."""
     try:
         doc = json.loads(store.get(envelope_cid, max_size=_MAX_ENVELOPE_BYTES))
-    except ValueError:
+    except (ValueError, RecursionError):  # RecursionError: nested past the parser's depth
         raise InvalidContent(f"{envelope_cid} is not a JSON envelope") from None
     if not isinstance(doc, dict) or doc.get("format") != SEALED_FORMAT:
         raise InvalidContent(f"{envelope_cid} is not a {SEALED_FORMAT} envelope")
@@ -201,6 +204,10 @@ def open_sealed(store: Any, bundle_cid: str, name: str, private_key: bytes) -> b
         ) from None
     if compute_cid(plain) != plain_cid:
         raise InvalidContent(f"{name} of {bundle_cid}: decrypted bytes do not match {plain_cid}")
+    if len(plain) != size:
+        raise InvalidContent(
+            f"{name} of bundle {bundle_cid} has {len(plain)} bytes, its manifest says {size}"
+        )
     return plain
 
 
@@ -216,14 +223,11 @@ def pull_model_with_key(
     out = Path(dest)
     out.mkdir(parents=True, exist_ok=True)
     for name in MODEL_FILES:
-        file_cid, size = files[name]
         if name in sealed and private_key is not None:
-            tmp = out / f".{name}.part"
-            tmp.write_bytes(open_sealed(store, cid, name, private_key))
-            os.replace(tmp, out / name)
+            _write_new(out / name, open_sealed(store, cid, name, private_key))
             continue
         try:
-            store.get_to_file(file_cid, out / name, max_size=size)
+            fetch_model_file(store, cid, name, files[name], out / name)
         except NotFound:
             if name not in sealed:
                 raise
@@ -232,6 +236,19 @@ def pull_model_with_key(
                 "the requester's key to open it"
             ) from None
     return out
+
+
+def _write_new(path: Path, data: bytes) -> None:
+    """Write ``path`` through a new temporary file beside it, renamed into place: a file
+    left at a fixed temporary name (a symlink, say) is never written through."""
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".part")
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
 
 
 def publish_model(store: Any, cid: str, model_dir: str | os.PathLike[str]) -> None:

@@ -27,7 +27,7 @@ from backend.api.client_key import client_key
 from backend.api.deps import ChainDep, CurrentUser, IndexerDep, SessionDep, SettingsDep, StoreDep
 from backend.api.errors import RuleError, rule_responses
 from backend.api.pagecache import cached_page
-from backend.api.schemas import Address
+from backend.api.schemas import Address, FractionQuery
 from backend.api.slots import ClientSlots
 from backend.api.writes import catch_up, field_error, receipt_public
 from backend.chain.platform import Metric, cid_commitment, cid_hash
@@ -242,7 +242,7 @@ def list_models(
     walls: Annotated[
         int | None, Query(ge=0, le=64, description="models trained with this many walls in range")
     ] = None,
-    min_reputation: Annotated[float | None, Query(ge=0, le=1)] = None,
+    min_reputation: FractionQuery = None,
     owner: Address | None = None,
     q: Annotated[
         str | None,

@@ -9,7 +9,7 @@ from sqlalchemy import func, select
 
 from backend.api.deps import SessionDep
 from backend.api.errors import RuleError, rule_responses
-from backend.api.schemas import Address
+from backend.api.schemas import Address, FractionQuery
 from backend.db import models as m
 from backend.schemas.common import MAX_DOMAIN, from_fixed, to_fixed
 from backend.schemas.workers import (
@@ -70,7 +70,7 @@ def list_workers(
     session: SessionDep,
     domain: Annotated[int | None, Query(ge=0, le=MAX_DOMAIN)] = None,
     status: Literal["active", "idle", "pending", "removed"] | None = None,
-    min_reputation: Annotated[float | None, Query(ge=0, le=1)] = None,
+    min_reputation: FractionQuery = None,
     sort: Literal["reputation", "rating", "registered"] = "reputation",
     limit: Annotated[int, Query(ge=1, le=500)] = 100,
     offset: Annotated[int, Query(ge=0, le=1_000_000)] = 0,

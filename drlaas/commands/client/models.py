@@ -16,7 +16,7 @@ from typing import Annotated, Any
 import typer
 
 from backend.store import NotFound, StoreError
-from backend.store.bundle import model_files, pull_model
+from backend.store.bundle import MAX_CARD_BYTES, model_files, pull_model
 from backend.store.dag import compute_cid
 from backend.store.gateway_blocks import GatewayBlocks
 from drlaas.commands.client.session import (
@@ -98,13 +98,16 @@ def pull_into(
 
 
 def holds_bundle(store: Any, cid: str, folder: Path) -> bool:
-    """Whether ``folder`` holds exactly the files of model bundle ``cid``, each with its CID."""
+    """Whether ``folder`` holds exactly the files of model bundle ``cid``, each with its CID
+    (a file is read only when it has the size the manifest declares)."""
     files = model_files(store, cid)
     if sorted(p.name for p in folder.iterdir()) != sorted(files):
         return False
     return all(
-        (folder / name).is_file() and compute_cid((folder / name).read_bytes()) == file_cid
-        for name, (file_cid, _) in files.items()
+        (folder / name).is_file()
+        and (folder / name).stat().st_size == size
+        and compute_cid((folder / name).read_bytes()) == file_cid
+        for name, (file_cid, size) in files.items()
     )
 
 
@@ -350,10 +353,15 @@ def model_push(
 
 def _check_local_model(directory: Path) -> str:
     """``"walls CAE"`` or ``"model"`` if ``directory`` loads as one (never unpickles)."""
-    card_path = directory / "model.json"
-    try:
-        card = json.loads(card_path.read_text())
-    except (OSError, ValueError) as exc:
+    from workers.mdrl.modelio import model_file
+
+    try:  # a regular file within the bound of a card: a nested one raised RecursionError
+        with model_file(directory, "model.json").open("rb") as fh:
+            raw = fh.read(MAX_CARD_BYTES + 1)
+        if len(raw) > MAX_CARD_BYTES:
+            raise ValueError(f"more than {MAX_CARD_BYTES} bytes, the bound of a model card")
+        card = json.loads(raw)
+    except (OSError, ValueError, RecursionError) as exc:
         fail(ValueError(f"{directory}: no readable model.json ({exc})"))
     try:
         if isinstance(card, dict) and card.get("kind") == "cae":

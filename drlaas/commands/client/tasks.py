@@ -66,7 +66,12 @@ from workers.daemon.keys import load_key
 from workers.mdrl.medc import parse_list
 from workers.mdrl.spec import parse_grid, parse_walls
 from workers.mdrl.specfields import check_object
-from workers.mdrl.trainingspec import DEMONSTRATION_RULES, SpecError, TrainingSpec
+from workers.mdrl.trainingspec import (
+    DEMONSTRATION_RULES,
+    MAX_SPEC_BYTES,
+    SpecError,
+    TrainingSpec,
+)
 
 task_app = typer.Typer(
     help="Training tasks: submit, list, show, wait, pull, review, allocate, cancel.",
@@ -107,7 +112,7 @@ def task_body(
     The spec part is checked locally with the core's TrainingSpec (the gateway's own parser).
     ``experts``/``expert_qos`` are comma-separated CIDs and weights (``drlaas train``'s form)."""
     if spec is not None:
-        return json.loads(spec.read_text())
+        return body_file(spec)
     rows, cols = parse_grid(grid)
     doc: dict[str, Any] = {
         "env": {"rows": rows, "cols": cols, "agents": agents, "walls": list(parse_walls(walls))},
@@ -143,6 +148,25 @@ def task_body(
         "deadline_s": deadline_s,
         "domain": domain,
     }
+
+
+def body_file(path: Path) -> dict[str, Any]:
+    """The JSON object of ``--spec FILE``, read up to :data:`MAX_SPEC_BYTES` (a missing,
+    endless, non-JSON or nested file ended the command with a traceback); a usage error
+    naming the file otherwise."""
+    try:
+        with path.open("rb") as fh:
+            raw = fh.read(MAX_SPEC_BYTES + 1)
+        if len(raw) > MAX_SPEC_BYTES:
+            raise ValueError(f"more than {MAX_SPEC_BYTES} bytes, the bound of a task spec")
+        doc = json.loads(raw)
+    except (OSError, ValueError, RecursionError) as exc:
+        raise typer.BadParameter(f"{path}: {exc}", param_hint="--spec") from None
+    if not isinstance(doc, dict):
+        raise typer.BadParameter(
+            f"{path}: the body of POST /api/tasks is a JSON object, not "
+            f"{type(doc).__name__}", param_hint="--spec")
+    return doc
 
 
 def expert_list(experts: str, qos: str | None) -> list[Any]:
