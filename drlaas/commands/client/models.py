@@ -21,6 +21,7 @@ from backend.store.dag import compute_cid
 from backend.store.gateway_blocks import GatewayBlocks
 from drlaas.commands.client.session import (
     DEFAULT_GATEWAY,
+    CliGateway,
     GatewayOpt,
     JsonOpt,
     KeyOpt,
@@ -40,10 +41,12 @@ from drlaas.commands.client.txcheck import (
     Call,
     Expect,
     allocate_model_call,
+    pinned_contract,
     share_model_expect,
 )
 from drlaas.commands.client.users import fail_with_register_hint
 from workers.daemon.gateway import Gateway, GatewayError
+from workers.daemon.keys import load_key
 from workers.mdrl.spec import parse_grid, parse_walls
 from workers.mdrl.trainingspec import SpecError, parse_env
 
@@ -214,44 +217,57 @@ def model_show(
 
 
 def hub_lines(d: dict[str, Any]) -> list[str]:
-    """The model page's figures as text (GET /models/{id}: provenance, held-out, curve)."""
+    """The model page's figures as text (GET /models/{id}: provenance, held-out, curve); a
+    field the gateway's answer lacks or holds with another type is shown as ``?``."""
     lines = []
     if d.get("name") or d.get("kind"):
         lines.append(" ".join(str(x) for x in (d.get("name"), d.get("kind")) if x))
     p = d.get("produced_by")
-    lines.append(
-        f"produced by task {p['task_id']} (worker {p['worker']}; the chain's outcome record)"
-        if p
-        else "an owner's upload (no task's outcome)"
-    )
-    for x in d.get("experts") or []:
+    if p:
+        p = _obj(p)
+        lines.append(f"produced by task {p.get('task_id', '?')} (worker {p.get('worker', '?')}; "
+                     "the chain's outcome record)")
+    else:
+        lines.append("an owner's upload (no task's outcome)")
+    for x in _objs(d.get("experts")):
         where = f"model {x['model_id']}" if x.get("model_id") else "not listed here"
-        lines.append(f"expert {x['ref']} ({where}; from the {x['source'].replace('_', ' ')})")
-    held = d.get("heldout")
-    for f in (held or {}).get("readings", []):
-        time = "-" if f.get("time") is None else f"{f['time']:.2f}"
-        oracle = "-" if f.get("oracle_time") is None else f"{f['oracle_time']:.2f}"
+        source = str(x.get("source", "?")).replace("_", " ")
+        lines.append(f"expert {x.get('ref', '?')} ({where}; from the {source})")
+    held = _obj(d.get("heldout"))
+    for f in _objs(held.get("readings")):
         lines.append(
-            f"held-out ({held['episodes']} episodes, {f['reading_model']} readings): "
-            f"success {100 * f['success']:.1f}%, time {time} (oracle {oracle}), "
-            f"cost {'-' if f.get('cost') is None else format(f['cost'], '.2f')}"
+            f"held-out ({held.get('episodes', '?')} episodes, {f.get('reading_model', '?')} "
+            f"readings): success {_pct(f.get('success'))}, time {_num(f.get('time'))} (oracle "
+            f"{_num(f.get('oracle_time'))}), cost {_num(f.get('cost'))}"
         )
-    final = d.get("final_eval")
-    if final and final.get("success") is not None:  # what the web page shows, not held out
+    final = _obj(d.get("final_eval"))
+    if final.get("success") is not None:  # what the web page shows, not held out
         lines.append(
             f"final evaluation (the run's own episodes, not held out): success "
-            f"{100 * final['success']:.1f}%, time {_num(final.get('time'))} steps, cost "
+            f"{_pct(final['success'])}, time {_num(final.get('time'))} steps, cost "
             f"{_num(final.get('cost'))}"
         )
-    curve = d.get("curve") or []
+    curve = _objs(d.get("curve"))
     if curve:
         last = curve[-1]  # training episodes that ended in the last update: not an evaluation
         lines.append(
-            f"curve: {len(curve)} points to {last['step']} env steps; its last point (training "
-            f"episodes that ended then) success {_num(last.get('success'))}, time "
+            f"curve: {len(curve)} points to {last.get('step', '?')} env steps; its last point "
+            f"(training episodes that ended then) success {_num(last.get('success'))}, time "
             f"{_num(last.get('time'))}, cost {_num(last.get('cost'))}"
         )
     return lines
+
+
+def _obj(value: Any) -> dict[str, Any]:
+    return value if isinstance(value, dict) else {}
+
+
+def _objs(value: Any) -> list[dict[str, Any]]:
+    return [x for x in value if isinstance(x, dict)] if isinstance(value, list) else []
+
+
+def _pct(value: Any) -> str:
+    return f"{100 * value:.1f}%" if isinstance(value, int | float) else "?"
 
 
 def _num(value: Any) -> str:
@@ -267,15 +283,21 @@ def model_pull(
                      "./model-<MODEL>)"),
     ] = None,
     force: ForceOpt = False,
+    key: Annotated[
+        Path | None,
+        typer.Option("--key", envvar="DRLAAS_KEY", help="your key file: a model id's CID is "
+                     "checked on the deployment pinned for it"),
+    ] = None,
     gateway: GatewayOpt = DEFAULT_GATEWAY,
     as_json: JsonOpt = False,
 ) -> None:
     """Download a model (model.safetensors + model.json) through the gateway, every block
-    verified against its CID; a model id is resolved to its CID by the gateway. A folder
-    that already holds files is left alone unless --force (or it holds this very model)."""
+    verified against its CID; a model id is resolved to its CID by the gateway, which is
+    checked on chain first (MMC.getModel, at the pinned ModelsManager). A folder that
+    already holds files is left alone unless --force (or it holds this very model)."""
     cid = model
     if model.isdigit():
-        cid = read(gateway, f"/models/{model}")["cid"]
+        cid = model_cid(gateway, key, int(model))
     dest = out if out is not None else default_out(model)
     try:
         with GatewayBlocks(gateway) as store:
@@ -287,6 +309,41 @@ def model_pull(
     emit({"cid": cid, "path": str(dest), "pulled": pulled}, as_json,
          lambda d: typer.echo(f"model {cid} -> {dest}" if pulled
                               else f"model {cid}: {dest} already holds it"))
+
+
+def model_cid(gateway: str, key: Path | None, model_id: int) -> str:
+    """Model ``model_id``'s CID as the gateway names it, once the chain lists it (exit 1
+    naming both otherwise): a gateway cannot hand out another bundle under a listed id."""
+    if key is not None:
+        try:  # before its pin file is read or written: a mistyped --key is named, not used
+            load_key(key)
+        except (OSError, ValueError) as exc:
+            fail(exc)
+    doc = read(gateway, f"/models/{model_id}")
+    cid = doc.get("cid") if isinstance(doc, dict) else None
+    if not isinstance(cid, str):
+        fail(GatewayError("GET", f"/models/{model_id}", 200, "'cid' is not a string"))
+    try:
+        check_model_on_chain(gateway, key, model_id, cid)
+    except (ValueError, LookupError, GatewayError) as exc:
+        fail(exc)
+    except Exception as exc:  # noqa: BLE001 - web3 raises several types; shown with its type
+        fail(RuntimeError(f"cannot read model {model_id} on chain: {type(exc).__name__}: {exc}"))
+    return cid
+
+
+def check_model_on_chain(gateway: str, key: Path | None, model_id: int, cid: str) -> None:
+    """ValueError unless the chain (as for `task pull`: DRLAAS_CHAIN or the gateway's /rpc, the
+    pinned chain id and ModelsManager) lists ``cid`` as model ``model_id`` (MMC.getModel)."""
+    with CliGateway(gateway or DEFAULT_GATEWAY, None, key) as gw:
+        mmc = pinned_contract(gw, key, MMC)
+        _, listed, _ = mmc.functions.getModel(model_id).call()
+    if listed != cid:
+        chain = f"lists {listed} as its CID" if listed else "lists no model with that id"
+        raise ValueError(
+            f"the gateway names {cid} as model {model_id}'s CID, but the chain {chain} "
+            f"(ModelsManager {mmc.address}); nothing was pulled"
+        )
 
 
 @model_app.command("push")

@@ -207,10 +207,16 @@ def read(gateway: str, path: str, params: dict[str, Any] | None = None) -> Any:
 
 
 def emit(doc: Any, as_json: bool, render: Any = None) -> None:
+    """Print ``doc`` as JSON, or as ``render`` shows it: an answer of another shape than the
+    one ``render`` reads (a hostile gateway's, another version's) is a one-line error."""
     if as_json or render is None:
         typer.echo(json.dumps(doc, indent=1, sort_keys=True, default=str))
-    else:
+        return
+    try:
         render(doc)
+    except (KeyError, IndexError, TypeError, AttributeError, ValueError) as exc:
+        fail(ValueError(f"the gateway's answer lacks what this command shows ({type(exc).__name__}"
+                        f": {exc}); --json prints it as it is"))
 
 
 MAX_CELL = 46
@@ -219,7 +225,8 @@ MAX_CELL = 46
 
 def table(rows: list[dict[str, Any]], columns: list[tuple[str, str]]) -> str:
     """A plain fixed-width table of ``rows`` with (key, header) ``columns``. A cell holding a
-    CID is printed in full, however long: users copy CIDs from tables into other commands."""
+    CID is printed in full, however long: users copy CIDs from tables into other commands. A
+    row that is not an object (in a gateway's answer) is left out."""
 
     def cell(v: Any) -> str:
         if v is None:
@@ -231,7 +238,8 @@ def table(rows: list[dict[str, Any]], columns: list[tuple[str, str]]) -> str:
             return s
         return s[:20] + "…" + s[-20:]
 
-    cells = [[cell(r.get(k)) for k, _ in columns] for r in rows]
+    objects = [r for r in rows if isinstance(r, dict)] if isinstance(rows, list) else []
+    cells = [[cell(r.get(k)) for k, _ in columns] for r in objects]  # anything else: left out
     widths = [max([len(h)] + [len(c[i]) for c in cells]) for i, (_, h) in enumerate(columns)]
     lines = ["  ".join(h.ljust(w) for (_, h), w in zip(columns, widths, strict=True))]
     lines.append("  ".join("-" * w for w in widths))

@@ -55,10 +55,7 @@ from drlaas.commands.client.txcheck import (
     Call,
     Expect,
     add_task_call,
-    chain_url,
-    contract,
-    platform_pin,
-    web3_of,
+    pinned_contract,
 )
 from drlaas.commands.client.users import fail_with_register_hint
 from workers.daemon.gateway import Gateway, GatewayError
@@ -431,6 +428,7 @@ def task_list(
                 [
                     t | {"environment": env_summary(t), "deadline": utc_time(t.get("deadline"))}
                     for t in d["data"]
+                    if isinstance(t, dict)
                 ],
                 [
                     ("id", "ID"),
@@ -453,13 +451,16 @@ def env_summary(task: dict[str, Any]) -> str:
     env = task.get("env")
     if not env:
         return f"spec {task.get('description')}"
-    lo, hi = env["walls"]
-    values = ",".join(f"{v:.0e}" for v in env["intensity"]["values"])
-    walls = f"{lo}" if lo == hi else f"{lo}-{hi}"
-    return (
-        f"{env['rows']}x{env['cols']} {env['agents']} agents {walls} walls "
-        f"{env['moves']} moves I={values}"
-    )
+    try:
+        lo, hi = env["walls"]
+        values = ",".join(f"{v:.0e}" for v in env["intensity"]["values"])
+        walls = f"{lo}" if lo == hi else f"{lo}-{hi}"
+        return (
+            f"{env['rows']}x{env['cols']} {env['agents']} agents {walls} walls "
+            f"{env['moves']} moves I={values}"
+        )
+    except (KeyError, IndexError, TypeError, ValueError):  # a gateway's env of another shape
+        return "?"
 
 
 def utc_time(unix: Any) -> Any:
@@ -831,20 +832,12 @@ def check_outcome_on_chain(
     """ValueError unless the chain (DRLAAS_CHAIN, or the gateway's /rpc; the pinned chain id
     and TasksManager) records ``cid`` as ``worker``'s outcome of ``task_id``."""
     with CliGateway(gateway or DEFAULT_GATEWAY, None, key) as gw:
-        pin = platform_pin(gw, key)
-        w3 = web3_of(gw)
-        chain_id = int(w3.eth.chain_id)
-        if chain_id != pin.chain_id:
-            raise ValueError(
-                f"the chain at {chain_url(gw)} is chain {chain_id}, not {pin.chain_id} "
-                f"({pin.source})"
-            )
-        tmc = contract(TMC, pin.contracts[TMC], w3)
+        tmc = pinned_contract(gw, key, TMC)
         owner, on_task, _ = tmc.functions.outcomeOf(cid_hash(cid)).call()
     if int(owner, 16) == 0:
         raise ValueError(
             f"the gateway names {cid} as task {task_id}'s outcome, but the chain records no "
-            f"outcome with that CID (TasksManager {pin.contracts[TMC]})"
+            f"outcome with that CID (TasksManager {tmc.address})"
         )
     if str(owner).lower() != worker.lower() or int(on_task) != task_id:
         raise ValueError(

@@ -410,6 +410,20 @@ def chain_call(gw: Gateway, pin: Pin, name: str, fn: str, *args: Any) -> Any:
     return contract(name, pin.contracts[name], web3_of(gw)).functions[fn](*args).call()
 
 
+def pinned_contract(gw: Gateway, key: Path | None, name: str) -> Any:
+    """Contract ``name`` at the deployment pinned for ``gw`` (:func:`platform_pin`), to read
+    what the chain records instead of what the gateway says: read at :func:`chain_url` once
+    its chain id is checked to be the pinned one (ValueError naming both if not)."""
+    pin = platform_pin(gw, key)
+    w3 = web3_of(gw)
+    chain_id = int(w3.eth.chain_id)
+    if chain_id != pin.chain_id:
+        raise ValueError(
+            f"the chain at {chain_url(gw)} is chain {chain_id}, not {pin.chain_id} ({pin.source})"
+        )
+    return contract(name, pin.contracts[name], w3)
+
+
 # -- the check ------------------------------------------------------------------------------------
 def _int(tx: Mapping[str, Any], key: str) -> int | None:
     v = tx.get(key)
