@@ -15,6 +15,8 @@ method trains for the same env-step budget of the task user:
                the same with the expert credit rule (medc.py, ``credit``: experts whose
                guided episodes run longer than the agents' own fade out)
   il           sparse + IL-assisted RL with the same experts (il.py: 20% behaviour cloning)
+  medc-il      medc's RL stages with il's cloning stages (ours): does MEDC gain from also
+               cloning the experts, as IL does, where it ties with FRL and IL?
   medc-mixed, medc-mixed-credit, il-mixed
                MEDC (plain, with the credit rule) and IL with the experts plus as many faulty
                ones (random, biased, malicious; Fig. 5.8: 3 of the 6 shared models are faulty)
@@ -92,10 +94,11 @@ from workers.mdrl.zoo import HELDOUT_SEED
 
 METHODS = ("sparse", "sr", "dc", "medc", "medc-anneal", "medc-faulty", "medc-credit",
            "medc-faulty-credit", "medc-mixed", "medc-mixed-credit",
-           "il", "il-mixed", "frl", "frl-mixed", "frl-random", "frl-biased", "frl-malicious",
+           "il", "il-mixed", "medc-il", "frl", "frl-mixed", "frl-random", "frl-biased",
+           "frl-malicious",
            "sparse-cae", "sr-cae", "medc-cae")
 EXPERT_USERS = ("A1W0", "A1W3", "A2W2")
-GUIDED = ("medc", "medc-anneal", "medc-credit")
+GUIDED = ("medc", "medc-anneal", "medc-credit", "medc-il")
 """The methods with proper experts whose speed and rivals the targets report."""
 MIXED = ("medc-mixed", "medc-mixed-credit")
 """The MEDC methods with proper and faulty experts, compared with IL on the same ones."""
@@ -245,18 +248,23 @@ def train_run(task: str, method: str, seed: int, steps: int, experts: list[str],
             faulty = faulty_users(task, seed, env.num_actions, method)
             trainer = FederatedTrainer(users, obs, ppo, run, target=task, out=run_dir,
                                        faulty=faulty, local_updates=FRL_LOCAL_UPDATES)
-    elif method in ("il", "il-mixed"):
+    elif method in ("il", "il-mixed", "medc-il"):
         from workers.mdrl.il import ImitationTrainer
 
         refs = mixed_refs(experts, env.num_actions) if method == "il-mixed" else experts
         loaded = load_experts(refs, env, seed)
+        guide = None  # medc-il: MEDC steers the RL stages
+        if method == "medc-il":
+            guide = DemonstrationSelector(load_experts(experts, env, seed), qos or None,
+                                          MEDC_RATE, seed=seed, threshold=THRESHOLD)
         if resume:  # refuses other experts than the checkpoint's (another --out for those)
             trainer = ImitationTrainer.resume(run_dir, run_overrides=run.to_dict(),
-                                              experts=loaded, qos=None if refs is not experts
-                                              else qos or None)
+                                              selector=guide, experts=loaded,
+                                              qos=None if refs is not experts else qos or None)
         else:
             trainer = ImitationTrainer(env, obs, ppo, run, out=run_dir, experts=loaded,
-                                       qos=None if refs is not experts else qos or None)
+                                       qos=None if refs is not experts else qos or None,
+                                       selector=guide)
     else:
         selector = None
         if method == "dc":

@@ -13,8 +13,8 @@ import pytest
 
 pytestmark = pytest.mark.benchmark  # `make test-benchmarks`: they train, three minutes in all
 ROOT = Path(__file__).resolve().parents[2]
-METHODS = ("sparse", "medc", "medc-anneal", "medc-credit", "il", "medc-mixed-credit", "il-mixed",
-           "frl-mixed", "frl-biased", "medc-cae")
+METHODS = ("sparse", "medc", "medc-anneal", "medc-credit", "il", "medc-il", "medc-mixed-credit",
+           "il-mixed", "frl-mixed", "frl-biased", "medc-cae")
 CAE = ROOT / "models" / "cae-10x10"
 HORIZON = 2048  # steps per update (the presets' 8192 would make each FRL round 8 x 8192 steps)
 STEPS = HORIZON  # one update per run
