@@ -17,7 +17,8 @@ IS_REQUESTER = "0x" + keccak(text="isRequester(address)")[:4].hex()
 
 def rpc(gateway: str, method: str, *params: Any) -> dict[str, Any]:
     body = {"jsonrpc": "2.0", "id": 1, "method": method, "params": list(params)}
-    r = httpx.post(f"{gateway}/rpc", json=body)
+    # httpx's default 5-s timeout was a timing assert: a loaded CI machine exceeded it once
+    r = httpx.post(f"{gateway}/rpc", json=body, timeout=60)
     assert r.status_code == 200, r.text
     return r.json()
 
