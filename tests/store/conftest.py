@@ -20,6 +20,8 @@ from pathlib import Path
 import httpx
 import pytest
 
+from backend.store import EmbeddedStore
+
 NODE_DIR = Path(__file__).resolve().parents[1] / "ipfs-node"
 JSIPFS = NODE_DIR / "node_modules" / ".bin" / "jsipfs"
 READY_TIMEOUT_S = 60.0
@@ -124,3 +126,19 @@ def ipfs_url(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
         yield url
     finally:
         _stop(proc)
+
+
+@pytest.fixture()
+def store(tmp_path: Path) -> EmbeddedStore:
+    """An embedded store of this test's own (test_embedded.py overrides it without fsync)."""
+    return EmbeddedStore(tmp_path / "store")
+
+
+@pytest.fixture()
+def model_dir(tmp_path: Path) -> Path:
+    """A model directory of 3,000 random weight bytes and a small card."""
+    d = tmp_path / "model"
+    d.mkdir()
+    (d / "model.safetensors").write_bytes(os.urandom(3000))
+    (d / "model.json").write_text(json.dumps({"format": "card", "env": {"rows": 6}}))
+    return d

@@ -6,7 +6,6 @@ its fix (its docstring says what happened then)."""
 from __future__ import annotations
 
 import json
-import os
 import sys
 from collections.abc import Iterator
 from pathlib import Path
@@ -37,20 +36,6 @@ def normal_recursion_limit() -> Iterator[None]:
     restore_recursion_limit()
     yield
     sys.setrecursionlimit(before)
-
-
-@pytest.fixture()
-def store(tmp_path: Path) -> EmbeddedStore:
-    return EmbeddedStore(tmp_path / "store")
-
-
-@pytest.fixture()
-def model_dir(tmp_path: Path) -> Path:
-    d = tmp_path / "model"
-    d.mkdir()
-    (d / "model.safetensors").write_bytes(os.urandom(3000))
-    (d / "model.json").write_text(json.dumps({"format": "card", "env": {"rows": 6}}))
-    return d
 
 
 def _manifest(store: EmbeddedStore, cid: str) -> dict:

@@ -29,20 +29,6 @@ REQUESTER = Account.from_key("0x" + "11" * 32)
 OTHER = Account.from_key("0x" + "22" * 32)
 
 
-@pytest.fixture()
-def store(tmp_path: Path) -> EmbeddedStore:
-    return EmbeddedStore(tmp_path / "store")
-
-
-@pytest.fixture()
-def model_dir(tmp_path: Path) -> Path:
-    d = tmp_path / "model"
-    d.mkdir()
-    (d / "model.safetensors").write_bytes(os.urandom(3000))
-    (d / "model.json").write_text(json.dumps({"format": "card", "env": {"rows": 6}}))
-    return d
-
-
 def _pub(account) -> bytes:  # noqa: ANN001
     return parse_public_key(public_key_hex(bytes(account.key)))
 

@@ -49,7 +49,7 @@ from backend.store import (
     StoreError,
     StoreUnavailable,
 )
-from backend.store.bundle import MAX_CARD_BYTES, MODEL_FILES, read_bundle
+from backend.store.bundle import MAX_CARD_BYTES, MODEL_FILES, fetch_model_file, read_bundle
 from workers.mdrl.weightsfile import MAX_WEIGHTS_BYTES, WeightsFileError, check_weights_file
 
 log = logging.getLogger(__name__)
@@ -410,17 +410,15 @@ def _download(
 ) -> None:
     files = _manifest(store, ref, max_weights)
     for name in only:
-        file_cid, size = files[name]
-        try:
-            got = store.get_to_file(file_cid, dest / name, max_size=max(size, 1))
+        file_cid = files[name][0]
+        try:  # verified block by block, and of the size the manifest declares
+            fetch_model_file(store, ref, name, files[name], dest / name)
         except STORE_OUTAGES:
             raise
         except NotFound:
             raise ExpertFetchError(ref, f"{name} ({file_cid}) is not in the store") from None
         except StoreError as exc:
             raise ExpertFetchError(ref, f"{name} ({file_cid}) failed verification: {exc}") from None
-        if got != size:
-            raise ExpertFetchError(ref, f"{name} has {got} bytes, its manifest says {size}")
 
 
 def check_safetensors(path: Path, ref: str) -> None:
