@@ -161,11 +161,20 @@ def validation_issues(errors: Sequence[Any]) -> list[dict[str, Any]]:
     return [
         {
             "loc": [p if isinstance(p, int) else _short(str(p)) for p in e.get("loc", ())],
-            "msg": _short(str(e.get("msg", ""))),
+            "msg": _short(_message(e)),
             "type": _short(str(e.get("type", ""))),
         }
         for e in list(errors)[:MAX_ISSUES]
     ]
+
+
+def _message(error: Any) -> str:
+    """pydantic's message, except where it describes what was not sent: an integer field given
+    a JSON number like ``1e20`` says "unable to parse input string", of a string nobody sent."""
+    if error.get("type") == "int_parsing_size" and isinstance(error.get("input"), float):
+        return ("Input should be an integer within the field's bounds; this number is far "
+                "beyond them")
+    return str(error.get("msg", ""))
 
 
 def _short(text: str) -> str:

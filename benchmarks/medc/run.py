@@ -585,11 +585,47 @@ def targets(by: dict[str, list[dict]], sr_level: float) -> list[str]:
                        f"{len(shared)} shared evaluation points; final "
                        f"{final(by[medc], 'time')[0]:.2f} vs "
                        f"{final(by[other], 'time')[0]:.2f}")
+            gap = curve_gap(by[medc], by[other])
+            if gap is not None:
+                d, (lo, hi), n, k = gap
+                out.append(f"  along the curve ({k} points, {n} paired seeds): {other.upper()} "
+                           f"- {medc} mean episode length {d:+.2f} [{lo:+.2f}, {hi:+.2f}]")
+                seeds = sorted({r["seed"] for r in by[medc]} & {r["seed"] for r in by[other]})
+                end = np.array([next(r["heldout"]["time"] for r in by[other] if r["seed"] == x)
+                                - next(r["heldout"]["time"] for r in by[medc] if r["seed"] == x)
+                                for x in seeds])
+                lo, hi = t_interval(end)
+                out.append(f"  held-out at the end, paired: {other.upper()} - {medc} "
+                           f"{end.mean():+.2f} [{lo:+.2f}, {hi:+.2f}]")
             km, ko = kept(by[medc]), kept(by[other])
             if km and ko:
                 (a, a_ci), (b, b_ci) = final(km, "time"), final(ko, "time")
                 out.append(f"  kept policies: {a:.2f}{_ci(a_ci)} vs {b:.2f}{_ci(b_ci)}")
     return out
+
+
+def curve_gap(runs: list[dict], others: list[dict]
+              ) -> tuple[float, tuple[float, float], int, int] | None:
+    """"At equal env steps" over the whole curve: per seed both methods ran, the mean over
+    the evaluation points all those runs share of (other's - this one's) curve episode length,
+    then the mean over seeds with its t-interval; with the number of seeds and points. A
+    positive gap: ``runs`` had the shorter episodes on average at the same steps. None with
+    fewer than two paired seeds."""
+    mine, theirs = ({r["seed"]: r for r in rs} for rs in (runs, others))
+    seeds = sorted(set(mine) & set(theirs))
+    if len(seeds) < 2:
+        return None
+    pairs = [mine[s] for s in seeds] + [theirs[s] for s in seeds]
+    common = sorted(set.intersection(*(set(p["step"] for p in r["curve"]) for r in pairs)))
+    if not common:
+        return None
+
+    def at(r: dict) -> np.ndarray:
+        by_step = {p["step"]: p["time"] for p in r["curve"]}
+        return np.array([by_step[x] for x in common])
+
+    gaps = np.array([(at(theirs[s]) - at(mine[s])).mean() for s in seeds])
+    return float(gaps.mean()), t_interval(gaps), len(seeds), len(common)
 
 
 def speed_targets(by: dict[str, list[dict]], medc: str, sr_level: float) -> list[str]:

@@ -30,7 +30,7 @@ from backend.api.pagecache import cached_page
 from backend.api.schemas import Address, FractionQuery
 from backend.api.slots import ClientSlots
 from backend.api.writes import catch_up, field_error, receipt_public
-from backend.chain.platform import Metric, cid_commitment, cid_hash
+from backend.chain.platform import Metric, Verdict, cid_commitment, cid_hash
 from backend.chain.qos import mmc_reputation_fixed
 from backend.db import models as m
 from backend.schemas.cards import MAX_EXPERTS, CardView, ExpertUsagePublic, is_cid
@@ -692,6 +692,22 @@ def commit_cid(body: CommitmentCreate, user: CurrentUser, chain: ChainDep) -> Co
     return CommitmentPublic(commitment=body.commitment.lower(), block=committed_at)
 
 
+def _check_provenance(chain: ChainService, owner: str, cid: str) -> None:
+    """The MMC's provenance rule (addModel reverts the same way), asked before the store is
+    read: a task's outcome is listed only by its worker, once its requester accepted it."""
+    worker, task_id, verdict = chain.call(chain.platform.tmc, "outcomeOf", cid_hash(cid))
+    if not int(worker, 16):
+        return  # an own upload: commit-reveal instead (_ensure_committed)
+    if worker.lower() != owner.lower():
+        raise RuleError(403, "models_not_outcome_owner",
+                        f"{cid} is the outcome of task {task_id} by {worker}: only its worker "
+                        "lists it")
+    if Verdict(verdict) != Verdict.ACCEPTED:
+        raise RuleError(409, "models_outcome_not_accepted",
+                        f"{cid} is an outcome of task {task_id} its requester has not accepted "
+                        f"({Verdict(verdict).name.lower()}): it is listed once accepted")
+
+
 def _ensure_committed(chain: ChainService, owner: str, cid: str) -> None:
     """Commit-reveal (TMC.commitCid): an own upload (no task outcome) is listed only after
     ``owner`` committed keccak256(cid ++ owner) in an earlier block. Commits for ``owner``
@@ -751,6 +767,7 @@ def share_model(
     listed = int(chain.call(chain.platform.mmc, "modelOfCid", cid_hash(body.cid)))
     if listed:
         raise RuleError(409, "model_already_listed", f"{body.cid} is listed as model {listed}")
+    _check_provenance(chain, user.address, body.cid)
     _check_card_env(store, body.cid, declared)
     _check_published(store, body.cid)
     _check_bundle(store, body.cid)

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -192,8 +193,33 @@ def event_arg(receipt: dict[str, Any], event: str, arg: str) -> Any:
     raise LookupError(f"transaction {receipt.get('tx_hash')} emitted no {event} event")
 
 
+_TERMINAL_UNSAFE = re.compile("[\x00-\x08\x0b-\x1f\x7f-\x9f\u200e\u200f\u2028-\u202e"
+                              "\u2066-\u2069]")
+"""What a terminal acts on instead of showing: C0 and C1 controls (ESC starts sequences that
+move the cursor, retitle the window, write the clipboard), and the bidi marks, embeddings,
+overrides and isolates and the line separators (Unicode reorders or breaks what follows)."""
+
+
+def terminal_text(text: str) -> str:
+    """``text`` as the terminal should show it: every character in :data:`_TERMINAL_UNSAFE`
+    written as its escape (``\\x1b``, ``\\u202e``); newlines and tabs kept. Text from a
+    gateway is not trusted to be only text."""
+    return _TERMINAL_UNSAFE.sub(lambda m: m.group().encode("unicode_escape").decode(), text)
+
+
+def terminal_safe(doc: Any) -> Any:
+    """``doc`` with :func:`terminal_text` applied to every string in it, keys included."""
+    if isinstance(doc, str):
+        return terminal_text(doc)
+    if isinstance(doc, dict):
+        return {terminal_safe(k): terminal_safe(v) for k, v in doc.items()}
+    if isinstance(doc, list):
+        return [terminal_safe(v) for v in doc]
+    return doc
+
+
 def fail(exc: Exception) -> None:
-    typer.echo(f"error: {exc}", err=True)
+    typer.echo(f"error: {terminal_text(str(exc))}", err=True)
     raise typer.Exit(1)
 
 
@@ -213,7 +239,7 @@ def emit(doc: Any, as_json: bool, render: Any = None) -> None:
         typer.echo(json.dumps(doc, indent=1, sort_keys=True, default=str))
         return
     try:
-        render(doc)
+        render(terminal_safe(doc))
     except (KeyError, IndexError, TypeError, AttributeError, ValueError) as exc:
         fail(ValueError(f"the gateway's answer lacks what this command shows ({type(exc).__name__}"
                         f": {exc}); --json prints it as it is"))
@@ -233,7 +259,7 @@ def table(rows: list[dict[str, Any]], columns: list[tuple[str, str]]) -> str:
             return "-"
         if isinstance(v, float):
             return f"{v:.3f}"
-        s = str(v)
+        s = terminal_text(str(v)).replace("\n", " ").replace("\t", " ")
         if len(s) <= MAX_CELL or any(is_cid(word) for word in s.split()):
             return s
         return s[:20] + "…" + s[-20:]
@@ -249,4 +275,4 @@ def table(rows: list[dict[str, Any]], columns: list[tuple[str, str]]) -> str:
 
 def kv(doc: dict[str, Any], keys: list[str]) -> str:
     width = max(len(k) for k in keys)
-    return "\n".join(f"{k.ljust(width)}  {doc.get(k, '-')}" for k in keys)
+    return "\n".join(f"{k.ljust(width)}  {terminal_text(str(doc.get(k, '-')))}" for k in keys)

@@ -48,6 +48,8 @@ from drlaas.commands.client.session import (
     kv,
     read,
     table,
+    terminal_safe,
+    terminal_text,
     write,
 )
 from drlaas.commands.client.txcheck import (
@@ -327,8 +329,10 @@ def task_submit(
                 )
                 expert_allocation = alloc["alloc_id"]
                 typer.echo(
-                    f"allocation {expert_allocation}: experts "
-                    + ", ".join(f"{m['cid']} (qos {m['qos']:.3f})" for m in alloc["models"]),
+                    terminal_text(
+                        f"allocation {expert_allocation}: experts "
+                        + ", ".join(f"{m['cid']} (qos {m['qos']:.3f})" for m in alloc["models"])
+                    ),
                     err=True,
                 )
             if expert_allocation is not None:
@@ -717,7 +721,7 @@ def task_wait(
     with connect(gateway) as gw:
         while True:
             try:
-                d = gw.get(f"/tasks/{task_id}")
+                d = terminal_safe(gw.get(f"/tasks/{task_id}"))
             except GatewayError as exc:
                 now = time.monotonic()
                 if exc.status != 404 or now > min(deadline, started + NOT_INDEXED_GRACE_S):

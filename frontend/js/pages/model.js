@@ -150,7 +150,7 @@ export async function render(main, [id], ctx) {
     h("p", { class: "crumbs" }, link("/models", "Models"), " / ", `#${m.id ?? id}`),
     h("div", { class: "page-head" }, h("h1", { id: "model-title" }, title),
       h("span", { class: "muted" }, [m.kind, envSummary(env)].filter(Boolean).join(" · "))),
-    m.description ? h("p", { class: "lead", id: "model-description" }, m.description) : null,
+    m.description ? h("p", { class: "lead", id: "model-description", dir: "auto" }, m.description) : null,
     h("p", { class: "muted", id: "model-owner" }, "Shared by ", shortAddr(m.owner), ` · domain ${m.domain ?? "—"}`),
 
     h("div", { class: "cid-row" }, h("span", { class: "label" }, "CID"),

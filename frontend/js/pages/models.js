@@ -85,7 +85,7 @@ function table(models, filtered) {
     h("tbody", {}, models.map((m) => h("tr", { "data-model-id": m.id },
       h("td", {}, link(`/models/${encodeURIComponent(m.id)}`, `#${m.id}`)),
       h("td", {}, h("div", { class: "env" }, envSummary(m.env)),
-        m.description ? h("div", { class: "desc muted" }, m.description) : null),
+        m.description ? h("div", { class: "desc muted", dir: "auto" }, m.description) : null),
       h("td", {}, m.domain ?? "—"),
       h("td", {}, shortAddr(m.owner)),
       h("td", { class: "num reputation" }, num(m.reputation, 3)),
