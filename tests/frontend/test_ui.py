@@ -492,3 +492,17 @@ def test_lists_page_through_more_rows_than_one_answer(
         " && !document.querySelector('#models-results').hasAttribute('aria-busy')"
     )
     assert "offset" not in state.queries("/api/models")[-1]
+
+
+def test_a_right_to_left_description_reads_right_to_left_in_its_own_block(
+    page: Any, server: LiveServer, state: FakeState
+) -> None:
+    """A description is the model owner's text, in any script: it gets its own direction from
+    its first strong character (``dir="auto"``), and an override inside it ends with its
+    block. Before, an Arabic description was laid out left to right like the page."""
+    state.models[0]["description"] = "نموذج للبحث عن المصدر \u202e gnihtemos"
+    page.goto(f"{server.url}/models/1")
+    desc = page.locator("#model-description")
+    expect(desc).to_contain_text("نموذج")
+    assert desc.evaluate("e => e.matches(':dir(rtl)')")
+    assert page.locator("#model-cid").evaluate("e => e.matches(':dir(ltr)')")
