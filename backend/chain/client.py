@@ -19,6 +19,9 @@ from pathlib import Path
 from typing import Any
 
 import requests
+from eth_abi.codec import ABICodec
+from eth_abi.decoding import StringDecoder
+from eth_abi.registry import BaseEquals
 from eth_account import Account
 from eth_account.signers.local import LocalAccount
 from eth_utils import keccak
@@ -53,6 +56,25 @@ it reads every revert as ``Error(string)``, so a custom error whose first word p
 the data at a word >= 2**63 (``TasksBadDuration(60, 660, 2592000)``: offset 60, "length"
 0x294 << 224 ...) makes eth_abi raise ``OverflowError``, not its ``DecodingError``. The revert
 is still in the exception's context (:func:`_slipped_revert`)."""
+
+
+class _ReplacingStringDecoder(StringDecoder):
+    """An event's ``string`` with bytes that are not UTF-8 replaced by U+FFFD."""
+
+    def __init__(self) -> None:
+        super().__init__(handle_string_errors="replace")
+
+
+def _lenient_strings(codec: ABICodec) -> ABICodec:
+    """``codec`` decoding strings leniently, for event logs: the contracts take any bytes as a
+    string (a task or model description in anyone's own transaction), and eth_abi's strict
+    UTF-8 made such a log raise, so the indexer stopped at its block for good and never indexed
+    the events after it. Every other type decodes exactly as in ``codec``."""
+    registry = codec._registry.copy()
+    registry.unregister_decoder("string")
+    registry.register_decoder(BaseEquals("string"), _ReplacingStringDecoder, label="string")
+    return ABICodec(registry)
+
 
 # anvil's and hardhat's well-known development mnemonic (never use it outside tests).
 DEV_MNEMONIC = "test test test test test test test test test test test junk"
@@ -287,6 +309,7 @@ class Chain:
         self._keys = {a.address: a for a in keys}
         self.accounts: list[str] = list(self._keys)
         self.chain_id: int = w3.eth.chain_id
+        self._log_codec = _lenient_strings(w3.codec)
         self._by_address: dict[str, tuple[str, Contract]] = {}
         # (contract address, topic0) -> (contract name, event ABI): two contracts may share
         # an event signature (PaymentCredited in TMC and MMC).
@@ -480,7 +503,7 @@ class Chain:
             if hit is None:
                 continue
             cname, abi = hit
-            data = get_event_data(self.w3.codec, abi, log)
+            data = get_event_data(self._log_codec, abi, log)
             out.append(
                 Event(cname, data["event"], dict(data["args"]), log["address"], log["logIndex"])
             )

@@ -20,6 +20,9 @@ Guarantees:
 * one event's rows that the database cannot hold (a value out of a column's range, a row that
   violates a constraint) never stop the index: each event is applied in a SAVEPOINT, and such
   an event is kept in ``chain_events`` with its ``error``, without its rows;
+* text as anyone's own transaction may write it (the contracts take any bytes as a string)
+  never stops the index: bytes that are not UTF-8 decode as U+FFFD (``Chain._decode_logs``;
+  a strict decoding failed every poll at that block), NUL is stored as U+FFFD (``_text``);
 * a different chain (another ``anchor``: hash of the UMC's deployment block, e.g. a restarted
   embedded chain) wipes the indexed tables instead of mixing two histories;
 * a chain that went back under the cursor (a reorg deeper than ``confirmations``, an embedded

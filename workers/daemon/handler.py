@@ -79,13 +79,20 @@ from workers.daemon.gateway import Gateway
 from workers.daemon.links import task_spec_cid
 from workers.daemon.progress_sender import ProgressSender
 from workers.mdrl.env import TargetLocalizationEnv
-from workers.mdrl.resources import estimate, update_seconds
-from workers.mdrl.trainingspec import MAX_SPEC_BYTES, SpecError, TrainingSpec
+from workers.mdrl.resources import estimate, final_evaluation_seconds, update_seconds
+from workers.mdrl.trainingspec import (
+    JOB_EVAL_EPISODES,
+    MAX_SPEC_BYTES,
+    SpecError,
+    TrainingSpec,
+)
 
 log = logging.getLogger(__name__)
 
 #: Where a job keeps its staged outcome bundle until it is published (``_staged_outcome``).
 OUTBOX_DIR = "outbox"
+#: Characters of a task's spec CID (its on-chain description, any text) a reason shows.
+SHOWN_CID_CHARS = 120
 #: Seconds kept free before the task deadline for upload and submitOutcome.
 DEADLINE_MARGIN_S = 30.0
 #: Phases a job goes through, in order (``state.json``).
@@ -535,11 +542,16 @@ class OfferHandler:
                 f"worker has {share / 2**30:.3g} GiB per job"
             )
         left_s = deadline - self.clock() - DEADLINE_MARGIN_S
-        one_update_s = update_seconds(spec)  # the time budget is checked between updates only
-        if one_update_s > left_s:
+        # the time budget is checked between updates only, and the final evaluation runs after
+        # the last update whatever the time left: a job runs at least one update and that
+        one_update_s = update_seconds(spec)
+        final_s = final_evaluation_seconds(spec)
+        if one_update_s + final_s > left_s:
             return (
-                f"deadline: one PPO update of this spec takes about {one_update_s:.0f} s "
-                f"(resource model), the task's deadline leaves {max(left_s, 0):.0f} s"
+                f"deadline: one PPO update and the final evaluation ({JOB_EVAL_EPISODES} "
+                f"episodes of up to env.max_steps = {spec.env.max_steps} steps) of this spec "
+                f"take about {one_update_s + final_s:.0f} s (resource model), the task's "
+                f"deadline leaves {max(left_s, 0):.0f} s"
             )
         try:  # walls the spec's bounds allow can still leave the team no room (env.LayoutError)
             TargetLocalizationEnv(spec.env, 1, seed=spec.seed)
@@ -768,18 +780,24 @@ class OfferHandler:
         }
 
     def _fetch_spec(self, task_id: int, cid: str) -> TrainingSpec | SpecError:
-        """The verified spec ``cid``, or the SpecError saying why it cannot be trained."""
+        """The verified spec ``cid``, or the SpecError saying why it cannot be trained. The
+        CID is the task's on-chain description, any text its requester wrote (100 KB, say):
+        a reason names it cut to :data:`SHOWN_CID_CHARS`, not echoed whole into state.json,
+        the logs and the decline."""
+        shown = repr(cid)
+        if len(shown) > SHOWN_CID_CHARS:
+            shown = f"{shown[:SHOWN_CID_CHARS]}... ({len(cid)} characters)"
         try:
             raw = self.store.get(cid, max_size=MAX_SPEC_BYTES)
         except STORE_OUTAGES as exc:  # down, or a node that gave up finding it in time
-            raise Transient(f"cannot fetch task spec {cid}: {exc}") from exc
+            raise Transient(f"cannot fetch task spec {shown}: {exc}") from exc
         except NotFound as exc:
-            return SpecNotFound("spec", f"task spec {cid!r}: {exc}")
+            return SpecNotFound("spec", f"task spec {shown}: {exc}")
         except StoreError as exc:  # bad CID, mismatch, too large, garbled answer
-            return SpecError("spec", f"task spec {cid!r}: {exc}")
+            return SpecError("spec", f"task spec {shown}: {exc}")
         except Exception as exc:  # noqa: BLE001 - a store's own bug: the offer is still answered
-            log.exception("task %s: reading task spec %s failed", task_id, cid)
-            return SpecError("spec", f"task spec {cid!r}: {type(exc).__name__}: {exc}")
+            log.exception("task %s: reading task spec %s failed", task_id, shown)
+            return SpecError("spec", f"task spec {shown}: {type(exc).__name__}: {exc}")
         try:
             return TrainingSpec.from_json(raw)
         except SpecError as exc:

@@ -309,9 +309,16 @@ def open_store(settings: Settings) -> ContentStore:
 
 
 def task_spec_cid(platform: Platform, task_id: int) -> str:
-    """The task's on-chain description (its spec CID), from its ``TaskAdded`` event."""
-    ev = platform.tmc.contract.events.TaskAdded()
-    logs = ev.get_logs(from_block=0, argument_filters={"taskId": task_id})
+    """The task's on-chain description (its spec CID), from its ``TaskAdded`` event, decoded as
+    the indexer decodes it: bytes that are not UTF-8 (anyone's own addTask may hold any) read
+    as U+FFFD, so the spec is refused and the offer declined (web3's strict decoding raised,
+    and the offer was never answered)."""
+    tmc = platform.tmc
+    raw = platform.chain.w3.eth.get_logs({
+        "address": tmc.address, "fromBlock": 0, "toBlock": "latest",
+        "topics": [tmc.contract.events.TaskAdded().topic, "0x" + task_id.to_bytes(32, "big").hex()],
+    })
+    logs = [e for e in platform.chain._decode_logs(raw) if e.name == "TaskAdded"]
     if not logs:
-        raise LookupError(f"task {task_id}: no TaskAdded event on the TMC {platform.tmc.address}")
-    return str(logs[0]["args"]["description"])
+        raise LookupError(f"task {task_id}: no TaskAdded event on the TMC {tmc.address}")
+    return str(logs[0].args["description"])

@@ -20,6 +20,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -38,37 +39,40 @@ def _num(text: str | None) -> float | None:
     return v if v is not None and math.isfinite(v) else None
 
 
-def read_metrics(path: str | Path) -> list[dict[str, float | None]]:
-    """The rows of a ``metrics.csv`` as curve points (unordered steps are sorted; a step logged
-    twice keeps its last row); rows without a step are skipped."""
-    by_step: dict[int, dict[str, float | None]] = {}
+def _rows(path: str | Path) -> Iterator[dict[str, Any]]:
+    """The rows of a ``metrics.csv`` with a step, as curve points, in file order."""
     with Path(path).open(newline="") as f:
         for row in csv.DictReader(f):
             step = _num(row.get("global_step"))
             if step is None:
                 continue
-            point: dict[str, float | None] = {"wall_s": _num(row.get("wall_time"))}
+            point: dict[str, Any] = {"step": int(step), "wall_s": _num(row.get("wall_time"))}
             point.update({k: _num(row.get(col)) for k, col in _VALUES.items()})
-            by_step[int(step)] = point
-    return [{"step": s, **by_step[s]} for s in sorted(by_step)]
+            yield point
+
+
+def read_metrics(path: str | Path) -> list[dict[str, float | None]]:
+    """The rows of a ``metrics.csv`` as curve points (unordered steps are sorted; a step logged
+    twice keeps its last row); rows without a step are skipped."""
+    by_step = {p["step"]: p for p in _rows(path)}
+    return [by_step[s] for s in sorted(by_step)]
+
+
+def _ordered_count(path: str | Path) -> int | None:
+    """How many rows with a step ``path`` holds when their steps only increase (every
+    trainer's file: a resumed run drops the rows after its checkpoint), else None."""
+    n, last = 0, None
+    for point in _rows(path):
+        if last is not None and point["step"] <= last:
+            return None
+        n, last = n + 1, point["step"]
+    return n
 
 
 def downsample(points: list[dict[str, Any]], limit: int = MAX_CURVE_POINTS) -> list[dict[str, Any]]:
     """At most ``limit`` points: consecutive buckets of near-equal size, each the mean of its
     measured values (None where none was) at the bucket's last step and wall time."""
-    n = len(points)
-    if n <= limit:
-        return [_rounded(p) for p in points]
-    out = []
-    for b in range(limit):
-        bucket = points[b * n // limit : (b + 1) * n // limit]
-        last = bucket[-1]
-        point = {"step": last["step"], "wall_s": last.get("wall_s")}
-        for key in _VALUES:
-            vals = [p[key] for p in bucket if p.get(key) is not None]
-            point[key] = sum(vals) / len(vals) if vals else None
-        out.append(_rounded(point))
-    return out
+    return _downsample_stream(points, len(points), limit)
 
 
 def _rounded(point: dict[str, Any]) -> dict[str, Any]:
@@ -76,10 +80,40 @@ def _rounded(point: dict[str, Any]) -> dict[str, Any]:
     return {k: v if v is None or k == "step" else round(v, 4) for k, v in point.items()}
 
 
+def _downsample_stream(
+    points: Iterable[dict[str, Any]], n: int, limit: int
+) -> list[dict[str, Any]]:
+    """:func:`downsample` of the ``n`` ``points``, read one at a time (bucket ``b`` ends at
+    point ``(b + 1) * n // limit``), holding one bucket's sums, not every point."""
+    if n <= limit:
+        return [_rounded(p) for p in points]
+    out: list[dict[str, Any]] = []
+    sums = {key: [0, 0] for key in _VALUES}  # key -> [sum, count] of the measured values
+    for i, p in enumerate(points):
+        for key in _VALUES:
+            if p.get(key) is not None:
+                sums[key][0] += p[key]
+                sums[key][1] += 1
+        if i + 1 == (len(out) + 1) * n // limit:  # the last point of bucket len(out)
+            point = {"step": p["step"], "wall_s": p.get("wall_s")}
+            point.update({k: total / count if count else None
+                          for k, (total, count) in sums.items()})
+            out.append(_rounded(point))
+            sums = {key: [0, 0] for key in _VALUES}
+    return out
+
+
 def training_curve(metrics_csv: str | Path, limit: int = MAX_CURVE_POINTS) -> dict[str, Any]:
-    """The card's ``curve`` section from a run's ``metrics.csv``."""
-    points = read_metrics(metrics_csv)
-    return {"x": "env_steps", "updates": len(points), "points": downsample(points, limit)}
+    """The card's ``curve`` section from a run's ``metrics.csv``. Read twice, a row at a time,
+    when its steps only increase: a long run of tiny updates (a spec may ask for one env step
+    per update for a week) has millions of rows, and holding them all took more memory than
+    the run itself, after all its training."""
+    n = _ordered_count(metrics_csv)
+    if n is None:  # out of order or logged twice: sorted in memory
+        points = read_metrics(metrics_csv)
+        return {"x": "env_steps", "updates": len(points), "points": downsample(points, limit)}
+    return {"x": "env_steps", "updates": n,
+            "points": _downsample_stream(_rows(metrics_csv), n, limit)}
 
 
 def attach_curve(model_dir: str | Path, metrics_csv: str | Path) -> bool:

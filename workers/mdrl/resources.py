@@ -240,6 +240,13 @@ def update_seconds(spec: TrainingSpec) -> float:
     return flops_per_step(spec) * spec.ppo.batch_steps / reference_flops_per_s()
 
 
+def final_evaluation_seconds(spec: TrainingSpec) -> float:
+    """Estimated seconds of a job's final greedy evaluation on one reference thread: it runs
+    after the last update however little time is left (``Trainer.train``), so a worker whose
+    deadline cannot hold it delivers late."""
+    return final_evaluation_flops(spec) / reference_flops_per_s()
+
+
 def worker_hours(spec: TrainingSpec) -> float:
     """Estimated hours one worker spends on ``spec`` (what a minimum payment per
     worker-hour is charged on)."""

@@ -16,6 +16,7 @@ import json
 import logging
 import math
 import numbers
+import os
 import time
 import warnings
 from dataclasses import dataclass
@@ -544,12 +545,14 @@ class Trainer:
         if self.update_idx == 0 or not metrics.exists():
             with metrics.open("w", newline="") as f:
                 csv.writer(f).writerow(METRIC_COLUMNS)
-        else:  # resumed: drop rows written after the checkpoint we resumed from
-            with metrics.open(newline="") as f:
-                rows = list(csv.reader(f))
-            keep = [rows[0]] + [r for r in rows[1:] if int(r[0]) <= self.update_idx]
-            with metrics.open("w", newline="") as f:
-                csv.writer(f).writerows(keep)
+        else:  # resumed: drop rows written after the checkpoint we resumed from, a row at a
+            # time (a run of tiny updates has millions: held at once, they took the memory)
+            tmp = metrics.with_name(metrics.name + ".tmp")
+            with metrics.open(newline="") as f, tmp.open("w", newline="") as out:
+                rows, keep = csv.reader(f), csv.writer(out)
+                keep.writerow(next(rows, METRIC_COLUMNS))
+                keep.writerows(r for r in rows if int(r[0]) <= self.update_idx)
+            os.replace(tmp, metrics)
         if self.run.tensorboard:
             from torch.utils.tensorboard import SummaryWriter
 
