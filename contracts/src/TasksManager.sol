@@ -622,8 +622,13 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
      * (`filled` - 1: a slot given back is not held at the task's end):
      * the requester may {allocateTask} it to the next best worker (this one stays excluded)
      * or, with no other worker holding the task, cancel it and take the escrow back.
+     * Given back in time, i.e. while the slot can still be offered to another worker
+     * ({allocateTask}'s now + acceptWindow + minWorkTime <= deadline), it is not rated; given
+     * back later, the slot was held as long as it could be of use to anyone, so it is rated 0
+     * as the close rates a slot held to the deadline (otherwise a worker could hold a slot to
+     * its last second and dodge that rating; docs/chain.md, "Held-out pass of 2026-12-04").
      * Requirements: task open; caller accepted the task and has not submitted.
-     * Emits an {OfferFailed} event.
+     * Emits an {OfferFailed} event (and the UMC's {WorkerInfoUpdated} when rated).
      */
     function abandonOffer(uint256 taskId) external {
         Task storage t = _tasks[taskId];
@@ -633,6 +638,10 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
         o.state = OfferState.Failed;
         t.filled -= 1;
         emit OfferFailed(taskId, msg.sender);
+        if (block.timestamp + acceptWindow + minWorkTime > t.deadline) {
+            // interactions last: too late for another worker, rated 0 as a slot held to the end
+            umc.updateInfo(msg.sender, _reqs[taskId].domain, TRAINING, REVIEWED, 0);
+        }
     }
 
     /**
@@ -839,7 +848,7 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
 
     /// @dev At close: pay unreviewed outcomes (after the review window; they count as
     /// completed), fail the accepted offers without outcome (rated 0: holding a slot to the
-    /// deadline costs more than declining or {abandonOffer}), expire the rest; the offers
+    /// deadline costs more than declining or an {abandonOffer} in time), expire the rest; the offers
     /// never accepted count as assigned if a worker held a slot at the deadline
     /// (`filled` != 0). Returns the UMC flags per offeree for {_count} (state only here).
     /// Bounded by MAX_OFFERS.

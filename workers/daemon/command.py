@@ -107,6 +107,9 @@ def worker_command(
     ] = DEFAULT_DOMAINS,
     max_jobs: Annotated[int, typer.Option(min=1, help="jobs at once before declining offers")] = 1,
     checkpoint_every: Annotated[int, typer.Option(min=1, help="updates between checkpoints")] = 2,
+    checkpoint_interval: Annotated[
+        float, typer.Option(min=0, help="least seconds between checkpoints (0: by updates only)")
+    ] = 30.0,
     data: Annotated[
         Path | None,
         typer.Option(
@@ -147,6 +150,7 @@ def worker_command(
     os.environ["DRLAAS_WORKER_KEY"] = str(key)
     os.environ["DRLAAS_WORKER_MAX_JOBS"] = str(max_jobs)
     os.environ["DRLAAS_WORKER_CHECKPOINT_EVERY"] = str(checkpoint_every)
+    os.environ["DRLAAS_WORKER_CHECKPOINT_INTERVAL_S"] = str(checkpoint_interval)
     worker_dir = data or own_dir / "workers" / account.address
     if gateway:
         os.environ["DRLAAS_GATEWAY"] = gateway

@@ -197,6 +197,8 @@ class OfferHandler:
     memory_bytes: int = field(default_factory=ram_bytes)
     """RAM this worker's jobs may use together (measured); each job gets memory_bytes/max_jobs."""
     checkpoint_every: int = jobs.CHECKPOINT_EVERY
+    checkpoint_interval_s: float = jobs.CHECKPOINT_INTERVAL_S
+    """Least seconds between two checkpoints of a job (0: every ``checkpoint_every`` updates)."""
     max_expert_bytes: int = MAX_WEIGHTS_BYTES
     """Bound on the weights of one expert model fetched for an MEDC job."""
     max_offer_fetch_bytes: int = DEFAULT_OFFER_FETCH_BYTES
@@ -491,6 +493,12 @@ class OfferHandler:
             owner = address_of(parse_public_key(spec.outcome_key))
             if owner.lower() != requester.lower():
                 return f"outcome_key belongs to {owner}, not to the task's requester {requester}"
+        # before any expert's manifest or card is fetched (up to max_offer_fetch_bytes): an
+        # offer whose spec alone exceeds this worker's memory, or whose deadline passed or
+        # cannot hold one update, is declined on its spec
+        early = self._memory_short(spec) or self._deadline_too_near(spec, deadline)
+        if early is not None:
+            return early
         cae_card, guides = None, []  # what the run loads besides its own nets (their cards)
         cache = self.cache
         try:  # a reference no worker can fetch, models over the bounds (on their manifests,
@@ -531,19 +539,44 @@ class OfferHandler:
         busy = self.active_jobs(exclude=task_id)
         if len(busy) >= self.max_jobs:
             return "at capacity"
+        short = self._memory_short(spec, guides, cae_card)
+        if short is not None:
+            return short
+        late = self._deadline_too_near(spec, deadline)  # again: the checks above took time
+        if late is not None:
+            return late
+        try:  # walls the spec's bounds allow can still leave the team no room (env.LayoutError)
+            TargetLocalizationEnv(spec.env, 1, seed=spec.seed)
+        except ValueError as exc:  # LayoutError, or an env rule the spec check does not mirror
+            return f"env: {exc}"
+        return self._models_unusable(task_id, spec)
+
+    def _memory_short(
+        self, spec: TrainingSpec, guides: list[Any] | None = None, cae_card: Any = None
+    ) -> str | None:
+        """Why this worker's memory per job cannot hold ``spec`` with its experts' and walls
+        CAE's nets (their cards; each expert already passed expert_misfit, so each can be laid
+        on the task's grid), None if it can. Integer arithmetic, nothing allocated; without
+        the cards (before they are fetched) a lower bound."""
+        guides = guides or []
         share = self.memory_bytes // max(1, self.max_jobs)
-        # integer arithmetic: nothing is allocated; the experts' and CAE's nets included (each
-        # expert already passed expert_misfit, so each can be laid on the task's grid)
         need = estimate(spec, experts=guides, walls_cae=cae_card).memory_bytes
-        if need > share:
-            extra = f" with its {len(guides)} expert(s)" if guides else ""
-            return (
-                f"spec_exceeds_worker_memory: needs about {need / 2**30:.3g} GiB{extra}, this "
-                f"worker has {share / 2**30:.3g} GiB per job"
-            )
+        if need <= share:
+            return None
+        extra = f" with its {len(guides)} expert(s)" if guides else ""
+        return (
+            f"spec_exceeds_worker_memory: needs about {need / 2**30:.3g} GiB{extra}, this "
+            f"worker has {share / 2**30:.3g} GiB per job"
+        )
+
+    def _deadline_too_near(self, spec: TrainingSpec, deadline: int) -> str | None:
+        """Why the task's deadline (less DEADLINE_MARGIN_S) cannot hold this job (None: it
+        can). The time budget is checked between updates only, and the final evaluation runs
+        after the last update whatever the time left: a job runs at least one update and that
+        (``resources.update_seconds`` + ``final_evaluation_seconds``). Pure arithmetic on the
+        spec and the clock: ``_cannot_take`` asks it before fetching anything, and again after
+        the expert checks, which can take minutes."""
         left_s = deadline - self.clock() - DEADLINE_MARGIN_S
-        # the time budget is checked between updates only, and the final evaluation runs after
-        # the last update whatever the time left: a job runs at least one update and that
         one_update_s = update_seconds(spec)
         final_s = final_evaluation_seconds(spec)
         if one_update_s + final_s > left_s:
@@ -553,11 +586,7 @@ class OfferHandler:
                 f"take about {one_update_s + final_s:.0f} s (resource model), the task's "
                 f"deadline leaves {max(left_s, 0):.0f} s"
             )
-        try:  # walls the spec's bounds allow can still leave the team no room (env.LayoutError)
-            TargetLocalizationEnv(spec.env, 1, seed=spec.seed)
-        except ValueError as exc:  # LayoutError, or an env rule the spec check does not mirror
-            return f"env: {exc}"
-        return self._models_unusable(task_id, spec)
+        return None
 
     def _models_unusable(self, task_id: int, spec: TrainingSpec) -> str | None:
         """Why the experts or walls CAE of ``spec`` cannot run (None: they can), found by
@@ -903,6 +932,7 @@ class OfferHandler:
             self.job_dir(task_id),
             minutes_left=left_min,
             checkpoint_every=self.checkpoint_every,
+            checkpoint_interval_s=self.checkpoint_interval_s,
             on_progress=lambda p: self._post_progress(task_id, p),
             on_first_step=first,
             experts=experts,

@@ -1,7 +1,8 @@
 """A resumable training job: the MDRL trainer with a budget, checkpoints and progress hooks.
 
 Layout of a job directory ``<worker data>/jobs/<task_id>/``: ``run/`` is the trainer's output
-(``checkpoint/`` every ``checkpoint_every`` updates, ``metrics.csv``, ``model/`` at the end,
+(``checkpoint/`` every ``checkpoint_every`` updates and at most every CHECKPOINT_INTERVAL_S
+seconds, ``metrics.csv``, ``model/`` at the end,
 ``best/`` the best evaluated policy when the spec's ``selection.keep_best`` asks for it),
 ``progress.jsonl`` the points posted to the gateway, ``experts/<CID>/`` the verified expert
 models of an MEDC task (``workers.daemon.experts``); a finished job keeps its model, metrics
@@ -32,8 +33,24 @@ from workers.mdrl.trainingspec import TrainingSpec
 
 log = logging.getLogger(__name__)
 
-#: Updates between checkpoints: a killed worker loses at most this many updates of work.
+#: Updates between checkpoints: a killed worker loses at most this many updates of work, or
+#: about CHECKPOINT_INTERVAL_S seconds of it and the update in progress, whichever is more.
 CHECKPOINT_EVERY = 2
+#: Seconds per checkpoint a job may write on average (``Trainer.checkpoint_interval_s``: after
+#: the first ``Trainer.checkpoint_burst`` checkpoints of a process, at most one per interval).
+#: A spec may ask for updates of one env step (``num_envs`` 1, ``horizon`` 1: ~7 ms each), and
+#: a checkpoint every CHECKPOINT_EVERY updates was then ~100 fsynced checkpoint writes a
+#: second (each ~30 ms: most of the job's time went to rewriting its checkpoint) for up to the
+#: week of ``budget.minutes``. A wall-clock floor bounds that to one write per 30 s whatever
+#: the update size and keeps resumability: a killed job loses at most about 30 s of training
+#: (and the update in progress), the order of the daemon's DEADLINE_MARGIN_S; jobs whose
+#: updates take 15 s or more checkpoint every CHECKPOINT_EVERY updates as before, and so do
+#: the first updates of every start (the burst: a process that dies early still shows
+#: progress). Chosen over a minimum batch per update in the spec's bounds (it would refuse
+#: specs that are valid and cheap when short, and bound nothing in time) and over counting
+#: disk in the resource model (checkpoints replace each other: their cost is the write rate,
+#: not space).
+CHECKPOINT_INTERVAL_S = 30.0
 
 ProgressHook = Callable[[dict[str, Any]], None]
 
@@ -49,6 +66,7 @@ class JobTrainer(Trainer):
 
     on_row: ProgressHook | None = None
     on_first_step: Callable[[int], None] | None = None
+    checkpoint_interval_s = CHECKPOINT_INTERVAL_S
     _started = False
     _episodes_seen: tuple[int, int] | None = None
 
@@ -216,6 +234,7 @@ def make_trainer(
     minutes: float | None = None,
     minutes_left: float | None = None,
     checkpoint_every: int = CHECKPOINT_EVERY,
+    checkpoint_interval_s: float = CHECKPOINT_INTERVAL_S,
     experts: dict[str, Path] | None = None,
     walls_cae: Path | None = None,
 ) -> JobTrainer:
@@ -224,7 +243,9 @@ def make_trainer(
     ``minutes_left`` is the wall time this process may still train (a task deadline): the
     budget becomes the training time so far plus that, within the spec's;
     ``experts`` maps the spec's expert CIDs to their verified directories; ``walls_cae`` is
-    the verified directory of the spec's ``observation.walls_embedding`` CID."""
+    the verified directory of the spec's ``observation.walls_embedding`` CID; a checkpoint
+    comes every ``checkpoint_every`` updates and at most one per ``checkpoint_interval_s``
+    seconds (CHECKPOINT_INTERVAL_S)."""
     selector, encoder = load_job_models(spec, experts, walls_cae)
     out = run_dir(job_dir)
     budget_minutes = spec.minutes if minutes is None else minutes
@@ -255,6 +276,7 @@ def make_trainer(
             spec.env, spec.observation, spec.ppo, run, out=out, selector=selector,
             walls_encoder=encoder,
         )
+    trainer.checkpoint_interval_s = checkpoint_interval_s
     if minutes_left is not None:  # Trainer budgets count the elapsed time of earlier runs
         total = trainer.elapsed / 60.0 + minutes_left
         if trainer.run.minutes is not None:
@@ -272,6 +294,7 @@ def run_job(
     minutes: float | None = None,
     minutes_left: float | None = None,
     checkpoint_every: int = CHECKPOINT_EVERY,
+    checkpoint_interval_s: float = CHECKPOINT_INTERVAL_S,
     experts: dict[str, Path] | None = None,
     walls_cae: Path | None = None,
 ) -> tuple[Path, dict[str, Any]]:
@@ -289,6 +312,7 @@ def run_job(
         minutes=minutes,
         minutes_left=minutes_left,
         checkpoint_every=checkpoint_every,
+        checkpoint_interval_s=checkpoint_interval_s,
         experts=experts,
         walls_cae=walls_cae,
     )

@@ -17,6 +17,7 @@ The handler of a daemon process is built once from the environment (``runtime_fr
 ``DRLAAS_WORKER_KEY`` (key file), ``DRLAAS_GATEWAY`` (gateway URL), ``DRLAAS_WORKER_DATA``
 (default ``<data>/workers/<address>``), ``DRLAAS_WORKER_MAX_JOBS`` (default 1),
 ``DRLAAS_WORKER_CHECKPOINT_EVERY`` (updates between checkpoints, default 2),
+``DRLAAS_WORKER_CHECKPOINT_INTERVAL_S`` (least seconds between checkpoints, default 30),
 ``DRLAAS_WORKER_MODEL_CACHE_BYTES`` (bound on the verified expert models kept for later offers,
 default 2 GiB, 0 for none), ``DRLAAS_WORKER_OFFER_FETCH_BYTES`` (model bytes one offer's check
 may download, default 256 MiB).
@@ -45,6 +46,7 @@ from backend.observability.logs import task_context
 from backend.settings import Settings, load_settings
 from workers.daemon.experts import DEFAULT_CACHE_BYTES, DEFAULT_OFFER_FETCH_BYTES
 from workers.daemon.handler import OfferHandler, Transient
+from workers.daemon.job import CHECKPOINT_INTERVAL_S
 
 log = logging.getLogger(__name__)
 
@@ -132,6 +134,8 @@ def runtime_from_env(settings: Settings | None = None) -> OfferHandler:
                  if gateway_url else None),
         max_jobs=int(os.environ.get("DRLAAS_WORKER_MAX_JOBS", "1")),
         checkpoint_every=int(os.environ.get("DRLAAS_WORKER_CHECKPOINT_EVERY", "2")),
+        checkpoint_interval_s=float(os.environ.get("DRLAAS_WORKER_CHECKPOINT_INTERVAL_S",
+                                                   str(CHECKPOINT_INTERVAL_S))),
         cache_bytes=_env_bytes("DRLAAS_WORKER_MODEL_CACHE_BYTES", DEFAULT_CACHE_BYTES),
         max_offer_fetch_bytes=_env_bytes("DRLAAS_WORKER_OFFER_FETCH_BYTES",
                                          DEFAULT_OFFER_FETCH_BYTES),

@@ -21,9 +21,14 @@ expert's weights, its observer on the task's grid (the adapter of ``experts.py``
 expert on a walled task holds a gain table per env) and one forward pass over every env's
 agents; the walls CAE's weights and one encoding of every env's map.
 
-Wall time is compute over a reference rate, calibrated so the ODMTL 3-agent 10x10 preset runs
-at the ~7,000 env steps/s measured on one thread of a 2-core CPU (presets.FAST_PPO). These are
-estimates to refuse the absurd, not capacity planning.
+Wall time is compute over a reference rate, plus a fixed cost per PPO update
+(:func:`update_overhead_seconds`: Python and torch dispatch per rollout time step and per
+optimizer step, and the update's own bookkeeping: GAE, the weights check, the metrics row and
+progress point), calibrated so the ODMTL 3-agent 10x10 preset runs at the ~7,000 env steps/s
+measured on one thread of a 2-core CPU (presets.FAST_PPO). FLOPs alone made an update of one
+env step (``num_envs`` 1, ``horizon`` 1) ~0.01 ms where it takes ~7 ms: a spec of tiny updates
+was ~500x cheaper in the deadline check and in worker-hours than it runs. These are estimates
+to refuse the absurd, not capacity planning.
 """
 
 from __future__ import annotations
@@ -47,6 +52,31 @@ REFERENCE_STEPS_PER_S = 7_000
 """Env steps/s of REFERENCE_PRESET's PPO with REFERENCE_OBSERVATION on one thread of this
 project's 2-core CPU (measured before the presets took the belief map)."""
 REFERENCE_OBSERVATION = {"kind": "odmtl", "window": 3}
+UPDATE_FIXED_S = 0.002
+ROLLOUT_STEP_S = 0.001
+OPTIMIZER_STEP_S = 0.004
+"""The fixed cost of a PPO update that FLOPs do not see (:func:`update_overhead_seconds`):
+per update (GAE, the weights' NaN check, the metrics.csv row and the job's progress point),
+per rollout time step (one observe, actor + critic forward and env step of all B envs:
+Python and torch dispatch, whatever B), per optimizer step (a minibatch's forward, backward,
+two gradient clips, Adam step and loss read-outs). Measured on this project's 2-core CPU on
+2026-12-04 while another benchmark held both cores (load ~3), one torch thread, a 4 x 4 grid
+of one ODMTL agent (FLOPs ~0.01 ms per update, negligible), ``num_envs`` 1, median of
+60-400 updates, each update as a job runs it (``collect``, ``update``, the metrics row and
+progress point, no checkpoint)::
+
+    .venv/bin/python benchmarks/update_overhead.py
+
+    horizon 1,  1 epoch,  1 minibatch:     7.4 ms  (1 rollout step, 1 optimizer step)
+    horizon 16, 1 epoch,  1 minibatch:    24.1 ms  -> 1.1 ms per rollout step
+    horizon 64, 1 epoch,  1 minibatch:    70.9 ms  -> 1.0 ms per rollout step
+    horizon 16, 4 epochs, 16 minibatches: 289.7 ms -> 4.2 ms per optimizer step (64 vs 1)
+
+so ~1 ms per rollout step, ~4 ms per optimizer step and ~2 ms for the rest (7.4 - 1.1 - 4.2).
+A checkpoint (fsynced) cost another ~31 ms; a job writes one every CHECKPOINT_EVERY updates
+but at most one per CHECKPOINT_INTERVAL_S seconds (``workers/daemon/job.py``), so where this
+term matters (tiny updates) checkpoints are not per update and are left out. On an idle core
+the figures are lower: an over-estimate, on the safe side of the deadline check."""
 F32, I64 = 4, 8
 
 
@@ -215,15 +245,18 @@ def estimate(
     per_step = flops_per_step(spec)
     final = final_evaluation_flops(spec)
     rate = reference_flops_per_s()
+    overhead, batch = update_overhead_seconds(spec), spec.ppo.batch_steps
     if spec.budget.steps is not None:
         steps = spec.budget.steps
-        hours = (steps * per_step + final) / rate / 3600
+        updates = -(-steps // batch)  # the last, shortened update pays its overhead too
+        hours = ((steps * per_step + final) / rate + updates * overhead) / 3600
         if spec.budget.minutes is not None:
             hours = min(hours, spec.budget.minutes / 60)
     else:  # a time budget keeps the final evaluation's time (train.Trainer._no_time_for_another)
         assert spec.budget.minutes is not None
         hours = spec.budget.minutes / 60
-        steps = max(0, int((hours * 3600 * rate - final) / per_step))
+        step_s = per_step / rate + overhead / batch  # an update's overhead over its steps
+        steps = max(0, int((hours * 3600 - final / rate) / step_s))
     return ResourceEstimate(sum(parts.values()), parts, per_step, steps, hours)
 
 
@@ -235,9 +268,27 @@ def final_evaluation_flops(spec: TrainingSpec) -> int:
 
 def update_seconds(spec: TrainingSpec) -> float:
     """Estimated seconds of one PPO update (its rollout of ``batch_steps`` env steps and its
-    epochs) on one reference thread: a time budget is checked between updates, so a worker
-    whose deadline leaves less than this cannot stop in time."""
-    return flops_per_step(spec) * spec.ppo.batch_steps / reference_flops_per_s()
+    epochs: their FLOPs, plus :func:`update_overhead_seconds`) on one reference thread: a time
+    budget is checked between updates, so a worker whose deadline leaves less than this cannot
+    stop in time."""
+    return (flops_per_step(spec) * spec.ppo.batch_steps / reference_flops_per_s()
+            + update_overhead_seconds(spec))
+
+
+def optimizer_steps(spec: TrainingSpec) -> int:
+    """Minibatch optimizer steps of one full update (``Trainer.update``: ``update_epochs``
+    passes over ``batch_steps`` samples in minibatches of ceil(m / num_minibatches))."""
+    ppo = spec.ppo
+    m = ppo.batch_steps
+    return ppo.update_epochs * math.ceil(m / math.ceil(m / ppo.num_minibatches))
+
+
+def update_overhead_seconds(spec: TrainingSpec) -> float:
+    """The cost of one PPO update that its FLOPs do not count (measured: UPDATE_FIXED_S,
+    ROLLOUT_STEP_S per rollout time step, OPTIMIZER_STEP_S per optimizer step): what an
+    update of a few env steps costs, whatever its arithmetic."""
+    return (UPDATE_FIXED_S + ROLLOUT_STEP_S * spec.ppo.rollout_steps
+            + OPTIMIZER_STEP_S * optimizer_steps(spec))
 
 
 def final_evaluation_seconds(spec: TrainingSpec) -> float:
@@ -292,7 +343,9 @@ def _greedy_step_flops(spec: TrainingSpec) -> int:
 
 @cache
 def reference_flops_per_s() -> float:
-    """FLOPs/s of one training thread, from REFERENCE_PRESET's measured env steps/s."""
+    """FLOPs/s of one training thread, from REFERENCE_PRESET's measured env steps/s. That
+    rate includes each update's overhead (:func:`update_overhead_seconds`, ~14% of the
+    preset's 8,192-step update), taken out here so it is not counted twice."""
     from workers.mdrl.presets import get_preset
 
     p = get_preset(REFERENCE_PRESET)
@@ -300,6 +353,9 @@ def reference_flops_per_s() -> float:
         "env": {"rows": p.env.rows, "cols": p.env.cols, "agents": p.env.agents},
         "observation": REFERENCE_OBSERVATION,
         "algorithm": {"preset": REFERENCE_PRESET},
-        "budget": {"steps": 1},
+        "budget": {"minutes": 60},  # the preset's own batch (a tiny step budget shrinks it)
     }
-    return float(flops_per_step(TrainingSpec.from_dict(doc)) * REFERENCE_STEPS_PER_S)
+    ref = TrainingSpec.from_dict(doc)
+    batch = ref.ppo.batch_steps
+    compute_s = batch / REFERENCE_STEPS_PER_S - update_overhead_seconds(ref)
+    return float(flops_per_step(ref) * batch / compute_s)

@@ -44,6 +44,9 @@ from workers.mdrl.spec import EnvSpec
 
 log = logging.getLogger(__name__)
 
+_monotonic = time.monotonic
+"""The clock of the checkpoint interval (``Trainer.checkpoint_interval_s``)."""
+
 
 @dataclass
 class RunConfig:
@@ -471,6 +474,39 @@ class Trainer:
         evals = 2 if evaluating else 1
         return self.elapsed + update_s + evals * eval_s > self.run.minutes * 60.0
 
+    checkpoint_interval_s: float = 0.0
+    """Seconds per checkpoint that ``train()`` may write on average besides the
+    ``RunConfig.checkpoint_every`` rule (0: every ``checkpoint_every`` updates). A subclass
+    (the worker's ``JobTrainer``) sets it so a run of tiny updates does not write a checkpoint
+    every few milliseconds."""
+    checkpoint_burst: int = 10
+    """Checkpoints a process may write at once before ``checkpoint_interval_s`` applies (a
+    token bucket): the first updates of a run, where a process killed for memory dies, are
+    checkpointed as ``checkpoint_every`` says; after that at most one per interval."""
+    _checkpoint_tokens: float = 0.0
+    _checkpoint_clock: float = 0.0
+
+    def _checkpoint_due(self) -> bool:
+        """Whether the update just done gets a checkpoint (the last one always does): every
+        ``checkpoint_every`` updates while the bucket holds a token; it holds
+        ``checkpoint_burst`` at the start of ``train()`` and gains one per
+        ``checkpoint_interval_s`` seconds. So no work older than about one interval and one
+        update is ever lost, and tiny updates cost a write per interval, not per update."""
+        ce = self.run.checkpoint_every
+        if not ce or self.update_idx % ce != 0:
+            return False
+        wait = self.checkpoint_interval_s
+        if wait <= 0:
+            return True
+        now = _monotonic()
+        self._checkpoint_tokens = min(float(self.checkpoint_burst), self._checkpoint_tokens
+                                      + (now - self._checkpoint_clock) / wait)
+        self._checkpoint_clock = now
+        if self._checkpoint_tokens < 1.0:
+            return False
+        self._checkpoint_tokens -= 1.0
+        return True
+
     def train(self) -> dict[str, Any]:
         """Run updates until the step or time budget is used; returns the last metrics row.
         A time budget ends early enough for the final evaluation (``_no_time_for_another``)."""
@@ -482,6 +518,8 @@ class Trainer:
                           stacklevel=2)
         torch.set_num_threads(run.threads)
         self._open_outputs()
+        self._checkpoint_tokens = float(self.checkpoint_burst)  # see _checkpoint_due
+        self._checkpoint_clock = _monotonic()
         bar = self._progress_bar()
         t0, elapsed0 = time.perf_counter(), self.elapsed
         more = self.budget_left()
@@ -520,8 +558,7 @@ class Trainer:
                     bar.set_postfix(sps=f"{sps:.0f}", succ=f"{episode_stats['success']:.2f}",
                                     len=f"{episode_stats['episode_length']:.1f}",
                                     eval=f"{self.last_eval.get('eval_success', math.nan):.2f}")
-                ce = run.checkpoint_every
-                if self.out is not None and (last or (ce and self.update_idx % ce == 0)):
+                if self.out is not None and (last or self._checkpoint_due()):
                     self.save_checkpoint(self.out / "checkpoint")
         finally:
             if bar is not None:
