@@ -122,29 +122,19 @@ def test_readme_worker_and_requester_commands(data_dir: Path, tmp_path: Path) ->
             for name in ("model.safetensors", "model.json"):
                 assert compute_cid((out_dir / name).read_bytes()) == files[name][0]
             assert json.loads((out_dir / "model.json").read_text())["env"]["agents"] == 2
-            # a listed model must be fetchable: sharing it unpublished is refused, the
-            # worker's `worker share` publishes the files (after the requester accepted)
+            # an outcome is listed only once its requester accepted it (the chain's rule,
+            # asked before the store is read), and a listed model must be fetchable: sharing
+            # it unpublished is refused, the worker's `worker share` publishes the files
             card_env = json.dumps(json.loads((out_dir / "model.json").read_text())["env"])
-            early = subprocess.run(
-                [
-                    "drlaas",
-                    "model",
-                    "share",
-                    "--cid",
-                    outcome["cid"],
-                    "--key",
-                    key.name,
-                    "--env",
-                    card_env,
-                ],
-                cwd=cwd,
-                env=env,
-                capture_output=True,
-                text=True,
-                timeout=300,
-            )
-            assert early.returncode != 0 and "model_weights_sealed" in early.stderr, early
+            share = ["drlaas", "model", "share", "--cid", outcome["cid"], "--key", key.name,
+                     "--env", card_env]
+            early = subprocess.run(share, cwd=cwd, env=env, capture_output=True, text=True,
+                                   timeout=300)
+            assert early.returncode != 0 and "models_outcome_not_accepted" in early.stderr, early
             run(f"drlaas task review 1 --worker {address} --review 5 --key me.key", cwd, env)
+            sealed = subprocess.run(share, cwd=cwd, env=env, capture_output=True, text=True,
+                                    timeout=300)
+            assert sealed.returncode != 0 and "model_weights_sealed" in sealed.stderr, sealed
             run(f"drlaas worker share 1 --key {key.name}", cwd, env)
             published = pull_model(store, outcome["cid"], tmp_path / "published")
             assert (published / "model.safetensors").read_bytes() == (
