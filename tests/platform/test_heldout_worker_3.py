@@ -1,4 +1,4 @@
-"""Held-out attacks on the worker daemon from a hostile requester (the probe of 2026-12-06):
+"""Held-out attacks on the worker daemon from a hostile requester (the probe of 2026-12-04):
 specs that pass every bound and still cost a worker more than it checks for. Each is
 declined before acceptance, naming what does not fit, or bounded in what it costs."""
 
