@@ -509,12 +509,16 @@ class Chain:
             )
         return out
 
-    def logs(self, handle: ContractHandle, from_block: int = 0) -> list[Event]:
-        """Every decoded event emitted by ``handle`` since ``from_block`` (indexer input)."""
-        raw = self.w3.eth.get_logs(
-            {"address": handle.address, "fromBlock": from_block, "toBlock": "latest"}
-        )
-        return self._decode_logs(raw)
+    def logs(
+        self, handle: ContractHandle, from_block: int = 0, topics: list[Any] | None = None
+    ) -> list[Event]:
+        """Every decoded event emitted by ``handle`` since ``from_block`` (indexer input), or
+        only those matching ``topics`` (an eth_getLogs topic filter)."""
+        query: dict[str, Any] = {"address": handle.address, "fromBlock": from_block,
+                                 "toBlock": "latest"}
+        if topics is not None:
+            query["topics"] = topics
+        return self._decode_logs(self.w3.eth.get_logs(query))
 
     def vm_name(self) -> str:
         """The EVM fork in use ("PragueVM" on eth-tester; the node's client on RPC)."""

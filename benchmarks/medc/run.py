@@ -407,9 +407,14 @@ def review_table(rows: list[dict], bonus: float) -> list[str]:
 
 
 # ---------------------------------------------------------------------------- analysis
+def shared_steps(runs: list[dict]) -> list[int]:
+    """The evaluation points (env steps) every run of ``runs`` has on its curve."""
+    return sorted(set.intersection(*(set(p["step"] for p in r["curve"]) for r in runs)))
+
+
 def mean_curve(runs: list[dict], key: str = "time") -> tuple[np.ndarray, np.ndarray]:
     """Steps and the mean over seeds of ``key`` at the evaluation points all runs share."""
-    common = sorted(set.intersection(*(set(p["step"] for p in r["curve"]) for r in runs)))
+    common = shared_steps(runs)
     vals = np.array([[next(p[key] for p in r["curve"] if p["step"] == s) for s in common]
                      for r in runs])
     return np.array(common), vals.mean(0)
@@ -615,8 +620,7 @@ def curve_gap(runs: list[dict], others: list[dict]
     seeds = sorted(set(mine) & set(theirs))
     if len(seeds) < 2:
         return None
-    pairs = [mine[s] for s in seeds] + [theirs[s] for s in seeds]
-    common = sorted(set.intersection(*(set(p["step"] for p in r["curve"]) for r in pairs)))
+    common = shared_steps([mine[s] for s in seeds] + [theirs[s] for s in seeds])
     if not common:
         return None
 

@@ -314,11 +314,8 @@ def task_spec_cid(platform: Platform, task_id: int) -> str:
     as U+FFFD, so the spec is refused and the offer declined (web3's strict decoding raised,
     and the offer was never answered)."""
     tmc = platform.tmc
-    raw = platform.chain.w3.eth.get_logs({
-        "address": tmc.address, "fromBlock": 0, "toBlock": "latest",
-        "topics": [tmc.contract.events.TaskAdded().topic, "0x" + task_id.to_bytes(32, "big").hex()],
-    })
-    logs = [e for e in platform.chain._decode_logs(raw) if e.name == "TaskAdded"]
+    topics = [tmc.contract.events.TaskAdded().topic, "0x" + task_id.to_bytes(32, "big").hex()]
+    logs = [e for e in platform.chain.logs(tmc, topics=topics) if e.name == "TaskAdded"]
     if not logs:
         raise LookupError(f"task {task_id}: no TaskAdded event on the TMC {tmc.address}")
     return str(logs[0].args["description"])

@@ -692,12 +692,13 @@ def commit_cid(body: CommitmentCreate, user: CurrentUser, chain: ChainDep) -> Co
     return CommitmentPublic(commitment=body.commitment.lower(), block=committed_at)
 
 
-def _check_provenance(chain: ChainService, owner: str, cid: str) -> None:
+def _check_provenance(chain: ChainService, owner: str, cid: str) -> bool:
     """The MMC's provenance rule (addModel reverts the same way), asked before the store is
-    read: a task's outcome is listed only by its worker, once its requester accepted it."""
+    read: a task's outcome is listed only by its worker, once its requester accepted it.
+    Whether ``cid`` is a task's outcome (else an own upload: :func:`_ensure_committed`)."""
     worker, task_id, verdict = chain.call(chain.platform.tmc, "outcomeOf", cid_hash(cid))
     if not int(worker, 16):
-        return  # an own upload: commit-reveal instead (_ensure_committed)
+        return False
     if worker.lower() != owner.lower():
         raise RuleError(403, "models_not_outcome_owner",
                         f"{cid} is the outcome of task {task_id} by {worker}: only its worker "
@@ -706,19 +707,15 @@ def _check_provenance(chain: ChainService, owner: str, cid: str) -> None:
         raise RuleError(409, "models_outcome_not_accepted",
                         f"{cid} is an outcome of task {task_id} its requester has not accepted "
                         f"({Verdict(verdict).name.lower()}): it is listed once accepted")
+    return True
 
 
 def _ensure_committed(chain: ChainService, owner: str, cid: str) -> None:
-    """Commit-reveal (TMC.commitCid): an own upload (no task outcome) is listed only after
-    ``owner`` committed keccak256(cid ++ owner) in an earlier block. Commits for ``owner``
-    when it has not (409 ``sign_locally`` with ``then: repeat`` for a key the gateway does not
-    hold: relay the commitment, then send the same request again), and waits for a block after
-    the commitment. An outcome's record stands for the commitment (the MMC checks its owner)."""
-    tmc = chain.platform.tmc
-    if not int(chain.call(chain.platform.umc, "workerId", owner)):
-        return  # addModel answers models_not_worker
-    if int(chain.call(tmc, "outcomeOf", cid_hash(cid))[0], 16) != 0:
-        return
+    """Commit-reveal (TMC.commitCid): an own upload (no task outcome; an outcome's record
+    stands for the commitment) is listed only after ``owner`` committed keccak256(cid ++
+    owner) in an earlier block. Commits for ``owner`` when it has not (409 ``sign_locally``
+    with ``then: repeat`` for a key the gateway does not hold: relay the commitment, then send
+    the same request again), and waits for a block after the commitment."""
     chain.await_block_after(_commit(chain, owner, cid_commitment(cid, owner), then="repeat"))
 
 
@@ -767,12 +764,13 @@ def share_model(
     listed = int(chain.call(chain.platform.mmc, "modelOfCid", cid_hash(body.cid)))
     if listed:
         raise RuleError(409, "model_already_listed", f"{body.cid} is listed as model {listed}")
-    _check_provenance(chain, user.address, body.cid)
+    outcome = _check_provenance(chain, user.address, body.cid)
     _check_card_env(store, body.cid, declared)
     _check_published(store, body.cid)
     _check_bundle(store, body.cid)
     attrs = env_attributes(declared)
-    _ensure_committed(chain, user.address, body.cid)
+    if not outcome:
+        _ensure_committed(chain, user.address, body.cid)
     rc = chain.send(
         user.address, chain.platform.mmc, "addModel", body.cid, body.description, body.domain, attrs
     )
