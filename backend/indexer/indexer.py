@@ -23,6 +23,8 @@ Guarantees:
 * text as anyone's own transaction may write it (the contracts take any bytes as a string)
   never stops the index: bytes that are not UTF-8 decode as U+FFFD (``Chain._decode_logs``;
   a strict decoding failed every poll at that block), NUL is stored as U+FFFD (``_text``);
+* a string longer than ``EVENT_TEXT_LIMIT`` (a direct write's ~750 KB description) is cut in
+  ``chain_events.args``, marked with how much was cut; the chain keeps it whole;
 * a different chain (another ``anchor``: hash of the UMC's deployment block, e.g. a restarted
   embedded chain) wipes the indexed tables instead of mixing two histories;
 * a chain that went back under the cursor (a reorg deeper than ``confirmations``, an embedded
@@ -461,7 +463,7 @@ class Indexer:
             tx_hash="0x" + bytes(raw["transactionHash"]).hex(),
             contract=contract,
             name=name,
-            args=jsonable(args),
+            args=_bounded_strings(jsonable(args)),
             block_time=raw["_time"],
             task_id=_int64_or_none(task_id),
             model_id=_int64_or_none(args.get("modelId")),
@@ -781,6 +783,25 @@ def _text(value: Any, limit: int) -> str:
     """A string of a chain event as every database holds it: NUL, which PostgreSQL text
     refuses (one such event would stop the indexer at its block for good), becomes U+FFFD."""
     return str(value).replace("\x00", "\ufffd")[:limit]
+
+
+EVENT_TEXT_LIMIT = 2048
+"""Characters of one string an indexed event's ``args`` keep: the widest text column of the
+index (a model's description). The contracts take a string of any length, so a direct write
+could put ~750 KB (its gas allows that much) into one event, which every page of a task's
+timeline would then carry; the whole string stays on the chain."""
+
+
+def _bounded_strings(doc: Any, limit: int = EVENT_TEXT_LIMIT) -> Any:
+    """``doc`` with each string longer than ``limit`` cut to it and marked with how much was
+    cut, so a reader sees that the index holds less than the chain."""
+    if isinstance(doc, str) and len(doc) > limit:
+        return f"{doc[:limit]}\u2026 [{len(doc) - limit} more characters on chain]"
+    if isinstance(doc, dict):
+        return {k: _bounded_strings(v, limit) for k, v in doc.items()}
+    if isinstance(doc, list):
+        return [_bounded_strings(v, limit) for v in doc]
+    return doc
 
 
 def _json_safe(doc: Any) -> Any:

@@ -109,3 +109,33 @@ def test_a_worker_reads_a_description_not_utf8_as_the_index_does(service: ChainS
     send(service, req, p.tmc.address, add_task_calldata(NOT_UTF8), value=10**12)
     assert task_spec_cid(p, first) == cid
     assert task_spec_cid(p, first + 1) == NOT_UTF8.decode(errors="replace")
+
+
+def test_a_huge_description_written_straight_to_the_chain_is_cut_in_the_index(
+    service: ChainService, any_sessions: sessionmaker[Session]
+) -> None:
+    """The contracts take a description of any length (only gas bounds it): one of 50,000
+    characters was kept whole in ``chain_events.args``, so every timeline page of that task
+    carried it. The index keeps ``EVENT_TEXT_LIMIT`` characters and says how many it cut; the
+    task row keeps its own column's width."""
+    from backend.indexer.indexer import EVENT_TEXT_LIMIT
+
+    p, keys = service.platform, service.demo_keys
+    assert keys is not None
+    req = keys.address("user1")
+    with service.lock:
+        p.umc.add_requester(req)
+    huge = ("\u00e9" * 20_000 + "x" * 30_000).encode()  # 70,000 bytes, 50,000 characters
+    send(service, req, p.tmc.address, add_task_calldata(huge), value=10**12)
+    Indexer(service, any_sessions).poll()
+
+    with any_sessions() as s:
+        args: Any = s.scalars(select(m.ChainEvent.args)
+                              .where(m.ChainEvent.name == "TaskAdded")).one()
+        row = s.scalars(select(m.TaskRow)).one()
+    kept = args["description"]
+    assert kept.startswith("\u00e9" * EVENT_TEXT_LIMIT + "\u2026")
+    assert kept.endswith(f"[{50_000 - EVENT_TEXT_LIMIT} more characters on chain]")
+    assert len(kept) < EVENT_TEXT_LIMIT + 64
+    assert row.description == "\u00e9" * 512
+    assert args["taskId"] == row.id  # the event's other args are as they were
