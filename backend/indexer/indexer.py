@@ -43,7 +43,7 @@ from collections.abc import Callable, Iterable
 from typing import Any
 
 from hexbytes import HexBytes
-from sqlalchemy import delete, select, update
+from sqlalchemy import delete, func, select, update
 from sqlalchemy.exc import DataError, IntegrityError
 from sqlalchemy.orm import Session, sessionmaker
 from web3.exceptions import BlockNotFound
@@ -280,7 +280,9 @@ class Indexer:
 
     def fill_specs(self, budget_s: float | None = None) -> int:
         """Read the specs of ``pending`` tasks, fewest reads first (a new task is not queued
-        behind CIDs that were not found), then of ``missing`` ones whose retry time came,
+        behind CIDs that were not found) and each requester's in turn (one who posts a hundred
+        tasks naming CIDs nobody holds, each costing a find timeout, delays another's first
+        read by one of them, not a hundred), then of ``missing`` ones whose retry time came,
         starting reads only within ``budget_s`` (default ``spec_budget_s``); returns how many
         specs were read. Each task is updated in its own transaction; a store that is down ends
         the round and leaves the rest as they were."""
@@ -290,10 +292,13 @@ class Indexer:
         with self.sessions() as s:
             columns = (m.TaskRow.id, m.TaskRow.description, m.TaskRow.spec_tries,
                        m.TaskRow.spec_state)
+            turn = func.row_number().over(partition_by=m.TaskRow.requester,
+                                          order_by=(m.TaskRow.spec_tries, m.TaskRow.id))
+            queue = (select(*columns, turn.label("turn"))
+                     .where(m.TaskRow.spec_state == "pending").subquery())
             pending = s.execute(
-                select(*columns)
-                .where(m.TaskRow.spec_state == "pending")
-                .order_by(m.TaskRow.spec_tries, m.TaskRow.id)
+                select(queue.c.id, queue.c.description, queue.c.spec_tries, queue.c.spec_state)
+                .order_by(queue.c.spec_tries, queue.c.turn, queue.c.id)
                 .limit(SPEC_BATCH)
             ).all()
             due = s.execute(
