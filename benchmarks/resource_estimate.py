@@ -1,7 +1,7 @@
 """The resource model's time figures against the clock (``workers/mdrl/resources.py``).
 
 A worker accepts an offer, and a task is priced per worker-hour, on ``resources.estimate``;
-the trainer's time budget holds the final greedy evaluation on ``final_evaluation_flops``.
+the trainer's time budget holds the final greedy evaluation on ``final_evaluation_seconds``.
 For a spread of specs (grid, window, agents, walls, belief and route maps), this prints the
 estimated and the measured seconds of one PPO update (rollout + epochs) and of the job's
 final evaluation (JOB_EVAL_EPISODES episodes of an untrained policy, which runs every episode
@@ -69,11 +69,10 @@ def measure(env: dict, obs: dict, max_steps: int, updates: int) -> dict[str, flo
     t0 = time.perf_counter()
     trainer.evaluate()
     eval_s = time.perf_counter() - t0
-    rate = resources.reference_flops_per_s()
     return {
         "update_est": resources.update_seconds(spec),
         "update": statistics.median(update_s[1:]),
-        "eval_est": resources.final_evaluation_flops(spec) / rate,
+        "eval_est": resources.final_evaluation_seconds(spec),
         "eval": eval_s,
     }
 

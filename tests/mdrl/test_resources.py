@@ -18,6 +18,7 @@ from workers.mdrl.resources import (
     estimate,
     expert_bytes,
     final_evaluation_flops,
+    final_evaluation_seconds,
     lenet_params,
     observer_bytes,
     reference_flops_per_s,
@@ -103,15 +104,14 @@ def test_compute_and_hours() -> None:
     assert h[2] - h[1] == pytest.approx(h[1] - h[0])
     final_h = h[0] - (h[1] - h[0])
     s = spec(budget={"steps": 1})
-    assert final_h > 0 and final_h == pytest.approx(
-        final_evaluation_flops(s) / reference_flops_per_s() / 3600)
+    assert final_h > 0 and final_h == pytest.approx(final_evaluation_seconds(s) / 3600)
     assert worker_hours(spec(budget={"steps": 10**9, "minutes": 30})) == 0.5
     # a minutes-only budget counts its minutes, and the steps that leave time to evaluate
     only_minutes = estimate(spec(budget={"minutes": 60}))
     assert only_minutes.hours == 1.0
     rate, per_step = reference_flops_per_s(), only_minutes.flops_per_step
     step_s = per_step / rate + update_overhead_seconds(spec()) / spec().ppo.batch_steps
-    assert only_minutes.env_steps == int((3600 - final_evaluation_flops(s) / rate) / step_s)
+    assert only_minutes.env_steps == int((3600 - final_evaluation_seconds(s)) / step_s)
     # more epochs and more agents cost more per step
     base = estimate(spec()).flops_per_step
     assert estimate(spec(ppo={"update_epochs": 20})).flops_per_step > base

@@ -62,3 +62,35 @@ def test_the_reference_preset_is_not_charged_its_overhead_twice() -> None:
     assert update_seconds(ref) == pytest.approx(
         ref.ppo.batch_steps / resources.REFERENCE_STEPS_PER_S)
     assert worker_hours(ref) == pytest.approx(1.0, rel=1e-3)
+
+
+def test_the_final_evaluation_counts_a_dispatch_per_time_step() -> None:
+    """The final evaluation steps its episodes together (``evaluate``): each time step pays an
+    observe, an actor pass and an env step of Python and torch dispatch, which the FLOPs of a
+    4 x 4 grid do not show: a spec of 10,000-step episodes on it was estimated 1.6 s of final
+    evaluation, without the ~10 s its dispatches take (``ROLLOUT_STEP_S`` each, measured by
+    ``benchmarks/update_overhead.py``); a worker then accepted deadlines it could not hold."""
+    long = TrainingSpec.from_dict({
+        "env": {"rows": 4, "cols": 4, "agents": 1, "max_steps": 10_000},
+        "observation": {"kind": "odmtl"}, "budget": {"steps": 1_000},
+    })
+    flops_s = resources.final_evaluation_flops(long) / resources.reference_flops_per_s()
+    assert resources.final_evaluation_seconds(long) >= flops_s + 10_000 * resources.ROLLOUT_STEP_S
+    assert resources.final_evaluation_seconds(long) > 5 * flops_s
+    # a job's hours and a time budget's steps keep the same evaluation time
+    assert worker_hours(long) * 3600 >= resources.final_evaluation_seconds(long)
+
+
+def test_the_final_evaluation_dispatches_as_evaluate_groups_its_chunks() -> None:
+    """At 30 x 30 the 100 episodes are chunks of 24 (the baselines' tables), stepped four
+    chunks at a time: two groups, each ``max_steps`` dispatches; at 10 x 10 one."""
+    def dispatch_s(rows: int) -> float:
+        s = TrainingSpec.from_dict({
+            "env": {"rows": rows, "cols": rows, "agents": 1, "max_steps": 1_000},
+            "observation": {"kind": "odmtl"}, "budget": {"steps": 1_000},
+        })
+        return (resources.final_evaluation_seconds(s)
+                - resources.final_evaluation_flops(s) / resources.reference_flops_per_s())
+
+    assert dispatch_s(10) == pytest.approx(1_000 * resources.ROLLOUT_STEP_S)
+    assert dispatch_s(30) == pytest.approx(2 * 1_000 * resources.ROLLOUT_STEP_S)

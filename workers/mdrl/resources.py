@@ -41,6 +41,7 @@ from functools import cache
 from typing import Any
 
 from workers.mdrl.env import HISTORY
+from workers.mdrl.evaluate import STEP_ENVS, default_batch
 from workers.mdrl.experts import laid_on_task
 from workers.mdrl.observations import ROUTE_CELLS, channel_layout
 from workers.mdrl.trainingspec import JOB_EVAL_EPISODES, TrainingSpec
@@ -243,20 +244,20 @@ def estimate(
     }
 
     per_step = flops_per_step(spec)
-    final = final_evaluation_flops(spec)
+    final_s = final_evaluation_seconds(spec)
     rate = reference_flops_per_s()
     overhead, batch = update_overhead_seconds(spec), spec.ppo.batch_steps
     if spec.budget.steps is not None:
         steps = spec.budget.steps
         updates = -(-steps // batch)  # the last, shortened update pays its overhead too
-        hours = ((steps * per_step + final) / rate + updates * overhead) / 3600
+        hours = (steps * per_step / rate + final_s + updates * overhead) / 3600
         if spec.budget.minutes is not None:
             hours = min(hours, spec.budget.minutes / 60)
     else:  # a time budget keeps the final evaluation's time (train.Trainer._no_time_for_another)
         assert spec.budget.minutes is not None
         hours = spec.budget.minutes / 60
         step_s = per_step / rate + overhead / batch  # an update's overhead over its steps
-        steps = max(0, int((hours * 3600 - final / rate) / step_s))
+        steps = max(0, int((hours * 3600 - final_s) / step_s))
     return ResourceEstimate(sum(parts.values()), parts, per_step, steps, hours)
 
 
@@ -294,8 +295,13 @@ def update_overhead_seconds(spec: TrainingSpec) -> float:
 def final_evaluation_seconds(spec: TrainingSpec) -> float:
     """Estimated seconds of a job's final greedy evaluation on one reference thread: it runs
     after the last update however little time is left (``Trainer.train``), so a worker whose
-    deadline cannot hold it delivers late."""
-    return final_evaluation_flops(spec) / reference_flops_per_s()
+    deadline cannot hold it delivers late. Its FLOPs, plus ROLLOUT_STEP_S per time step of
+    each chunk of episodes stepped together (``evaluate.default_batch``: the Python and torch
+    dispatch of an observe, actor pass and env step, which a small net's FLOPs do not show)."""
+    chunks = -(-JOB_EVAL_EPISODES // default_batch(spec.env, JOB_EVAL_EPISODES))
+    together = max(1, STEP_ENVS // default_batch(spec.env, JOB_EVAL_EPISODES))
+    dispatches = -(-chunks // together) * spec.env.max_steps
+    return final_evaluation_flops(spec) / reference_flops_per_s() + ROLLOUT_STEP_S * dispatches
 
 
 def worker_hours(spec: TrainingSpec) -> float:
