@@ -49,6 +49,8 @@ CASES: list[tuple[str, dict, dict]] = [
     ("30x30, 3 walls, w = 7, belief + route (Ch. 4)",
      {"rows": 30, "cols": 30, "agents": 3, "moves": 8, "walls": [3, 3]},
      {"window": 7, "belief": True, "route": True, "readings": "mean", "scale": "fixed"}),
+    ("6x6, 6 agents, CMTL (5**6 joint actions)", {"rows": 6, "cols": 6, "agents": 6},
+     {"kind": "cmtl"}),
 ]
 
 
@@ -82,6 +84,8 @@ def main() -> None:
     ap.add_argument("--max-steps", type=int, default=200,
                     help="the specs' max_steps (the evaluation runs 100 episodes of it)")
     ap.add_argument("--updates", type=int, default=2, help="PPO updates timed per spec")
+    ap.add_argument("--only", default=None, metavar="TEXT",
+                    help="measure only the specs whose label contains TEXT")
     ap.add_argument("--blas-threads", type=int, default=1)
     args = ap.parse_args()
     torch.set_num_threads(1)
@@ -91,6 +95,8 @@ def main() -> None:
           f"{'eval est':>8} {'measured':>9} {'ratio':>6}")
     ratios = []
     for label, env, obs in CASES:
+        if args.only is not None and args.only not in label:
+            continue
         m = measure(env, obs, args.max_steps, args.updates)
         r_up, r_ev = m["update"] / m["update_est"], m["eval"] / m["eval_est"]
         ratios += [r_up, r_ev]

@@ -401,14 +401,16 @@ def test_a_spec_beyond_the_workers_memory_is_declined_without_allocating(
     env, tmp_path: Path
 ) -> None:
     p, actors, store = env
-    # CMTL with 16 agents: a joint action space of 5**16 = 1.5e11 actions
+    # 16 agents on 64 x 64 in 4,096 envs: ~27 GiB of rollout, observers and maps
     brick = {
-        "env": {"rows": 10, "cols": 10, "agents": 16},
-        "observation": {"kind": "cmtl"},
+        "env": {"rows": 64, "cols": 64, "agents": 16},
+        "observation": {"kind": "dmtl"},
+        "algorithm": {"ppo": {"num_envs": 4096, "horizon": 256}},
         "budget": {"steps": 1000},
     }
+    assert estimate(TrainingSpec.from_dict(brick)).memory_bytes > 16 * 2**30
     task_id, offered, _ = post_task(p, store, actors.requester, spec=brick)
-    h = handler_for(p, offered[0], store, tmp_path)
+    h = handler_for(p, offered[0], store, tmp_path, memory_bytes=16 * 2**30)
     out = h.handle(task_id, offered[0])
     assert out["status"] == "declined" and out["reason"].startswith("spec_exceeds_worker_memory")
     assert p.tmc.offer(task_id, offered[0])["state"] == OfferState.DECLINED

@@ -77,7 +77,7 @@ from workers.daemon.experts import (
 )
 from workers.daemon.gateway import Gateway
 from workers.daemon.links import task_spec_cid
-from workers.daemon.progress_sender import ProgressSender
+from workers.daemon.progress_sender import LiveCurve, ProgressSender
 from workers.mdrl.env import TargetLocalizationEnv
 from workers.mdrl.resources import estimate, final_evaluation_seconds, update_seconds
 from workers.mdrl.trainingspec import (
@@ -927,17 +927,26 @@ class OfferHandler:
             if self.on_first_step is not None:
                 self.on_first_step(task_id, step)
 
+        curve = LiveCurve.for_job(spec, left_min * 60.0)  # the gateway keeps 5,000 points
+
+        def progress(point: dict[str, Any]) -> None:
+            if curve.keep(point):
+                self._post_progress(task_id, point)
+
         model_dir, _ = jobs.run_job(
             spec,
             self.job_dir(task_id),
             minutes_left=left_min,
             checkpoint_every=self.checkpoint_every,
             checkpoint_interval_s=self.checkpoint_interval_s,
-            on_progress=lambda p: self._post_progress(task_id, p),
+            on_progress=progress,
             on_first_step=first,
             experts=experts,
             walls_cae=walls_cae,
         )
+        held = curve.last()
+        if held is not None:  # the curve ends where the run did
+            self._post_progress(task_id, held)
         return model_dir
 
     def _fetch_experts(self, task_id: int, spec: TrainingSpec) -> dict[str, Path]:

@@ -10,11 +10,16 @@ Points are best effort (``progress.jsonl`` in the job keeps every one): per task
 good (409 duplicate step, 422) is dropped with a warning; one it cannot take yet (403
 ``not_assigned_worker``: its index has not seen our acceptance; a 5xx; the connection down)
 is tried again after a pause that doubles up to :data:`MAX_PAUSE_S`.
+
+Which points of a job are posted at all is :class:`LiveCurve`'s choice: the gateway keeps at
+most 5,000 per worker and task (409 ``progress_full``), and a spec of tiny updates makes
+hundreds a second for up to a week.
 """
 
 from __future__ import annotations
 
 import logging
+import math
 import threading
 import time
 from collections import deque
@@ -31,6 +36,61 @@ MAX_PAUSE_S = 10.0
 """Longest pause between tries while the gateway cannot take points."""
 WARNINGS_LOGGED = 3
 """Refused points logged per sender (the rest are counted in ``errors``)."""
+
+
+FIRST_POINTS = 20
+"""Points a job posts at every update before :class:`LiveCurve` thins them."""
+LIVE_POINTS = 2_000
+"""Points :class:`LiveCurve` lets through by each of its rules (updates, training time): with
+FIRST_POINTS, under the gateway's 5,000 per worker and task."""
+
+
+class LiveCurve:
+    """Which progress points of a job go to the gateway. It takes at most 5,000 per worker and
+    task and refuses the rest (409 ``progress_full``); a job posted one per update, so a spec
+    of one env step per update (~300 updates a second) filled the task's live curve in its
+    first 20 s and then posted, and had refused, a point per update for the rest of its
+    budget (up to a week): the requester saw nothing of the training after those seconds.
+    Now a point goes when it is one of the first FIRST_POINTS, or at every ``stride``-th
+    update (the step budget's updates spread over LIVE_POINTS), or in a new slice of
+    ``interval_s`` of training time (the time the job may train spread over LIVE_POINTS);
+    ``progress.jsonl`` keeps every point. The last point held back is posted after training
+    (:meth:`last`), so the curve ends where the run did."""
+
+    def __init__(self, updates: int | None, seconds: float | None) -> None:
+        self.stride = max(1, math.ceil(updates / LIVE_POINTS)) if updates else None
+        self.interval_s = (seconds / LIVE_POINTS if seconds is not None and seconds > 0
+                           and math.isfinite(seconds) else None)
+        self._slice: int | None = None
+        self._held: dict[str, Any] | None = None
+
+    @classmethod
+    def for_job(cls, spec: Any, seconds_left: float) -> LiveCurve:
+        """The thinning of a job of ``spec`` (a ``TrainingSpec``) with ``seconds_left`` to
+        train (the deadline's)."""
+        updates = math.ceil(spec.steps / spec.ppo.batch_steps) if spec.steps else None
+        seconds = seconds_left if spec.minutes is None else min(spec.minutes * 60, seconds_left)
+        return cls(updates, seconds)
+
+    def keep(self, point: dict[str, Any]) -> bool:
+        """Whether ``point`` (``job.progress_point``) is posted; if not, it is held as the
+        latest one (:meth:`last`)."""
+        update, wall = point.get("update"), point.get("wall_time")
+        due = not isinstance(update, int) or update <= FIRST_POINTS
+        if self.stride is not None and isinstance(update, int) and update % self.stride == 0:
+            due = True
+        if self.interval_s is not None and isinstance(wall, int | float) and math.isfinite(wall):
+            now = int(wall // self.interval_s)
+            if self._slice is None or now > self._slice:
+                self._slice, due = now, True  # (the first point of a start opens its slice)
+        if self.stride is None and self.interval_s is None:
+            due = True
+        self._held = None if due else point
+        return due
+
+    def last(self) -> dict[str, Any] | None:
+        """The latest point held back (None when the last one was posted)."""
+        return self._held
 
 
 class ProgressSender:

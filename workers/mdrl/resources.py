@@ -53,6 +53,14 @@ REFERENCE_STEPS_PER_S = 7_000
 """Env steps/s of REFERENCE_PRESET's PPO with REFERENCE_OBSERVATION on one thread of this
 project's 2-core CPU (measured before the presets took the belief map)."""
 REFERENCE_OBSERVATION = {"kind": "odmtl", "window": 3}
+JOINT_ACTION_S = 2e-8
+"""Seconds per joint action per env step of CMTL's passes over all A**N joint actions of
+each env (the joint mask, the masked log-probabilities' where and fill, log_softmax, argmax),
+which the FLOPs of its head (a matmul) do not show: ~20 ns each on this project's CPU with
+5**7 and 5**8 joint actions, ~10 ns with 5**6 (2026-12-05, one thread, the machine loaded;
+``benchmarks/resource_estimate.py`` has a CMTL spec: measured / estimated 0.64 for an
+update, 0.43 for the evaluation; 4.7 and 2.9 without this term). Each learning epoch pays
+it again forward and backward."""
 UPDATE_FIXED_S = 0.002
 ROLLOUT_STEP_S = 0.001
 OPTIMIZER_STEP_S = 0.004
@@ -244,19 +252,19 @@ def estimate(
     }
 
     per_step = flops_per_step(spec)
+    step_s = _step_seconds(spec)
     final_s = final_evaluation_seconds(spec)
-    rate = reference_flops_per_s()
     overhead, batch = update_overhead_seconds(spec), spec.ppo.batch_steps
     if spec.budget.steps is not None:
         steps = spec.budget.steps
         updates = -(-steps // batch)  # the last, shortened update pays its overhead too
-        hours = (steps * per_step / rate + final_s + updates * overhead) / 3600
+        hours = (steps * step_s + final_s + updates * overhead) / 3600
         if spec.budget.minutes is not None:
             hours = min(hours, spec.budget.minutes / 60)
     else:  # a time budget keeps the final evaluation's time (train.Trainer._no_time_for_another)
         assert spec.budget.minutes is not None
         hours = spec.budget.minutes / 60
-        step_s = per_step / rate + overhead / batch  # an update's overhead over its steps
+        step_s += overhead / batch  # an update's overhead over its steps
         steps = max(0, int((hours * 3600 - final_s) / step_s))
     return ResourceEstimate(sum(parts.values()), parts, per_step, steps, hours)
 
@@ -269,11 +277,25 @@ def final_evaluation_flops(spec: TrainingSpec) -> int:
 
 def update_seconds(spec: TrainingSpec) -> float:
     """Estimated seconds of one PPO update (its rollout of ``batch_steps`` env steps and its
-    epochs: their FLOPs, plus :func:`update_overhead_seconds`) on one reference thread: a time
-    budget is checked between updates, so a worker whose deadline leaves less than this cannot
-    stop in time."""
-    return (flops_per_step(spec) * spec.ppo.batch_steps / reference_flops_per_s()
-            + update_overhead_seconds(spec))
+    epochs: their FLOPs and CMTL's joint actions, plus :func:`update_overhead_seconds`) on one
+    reference thread: a time budget is checked between updates, so a worker whose deadline
+    leaves less than this cannot stop in time."""
+    return (_step_seconds(spec) * spec.ppo.batch_steps + update_overhead_seconds(spec))
+
+
+def joint_action_seconds(spec: TrainingSpec) -> float:
+    """Seconds per greedy env step of CMTL's passes over its A**N joint actions
+    (JOINT_ACTION_S each; 0 for the per-agent kinds)."""
+    _, outputs = _policy_outputs(spec.env, spec.observation)
+    return JOINT_ACTION_S * outputs if spec.observation.kind == "cmtl" else 0.0
+
+
+def _step_seconds(spec: TrainingSpec) -> float:
+    """Seconds of one training env step on one reference thread, without the per-update
+    overhead: its FLOPs (``flops_per_step``) and CMTL's joint actions in the rollout and,
+    forward and backward, in each learning epoch."""
+    joint = joint_action_seconds(spec) * (1 + 3 * spec.ppo.update_epochs)
+    return flops_per_step(spec) / reference_flops_per_s() + joint
 
 
 def optimizer_steps(spec: TrainingSpec) -> int:
@@ -301,7 +323,9 @@ def final_evaluation_seconds(spec: TrainingSpec) -> float:
     chunks = -(-JOB_EVAL_EPISODES // default_batch(spec.env, JOB_EVAL_EPISODES))
     together = max(1, STEP_ENVS // default_batch(spec.env, JOB_EVAL_EPISODES))
     dispatches = -(-chunks // together) * spec.env.max_steps
-    return final_evaluation_flops(spec) / reference_flops_per_s() + ROLLOUT_STEP_S * dispatches
+    joint_s = joint_action_seconds(spec) * JOB_EVAL_EPISODES * spec.env.max_steps
+    return (final_evaluation_flops(spec) / reference_flops_per_s() + joint_s
+            + ROLLOUT_STEP_S * dispatches)
 
 
 def worker_hours(spec: TrainingSpec) -> float:

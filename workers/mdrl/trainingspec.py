@@ -25,7 +25,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from workers.mdrl.env import LayoutError, check_layout_fit
-from workers.mdrl.observations import KINDS, ObservationSpec
+from workers.mdrl.observations import KINDS, ObservationSpec, check_joint_actions
 from workers.mdrl.ppo import PPOConfig
 from workers.mdrl.presets import FAST_PPO, PRESETS, get_preset
 from workers.mdrl.spec import MAX_SPARSE_BONUS, EnvSpec, IntensitySpec
@@ -392,6 +392,11 @@ class TrainingSpec:
                 "observation.window",
                 f"odmtl window must be < min(rows, cols) = {min(e.rows, e.cols)}, got {o.window}",
             )
+        if o.kind == "cmtl":  # agents <= 16 pass their own bound; A**N is the trainer's
+            try:
+                check_joint_actions(e.num_actions, e.agents)
+            except ValueError as exc:
+                raise SpecError("observation.kind", str(exc)) from None
         try:
             self.ppo  # noqa: B018 - PPOConfig checks its merged fields
         except ValueError as exc:
