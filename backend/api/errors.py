@@ -95,6 +95,9 @@ backend.api.shedding)."""
 BODY_RESPONSES: dict[int, type[BaseModel]] = {400: RuleErrorBody}
 """Statuses of an operation that reads a JSON body: 400 ``bad_request`` when the body is not
 text FastAPI can decode (e.g. invalid UTF-8; bad JSON syntax is a 422 ``json_invalid``)."""
+ENCODED_BODY_RESPONSES: dict[int, type[BaseModel]] = {415: RuleErrorBody}
+"""Statuses of every operation with a request body: 415 ``json_not_utf8`` when the body is
+JSON in UTF-16 or UTF-32 (``backend.api.limits``: JSON between systems is UTF-8)."""
 RAW_BODY = "x-raw-body"
 """``openapi_extra={RAW_BODY: True}`` marks a route that reads its body itself (``POST /rpc``
 answers undecodable bodies in its own protocol), so FastAPI's 400 does not apply to it."""
@@ -113,7 +116,8 @@ def document_shared_responses(app: FastAPI) -> None:
             return app.openapi_schema
         doc = build()
         components = doc.setdefault("components", {}).setdefault("schemas", {})
-        for model in {*SHARED_RESPONSES.values(), *BODY_RESPONSES.values()}:
+        for model in {*SHARED_RESPONSES.values(), *BODY_RESPONSES.values(),
+                      *ENCODED_BODY_RESPONSES.values()}:
             schema = model.model_json_schema(ref_template="#/components/schemas/{model}")
             for name, definition in schema.pop("$defs", {}).items():
                 components.setdefault(name, definition)
@@ -124,6 +128,8 @@ def document_shared_responses(app: FastAPI) -> None:
                     continue
                 responses = operation.setdefault("responses", {})
                 shared = dict(SHARED_RESPONSES)
+                if "requestBody" in operation:
+                    shared.update(ENCODED_BODY_RESPONSES)
                 if "requestBody" in operation and not operation.pop(RAW_BODY, False):
                     shared.update(BODY_RESPONSES)
                 for code, model in shared.items():

@@ -7,13 +7,16 @@ when ``Content-Length`` says so), then measures bracket nesting by scanning byte
 recursion, so a 100,000-deep array is refused in microseconds instead of reaching a recursive
 JSON parser. A number with more digits than any field takes (a uint256 has 78) is refused by
 name too: Python's parser would stop at 4,300 digits with a bare "error parsing the body".
-Accepted bodies are handed on unchanged. Refusals use the gateway's rule shape
+A body that is not UTF-8 (UTF-16 or UTF-32, which Python's parser reads too) is refused first
+(415 ``json_not_utf8``): the scans read bytes as UTF-8. Accepted bodies are handed on
+unchanged. Refusals use the gateway's rule shape
 ``{"detail": {"rule", "msg"}}``.
 """
 
 from __future__ import annotations
 
 import asyncio
+import json
 import re
 from typing import Any
 
@@ -48,6 +51,16 @@ def json_depth_exceeds(body: bytes, limit: int) -> bool:
         else:
             depth -= 1
     return False
+
+
+UTF8 = ("utf-8", "utf-8-sig")
+
+
+def json_encoding(body: bytes) -> str:
+    """The encoding Python's JSON parser reads ``body`` in (``json.detect_encoding``: UTF-8,
+    with or without its byte order mark, or UTF-16/32 from a BOM or the NULs of the first
+    bytes)."""
+    return json.detect_encoding(body) if body else "utf-8"
 
 
 def json_number_too_long(body: bytes) -> bool:
@@ -108,6 +121,20 @@ class BodyLimits:
             if not message.get("more_body", False):
                 break
         body = b"".join(chunks)
+        encoding = json_encoding(body)
+        if encoding not in UTF8:
+            # the scans below read bytes as UTF-8: in UTF-16 an escaped quote ends the string
+            # they skip (brackets and digits after it would go unseen), and Python's parser
+            # would read the body all the same
+            await _refuse(
+                scope,
+                receive,
+                send,
+                415,
+                "json_not_utf8",
+                f"request bodies are JSON in UTF-8 (RFC 8259); this one reads as {encoding}",
+            )
+            return
         if json_depth_exceeds(body, self.max_depth):
             await _refuse(
                 scope,

@@ -24,6 +24,7 @@ from backend.api.deps import require_metrics_token
 from backend.api.docs_page import docs_page
 from backend.api.errors import document_shared_responses, install_error_handlers
 from backend.api.frontend import mount_docs_redirects, mount_frontend
+from backend.api.head import HeadAsGet
 from backend.api.limits import BodyLimits
 from backend.api.pagecache import PageCache
 from backend.api.pending_specs import PendingSpecs
@@ -165,6 +166,7 @@ def create_app(
     # GET /metrics, HTTP latency and errors (Prometheus), behind DRLAAS_METRICS_TOKEN if set
     install_metrics(app, settings, guards=[Depends(require_metrics_token)])
     app.add_middleware(RelativeRedirects)  # the router's slash redirects name no Host
+    app.add_middleware(HeadAsGet)  # HEAD of every GET resource: its headers, no body
     app.add_middleware(SecurityHeaders)  # outermost: the shedder's and limits' answers too
 
     @app.exception_handler(SignLocally)

@@ -97,12 +97,16 @@ def cached_page(request: Request, session: Session, build: Callable[[], Any]) ->
     return Response(body, media_type="application/json")
 
 
-def _declared_query(request: Request) -> tuple[tuple[str, str], ...]:
-    """The query parameters the route declares, sorted: parameters it ignores (``?junk=1``,
-    ``?junk=2``, ...) must not make new cache keys that evict every real page."""
+def _declared_query(request: Request) -> tuple[tuple[str, tuple[str, ...]], ...]:
+    """The query parameters the route declares, by name, each with its values in the order
+    sent: parameters it ignores (``?junk=1``, ``?junk=2``, ...) must not make new cache keys
+    that evict every real page. The order of a repeated parameter's values is kept: the route
+    reads the last one, so ``?status=open&status=closed`` and ``?status=closed&status=open``
+    are two queries (sorted as pairs they shared one key, and one page)."""
+    params = request.query_params
     route = request.scope.get("route")
     dependant = getattr(route, "dependant", None)
-    if dependant is None:
-        return tuple(sorted(request.query_params.multi_items()))
-    names = {p.alias for p in dependant.query_params}
-    return tuple(sorted((k, v) for k, v in request.query_params.multi_items() if k in names))
+    names = (
+        set(params.keys()) if dependant is None else {p.alias for p in dependant.query_params}
+    )
+    return tuple((name, tuple(params.getlist(name))) for name in sorted(names) if name in params)

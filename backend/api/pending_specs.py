@@ -38,36 +38,43 @@ class PendingSpecs:
         self._lock = threading.Lock()
         self._specs: dict[str, deque[tuple[float, str]]] = {}
 
-    def admit(self, address: str, on_chain: Callable[[Iterable[str]], set[str]]) -> None:
-        """Raise :class:`RateLimited` if ``address`` has ``per_address`` specs pending;
-        ``on_chain`` names which of the given CIDs are already task descriptions."""
+    def reserve(
+        self, address: str, cid: str, on_chain: Callable[[Iterable[str]], set[str]]
+    ) -> None:
+        """Raise :class:`RateLimited` if ``address`` has ``per_address`` specs pending
+        (``on_chain`` names which of the given CIDs are already task descriptions), else count
+        ``cid`` for it (a spec it already has pending counts once). One locked step, before the
+        spec is stored: requests of one address sent in parallel each count before the next is
+        admitted (checked and counted apart, they all passed the bound before any counted)."""
         with self._lock:
-            now = self._clock()
-            pending = self._specs.get(address, deque())
-            while pending and now - pending[0][0] > self.window_s:
-                pending.popleft()
-            if len(pending) >= self.per_address:
-                indexed = on_chain([cid for _, cid in pending])
-                pending = deque((t, cid) for t, cid in pending if cid not in indexed)
-            self._specs[address] = pending
-            if len(pending) >= self.per_address:
-                wait = self.window_s - (now - pending[0][0])
-                raise RateLimited(
-                    "too_many_pending_specs",
-                    f"{address} has {len(pending)} task specs stored whose addTask is not on "
-                    f"chain yet: relay those transactions (POST /api/tx), or retry in "
-                    f"{int(wait) + 1} s",
-                    retry_after=wait,
-                )
+            self._admit(address, on_chain)
+            self._add(address, cid)
 
-    def add(self, address: str, cid: str) -> None:
-        """Count a spec stored for ``address`` (a spec it already has pending counts once)."""
-        with self._lock:
-            pending = self._specs.setdefault(address, deque())
-            if all(c != cid for _, c in pending):
-                pending.append((self._clock(), cid))
-            if len(self._specs) > MAX_ADDRESSES:
-                del self._specs[min(self._specs, key=self._last_added)]
+    def _admit(self, address: str, on_chain: Callable[[Iterable[str]], set[str]]) -> None:
+        now = self._clock()
+        pending = self._specs.get(address, deque())
+        while pending and now - pending[0][0] > self.window_s:
+            pending.popleft()
+        if len(pending) >= self.per_address:
+            indexed = on_chain([cid for _, cid in pending])
+            pending = deque((t, cid) for t, cid in pending if cid not in indexed)
+        self._specs[address] = pending
+        if len(pending) >= self.per_address:
+            wait = self.window_s - (now - pending[0][0])
+            raise RateLimited(
+                "too_many_pending_specs",
+                f"{address} has {len(pending)} task specs stored whose addTask is not on "
+                f"chain yet: relay those transactions (POST /api/tx), or retry in "
+                f"{int(wait) + 1} s",
+                retry_after=wait,
+            )
+
+    def _add(self, address: str, cid: str) -> None:
+        pending = self._specs.setdefault(address, deque())
+        if all(c != cid for _, c in pending):
+            pending.append((self._clock(), cid))
+        if len(self._specs) > MAX_ADDRESSES:
+            del self._specs[min(self._specs, key=self._last_added)]
 
     def _last_added(self, address: str) -> float:
         pending = self._specs[address]

@@ -33,9 +33,21 @@ class RawTx:
     gas: int = 0
 
 
+ACCEPTED_TYPES = (0x01, 0x02)
+"""EIP-2718 types relayed besides legacy ones: EIP-2930 and EIP-1559. Not EIP-4844 blobs, nor
+EIP-7702 set-code (0x04), whose authorization list gives accounts code other than the
+transaction's own target: the embedded chain runs the Prague rules, and "only platform
+contracts or plain transfers" is checked on the target alone."""
+
+
 def decode_raw_tx(raw: bytes) -> RawTx:
-    """Target and chain id of a signed transaction (typed or legacy); :class:`RawTxError` if
-    it does not decode."""
+    """Target and chain id of a signed transaction (legacy, or a type of ACCEPTED_TYPES);
+    :class:`RawTxError` if it does not decode or is of another type."""
+    if raw[:1] and raw[0] < 0x7F and raw[0] not in ACCEPTED_TYPES:
+        raise RawTxError(
+            f"transactions of type 0x{raw[0]:02x} are not accepted: sign a legacy, EIP-2930 "
+            "(0x01) or EIP-1559 (0x02) transaction"
+        )
     try:
         if raw[:1] and raw[0] < 0x7F:  # EIP-2718 typed: the chain id is a field
             fields = TypedTransaction.from_bytes(HexBytes(raw)).as_dict()

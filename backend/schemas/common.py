@@ -27,6 +27,7 @@ __all__ = [
     "Review",
     "TxPublic",
     "Wei",
+    "WRITE_BODY",
     "wei_to_eth",
 ]
 
@@ -41,6 +42,12 @@ Address = Annotated[
     ),
     AfterValidator(checksum),
 ]
+
+WRITE_BODY = ConfigDict(extra="forbid")
+"""``model_config`` of a request body that writes: a field it does not know is a 422 naming it
+(``extra_forbidden``), not left out. Read as its default, a misspelt field acts otherwise than
+asked: ``{"review": 0, "accept": false}`` paid the outcome it meant to reject
+(``accepted`` defaults to true), ``"num_model": 3`` bought one model."""
 
 ONE = 1_000_000  # QoS fixed point of the contracts (backend.chain.qos)
 T = TypeVar("T")

@@ -16,6 +16,7 @@ from .cards import (
 from .common import (
     JSON_NUMBER_ONLY,
     MAX_ID,
+    WRITE_BODY,
     CidStr,
     Count,
     Domain,
@@ -41,6 +42,8 @@ WEIGHT_ONE = 1_000_000
 class ModelCreate(BaseModel):
     """Share a model the caller owns (MMC.addModel); ``cid`` is its bundle manifest."""
 
+    model_config = WRITE_BODY
+
     cid: CidStr
     description: PlainText = Field(default="", max_length=1024)
     domain: Domain = 0
@@ -50,6 +53,8 @@ class ModelCreate(BaseModel):
 class CommitmentCreate(BaseModel):
     """TMC.commitCid by the caller: keccak256(cid ++ caller), made before the CID is uploaded
     anywhere others read (commit-reveal of CIDs); the CID itself is not sent."""
+
+    model_config = WRITE_BODY
 
     commitment: str = Field(
         pattern=r"^0x[0-9a-fA-F]{64}$",
@@ -151,6 +156,8 @@ class ModelDetailPublic(ModelPublic):
 class ModelRequestCreate(BaseModel):
     """A model-sharing task (MMC.allocateModel)."""
 
+    model_config = WRITE_BODY
+
     domain: Domain = 0
     env: EnvDocument = Field(description="EnvSpec the models should fit")
     num_models: Count = Field(default=1, ge=1, le=16)
@@ -205,6 +212,8 @@ class AllocationDetailPublic(BaseModel):
 
 
 class ModelReviewCreate(BaseModel):
+    model_config = WRITE_BODY
+
     model_id: Count = Field(ge=1, le=MAX_ID)
     review: Review
 

@@ -24,6 +24,7 @@ from .common import (
     JSON_NUMBER_ONLY,
     MAX_ID,
     PLAIN_TEXT_PATTERN,
+    WRITE_BODY,
     Address,
     Count,
     Domain,
@@ -249,6 +250,8 @@ class ProgressPublic(BaseModel):
 
 
 class TaskReviewCreate(BaseModel):
+    model_config = WRITE_BODY
+
     worker: Address
     review: Review
     accepted: Flag = True

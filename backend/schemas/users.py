@@ -2,7 +2,7 @@ from __future__ import annotations
 
 from pydantic import BaseModel, Field, field_validator
 
-from .common import Count, Domain
+from .common import WRITE_BODY, Count, Domain
 
 MAX_WORKER_DOMAINS = 4
 """UMC.MAX_WORKER_DOMAINS: one registration joins at most four domains' candidate queues."""
@@ -10,6 +10,8 @@ MAX_WORKER_DOMAINS = 4
 
 class WorkerCreate(BaseModel):
     """Register (or update the capabilities of) the caller as a worker (UMC.addWorker)."""
+
+    model_config = WRITE_BODY
 
     domains: list[Domain] = Field(
         min_length=1, max_length=MAX_WORKER_DOMAINS, json_schema_extra={"uniqueItems": True}

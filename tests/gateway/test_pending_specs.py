@@ -25,21 +25,18 @@ def test_pending_specs_are_bounded_per_address_until_on_chain_or_old() -> None:
         return on_chain & set(cids)
 
     for cid in ("a", "b"):
-        pending.admit("0xA", indexed)
-        pending.add("0xA", cid)
-    pending.add("0xA", "b")  # the same spec again counts once
+        pending.reserve("0xA", cid, indexed)
     with pytest.raises(RateLimited) as refused:
-        pending.admit("0xA", indexed)
+        pending.reserve("0xA", "b", indexed)  # the same spec again: still at the bound
     assert refused.value.rule == "too_many_pending_specs"
     assert refused.value.retry_after == pytest.approx(100.0)
-    pending.admit("0xB", indexed)  # another address has its own bound
+    pending.reserve("0xB", "a", indexed)  # another address has its own bound
     on_chain.add("a")  # its task was added: no longer pending
-    pending.admit("0xA", indexed)
-    pending.add("0xA", "c")
+    pending.reserve("0xA", "c", indexed)
     with pytest.raises(RateLimited):
-        pending.admit("0xA", indexed)
+        pending.reserve("0xA", "d", indexed)
     now[0] = 101.0  # "b" and "c" age out
-    pending.admit("0xA", indexed)
+    pending.reserve("0xA", "d", indexed)
 
 
 def test_unrelayed_task_specs_stop_being_stored(

@@ -244,3 +244,30 @@ def test_a_remote_client_runs_a_bounded_number_of_requests_at_once(
         for _ in range(3):
             assert c.app.state.rpc_slots.take("127.0.0.1") in (None, "client")
         assert c.post("/rpc", json=body).status_code == 200
+
+
+def test_a_set_code_transaction_is_refused_by_its_type(
+    service: ChainService, rpc: EmbeddedRpc
+) -> None:
+    """An EIP-7702 transaction (type 0x04) is a plain transfer by its target, but its
+    authorization list gives the signing accounts code (a delegation to a contract on chain):
+    what "only platform contracts or plain transfers" means to forbid. It is refused by its
+    type, naming it; before, it passed every check of the target."""
+    me, you = service.chain.accounts[3], Account.create().address
+    key = service.chain._keys[me]
+    auth = key.sign_authorization({
+        "chainId": service.chain.chain_id,
+        "address": service.platform.umc.address,
+        "nonce": service.chain.w3.eth.get_transaction_count(me) + 1,
+    })
+    w3 = service.chain.w3
+    tx = key.sign_transaction({
+        "type": 4, "chainId": service.chain.chain_id, "nonce": w3.eth.get_transaction_count(me),
+        "to": you, "value": 1, "data": b"", "gas": 100_000,
+        "maxFeePerGas": 10 * w3.eth.get_block("latest")["baseFeePerGas"],
+        "maxPriorityFeePerGas": 0, "authorizationList": [auth],
+    })
+    raw = "0x" + bytes(tx.raw_transaction).hex()
+    err = call(rpc, "eth_sendRawTransaction", [raw], "198.51.100.7")["error"]
+    assert err["code"] == SERVER_ERROR and "type 0x04" in err["message"], err
+    assert service.chain.balance(you) == 0 and w3.eth.get_code(me) in (b"", "0x")

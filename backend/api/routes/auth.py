@@ -25,12 +25,15 @@ from backend.api.errors import RuleError, rule_responses
 from backend.api.schemas import Address
 from backend.auth import issue_sign_in, issue_token, verify_sign_in
 from backend.errors import RateLimited
+from backend.schemas.common import WRITE_BODY
 from backend.services.rpc_budget import GasBudget
 
 router = APIRouter(prefix="/auth", tags=["auth"])
 
 
 class NonceRequest(BaseModel):
+    model_config = WRITE_BODY
+
     address: Address
 
 
@@ -41,6 +44,8 @@ class NoncePublic(BaseModel):
 
 
 class TokenRequest(BaseModel):
+    model_config = WRITE_BODY
+
     message: str = Field(min_length=1, max_length=4096)
     signature: str = Field(pattern=r"^(0x)?[0-9a-fA-F]{130}$", description="65-byte signature, hex")
 
@@ -123,6 +128,8 @@ class DemoUsersPublic(BaseModel):
 
 
 class DemoTokenRequest(BaseModel):
+    model_config = WRITE_BODY
+
     name: str = Field(min_length=1, max_length=64)
     address: Address
 

@@ -26,6 +26,7 @@ from backend.api.cards import read_card
 from backend.api.client_key import client_key
 from backend.api.deps import ChainDep, CurrentUser, IndexerDep, SessionDep, SettingsDep, StoreDep
 from backend.api.errors import RuleError, rule_responses
+from backend.api.head import HEAD_ONLY
 from backend.api.pagecache import cached_page
 from backend.api.schemas import Address, FractionQuery
 from backend.api.slots import ClientSlots
@@ -63,7 +64,14 @@ from backend.schemas.models import (
 )
 from backend.services.chain import ChainService
 from backend.services.specs import SpecError, env_attributes, validate_env
-from backend.store import CIDMismatch, ContentTooLarge, NotFound, StoreError, StoreUnavailable
+from backend.store import (
+    CIDMismatch,
+    ContentTooLarge,
+    InvalidContent,
+    NotFound,
+    StoreError,
+    StoreUnavailable,
+)
 from backend.store.bundle import MAX_CARD_BYTES, bundle_entry, read_bundle
 from backend.store.sealed import sealed_envelopes
 
@@ -577,6 +585,11 @@ class _Download(StreamingResponse):
         )
 
     async def __call__(self, scope: Any, receive: Any, send: Any) -> None:
+        if scope.get(HEAD_ONLY):  # HEAD: the headers (size, CID), no bytes, no download slot
+            await send({"type": "http.response.start", "status": self.status_code,
+                        "headers": self.raw_headers})
+            await send({"type": "http.response.body", "body": b"", "more_body": False})
+            return
         pool: ClientSlots = scope["app"].state.download_pool
         client = client_key(scope)
         full = pool.take(client)
@@ -650,7 +663,9 @@ def _stream_bundle_file(
         first = next(chunks, b"")  # fail before the status line is sent when possible
     except NotFound:
         raise RuleError(404, "content_not_found", f"the store does not hold {file_cid}") from None
-    except (CIDMismatch, ContentTooLarge) as exc:
+    except (CIDMismatch, ContentTooLarge, InvalidContent) as exc:
+        # InvalidContent: blocks that hash right but are no UnixFS file (a directory node a
+        # worker named as its weights): the bundle is bad, not the gateway
         raise RuleError(502, "content_corrupt", f"{file_cid} failed verification: {exc}") from None
 
     def body() -> Iterator[bytes]:

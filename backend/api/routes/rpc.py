@@ -120,10 +120,11 @@ async def rpc(request: Request) -> JSONResponse:
         # application/json needs the preflight this gateway never grants
         raise RuleError(415, "rpc_content_type", "JSON-RPC requests must be sent as "
                         f"Content-Type: application/json, not {media or 'none'!r}")
-    body = await request.body()  # size and depth already bounded (backend.api.limits)
+    body = await request.body()  # size, depth, digits and UTF-8 bounded (backend.api.limits)
     try:
         payload: Any = json.loads(body)
-    except (json.JSONDecodeError, UnicodeDecodeError):
+    except (ValueError, RecursionError):  # JSONDecodeError, UnicodeDecodeError; and past a
+        # bound the limits did not see (4,300 digits, the parser's depth): a parse error too
         return JSONResponse(
             {"jsonrpc": "2.0", "id": None, "error": {"code": -32700, "message": "parse error"}}
         )

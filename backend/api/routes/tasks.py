@@ -60,7 +60,7 @@ from backend.services.specs import (
     validate_env,
 )
 from backend.settings import Settings
-from backend.store import ContentStore
+from backend.store import ContentStore, compute_cid
 from backend.store.bundle import canonical_json
 from backend.store.sealed import address_of, parse_public_key
 from workers.mdrl.trainingspec import TrainingSpec
@@ -248,9 +248,11 @@ def create_task(
                 )
             )
 
-        pending.admit(user.address, on_chain)
-        spec_cid = store.add(canonical_json(spec.to_dict()))
-        pending.add(user.address, spec_cid)
+        document = canonical_json(spec.to_dict())
+        # counted in the step that admits it, before it is stored: parallel posts of one
+        # address cannot all pass the bound before any of them counts
+        pending.reserve(user.address, compute_cid(document), on_chain)
+        spec_cid = store.add(document)
     else:
         spec_cid = store.add(canonical_json(spec.to_dict()))
     tmc = chain.platform.tmc

@@ -8,13 +8,15 @@ from pydantic import BaseModel, Field
 from backend.api.deps import ChainDep, CurrentUser, IndexerDep, SettingsDep
 from backend.api.errors import RuleError, rule_responses
 from backend.api.writes import catch_up, receipt_public
-from backend.schemas.common import TxPublic
+from backend.schemas.common import WRITE_BODY, TxPublic
 from backend.services.chain import TxPending
 
 router = APIRouter(prefix="/tx", tags=["tx"])
 
 
 class TxCreate(BaseModel):
+    model_config = WRITE_BODY
+
     raw: str = Field(
         min_length=4,
         max_length=2 + 2 * 131_072,
