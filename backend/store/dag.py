@@ -359,9 +359,12 @@ def read_file(
             chunk, children, declared = _file_node(cid, block)
             if first and declared is not None and declared > max_size:
                 raise ContentTooLarge(declared, max_size)
-            if expected_size is not None and declared is not None and declared != expected_size:
+            holds = len(chunk) + sum(size or 0 for _, size in children)
+            if expected_size is not None and holds != expected_size:
+                # compared with what the node holds, declared or not: a node without filesize
+                # under a parent giving it 1,000 bytes was read as the 10 it links, no error
                 raise InvalidContent(
-                    f"node {cid} declares {declared} bytes but its parent says {expected_size}"
+                    f"node {cid} holds {holds} bytes but its parent says {expected_size}"
                 )
             for child, size in children:
                 if size == 0:
@@ -400,7 +403,7 @@ def _file_node(cid: CID, block: bytes) -> tuple[bytes, list[tuple[CID, int | Non
         raise InvalidContent(f"block {cid} is not a valid UnixFS node: {e}") from None
     if fs.type not in (UNIXFS_FILE, UNIXFS_RAW):
         raise InvalidContent(f"{cid} is a UnixFS node of type {fs.type}, not a file")
-    if links and len(fs.blocksizes) != len(links):
+    if len(fs.blocksizes) != len(links):  # a size with no link is bytes nobody reads
         raise InvalidContent(
             f"node {cid} has {len(links)} links but {len(fs.blocksizes)} blocksizes"
         )
@@ -408,6 +411,6 @@ def _file_node(cid: CID, block: bytes) -> tuple[bytes, list[tuple[CID, int | Non
     if fs.filesize is not None and fs.filesize != len(inline) + sum(fs.blocksizes):
         raise InvalidContent(f"node {cid}: filesize {fs.filesize} != sum of its parts")
     children: list[tuple[CID, int | None]] = [
-        (child, size) for (child, _), size in zip(links, fs.blocksizes, strict=False)
+        (child, size) for (child, _), size in zip(links, fs.blocksizes, strict=True)
     ]
     return inline, children, fs.filesize

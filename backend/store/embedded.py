@@ -53,6 +53,7 @@ class EmbeddedStore(ContentStore):
 
     # -- writing -----------------------------------------------------------------------------------
     def _atomic_write(self, path: Path, data: bytes) -> None:
+        new_dir = not path.parent.is_dir()
         path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".tmp-")
         try:
@@ -65,12 +66,19 @@ class EmbeddedStore(ContentStore):
         except BaseException:
             Path(tmp).unlink(missing_ok=True)
             raise
+        if self.fsync:  # the rename, and a new shard's entry, outlive a power cut too: the
+            # file's own fsync does not cover them, and a CID recorded on chain named a block
+            # that was gone after a crash
+            _fsync_dir(path.parent)
+            if new_dir:
+                _fsync_dir(path.parent.parent)
 
     def _put_block(self, cid: CID, block: bytes) -> None:
         path = self.block_path(cid)
-        try:
-            existing = path.read_bytes()
-        except FileNotFoundError:
+        try:  # no more than the block: a damaged file of any size was read whole
+            with open(path, "rb") as fh:
+                existing = fh.read(len(block) + 1)
+        except OSError:  # absent, or unreadable (a directory in its place): written below
             existing = None
         if existing is not None:
             try:
@@ -139,3 +147,12 @@ class EmbeddedStore(ContentStore):
         if not os.access(self._blocks, os.W_OK):
             raise StoreUnavailable(str(self.root), "store directory is not writable", 0)
         return {"backend": "embedded", "root": str(self.root)}
+
+
+def _fsync_dir(path: Path) -> None:
+    """Flush a directory's entries (a rename or a new file in it) to disk."""
+    fd = os.open(path, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)

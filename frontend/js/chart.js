@@ -27,10 +27,14 @@ export function niceTicks(lo, hi, n = 5) {
   return ticks.length ? ticks : [lo];
 }
 
-function fmtTick(v) {
+/** An axis label in human units: 1.5k, 2M, 3G, 4T; past that (and below 0.001) a power of ten,
+ * as 2e15 or 5e-5 (1e12 steps read "1000000M", and ticks of 5e-5 apart all read "0"). */
+export function fmtTick(v) {
   const a = Math.abs(v);
-  if (a >= 1e6) return `${+(v / 1e6).toFixed(1)}M`;
-  if (a >= 1e3) return `${+(v / 1e3).toFixed(1)}k`;
+  if (a >= 1e15 || (a > 0 && a < 1e-3)) return v.toExponential(1).replace(/\.0e/, "e").replace("e+", "e");
+  for (const [unit, size] of [["T", 1e12], ["G", 1e9], ["M", 1e6], ["k", 1e3]]) {
+    if (a >= size) return `${+(v / size).toFixed(1)}${unit}`;
+  }
   return `${+v.toFixed(3)}`;
 }
 
@@ -146,6 +150,10 @@ export function curvePanels(points, { groupBy } = {}) {
         });
         if (pts.length) series.push({ label, points: pts });
       }
+    }
+    if (panel.yDomain) { // a rate outside [0, 1] is none (an extra metric of 1e300 flattened the rest)
+      const [lo, hi] = panel.yDomain;
+      series = series.map((se) => ({ ...se, points: se.points.filter(([, y]) => y >= lo && y <= hi) }));
     }
     if (series.some((se) => se.points.length)) {
       panels.push(lineChart({ title: panel.title, series, yLabel: panel.yLabel, yDomain: panel.yDomain }));

@@ -52,6 +52,27 @@ def parse_domains(text: str) -> tuple[int, ...]:
     return tuple(sorted(out))
 
 
+def domains_option(text: str) -> tuple[int, ...]:
+    """``--domains`` of ``worker run`` / ``worker register``: :func:`parse_domains`, 1 to
+    :data:`MAX_WORKER_DOMAINS` codes, or a usage error naming the option. ``worker run``
+    checked them after making the key, asking the faucet and taking the daemon's lock, and
+    ended with a ValueError traceback (always for 'all', 48 codes)."""
+    try:
+        domains = parse_domains(text)
+    except ValueError as exc:
+        raise typer.BadParameter(str(exc).removeprefix("--domains: "),
+                                 param_hint="--domains") from None
+    if not 1 <= len(domains) <= MAX_WORKER_DOMAINS:
+        raise typer.BadParameter(
+            f"a worker covers 1 to {MAX_WORKER_DOMAINS} domains (the UMC's limit), got "
+            f"{len(domains)} from {text!r}", param_hint="--domains")
+    return domains
+
+
+#: Log levels Celery takes for ``--loglevel``.
+LOG_LEVELS = ("DEBUG", "INFO", "WARNING", "ERROR", "CRITICAL", "FATAL")
+
+
 def register_worker(platform: Any, caps: Capabilities, domains: tuple[int, ...]) -> str:
     """Add the worker record (or update its capabilities); returns what was done. On a chain
     where registration needs a consortium admin's approval, the new worker is pending (it is
@@ -103,7 +124,7 @@ def worker_command(
         ),
     ] = None,
     domains: Annotated[
-        str, typer.Option(help="domain codes served, e.g. '0,3,5-7' or 'all'")
+        str, typer.Option(help=f"domain codes served (up to {MAX_WORKER_DOMAINS}), e.g. '0,3,5-6'")
     ] = DEFAULT_DOMAINS,
     max_jobs: Annotated[int, typer.Option(min=1, help="jobs at once before declining offers")] = 1,
     checkpoint_every: Annotated[int, typer.Option(min=1, help="updates between checkpoints")] = 2,
@@ -120,12 +141,19 @@ def worker_command(
     metrics_port: Annotated[
         int | None,
         typer.Option(
-            envvar="DRLAAS_WORKER_METRICS_PORT", help="serve Prometheus /metrics on this port"
+            min=0,
+            max=65535,
+            envvar="DRLAAS_WORKER_METRICS_PORT",
+            help="serve Prometheus /metrics on this port",
         ),
     ] = None,
     metrics_host: Annotated[str, typer.Option(help="interface of the metrics port")] = "127.0.0.1",
 ) -> None:
     """Run a worker daemon: register on chain, then accept, train and submit offered tasks."""
+    served = domains_option(domains)  # options first: nothing made or asked on a bad one
+    if loglevel.upper() not in LOG_LEVELS:  # Celery refused it only after registering
+        raise typer.BadParameter(
+            f"{loglevel!r} is none of {', '.join(LOG_LEVELS)}", param_hint="--loglevel")
     from backend.celery_app import worker_queue
     from backend.chain.pins import chain_pinned_for
     from workers.daemon import job, tasks
@@ -166,7 +194,7 @@ def worker_command(
     metrics = (serve_worker_metrics(handler, metrics_port, metrics_host)
                if metrics_port is not None else None)
     caps = measure()
-    done = register_worker(handler.platform, caps, parse_domains(domains))
+    done = register_worker(handler.platform, caps, served)
     typer.echo(
         f"worker {account.address}: {done} on chain ({caps.cpu_cores} cores, "
         f"{caps.ram_gb} GB RAM, GPU series {caps.gpu_series}); queue "

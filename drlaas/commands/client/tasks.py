@@ -112,9 +112,16 @@ def task_body(
     ``experts``/``expert_qos`` are comma-separated CIDs and weights (``drlaas train``'s form)."""
     if spec is not None:
         return body_file(spec)
-    rows, cols = parse_grid(grid)
+    try:
+        rows, cols = parse_grid(grid)
+    except ValueError as exc:  # "10x" ended the command with a traceback
+        raise typer.BadParameter(str(exc), param_hint="--grid") from None
+    try:
+        wall_range = list(parse_walls(walls))
+    except ValueError as exc:
+        raise typer.BadParameter(str(exc), param_hint="--walls") from None
     doc: dict[str, Any] = {
-        "env": {"rows": rows, "cols": cols, "agents": agents, "walls": list(parse_walls(walls))},
+        "env": {"rows": rows, "cols": cols, "agents": agents, "walls": wall_range},
         "observation": {"kind": kind, "window": window},
         "budget": {"steps": steps, "minutes": minutes},
         "seed": seed,
@@ -165,7 +172,30 @@ def body_file(path: Path) -> dict[str, Any]:
         raise typer.BadParameter(
             f"{path}: the body of POST /api/tasks is a JSON object, not "
             f"{type(doc).__name__}", param_hint="--spec")
+    for name in WHOLE_TERMS + FRACTION_TERMS:  # what the CLI reads itself (add_task_call)
+        if name not in doc:
+            continue
+        v = doc[name]
+        whole = type(v) is int and v >= 0
+        fraction = type(v) in (int, float) and 0 <= v <= 1
+        if not (whole if name in WHOLE_TERMS else fraction):
+            what = "a whole number >= 0" if name in WHOLE_TERMS else "a number in 0-1"
+            raise typer.BadParameter(
+                f"{path}: {name} is {what}, not {json.dumps(v)[:40]}", param_hint="--spec")
     return doc
+
+
+WHOLE_TERMS = ("num_workers", "payment_wei", "deadline_s", "domain", "min_cpu_cores",
+               "min_ram_gb")
+FRACTION_TERMS = ("min_reputation", "min_rating")
+"""The terms of a ``--spec`` body the CLI reads to check the ``addTask`` it signs: a string
+or null there ended ``task submit`` with a traceback after signing in."""
+SPEC_OPTIONS = ("grid", "agents", "walls", "kind", "window", "steps", "minutes", "seed",
+                "workers", "payment_wei", "deadline_s", "domain", "experts", "expert_qos",
+                "expert_rate", "expert_rate_end", "expert_threshold", "expert_credit",
+                "keep_best")
+"""The options :func:`task_body` builds a body from, which ``--spec FILE`` replaces: given
+with it, they were dropped silently (``--experts`` submitted a task without its experts)."""
 
 
 def expert_list(experts: str, qos: str | None) -> list[Any]:
@@ -193,6 +223,7 @@ def expert_list(experts: str, qos: str | None) -> list[Any]:
 
 @task_app.command("submit")
 def task_submit(
+    ctx: typer.Context,
     key: KeyOpt,
     gateway: GatewayOpt = DEFAULT_GATEWAY,
     grid: Annotated[str, typer.Option(help="ROWSxCOLS")] = "10x10",
@@ -279,6 +310,14 @@ def task_submit(
     as_json: JsonOpt = False,
 ) -> None:
     """Submit a training task: the spec goes to the content store, the chain recruits."""
+    if spec is not None:
+        sources = {n: ctx.get_parameter_source(n) for n in SPEC_OPTIONS}
+        given = [f"--{n.replace('_', '-')}" for n, src in sources.items()
+                 if src is not None and src.name != "DEFAULT"]
+        if given:
+            raise typer.BadParameter(
+                f"{spec} is the whole task body: set what {', '.join(given)} would in the "
+                f"file (not read with --spec)", param_hint="--spec")
     sources = [o for o in (experts, experts_from_mmc, expert_allocation) if o is not None]
     if len(sources) > 1:
         raise typer.BadParameter("give one of --experts, --experts-from-mmc, --expert-allocation")
@@ -315,6 +354,10 @@ def task_submit(
         expert_rate_end=expert_rate_end,
         keep_best=keep_best,
     )
+    if experts_from_mmc is not None and not isinstance(body.get("env"), dict):
+        raise typer.BadParameter(  # a --spec without one: "error: 'env'" after signing in
+            f"{spec}: --experts-from-mmc buys experts for the task's env, and the file has no "
+            f"env object", param_hint="--spec")
     with connect_funded(gateway, key, create=True) as gw:
         if not public_outcome and gw.account is not None:
             body.setdefault("outcome_key", public_key_hex(bytes(gw.account.key)))

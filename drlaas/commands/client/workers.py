@@ -23,7 +23,12 @@ from drlaas.commands.client.session import (
 )
 from drlaas.commands.client.txcheck import expect_request, share_model_expect
 from workers.daemon.capabilities import measure
-from workers.daemon.command import open_worker, parse_domains, worker_command
+from workers.daemon.command import (
+    MAX_WORKER_DOMAINS,
+    domains_option,
+    open_worker,
+    worker_command,
+)
 from workers.daemon.gateway import GatewayError
 from workers.daemon.keys import load_key
 from workers.daemon.links import default_worker_dir
@@ -38,12 +43,15 @@ worker_app = typer.Typer(
 def worker_register(
     key: KeyOpt,
     gateway: GatewayOpt = DEFAULT_GATEWAY,
-    domains: Annotated[str, typer.Option(help="domain codes, e.g. '0,3' or 'all'")] = "0",
+    domains: Annotated[
+        str, typer.Option(help=f"domain codes (up to {MAX_WORKER_DOMAINS}), e.g. '0,3'")
+    ] = "0",
     as_json: JsonOpt = False,
 ) -> None:
     """Register (or update) your worker record with this machine's measured capabilities."""
+    served = domains_option(domains)
     caps = measure()
-    body = {"domains": list(parse_domains(domains)), **caps.to_dict()}
+    body = {"domains": list(served), **caps.to_dict()}
     with connect_funded(gateway, key, create=True) as gw:
         try:
             out = write(  # UMC.addWorker, or updateCapabilities, with these capabilities

@@ -46,7 +46,7 @@ function argValue(k, v) {
     return h("span", { title: `${v} on chain (1,000,000 = 1)` }, num(Number(v) / 1e6, 4));
   }
   if (CID_ARGS.has(k) && typeof v === "string" && v.length > 20) return shortCid(v);
-  if (k === "status" && TASK_STATUS[v] !== undefined) return TASK_STATUS[v];
+  if (k === "status" && Number.isInteger(v) && v >= 0 && v < TASK_STATUS.length) return TASK_STATUS[v];
   return typeof v === "object" && v !== null ? JSON.stringify(v) : String(v);
 }
 
@@ -178,7 +178,10 @@ export async function render(main, [id], ctx) {
       Object.keys(spec).length ? rawJson("Task spec (JSON)", spec) : null,
     ]);
 
-    const progress = (Array.isArray(t.progress) ? t.progress : []).map((p) => ({ ...(p.extra || {}), ...p }));
+    // x is the gateway's step: an extra metric a worker named "global_step" (read first by the
+    // chart) moved every point of the live curve
+    const progress = (Array.isArray(t.progress) ? t.progress : [])
+      .map((p) => ({ ...(p.extra || {}), ...p, global_step: p.step }));
     draw("curve", [progress.length, JSON.stringify(progress[progress.length - 1] || null)], () => {
       if (!progress.length) return h("p", { class: "muted" }, "No progress yet: points appear here while a worker trains.");
       const multi = new Set(progress.map((p) => p.worker)).size > 1;
@@ -217,7 +220,7 @@ export async function render(main, [id], ctx) {
               act("Expert review", `/models/requests/${encodeURIComponent(x.alloc_id)}/reviews`, { model_id: x.model_id, review: Number(sel.value) }) }, "Review"));
           }
           return h("tr", { "data-cid": x.cid },
-            h("td", {}, x.model_id ? link(`/models/${x.model_id}`, shortCid(x.cid)) : shortCid(x.cid)),
+            h("td", {}, x.model_id ? link(`/models/${encodeURIComponent(x.model_id)}`, shortCid(x.cid)) : shortCid(x.cid)),
             h("td", { class: "num", title: "the expert's QoS weight in the task's spec" }, x.qos === null || x.qos === undefined ? "equal" : num(x.qos, 4)),
             h("td", { class: "num" }, num(x.reputation, 3)),
             h("td", {}, x.alloc_id ? `#${x.alloc_id}` : h("span", { class: "muted" }, "named by CID")),
