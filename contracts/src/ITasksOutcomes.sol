@@ -18,4 +18,8 @@ interface ITasksOutcomes {
     /// @dev Whether `commitment` (keccak256(cid ++ worker)) was committed in an earlier block
     /// than this one (commit-reveal of CIDs: the TMC's commitCid).
     function committedBefore(bytes32 commitment) external view returns (bool);
+
+    /// @dev The domain of task `taskId` (0 for an id that names no task): an outcome is listed
+    /// as a model of its task's domain only (the MMC's provenance rule).
+    function taskDomain(uint256 taskId) external view returns (uint32);
 }

@@ -53,8 +53,11 @@ import {CidText} from "./CidText.sol";
  * TMC may be shared only by the worker who submitted it, and only once its requester
  * accepted it (or it was paid unreviewed at close): while the review is pending the model
  * is the requester's to judge, and a rejected outcome stays unlisted, since the requester's
- * review is the only quality evidence the chain holds for it. A CID that is no outcome is
- * an owner's own upload; the gateway checks that its card matches the declared environment.
+ * review is the only quality evidence the chain holds for it. It is listed in its task's
+ * domain only: that acceptance vouches for the domain the task was posted in, not for
+ * another domain its worker also covers (docs/chain.md, "Held-out pass of 2026-12-05").
+ * A CID that is no outcome is an owner's own upload; the gateway checks that its card
+ * matches the declared environment.
  *
  * Gas: a model is one slot in its owner's list of the domain: model id, attribute count,
  * both Eq. 11 totals and its first four environment attributes (uint32 each), the list's
@@ -185,6 +188,8 @@ contract ModelsManager is ReentrancyGuardTransient {
     error ModelsTransferFailed(address account, uint256 amount);
     error ModelsNotOutcomeOwner(uint256 taskId, address worker);
     error ModelsOutcomeNotAccepted(uint256 taskId, ITasksOutcomes.Verdict verdict);
+    /// An outcome is listed in the domain of its task, not in another the worker covers.
+    error ModelsOutcomeDomainMismatch(uint256 taskId, uint32 taskDomain, uint32 domain);
     error ModelsDuplicateModel(uint256 modelId);
     error ModelsCidNotCommitted(bytes32 commitment);
     error ModelsBadConfig();
@@ -293,7 +298,8 @@ contract ModelsManager is ReentrancyGuardTransient {
      * Requirements: caller is an approved worker (Active or Idle: not Pending, not removed)
      * covering `domain` (<= 47) and listing fewer than {maxModelsPerOwner} models; non-empty
      * CID in {CidText}'s form (lowercase base32 CIDv1) not listed before; at most 12 attributes; if the CID is a TMC outcome, the caller
-     * submitted it and its verdict is Accepted (see the contract's provenance rule), else the
+     * submitted it, its verdict is Accepted and `domain` is its task's domain (see the
+     * contract's provenance rule), else the
      * caller committed keccak256(cid ++ caller) on the TMC in an earlier block (commitCid:
      * commit-reveal, so nobody who saw the CID pending can list it first).
      * Emits a {ModelAdded} event.
@@ -321,6 +327,9 @@ contract ModelsManager is ReentrancyGuardTransient {
         if (worker != address(0)) {
             if (worker != msg.sender) revert ModelsNotOutcomeOwner(taskId, worker);
             if (verdict != ITasksOutcomes.Verdict.Accepted) revert ModelsOutcomeNotAccepted(taskId, verdict);
+            // the outcome's acceptance vouches for its task's domain only (held-out pass of 2026-12-05)
+            uint32 trained = tmc.taskDomain(taskId);
+            if (trained != domain) revert ModelsOutcomeDomainMismatch(taskId, trained, domain);
         } else {
             bytes32 commitment = keccak256(abi.encodePacked(cid, msg.sender));
             if (!tmc.committedBefore(commitment)) revert ModelsCidNotCommitted(commitment);

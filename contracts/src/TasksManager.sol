@@ -713,6 +713,11 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
         return _committedBefore(commitment);
     }
 
+    /// @inheritdoc ITasksOutcomes
+    function taskDomain(uint256 taskId) external view returns (uint32) {
+        return _reqs[taskId].domain;
+    }
+
     function _committedBefore(bytes32 commitment) internal view returns (bool) {
         uint256 committedAt = cidCommits[commitment];
         return committedAt != 0 && committedAt < block.number;

@@ -207,6 +207,37 @@ contract ModelsManagerFuzzTest is Fixture {
         mmc.addModel(cidFor("outcome"), "desc", DOMAIN, _env(1, 1));
     }
 
+    /// An accepted outcome is listed in its task's domain only (held-out pass of 2026-12-05): a
+    /// worker covering two domains could list it in the other one, where the requester's
+    /// acceptance (outcomeOf) vouched for a domain the task never asked for.
+    function testFuzz_addModel_outcomeInItsTaskDomainOnly(uint32 otherSeed) public {
+        uint32 other = uint32(_bound(otherSeed, 0, 46));
+        if (other >= DOMAIN) ++other; // any domain code but the task's
+        address w = _actor("two-domain worker");
+        _worker(w, (1 << DOMAIN) | (uint256(1) << other), 1000); // the pool's best: offered first
+        uint256 id = _task(1, 1e9);
+        vm.prank(requester);
+        tmc.allocateTask(id);
+        vm.assertEq(tmc.offerees(id)[0], w, "offered");
+        vm.prank(w);
+        tmc.acceptOffer(id);
+        _commit(w, cidFor("two-domain outcome"));
+        vm.prank(w);
+        tmc.submitOutcome(id, cidFor("two-domain outcome"));
+        vm.prank(requester);
+        tmc.reviewOutcome(id, w, 5, true);
+        vm.assertEq(tmc.taskDomain(id), DOMAIN, "task domain");
+        vm.expectRevert(abi.encodeWithSelector(ModelsManager.ModelsOutcomeDomainMismatch.selector, id, DOMAIN, other));
+        vm.prank(w);
+        mmc.addModel(cidFor("two-domain outcome"), "desc", other, _env(1, 1));
+        vm.prank(w);
+        uint256 modelId = mmc.addModel(cidFor("two-domain outcome"), "desc", DOMAIN, _env(1, 1));
+        vm.assertEq(mmc.modelOfCid(keccak256(bytes(cidFor("two-domain outcome")))), modelId, "listed in its domain");
+        _commit(w, cidFor("own upload")); // an own upload lists in any domain its owner covers
+        vm.prank(w);
+        mmc.addModel(cidFor("own upload"), "desc", other, _env(1, 1));
+    }
+
     // ------------------------------------------------------------------ allocateModel
 
     function testFuzz_allocateModel(uint8 n, uint80 price, bool sharing) public {

@@ -68,6 +68,11 @@ def test_outcome_download_and_sharing_follow_provenance(
     assert r.status_code == 422, r.text
     [issue] = r.json()["detail"]
     assert issue["loc"] == ["body", "env", "agents"] and issue["type"] == "env_mismatch_card"
+    # its requester's acceptance vouches for the task's domain (0), not another one
+    r = client.post(f"{P}/models", json=share | {"domain": 1}, headers=login(names[owner]))
+    assert r.status_code == 409, r.text
+    assert r.json()["detail"]["rule"] == "models_outcome_domain_mismatch"
+    assert "domain 0" in r.json()["detail"]["msg"]
     r = client.post(f"{P}/models", json=share, headers=login(names[owner]))
     assert r.status_code == 201, r.text
     assert r.json()["owner"] == owner and r.json()["cid"] == cid

@@ -707,10 +707,11 @@ def commit_cid(body: CommitmentCreate, user: CurrentUser, chain: ChainDep) -> Co
     return CommitmentPublic(commitment=body.commitment.lower(), block=committed_at)
 
 
-def _check_provenance(chain: ChainService, owner: str, cid: str) -> bool:
+def _check_provenance(chain: ChainService, owner: str, cid: str, domain: int) -> bool:
     """The MMC's provenance rule (addModel reverts the same way), asked before the store is
-    read: a task's outcome is listed only by its worker, once its requester accepted it.
-    Whether ``cid`` is a task's outcome (else an own upload: :func:`_ensure_committed`)."""
+    read: a task's outcome is listed only by its worker, once its requester accepted it, in
+    its task's domain. Whether ``cid`` is a task's outcome (else an own upload:
+    :func:`_ensure_committed`)."""
     worker, task_id, verdict = chain.call(chain.platform.tmc, "outcomeOf", cid_hash(cid))
     if not int(worker, 16):
         return False
@@ -722,6 +723,11 @@ def _check_provenance(chain: ChainService, owner: str, cid: str) -> bool:
         raise RuleError(409, "models_outcome_not_accepted",
                         f"{cid} is an outcome of task {task_id} its requester has not accepted "
                         f"({Verdict(verdict).name.lower()}): it is listed once accepted")
+    trained = int(chain.call(chain.platform.tmc, "taskDomain", task_id))
+    if trained != domain:
+        raise RuleError(409, "models_outcome_domain_mismatch",
+                        f"{cid} is the outcome of task {task_id}, posted in domain {trained}: "
+                        f"it is listed in that domain, not {domain}")
     return True
 
 
@@ -769,7 +775,7 @@ def share_model(
     declared environment differs from the bundle's card or the bundle is not a model the
     workers can use (``_check_bundle``: nothing is sent to the chain), 409
     ``model_already_listed``, and the MMC's provenance rule (403 ``models_not_outcome_owner``,
-    409 ``models_outcome_not_accepted``)."""
+    409 ``models_outcome_not_accepted``, ``models_outcome_domain_mismatch``)."""
     declared = _env_spec(body.env, ("body", "env"))
     # the chain's cheap refusals before the store is read (the bundle check fetches up to
     # 64 MiB of weights): anyone can sign in and name any CID
@@ -779,7 +785,7 @@ def share_model(
     listed = int(chain.call(chain.platform.mmc, "modelOfCid", cid_hash(body.cid)))
     if listed:
         raise RuleError(409, "model_already_listed", f"{body.cid} is listed as model {listed}")
-    outcome = _check_provenance(chain, user.address, body.cid)
+    outcome = _check_provenance(chain, user.address, body.cid, body.domain)
     _check_card_env(store, body.cid, declared)
     _check_published(store, body.cid)
     _check_bundle(store, body.cid)
