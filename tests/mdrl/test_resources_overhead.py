@@ -94,3 +94,19 @@ def test_the_final_evaluation_dispatches_as_evaluate_groups_its_chunks() -> None
 
     assert dispatch_s(10) == pytest.approx(1_000 * resources.ROLLOUT_STEP_S)
     assert dispatch_s(30) == pytest.approx(2 * 1_000 * resources.ROLLOUT_STEP_S)
+
+
+def test_a_jobs_logs_are_bounded_by_its_budget_and_deadline() -> None:
+    """Each update appends a metrics row and a progress line: the updates a job may run are
+    its step budget's, and no more than its time (budget or deadline) holds at a quarter of
+    the estimated update time; a week of one-step updates is tens of GB of logs."""
+    steps = spec(TINY | {"horizon": 8}, {"steps": 8_000})
+    assert resources.max_updates(steps) == 1_000
+    assert resources.log_bytes(steps) == 1_000 * resources.LOG_BYTES_PER_UPDATE
+    assert resources.max_updates(steps, seconds=0.0) == 1  # a deadline now: the one it starts
+    week = spec(TINY, {"minutes": 7 * 24 * 60})
+    fastest = update_seconds(week) * resources.FASTEST_UPDATE_FRACTION
+    assert resources.max_updates(week) == int(7 * 24 * 3600 / fastest) + 1
+    assert resources.log_bytes(week) > 10 * 2**30
+    hour = 3600.0  # the deadline, sooner than the budget, bounds it
+    assert resources.max_updates(week, seconds=hour) == int(hour / fastest) + 1

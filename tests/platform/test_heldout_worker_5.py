@@ -12,7 +12,7 @@ import pytest
 from backend.chain.platform import OfferState
 from workers.mdrl.trainingspec import SpecError, TrainingSpec
 
-from .helpers import post_task
+from .helpers import TINY_SPEC, post_task
 from .test_handler import handler_for
 
 #: CMTL's joint actor has A**N outputs: 5 actions (4 moves + idle) and 9 agents is 5**9 ~ 2M,
@@ -110,3 +110,40 @@ def test_a_week_of_tiny_updates_stays_under_the_gateways_cap_and_spans_the_week(
             if curve.keep({"update": i * 181, "step": i * 181, "wall_time": i * week_s / n})]
     assert 1_000 <= len(kept) <= 5_000, len(kept)
     assert kept[-1] * week_s / n > week_s - 3600  # points into the week's last hour
+
+
+#: One env step per update for up to a week: ~300 updates a second, each a metrics row and a
+#: progress line on the worker's disk.
+TINY_UPDATES_FOR_A_DAY = {
+    "env": {"rows": 4, "cols": 4, "agents": 1},
+    "observation": {"kind": "dmtl"},
+    "algorithm": {"ppo": {"num_envs": 1, "horizon": 1, "update_epochs": 1,
+                          "num_minibatches": 1}},
+    "budget": {"minutes": 24 * 60},
+}
+
+
+def test_a_spec_whose_logs_exceed_the_workers_disk_is_declined(env, tmp_path: Path) -> None:
+    """A day of one-step updates appends a metrics row and a progress line per update, GBs
+    that no memory or time check saw: a worker with 1 GiB free took the task and filled its
+    disk. It is declined naming the disk; a usual spec on the same disk is taken, and the
+    same tiny spec on a disk of 1 TiB too."""
+    from workers.mdrl.resources import log_bytes
+
+    p, actors, store = env
+    day = TrainingSpec.from_dict(TINY_UPDATES_FOR_A_DAY)
+    assert log_bytes(day, 86_400.0) > 2**30
+    task_id, offered, _ = post_task(p, store, actors.requester, spec=TINY_UPDATES_FOR_A_DAY,
+                                    duration=86_400)
+    small = handler_for(p, offered[0], store, tmp_path / "small", disk_free=lambda _: 2**30)
+    out = small.handle(task_id, offered[0])
+    assert out["status"] == "declined", out
+    assert out["reason"].startswith("spec_exceeds_worker_disk"), out
+    assert p.tmc.offer(task_id, offered[0])["state"] == OfferState.DECLINED
+
+    usual, offered2, _ = post_task(p, store, actors.requester)
+    fine = handler_for(p, offered2[0], store, tmp_path / "fine", disk_free=lambda _: 2**30)
+    deadline = p.tmc.task(usual)["deadline"]
+    assert fine._disk_short(TrainingSpec.from_dict(TINY_SPEC), deadline) is None
+    big = handler_for(p, offered2[0], store, tmp_path / "big", disk_free=lambda _: 2**40)
+    assert big._disk_short(day, int(big.clock()) + 86_400) is None

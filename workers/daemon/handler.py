@@ -79,7 +79,13 @@ from workers.daemon.gateway import Gateway
 from workers.daemon.links import task_spec_cid
 from workers.daemon.progress_sender import LiveCurve, ProgressSender
 from workers.mdrl.env import TargetLocalizationEnv
-from workers.mdrl.resources import estimate, final_evaluation_seconds, update_seconds
+from workers.mdrl.resources import (
+    estimate,
+    final_evaluation_seconds,
+    log_bytes,
+    max_updates,
+    update_seconds,
+)
 from workers.mdrl.trainingspec import (
     JOB_EVAL_EPISODES,
     MAX_SPEC_BYTES,
@@ -196,6 +202,8 @@ class OfferHandler:
     max_jobs: int = 1
     memory_bytes: int = field(default_factory=ram_bytes)
     """RAM this worker's jobs may use together (measured); each job gets memory_bytes/max_jobs."""
+    disk_free: Callable[[Path], int] = field(default=lambda path: shutil.disk_usage(path).free)
+    """Free bytes of the disk holding a path (``_disk_short`` asks it of the data directory)."""
     checkpoint_every: int = jobs.CHECKPOINT_EVERY
     checkpoint_interval_s: float = jobs.CHECKPOINT_INTERVAL_S
     """Least seconds between two checkpoints of a job (0: every ``checkpoint_every`` updates)."""
@@ -496,7 +504,8 @@ class OfferHandler:
         # before any expert's manifest or card is fetched (up to max_offer_fetch_bytes): an
         # offer whose spec alone exceeds this worker's memory, or whose deadline passed or
         # cannot hold one update, is declined on its spec
-        early = self._memory_short(spec) or self._deadline_too_near(spec, deadline)
+        early = (self._memory_short(spec) or self._disk_short(spec, deadline)
+                 or self._deadline_too_near(spec, deadline))
         if early is not None:
             return early
         cae_card, guides = None, []  # what the run loads besides its own nets (their cards)
@@ -567,6 +576,27 @@ class OfferHandler:
         return (
             f"spec_exceeds_worker_memory: needs about {need / 2**30:.3g} GiB{extra}, this "
             f"worker has {share / 2**30:.3g} GiB per job"
+        )
+
+    def _disk_short(self, spec: TrainingSpec, deadline: int) -> str | None:
+        """Why this worker's free disk cannot hold the logs of ``spec`` (None: it can): a job
+        appends a metrics row and a progress line per update (``resources.log_bytes``), as
+        many as its budget and deadline allow, and may use half the free disk of its share
+        (the other half: checkpoints, models, the store)."""
+        try:
+            free = self.disk_free(self.data_dir if self.data_dir.exists() else Path("."))
+        except OSError:
+            return None  # not measurable here: the other checks stand
+        share = free // (2 * max(1, self.max_jobs))
+        left_s = max(0.0, deadline - self.clock())
+        need = log_bytes(spec, left_s)
+        if need <= share:
+            return None
+        return (
+            f"spec_exceeds_worker_disk: up to {max_updates(spec, left_s):,} PPO updates of "
+            f"{spec.ppo.batch_steps:,} env steps before its deadline log about "
+            f"{need / 2**30:.3g} GiB (a metrics row and a progress line each), this worker "
+            f"has {share / 2**30:.3g} GiB of disk per job"
         )
 
     def _deadline_too_near(self, spec: TrainingSpec, deadline: int) -> str | None:

@@ -328,6 +328,37 @@ def final_evaluation_seconds(spec: TrainingSpec) -> float:
             + ROLLOUT_STEP_S * dispatches)
 
 
+LOG_BYTES_PER_UPDATE = 600
+"""Bytes one PPO update adds to a job's logs that grow for its whole run: a ``metrics.csv`` row
+and a ``progress.jsonl`` line (~285 B together, measured 2026-12-04), doubled for wider
+numbers. Checkpoints are overwritten; these are not."""
+FASTEST_UPDATE_FRACTION = 0.25
+"""A time budget's updates are counted at this fraction of :func:`update_seconds`: a machine
+up to 4x quicker than the estimate runs that many more of them."""
+
+
+def max_updates(spec: TrainingSpec, seconds: float | None = None) -> int:
+    """Most PPO updates a job of ``spec`` may run: its step budget's, and no more than fit in
+    its time budget or ``seconds`` (what its deadline leaves) at FASTEST_UPDATE_FRACTION of
+    :func:`update_seconds` each."""
+    bounds = []
+    if spec.budget.steps is not None:
+        bounds.append(-(-spec.budget.steps // spec.ppo.batch_steps))
+    times = [t for t in (None if spec.budget.minutes is None else spec.budget.minutes * 60.0,
+                         seconds) if t is not None]
+    if times:
+        fastest = update_seconds(spec) * FASTEST_UPDATE_FRACTION
+        bounds.append(int(max(0.0, min(times)) / fastest) + 1)
+    return min(bounds)
+
+
+def log_bytes(spec: TrainingSpec, seconds: float | None = None) -> int:
+    """Disk a job of ``spec`` may fill with its logs (LOG_BYTES_PER_UPDATE per update of
+    :func:`max_updates`): a spec of one env step per update runs ~300 updates a second, ~15
+    GB a week of logs, which no memory or time check sees."""
+    return LOG_BYTES_PER_UPDATE * max_updates(spec, seconds)
+
+
 def worker_hours(spec: TrainingSpec) -> float:
     """Estimated hours one worker spends on ``spec`` (what a minimum payment per
     worker-hour is charged on)."""
