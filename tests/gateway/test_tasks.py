@@ -282,6 +282,11 @@ def test_selection_goes_into_the_stored_spec(
             {"algorithm": {"ppo": {"anneal_lr": True}}, "budget": {"minutes": 10}},
             ["body", "algorithm", "ppo", "anneal_lr"],
         ),
+        # CMTL's joint actions beyond what a worker's observer is built for (5**16)
+        (
+            {"env": {"rows": 10, "cols": 10, "agents": 16}, "observation": {"kind": "cmtl"}},
+            ["body", "observation", "kind"],
+        ),
         ({"algorithm": {"preset": "nope"}}, ["body", "algorithm", "preset"]),
         ({"algorithm": {"ppo": {"num_envs": 0}}}, ["body", "algorithm", "ppo", "num_envs"]),
         ({"experts": ["../../etc/passwd"]}, ["body", "experts", 0]),
@@ -312,9 +317,10 @@ def test_malformed_task_is_422_naming_the_field(
 @pytest.mark.parametrize(
     ("change", "rule"),
     [
-        # CMTL with 16 agents: a joint action space of 5**16 (the worker would try petabytes)
+        # CMTL with 8 agents: a joint action space of 5**8, masks of it per sample (~13 GiB;
+        # 9 agents and more are refused by the spec's own rule, observation.kind)
         (
-            {"env": {"rows": 10, "cols": 10, "agents": 16}, "observation": {"kind": "cmtl"}},
+            {"env": {"rows": 10, "cols": 10, "agents": 8}, "observation": {"kind": "cmtl"}},
             "spec_exceeds_memory_limit",
         ),
         # a huge batch on the largest grid: every field in bounds, the product is not
