@@ -116,7 +116,7 @@ def test_experts_from_the_mmc_for_a_spec_without_env_is_a_usage_error(
     [
         (("--domains", "abc"), ("--domains", "'abc'")),
         (("--domains", "5-2"), ("--domains", "0-47")),
-        (("--domains", "all"), ("--domains", "1 to 4 domains")),
+        (("--domains", "all"), ("--domains", "'all'")),
         (("--domains", "0-9"), ("--domains", "got 10")),
         (("--loglevel", "LOUD"), ("--loglevel", "'LOUD'")),
         (("--metrics-port", "70000"), ("--metrics-port",)),

@@ -14,6 +14,7 @@ from workers.mdrl.trainingspec import SpecError, TrainingSpec
 
 from .helpers import TINY_SPEC, post_task
 from .test_handler import handler_for
+from .test_heldout_worker_4 import TINY_UPDATES as TINY_UPDATES_40
 
 #: CMTL's joint actor has A**N outputs: 5 actions (4 moves + idle) and 9 agents is 5**9 ~ 2M,
 #: over the observer's MAX_JOINT_ACTIONS (2**20), yet within every per-field bound of a task
@@ -59,14 +60,7 @@ def test_cmtl_at_the_joint_action_bound_is_still_taken(agents: int, moves: int) 
 
 
 #: Updates of one env step each (``num_envs`` 1, ``horizon`` 1): ~300 a second.
-TINY_UPDATES = {
-    "env": {"rows": 4, "cols": 4, "agents": 1, "max_steps": 20, "idle_limit": 20},
-    "observation": {"kind": "odmtl", "window": 3},
-    "algorithm": {"ppo": {"num_envs": 1, "horizon": 1, "update_epochs": 1,
-                          "num_minibatches": 1}},
-    "budget": {"steps": 300},
-    "seed": 5,
-}
+TINY_UPDATES = {**TINY_UPDATES_40, "budget": {"steps": 300}}
 
 
 def test_a_job_of_tiny_updates_posts_a_thinned_live_curve_that_ends_with_the_run(
@@ -112,15 +106,9 @@ def test_a_week_of_tiny_updates_stays_under_the_gateways_cap_and_spans_the_week(
     assert kept[-1] * week_s / n > week_s - 3600  # points into the week's last hour
 
 
-#: One env step per update for up to a week: ~300 updates a second, each a metrics row and a
+#: One env step per update for a day: ~300 updates a second, each a metrics row and a
 #: progress line on the worker's disk.
-TINY_UPDATES_FOR_A_DAY = {
-    "env": {"rows": 4, "cols": 4, "agents": 1},
-    "observation": {"kind": "dmtl"},
-    "algorithm": {"ppo": {"num_envs": 1, "horizon": 1, "update_epochs": 1,
-                          "num_minibatches": 1}},
-    "budget": {"minutes": 24 * 60},
-}
+TINY_UPDATES_FOR_A_DAY = {**TINY_UPDATES, "budget": {"minutes": 24 * 60}}
 
 
 def test_a_spec_whose_logs_exceed_the_workers_disk_is_declined(env, tmp_path: Path) -> None:

@@ -20,8 +20,6 @@ from workers.daemon.capabilities import Capabilities, measure
 
 log = logging.getLogger(__name__)
 
-#: Every code the UMC accepts (0-47), for 'all'.
-ALL_DOMAINS = tuple(range(48))
 #: A worker covers at most this many domains (UMC.MAX_WORKER_DOMAINS).
 MAX_WORKER_DOMAINS = 4
 #: Domains a worker serves when none are given (tasks default to domain 0).
@@ -29,9 +27,7 @@ DEFAULT_DOMAINS = "0-3"
 
 
 def parse_domains(text: str) -> tuple[int, ...]:
-    """'0,3,5-7' -> (0, 3, 5, 6, 7); 'all' -> every UMC domain code."""
-    if text.strip() == "all":
-        return ALL_DOMAINS
+    """'0,3,5-7' -> (0, 3, 5, 6, 7), codes the UMC accepts (0-47)."""
     out: set[int] = set()
     for part in text.split(","):
         part = part.strip()
@@ -45,7 +41,7 @@ def parse_domains(text: str) -> tuple[int, ...]:
                 out.add(int(part))
         except ValueError:
             raise ValueError(
-                f"--domains: expected codes like '0,3,5-7' or 'all', got {text!r}"
+                f"--domains: expected codes like '0,3,5-7', got {text!r}"
             ) from None
     if not out or min(out) < 0 or max(out) > 47:
         raise ValueError(f"--domains: codes must be in 0-47, got {text!r}")

@@ -320,8 +320,8 @@ def final_evaluation_seconds(spec: TrainingSpec) -> float:
     deadline cannot hold it delivers late. Its FLOPs, plus ROLLOUT_STEP_S per time step of
     each chunk of episodes stepped together (``evaluate.default_batch``: the Python and torch
     dispatch of an observe, actor pass and env step, which a small net's FLOPs do not show)."""
-    chunks = -(-JOB_EVAL_EPISODES // default_batch(spec.env, JOB_EVAL_EPISODES))
-    together = max(1, STEP_ENVS // default_batch(spec.env, JOB_EVAL_EPISODES))
+    batch = default_batch(spec.env, JOB_EVAL_EPISODES)
+    chunks, together = -(-JOB_EVAL_EPISODES // batch), max(1, STEP_ENVS // batch)
     dispatches = -(-chunks // together) * spec.env.max_steps
     joint_s = joint_action_seconds(spec) * JOB_EVAL_EPISODES * spec.env.max_steps
     return (final_evaluation_flops(spec) / reference_flops_per_s() + joint_s
@@ -354,8 +354,8 @@ def max_updates(spec: TrainingSpec, seconds: float | None = None) -> int:
 
 def log_bytes(spec: TrainingSpec, seconds: float | None = None) -> int:
     """Disk a job of ``spec`` may fill with its logs (LOG_BYTES_PER_UPDATE per update of
-    :func:`max_updates`): a spec of one env step per update runs ~300 updates a second, ~15
-    GB a week of logs, which no memory or time check sees."""
+    :func:`max_updates`): a spec of one env step per update runs ~300 updates a second,
+    ~50 GB of logs in a week, which no memory or time check sees."""
     return LOG_BYTES_PER_UPDATE * max_updates(spec, seconds)
 
 
