@@ -84,6 +84,10 @@ contract ModelsManager is ReentrancyGuardTransient {
     uint256 internal constant ONE = QoSMath.ONE;
     uint256 internal constant MODELS_PER_WORD = 7;
     uint256 internal constant REVIEWED_SHIFT = 224;
+    /// Longest model description {addModel} takes (bytes): the gateway takes at most 1,024
+    /// characters, at most 4 bytes each in UTF-8 (docs/chain.md, "Held-out pass of
+    /// 2026-12-05, second"); the TMC's task descriptions have the same cap.
+    uint256 public constant MAX_DESCRIPTION_BYTES = 4096;
 
     enum Metric {
         Model, // Eq. 10-13
@@ -173,6 +177,7 @@ contract ModelsManager is ReentrancyGuardTransient {
     error ModelsNotRequester(address account);
     error ModelsBadDomain(uint32 domain);
     error ModelsEmptyCid();
+    error ModelsDescriptionTooLong(uint256 length, uint256 maximum);
     /// The CID is not in the one text form the chain records (lowercase base32 CIDv1).
     error ModelsCidNotCanonical(string cid);
     error ModelsBadEnv(uint256 length);
@@ -297,7 +302,8 @@ contract ModelsManager is ReentrancyGuardTransient {
      * environment attributes `env` (Table 5.2).
      * Requirements: caller is an approved worker (Active or Idle: not Pending, not removed)
      * covering `domain` (<= 47) and listing fewer than {maxModelsPerOwner} models; non-empty
-     * CID in {CidText}'s form (lowercase base32 CIDv1) not listed before; at most 12 attributes; if the CID is a TMC outcome, the caller
+     * CID in {CidText}'s form (lowercase base32 CIDv1) not listed before; a description of at
+     * most {MAX_DESCRIPTION_BYTES} bytes; at most 12 attributes; if the CID is a TMC outcome, the caller
      * submitted it, its verdict is Accepted and `domain` is its task's domain (see the
      * contract's provenance rule), else the
      * caller committed keccak256(cid ++ caller) on the TMC in an earlier block (commitCid:
@@ -319,6 +325,9 @@ contract ModelsManager is ReentrancyGuardTransient {
         if (owned >= maxOwned) revert ModelsOwnerLimit(msg.sender, maxOwned);
         if (bytes(cid).length == 0) revert ModelsEmptyCid();
         if (!CidText.isCanonical(cid)) revert ModelsCidNotCanonical(cid);
+        if (bytes(description).length > MAX_DESCRIPTION_BYTES) {
+            revert ModelsDescriptionTooLong(bytes(description).length, MAX_DESCRIPTION_BYTES);
+        }
         if (env.length > MAX_ENV_DIMS) revert ModelsBadEnv(env.length);
         bytes32 cidHash = keccak256(bytes(cid));
         uint256 listed = modelOfCid[cidHash];
@@ -540,8 +549,31 @@ contract ModelsManager is ReentrancyGuardTransient {
         return _allocs[allocId];
     }
 
+    /// @dev Every model ever listed in `domain`, in listing order (thesis Domain Models). Its
+    /// gas grows with the domain's models, so past some thousands an eth_call runs out of gas:
+    /// read {domainModelsPage} instead (kept for small domains and existing callers).
     function domainModels(uint32 domain) external view returns (uint32[] memory) {
         return _domainModels[domain];
+    }
+
+    /**
+     * @dev The models of `domain` at positions [offset, offset + count) of its listing order
+     * (as {UsersManager.getWorkers} pages workers) and how many it has in all: the page is
+     * shorter at the end and empty past it, and its gas is bounded by `count`.
+     */
+    function domainModelsPage(uint32 domain, uint256 offset, uint256 count)
+        external
+        view
+        returns (uint32[] memory page, uint256 total)
+    {
+        uint32[] storage list = _domainModels[domain];
+        total = list.length;
+        uint256 n = offset < total ? total - offset : 0;
+        if (n > count) n = count;
+        page = new uint32[](n);
+        for (uint256 i; i < n; ++i) {
+            page[i] = list[offset + i]; // offset + i < total
+        }
     }
 
     // ---------------------------------------------------------------------------- internal

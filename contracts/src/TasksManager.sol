@@ -100,6 +100,14 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
     /// unreviewed outcome can wait after the deadline.
     uint32 public constant MAX_REVIEW_WINDOW = 90 days;
     uint256 internal constant ID_MASK = (1 << 32) - 1;
+    /// Longest task description {addTask} takes (bytes): the gateway's is the spec's CID (at
+    /// most 128 characters) and a model's description is at most 1,024 characters, 4 bytes
+    /// each in UTF-8 at most (docs/chain.md, "Held-out pass of 2026-12-05, second").
+    uint256 public constant MAX_DESCRIPTION_BYTES = 4096;
+    /// Commitments {commitCid} keeps per worker: its last MAX_LIVE_COMMITMENTS, in a ring; a
+    /// newer one evicts the oldest still unspent ({CidCommitmentEvicted}), so a worker's
+    /// commitments take at most this many slots (and as many ring slots) whatever it commits.
+    uint256 public constant MAX_LIVE_COMMITMENTS = 16;
 
     enum TaskStatus {
         None,
@@ -181,6 +189,7 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
     error TasksTooLateToOffer(uint256 taskId, uint40 deadline);
     error TasksReviewWindowClosed(uint256 taskId, uint256 reviewEnd);
     error TasksBadPayment(uint256 value, uint8 numWorkers);
+    error TasksDescriptionTooLong(uint256 length, uint256 maximum);
     error TasksNotOpen(uint256 taskId, TaskStatus status);
     error TasksDeadlinePassed(uint256 taskId, uint40 deadline);
     error TasksDeadlineNotPassed(uint256 taskId, uint40 deadline);
@@ -242,6 +251,9 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
     event SlotsCancelled(uint256 indexed taskId, uint8 cancelled, uint8 numWorkers);
     event ModelsListingSet(address models);
     event CidCommitted(address indexed worker, bytes32 indexed commitment);
+    /// A worker's commitment made MAX_LIVE_COMMITMENTS commitments ago and not spent, dropped
+    /// by its newer one (it reveals nothing any more: commit again).
+    event CidCommitmentEvicted(address indexed worker, bytes32 indexed commitment);
 
     IUsersManager public immutable umc;
     /// The MMC, set once by an admin after both are deployed (each names the other).
@@ -272,8 +284,15 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
     mapping(address => uint256) public credits;
     /// Outcome provenance: keccak256(cid) -> submitting worker and task.
     mapping(bytes32 => OutcomeRecord) internal _outcomes;
-    /// @dev Block in which each {cidCommitment} was committed ({commitCid}); 0 if never.
-    mapping(bytes32 commitment => uint256 blockNumber) public cidCommits;
+    /// @dev Each live {cidCommitment} ({commitCid}): the block it was committed in (bits
+    /// 0-63, {cidCommits}), its committer's UMC worker id (64-95) and its position in that
+    /// worker's ring (96-103); 0 if never committed, spent or evicted.
+    mapping(bytes32 commitment => uint256 record) internal _commits;
+    /// @dev Per worker id, its last MAX_LIVE_COMMITMENTS commitments by ring position.
+    mapping(uint32 workerId => mapping(uint256 position => bytes32 commitment)) internal _commitRing;
+    /// @dev Per worker id, the commitments it made in all (its next ring position mod
+    /// MAX_LIVE_COMMITMENTS).
+    mapping(uint32 workerId => uint256 made) internal _commitsMade;
 
     constructor(IUsersManager umc_, uint64 w1_, uint32 acceptWindow_, uint32 reviewWindow_, uint256 gpus) {
         umc = umc_;
@@ -356,7 +375,8 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
 
     /**
      * @dev Creates a training task and escrows `msg.value` = reward * numWorkers.
-     * Requirements: caller is a registered requester; 1 <= numWorkers <= 16; domain <= 47;
+     * Requirements: caller is a registered requester; a description of at most
+     * {MAX_DESCRIPTION_BYTES} bytes; 1 <= numWorkers <= 16; domain <= 47;
      * thresholds <= 1e6; acceptWindow + minWorkTime <= duration <= maxDuration (s);
      * msg.value a multiple of numWorkers; the reward per worker at least
      * {minRewardForDuration}(duration), i.e. minRewardPerHour per hour of the task's duration
@@ -366,6 +386,9 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
      */
     function addTask(TaskParams calldata p) external payable returns (uint256 taskId) {
         if (!umc.isRequester(msg.sender)) revert TasksNotRequester(msg.sender);
+        if (bytes(p.description).length > MAX_DESCRIPTION_BYTES) {
+            revert TasksDescriptionTooLong(bytes(p.description).length, MAX_DESCRIPTION_BYTES);
+        }
         if (p.numWorkers == 0 || p.numWorkers > MAX_WORKERS) revert TasksBadWorkerCount(p.numWorkers);
         if (p.domain > Packed.MAX_DOMAIN) revert TasksBadDomain(p.domain);
         if (p.minReputation > QoSMath.ONE) revert TasksBadThreshold(p.minReputation);
@@ -673,7 +696,7 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
         }
         bytes32 commitment = cidCommitment(cid, msg.sender);
         if (!_committedBefore(commitment)) revert TasksCidNotCommitted(commitment);
-        delete cidCommits[commitment];
+        delete _commits[commitment]; // its ring slot keeps the hash until overwritten: harmless
         (rec.worker, rec.taskId) = (msg.sender, uint64(taskId));
         o.state = OfferState.Submitted;
         emit OutcomeSubmitted(taskId, msg.sender, cid);
@@ -690,7 +713,14 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
      * capabilities, or removed, may still hold an accepted job and must be able to submit
      * it); otherwise {TasksNotWorker}. A stranger's registration (Pending, never approved,
      * never offered anything) does not let it write commitment slots.
-     * Emits a {CidCommitted} event.
+     * Bounded: a worker's commitments live in a ring of MAX_LIVE_COMMITMENTS; its new
+     * commitment takes the ring's oldest position and evicts the commitment there if that one
+     * is still unspent and was committed by this worker at that position (a commitment another
+     * worker committed first is that worker's to evict, never this one's). So a worker's
+     * commitments hold at most MAX_LIVE_COMMITMENTS record slots, and a live commitment is
+     * evicted only by 16 newer commitments of its own committer (the daemon reveals each
+     * within one upload; docs/chain.md, "Held-out pass of 2026-12-05, second").
+     * Emits a {CidCommitted} event, and a {CidCommitmentEvicted} event when one is evicted.
      */
     function commitCid(bytes32 commitment) external {
         (uint32 id, uint256 word) = umc.workerRecord(msg.sender);
@@ -698,9 +728,29 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
         if (id == 0 || (status != Packed.ACTIVE && status != Packed.IDLE && !_acceptedBefore(id, word))) {
             revert TasksNotWorker(msg.sender);
         }
-        if (cidCommits[commitment] != 0) return;
-        cidCommits[commitment] = block.number;
+        if (_commits[commitment] != 0) return;
+        uint256 made = _commitsMade[id];
+        uint256 pos = made % MAX_LIVE_COMMITMENTS;
+        if (made >= MAX_LIVE_COMMITMENTS) {
+            bytes32 oldest = _commitRing[id][pos];
+            uint256 rec = _commits[oldest];
+            // still live, this worker's, and recorded at this position (not spent and made again since)
+            if (rec != 0 && uint32(rec >> 64) == id && uint8(rec >> 96) == pos) {
+                delete _commits[oldest];
+                emit CidCommitmentEvicted(msg.sender, oldest);
+            }
+        }
+        _commitRing[id][pos] = commitment;
+        _commitsMade[id] = made + 1;
+        // block.number < 2^64, id < 2^32, pos < 16: the fields do not overlap
+        _commits[commitment] = block.number | (uint256(id) << 64) | (pos << 96);
         emit CidCommitted(msg.sender, commitment);
+    }
+
+    /// @dev Block in which `commitment` was committed ({commitCid}); 0 if never, or once
+    /// spent ({submitOutcome}) or evicted (a newer commitment of its committer's ring).
+    function cidCommits(bytes32 commitment) external view returns (uint256) {
+        return uint64(_commits[commitment]);
     }
 
     /// @dev What {commitCid} takes for `cid` revealed by `worker`: keccak256(cid ++ worker).
@@ -719,7 +769,7 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
     }
 
     function _committedBefore(bytes32 commitment) internal view returns (bool) {
-        uint256 committedAt = cidCommits[commitment];
+        uint256 committedAt = uint64(_commits[commitment]);
         return committedAt != 0 && committedAt < block.number;
     }
 
@@ -752,8 +802,31 @@ contract TasksManager is ITasksOutcomes, ReentrancyGuardTransient {
         return _offerees[taskId];
     }
 
+    /// @dev Every task ever posted in `domain`, in posting order (thesis Domain Tasks). Its
+    /// gas grows with the domain's tasks, so past some thousands an eth_call runs out of gas:
+    /// read {domainTasksPage} instead (kept for small domains and existing callers).
     function domainTasks(uint32 domain) external view returns (uint256[] memory) {
         return _domainTasks[domain];
+    }
+
+    /**
+     * @dev The tasks of `domain` at positions [offset, offset + count) of its posting order
+     * (as {UsersManager.getWorkers} pages workers) and how many it has in all: the page is
+     * shorter at the end and empty past it, and its gas is bounded by `count`.
+     */
+    function domainTasksPage(uint32 domain, uint256 offset, uint256 count)
+        external
+        view
+        returns (uint256[] memory page, uint256 total)
+    {
+        uint256[] storage list = _domainTasks[domain];
+        total = list.length;
+        uint256 n = offset < total ? total - offset : 0;
+        if (n > count) n = count;
+        page = new uint256[](n);
+        for (uint256 i; i < n; ++i) {
+            page[i] = list[offset + i]; // offset + i < total
+        }
     }
 
     /// @inheritdoc ITasksOutcomes

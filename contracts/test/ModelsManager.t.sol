@@ -94,6 +94,45 @@ contract ModelsManagerFuzzTest is Fixture {
         mmc.addModel(cid, "copy", DOMAIN, env);
     }
 
+    /// @dev domainModelsPage: positions [offset, offset + count) in listing order and the total;
+    /// shorter at the end, empty for count 0 or an offset at or past the end.
+    function testFuzz_domainModelsPage(uint8 listed, uint256 offset, uint256 count) public {
+        uint256 n = _bound(listed, 0, 8);
+        uint256[] memory ids = new uint256[](n);
+        for (uint256 i; i < n; ++i) {
+            ids[i] = _model(i % 2 == 0 ? owner : owner2, cidFor(abi.encode("page", i)), 1, 2);
+        }
+        offset = offset % 3 == 0 ? offset : _bound(offset, 0, n + 2);
+        count = count % 3 == 0 ? count : _bound(count, 0, n + 2);
+        (uint32[] memory page, uint256 total) = mmc.domainModelsPage(DOMAIN, offset, count);
+        vm.assertEq(total, n, "total");
+        uint256 expected = offset >= n ? 0 : (n - offset < count ? n - offset : count);
+        vm.assertEq(page.length, expected, "page length");
+        for (uint256 i; i < page.length; ++i) vm.assertEq(page[i], ids[offset + i], "ids in listing order");
+        (page, total) = mmc.domainModelsPage(DOMAIN, 0, 0);
+        vm.assertEq(page.length + total, n, "count 0: empty page, the total");
+        (page,) = mmc.domainModelsPage(DOMAIN, n, 1);
+        vm.assertEq(page.length, 0, "offset at the end");
+        (page,) = mmc.domainModelsPage(DOMAIN, 0, type(uint256).max);
+        vm.assertEq(page.length, n, "count past the end");
+        vm.assertEq(mmc.domainModels(DOMAIN).length, n, "the whole list agrees");
+    }
+
+    /// @dev A model's description is at most MAX_DESCRIPTION_BYTES (the gateway's 1,024
+    /// characters, at most 4 bytes each).
+    function testFuzz_addModel_descriptionCap(uint16 extra) public {
+        uint256 cap = mmc.MAX_DESCRIPTION_BYTES();
+        string memory cid = cidFor("long description");
+        _commit(owner, cid);
+        uint256 len = cap + _bound(extra, 1, 4096);
+        vm.expectRevert(abi.encodeWithSelector(ModelsManager.ModelsDescriptionTooLong.selector, len, cap));
+        vm.prank(owner);
+        mmc.addModel(cid, string(new bytes(len)), DOMAIN, _env(1, 2));
+        vm.prank(owner);
+        mmc.addModel(cid, string(new bytes(cap)), DOMAIN, _env(1, 2));
+        vm.assertEq(mmc.modelOfCid(keccak256(bytes(cid))), 1, "listed at the cap");
+    }
+
     function testFuzz_addModel_rejects(address caller, uint32 domain, uint8 extra) public {
         vm.assume(caller != owner && caller != owner2);
         vm.expectRevert(abi.encodeWithSelector(ModelsManager.ModelsNotWorker.selector, caller));

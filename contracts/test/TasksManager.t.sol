@@ -153,6 +153,43 @@ contract TasksManagerFuzzTest is Fixture {
         vm.assertEq(tmc.domainTasks(DOMAIN).length, 1, "domain list");
     }
 
+    /// @dev domainTasksPage: positions [offset, offset + count) in posting order and the total;
+    /// shorter at the end, empty for count 0 or an offset at or past the end.
+    function testFuzz_domainTasksPage(uint8 posted, uint256 offset, uint256 count) public {
+        uint256 n = _bound(posted, 0, 12);
+        for (uint256 i; i < n; ++i) _task(1, 1e9);
+        offset = offset % 3 == 0 ? offset : _bound(offset, 0, n + 2);
+        count = count % 3 == 0 ? count : _bound(count, 0, n + 2);
+        (uint256[] memory page, uint256 total) = tmc.domainTasksPage(DOMAIN, offset, count);
+        vm.assertEq(total, n, "total");
+        uint256 expected = offset >= n ? 0 : (n - offset < count ? n - offset : count);
+        vm.assertEq(page.length, expected, "page length");
+        for (uint256 i; i < page.length; ++i) vm.assertEq(page[i], offset + i + 1, "ids in posting order");
+        (page, total) = tmc.domainTasksPage(DOMAIN, 0, 0);
+        vm.assertEq(page.length + total, n, "count 0: empty page, the total");
+        (page,) = tmc.domainTasksPage(DOMAIN, n, 1);
+        vm.assertEq(page.length, 0, "offset at the end");
+        (page,) = tmc.domainTasksPage(DOMAIN, 0, type(uint256).max);
+        vm.assertEq(page.length, n, "count past the end");
+        vm.assertEq(tmc.domainTasks(DOMAIN).length, n, "the whole list agrees");
+        (page, total) = tmc.domainTasksPage(DOMAIN + 1, 0, 5);
+        vm.assertEq(page.length + total, 0, "another domain");
+    }
+
+    /// @dev A task's description is at most MAX_DESCRIPTION_BYTES (the gateway's is a CID).
+    function testFuzz_addTask_descriptionCap(uint16 extra) public {
+        uint256 cap = tmc.MAX_DESCRIPTION_BYTES();
+        TasksManager.TaskParams memory p = _params(1);
+        p.description = string(new bytes(cap));
+        vm.prank(requester);
+        tmc.addTask{value: 1e9}(p);
+        uint256 len = cap + _bound(extra, 1, 4096);
+        p.description = string(new bytes(len));
+        vm.expectRevert(abi.encodeWithSelector(TasksManager.TasksDescriptionTooLong.selector, len, cap));
+        vm.prank(requester);
+        tmc.addTask{value: 1e9}(p);
+    }
+
     function testFuzz_addTask_rejects(address caller, uint8 n, uint32 threshold, uint40 duration, uint256 extra) public {
         vm.assume(caller != requester);
         vm.deal(caller, 1 ether);
@@ -426,6 +463,40 @@ contract TasksManagerFuzzTest is Fixture {
         vm.assertEq(vm.getRecordedLogs().length, 0, "no event for a repeated commitment");
         vm.assertEq(tmc.cidCommits(commitment), first, "first block kept");
         vm.assertTrue(tmc.committedBefore(commitment), "committed before this block");
+    }
+
+    /// @dev A worker keeps its last MAX_LIVE_COMMITMENTS commitments: each newer one evicts
+    /// the oldest still unspent ({CidCommitmentEvicted}), never a commitment another worker
+    /// made first, and a repeat of a live one changes nothing (docs/chain.md, "Held-out pass
+    /// of 2026-12-05, second").
+    function testFuzz_commitCid_ring(uint8 extra, bytes32 seed) public {
+        address w = workers[0];
+        uint256 ring = tmc.MAX_LIVE_COMMITMENTS();
+        bytes32 theirs = keccak256(abi.encode(seed, "theirs"));
+        vm.prank(workers[1]);
+        tmc.commitCid(theirs);
+        vm.recordLogs();
+        vm.prank(w);
+        tmc.commitCid(theirs); // live already: a no-op, not in w's ring
+        vm.assertEq(vm.getRecordedLogs().length, 0, "no event for a live commitment");
+        uint256 n = ring + _bound(extra, 1, 3 * ring);
+        bytes32[] memory hs = new bytes32[](n);
+        for (uint256 i; i < n; ++i) {
+            hs[i] = keccak256(abi.encode(seed, i));
+            if (i >= ring) {
+                vm.expectEmit(address(tmc));
+                emit TasksManager.CidCommitmentEvicted(w, hs[i - ring]);
+            }
+            vm.expectEmit(address(tmc));
+            emit TasksManager.CidCommitted(w, hs[i]);
+            vm.prank(w);
+            tmc.commitCid(hs[i]);
+            vm.roll(vm.getBlockNumber() + 1);
+        }
+        for (uint256 i; i < n; ++i) {
+            vm.assertEq(tmc.cidCommits(hs[i]) != 0, i + ring >= n, "exactly the last MAX_LIVE_COMMITMENTS live");
+        }
+        vm.assertTrue(tmc.committedBefore(theirs), "another worker's commitment is never evicted by w");
     }
 
     /// @dev Who may write a commitment slot: not a stranger's fresh registration (Pending,
