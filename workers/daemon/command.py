@@ -165,6 +165,16 @@ def worker_command(
     offer_poll_s = poll_interval_from_env()  # a bad DRLAAS_WORKER_OFFER_POLL_S fails at once
     logging.getLogger("httpx").setLevel(logging.WARNING)  # one line per progress point otherwise
     gateway = gateway or default_gateway()
+    # the daemon's variables as the handler will read them, checked before the key is made,
+    # the faucet asked or the worker registered (a bad DRLAAS_WORKER_MODEL_CACHE_BYTES failed
+    # only after all that)
+    tasks.worker_env({
+        **os.environ, "DRLAAS_WORKER_KEY": str(key), "DRLAAS_WORKER_MAX_JOBS": str(max_jobs),
+        "DRLAAS_WORKER_CHECKPOINT_EVERY": str(checkpoint_every),
+        "DRLAAS_WORKER_CHECKPOINT_INTERVAL_S": str(checkpoint_interval),
+        **({"DRLAAS_GATEWAY": gateway} if gateway else {}),
+        "DRLAAS_WORKER_DATA": str(data) if data else "",  # else set below, to its default
+    })
     settings, own_dir = worker_settings(gateway)
     configure_daemon_logging(settings.log_format)  # DRLAAS_LOG_FORMAT=json|text
     account = load_or_create_key(key)

@@ -32,6 +32,7 @@ queued again, a finished job's checkpoint and fetched models are removed).
 
 from __future__ import annotations
 
+import errno
 import json
 import logging
 import os
@@ -97,6 +98,11 @@ log = logging.getLogger(__name__)
 
 #: Where a job keeps its staged outcome bundle until it is published (``_staged_outcome``).
 OUTBOX_DIR = "outbox"
+#: Times one delivery commits its uploaded outcome's CID again when the reveal finds the
+#: commitment gone (a deep reorg dropped its block); past that the revert fails the job.
+MAX_RECOMMITS = 3
+#: The TMC's revert of a reveal whose commitment is not on chain (or not yet a block old).
+CID_NOT_COMMITTED = "TasksCidNotCommitted"
 #: Characters of a task's spec CID (its on-chain description, any text) a reason shows.
 SHOWN_CID_CHARS = 120
 #: Seconds kept free before the task deadline for upload and submitOutcome.
@@ -149,6 +155,20 @@ def node_unreachable(exc: BaseException) -> bool:
     if isinstance(exc, (requests.HTTPError, httpx.HTTPStatusError)):
         response = exc.response
         return response is None or response.status_code >= 500 or response.status_code == 429
+    return False
+
+
+def disk_full(exc: BaseException) -> bool:
+    """Whether ``exc`` (or an exception it was raised from) is a full disk or quota: staging
+    the outcome, a checkpoint or a state save on a full disk failed the job and threw away
+    its trained model, where space freed later lets a retry finish it."""
+    seen: set[int] = set()
+    current: BaseException | None = exc
+    while current is not None and id(current) not in seen:
+        seen.add(id(current))
+        if isinstance(current, OSError) and current.errno in (errno.ENOSPC, errno.EDQUOT):
+            return True
+        current = current.__cause__ or current.__context__
     return False
 
 
@@ -387,6 +407,10 @@ class OfferHandler:
         except Transient:
             raise
         except Exception as exc:  # noqa: BLE001 - any failure of the job releases the worker
+            if disk_full(exc):  # the worker's disk, not the job: keep what is trained, retry
+                raise Transient(
+                    f"the worker's disk is full (free space under {self.data_dir}; the job "
+                    f"and its trained model are kept): {exc}") from exc
             log.exception("task %s: job failed", task_id)
             return self._fail(task_id, f"{type(exc).__name__}: {exc}")
 
@@ -454,18 +478,38 @@ class OfferHandler:
             shutil.rmtree(self.job_dir(task_id) / OUTBOX_DIR, ignore_errors=True)  # published
         cid = st["cid"]
         self._flush_progress(task_id, wait_s=5.0)  # the curve is complete before the outcome
-        try:
-            rc = self._transact("submitOutcome", task_id, cid)
-        except ContractError:
-            with chain_call(f"reading the offer of task {task_id}"):
-                now = OfferState(self.platform.tmc.offer(task_id, self.address)["state"])
-            if now not in (OfferState.SUBMITTED, OfferState.REVIEWED):
-                raise
-            # an earlier try whose receipt wait timed out was mined after all
-            self._close(task_id, phase="submitted", submitted_at=self.clock())
-            return {"task_id": task_id, "status": "submitted", "cid": cid}
+        recommits = 0
+        while True:
+            try:
+                rc = self._transact("submitOutcome", task_id, cid)
+                break
+            except ContractError as exc:
+                with chain_call(f"reading the offer of task {task_id}"):
+                    now = OfferState(self.platform.tmc.offer(task_id, self.address)["state"])
+                if now in (OfferState.SUBMITTED, OfferState.REVIEWED):
+                    # an earlier try whose receipt wait timed out was mined after all
+                    self._close(task_id, phase="submitted", submitted_at=self.clock())
+                    return {"task_id": task_id, "status": "submitted", "cid": cid}
+                if exc.name != CID_NOT_COMMITTED or recommits >= MAX_RECOMMITS:
+                    raise
+                recommits += 1
+                self._recommit(task_id, cid, recommits)
         self._close(task_id, phase="submitted", tx=rc.tx_hash, submitted_at=self.clock())
         return {"task_id": task_id, "status": "submitted", "cid": cid, "tx": rc.tx_hash}
+
+    def _recommit(self, task_id: int, cid: str, attempt: int) -> None:
+        """Commit the uploaded outcome's CID again: its commitment is gone from the chain
+        (the blocks holding it were lost in a reorg, or the contract evicted it), and the
+        reveal reverted. The job failed there before, though its model was uploaded and its
+        deadline ahead. The CID is readable in the store by now, so a copier could commit it
+        first; still the only way to deliver."""
+        log.warning(
+            "task %s: the commitment of outcome %s is no longer on chain (a reorg, or "
+            "evicted) and submitOutcome reverted; committing it again (%d of %d)",
+            task_id, cid, attempt, MAX_RECOMMITS)
+        with chain_call(f"committing the outcome CID of task {task_id} again"):
+            self.platform.tmc.commit_cid(self.address, cid)
+        self._save(task_id, recommits=_count(self._state(task_id), "recommits") + 1)
 
     def _staged_outcome(
         self, task_id: int, spec: TrainingSpec, model_dir: Path, st: dict[str, Any]

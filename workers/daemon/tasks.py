@@ -20,7 +20,9 @@ The handler of a daemon process is built once from the environment (``runtime_fr
 ``DRLAAS_WORKER_CHECKPOINT_INTERVAL_S`` (least seconds between checkpoints, default 30),
 ``DRLAAS_WORKER_MODEL_CACHE_BYTES`` (bound on the verified expert models kept for later offers,
 default 2 GiB, 0 for none), ``DRLAAS_WORKER_OFFER_FETCH_BYTES`` (model bytes one offer's check
-may download, default 256 MiB).
+may download, default 256 MiB). All are checked first (``worker_env``, which ``drlaas worker
+run`` also calls before it makes a key or registers): a bad value is a ``WorkerEnvError``
+naming the variable and its value, before the chain or the store is opened.
 
 A warm or cold shutdown of the daemon (SIGTERM, SIGINT, SIGQUIT: Celery's
 ``worker_shutting_down``) marks the training start in progress as stopped
@@ -30,12 +32,15 @@ A warm or cold shutdown of the daemon (SIGTERM, SIGINT, SIGQUIT: Celery's
 from __future__ import annotations
 
 import logging
+import math
 import os
 import random
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
+from urllib.parse import urlsplit
 
 from celery import Celery, shared_task
 from celery.signals import worker_shutting_down
@@ -44,9 +49,10 @@ from backend.celery_app import make_celery, worker_queue
 from backend.chain.addresses import checksum
 from backend.observability.logs import task_context
 from backend.settings import Settings, load_settings
+from workers.daemon import job as jobs
 from workers.daemon.experts import DEFAULT_CACHE_BYTES, DEFAULT_OFFER_FETCH_BYTES
 from workers.daemon.handler import OfferHandler, Transient
-from workers.daemon.job import CHECKPOINT_INTERVAL_S
+from workers.daemon.links import SetupError
 
 log = logging.getLogger(__name__)
 
@@ -97,8 +103,66 @@ _runtime: OfferHandler | None = None
 _lock = threading.Lock()
 
 
+class WorkerEnvError(SetupError, ValueError):
+    """A ``DRLAAS_WORKER_*`` (or ``DRLAAS_GATEWAY``) variable the daemon cannot run with; the
+    message names the variable and its value (the CLI prints it as one line)."""
+
+
+@dataclass(frozen=True)
+class WorkerEnv:
+    """The daemon's settings from the environment, every one checked (see module docstring)."""
+
+    key_file: Path
+    gateway_url: str | None
+    data_dir: Path | None
+    """None: ``<data>/workers/<address>``, known once the key is read."""
+    max_jobs: int = 1
+    checkpoint_every: int = jobs.CHECKPOINT_EVERY
+    checkpoint_interval_s: float = jobs.CHECKPOINT_INTERVAL_S
+    cache_bytes: int = DEFAULT_CACHE_BYTES
+    max_offer_fetch_bytes: int = DEFAULT_OFFER_FETCH_BYTES
+
+
+def worker_env(environ: Mapping[str, str] | None = None) -> WorkerEnv:
+    """Read and check the daemon's variables before anything is opened, asked or registered:
+    ``int()`` of a bad DRLAAS_WORKER_MAX_JOBS failed after the chain and pins were set up
+    (with no variable named), in a daemon started by Celery at its first job, and a NaN or
+    negative interval, or 0 jobs, was taken as given. :class:`WorkerEnvError` otherwise."""
+    env = os.environ if environ is None else environ
+    key_file = env.get("DRLAAS_WORKER_KEY", "").strip()
+    if not key_file:
+        raise WorkerEnvError("DRLAAS_WORKER_KEY is not set: the daemon needs its key file")
+    gateway_url = env.get("DRLAAS_GATEWAY", "").strip() or None
+    if gateway_url is not None:
+        parts = urlsplit(gateway_url)
+        if parts.scheme not in ("http", "https") or not parts.hostname:
+            raise WorkerEnvError(
+                f"DRLAAS_GATEWAY must be an http(s) URL such as http://127.0.0.1:8000, got "
+                f"{gateway_url!r}")
+    data_text = env.get("DRLAAS_WORKER_DATA", "").strip()
+    data_dir = Path(data_text).expanduser() if data_text else None
+    if data_dir is not None and data_dir.exists() and not data_dir.is_dir():
+        raise WorkerEnvError(
+            f"DRLAAS_WORKER_DATA must be a directory, got {data_text!r} (not a directory)")
+    return WorkerEnv(
+        key_file=Path(key_file).expanduser(),
+        gateway_url=gateway_url,
+        data_dir=data_dir,
+        max_jobs=_env_int(env, "DRLAAS_WORKER_MAX_JOBS", 1, least=1, unit="jobs"),
+        checkpoint_every=_env_int(env, "DRLAAS_WORKER_CHECKPOINT_EVERY",
+                                  jobs.CHECKPOINT_EVERY, least=1, unit="updates"),
+        checkpoint_interval_s=_env_seconds(env, "DRLAAS_WORKER_CHECKPOINT_INTERVAL_S",
+                                           jobs.CHECKPOINT_INTERVAL_S),
+        cache_bytes=_env_int(env, "DRLAAS_WORKER_MODEL_CACHE_BYTES", DEFAULT_CACHE_BYTES,
+                             least=0, unit="bytes"),
+        max_offer_fetch_bytes=_env_int(env, "DRLAAS_WORKER_OFFER_FETCH_BYTES",
+                                       DEFAULT_OFFER_FETCH_BYTES, least=0, unit="bytes"),
+    )
+
+
 def runtime_from_env(settings: Settings | None = None) -> OfferHandler:
-    """Build this process's handler from the environment (see module docstring)."""
+    """Build this process's handler from the environment (see module docstring); the
+    variables are checked first (:func:`worker_env`)."""
     from workers.daemon.gateway import Gateway
     from workers.daemon.keys import load_key
     from workers.daemon.links import (
@@ -110,15 +174,14 @@ def runtime_from_env(settings: Settings | None = None) -> OfferHandler:
         record_pin,
     )
 
+    config = worker_env()
     settings = settings or load_settings()
-    key_file = os.environ.get("DRLAAS_WORKER_KEY")
-    if not key_file:
-        raise RuntimeError("DRLAAS_WORKER_KEY is not set: the daemon needs its key file")
-    account = load_key(key_file)
-    gateway_url = os.environ.get("DRLAAS_GATEWAY") or None
-    data = Path(
-        os.environ.get("DRLAAS_WORKER_DATA") or settings.data_dir / "workers" / account.address
-    )
+    try:
+        account = load_key(config.key_file)
+    except (OSError, ValueError) as exc:
+        raise WorkerEnvError(f"DRLAAS_WORKER_KEY={str(config.key_file)!r}: {exc}") from None
+    gateway_url = config.gateway_url
+    data = config.data_dir or settings.data_dir / "workers" / account.address
     pin = pinned_platform(settings, gateway_url, data / PIN_FILE)
     platform = connect_worker(
         chain_url(settings, gateway_url), account, pin.deployment, pin.chain_id
@@ -132,27 +195,39 @@ def runtime_from_env(settings: Settings | None = None) -> OfferHandler:
         data_dir=data,
         gateway=(Gateway(gateway_url, account, chain_id=platform.chain.chain_id)
                  if gateway_url else None),
-        max_jobs=int(os.environ.get("DRLAAS_WORKER_MAX_JOBS", "1")),
-        checkpoint_every=int(os.environ.get("DRLAAS_WORKER_CHECKPOINT_EVERY", "2")),
-        checkpoint_interval_s=float(os.environ.get("DRLAAS_WORKER_CHECKPOINT_INTERVAL_S",
-                                                   str(CHECKPOINT_INTERVAL_S))),
-        cache_bytes=_env_bytes("DRLAAS_WORKER_MODEL_CACHE_BYTES", DEFAULT_CACHE_BYTES),
-        max_offer_fetch_bytes=_env_bytes("DRLAAS_WORKER_OFFER_FETCH_BYTES",
-                                         DEFAULT_OFFER_FETCH_BYTES),
+        max_jobs=config.max_jobs,
+        checkpoint_every=config.checkpoint_every,
+        checkpoint_interval_s=config.checkpoint_interval_s,
+        cache_bytes=config.cache_bytes,
+        max_offer_fetch_bytes=config.max_offer_fetch_bytes,
     )
 
 
-def _env_bytes(name: str, default: int) -> int:
-    """A byte count from the environment; ValueError naming the variable if it is not one."""
-    text = os.environ.get(name, "").strip()
+def _env_int(env: Mapping[str, str], name: str, default: int, *, least: int, unit: str) -> int:
+    """A whole number >= ``least`` from the environment (``default`` when unset or blank);
+    WorkerEnvError naming the variable and its value otherwise."""
+    text = env.get(name, "").strip()
+    if not text:
+        return default
+    # no "1_0", "+1", "½"; and no 5,000-digit text, which int() refuses with its own error
+    value = int(text) if text.isascii() and text.isdigit() and len(text) <= 30 else None
+    if value is None or value < least:
+        raise WorkerEnvError(f"{name} must be a whole number of {unit} >= {least}, got {text!r}")
+    return value
+
+
+def _env_seconds(env: Mapping[str, str], name: str, default: float) -> float:
+    """A finite number of seconds >= 0 from the environment; WorkerEnvError naming the
+    variable and its value otherwise (float() takes 'nan' and 'inf')."""
+    text = env.get(name, "").strip()
     if not text:
         return default
     try:
-        value = int(text)
+        value = float(text)
     except ValueError:
-        value = -1
-    if value < 0:
-        raise ValueError(f"{name} must be a number of bytes >= 0, got {text!r}")
+        value = -1.0
+    if not math.isfinite(value) or value < 0:
+        raise WorkerEnvError(f"{name} must be a number of seconds >= 0, got {text!r}")
     return value
 
 
