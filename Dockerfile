@@ -17,4 +17,4 @@ ENV DRLAAS_DATA_DIR=/data
 ENV NUMBA_CACHE_DIR=/data/numba-cache
 VOLUME /data
 EXPOSE 8000
-CMD ["uvicorn", "--factory", "backend.api.main:create_app", "--host", "0.0.0.0", "--port", "8000"]
+CMD ["uvicorn", "--factory", "backend.api.main:create_app", "--host", "0.0.0.0", "--port", "8000", "--http", "backend.api.http_limits:BoundedHttpToolsProtocol"]

@@ -21,8 +21,10 @@ from fastapi.responses import JSONResponse
 from pydantic import BaseModel, RootModel
 from sqlalchemy.exc import TimeoutError as PoolTimeout
 from starlette.exceptions import HTTPException as StarletteHTTPException
+from starlette.routing import Match, Mount
 
 from backend import errors as domain
+from backend.api.head import HEAD_ONLY
 from backend.api.security_headers import security_headers
 from backend.errors import DomainError
 from backend.store import StoreUnavailable
@@ -97,7 +99,8 @@ BODY_RESPONSES: dict[int, type[BaseModel]] = {400: RuleErrorBody}
 text FastAPI can decode (e.g. invalid UTF-8; bad JSON syntax is a 422 ``json_invalid``)."""
 ENCODED_BODY_RESPONSES: dict[int, type[BaseModel]] = {415: RuleErrorBody}
 """Statuses of every operation with a request body: 415 ``json_not_utf8`` when the body is
-JSON in UTF-16 or UTF-32 (``backend.api.limits``: JSON between systems is UTF-8)."""
+JSON in UTF-16 or UTF-32 (``backend.api.limits``: JSON between systems is UTF-8), 415
+``json_content_type`` when a JSON route's body came as another type (or none)."""
 RAW_BODY = "x-raw-body"
 """``openapi_extra={RAW_BODY: True}`` marks a route that reads its body itself (``POST /rpc``
 answers undecodable bodies in its own protocol), so FastAPI's 400 does not apply to it."""
@@ -174,6 +177,29 @@ def validation_issues(errors: Sequence[Any]) -> list[dict[str, Any]]:
     ]
 
 
+def _is_json(content_type: str) -> bool:
+    """Whether FastAPI decodes a body of ``content_type`` as JSON (``application/json`` or
+    ``application/*+json``, any case, any parameters)."""
+    kind = content_type.split(";", 1)[0].strip().lower()
+    return kind == "application/json" or (
+        kind.startswith("application/") and kind.endswith("+json")
+    )
+
+
+def _body_not_json(request: Request, errors: Sequence[Any]) -> str | None:
+    """How the request described a body it sent in a type FastAPI does not decode as JSON
+    (none, ``text/plain``, a form...), when that is why the body was refused: FastAPI then
+    validates the raw bytes, and its 422 said "Input should be a valid dictionary" of a JSON
+    object the client did send. None otherwise."""
+    content_type = request.headers.get("content-type")
+    if content_type is not None and _is_json(content_type):
+        return None
+    whole_body = [e for e in errors if tuple(e.get("loc", ())) == ("body",)]
+    if not whole_body or any(e.get("type") == "missing" for e in whole_body):
+        return None  # no body at all: "Field required" names what is wrong
+    return "no Content-Type" if content_type is None else f"Content-Type: {content_type[:100]!r}"
+
+
 def _message(error: Any) -> str:
     """pydantic's message, except where it describes what was not sent: an integer field given
     a JSON number like ``1e20`` says "unable to parse input string", of a string nobody sent."""
@@ -232,6 +258,27 @@ def domain_headers(exc: DomainError) -> dict[str, str]:
     return headers
 
 
+_METHOD_PROBES = ("GET", "POST", "PUT", "PATCH", "DELETE")
+
+
+def allowed_methods(request: Request) -> list[str]:
+    """Every method the app's routes take on the request's path, HEAD with GET (``HeadAsGet``):
+    the ``Allow`` of a 405 (RFC 9110, 15.5.6). Starlette named the methods of the first route
+    that matched the path only, so ``PUT /api/tasks`` said ``Allow: POST`` of a path that GET
+    serves as well. Each method is asked of the router as a request would be (included routers
+    are resolved lazily); the UI's mount, which takes any path, says its own. Empty when no
+    route matches."""
+    methods: set[str] = set()
+    routes = [r for r in request.app.router.routes if not isinstance(r, Mount)]
+    for method in _METHOD_PROBES:
+        probe = {**request.scope, "method": method}
+        if any(route.matches(probe)[0] is Match.FULL for route in routes):
+            methods.add(method)
+    if "GET" in methods:
+        methods.add("HEAD")
+    return sorted(methods)
+
+
 DB_BUSY_RETRY_AFTER_S = 2
 """Retry-After of a 503 ``database_busy`` (every pooled connection stayed busy)."""
 
@@ -246,7 +293,13 @@ def install_error_handlers(app: FastAPI) -> None:
         )
 
     @app.exception_handler(RequestValidationError)
-    async def _validation(_: Request, exc: RequestValidationError) -> JSONResponse:
+    async def _validation(request: Request, exc: RequestValidationError) -> JSONResponse:
+        wrong_type = _body_not_json(request, exc.errors())
+        if wrong_type is not None:
+            return JSONResponse(status_code=415, content={"detail": {
+                "rule": "json_content_type",
+                "msg": f"this route reads a JSON object: send it with Content-Type: "
+                       f"application/json (the request said {wrong_type})"}})
         return JSONResponse(status_code=422, content={"detail": validation_issues(exc.errors())})
 
     @app.exception_handler(RuleError)
@@ -258,12 +311,19 @@ def install_error_handlers(app: FastAPI) -> None:
         )
 
     @app.exception_handler(StarletteHTTPException)
-    async def _http(_: Request, exc: StarletteHTTPException) -> JSONResponse:
+    async def _http(request: Request, exc: StarletteHTTPException) -> JSONResponse:
         rule = _HTTP_RULES.get(exc.status_code, f"http_{exc.status_code}")
+        msg, headers = str(exc.detail), getattr(exc, "headers", None)
+        allowed = allowed_methods(request) if exc.status_code == 405 else []
+        if allowed:
+            headers = {**(headers or {}), "Allow": ", ".join(allowed)}
+            method = "HEAD" if request.scope.get(HEAD_ONLY) else request.method  # run as GET
+            msg = (f"{method} is not allowed on {_short(request.url.path)}; it allows "
+                   + ", ".join(allowed))
         return JSONResponse(
             status_code=exc.status_code,
-            content={"detail": {"rule": rule, "msg": str(exc.detail)}},
-            headers=getattr(exc, "headers", None),
+            content={"detail": {"rule": rule, "msg": msg}},
+            headers=headers,
         )
 
     @app.exception_handler(PoolTimeout)

@@ -7,23 +7,86 @@ back: an unknown API path stays a JSON 404 from the app's error handlers.
 
 from __future__ import annotations
 
+import os
 from collections.abc import Awaitable, Callable
 from pathlib import Path
 
 from fastapi import FastAPI
+from starlette.datastructures import Headers
 from starlette.exceptions import HTTPException
-from starlette.responses import RedirectResponse, Response
+from starlette.responses import (
+    FileResponse,
+    JSONResponse,
+    MalformedRangeHeader,
+    RangeNotSatisfiable,
+    RedirectResponse,
+    Response,
+)
 from starlette.routing import Match, Mount
-from starlette.staticfiles import StaticFiles
-from starlette.types import Scope
+from starlette.staticfiles import NotModifiedResponse, StaticFiles
+from starlette.types import Receive, Scope, Send
 
 FRONTEND_DIR = Path(__file__).resolve().parents[2] / "frontend"
 #: First path segments that belong to the gateway, not to the UI router.
 RESERVED = ("api", "rpc")
 
 
+class _UIFile(FileResponse):
+    """A UI file whose ``Range`` answers follow RFC 9110 and the gateway's error shape:
+    Starlette answered an unknown range unit 400 (a server MUST ignore it, 14.2) and a bad or
+    unsatisfiable byte range 400/416 in plain text (every gateway error is JSON naming its
+    rule, ``backend.api.errors``): now 416 ``range_invalid``/``range_not_satisfiable`` with
+    the file's size, or the whole file for a unit other than bytes."""
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        asked = Headers(scope=scope).get("range")
+        if asked is not None and self.stat_result is not None and self.status_code == 200:
+            unit = asked.split("=", 1)[0].strip().lower()
+            if unit != "bytes":  # not ours to understand: the whole file
+                headers = [(k, v) for k, v in scope["headers"] if k != b"range"]
+                scope = {**scope, "headers": headers}
+            else:
+                size = self.stat_result.st_size
+                refusal = _range_refusal(asked, size)
+                if refusal is not None:
+                    await refusal(scope, receive, send)
+                    return
+        await super().__call__(scope, receive, send)
+
+
+def _range_refusal(asked: str, size: int) -> Response | None:
+    """The 416 for ``Range: asked`` on a file of ``size`` bytes, None when it is served."""
+    shown = asked if len(asked) <= 64 else asked[:64] + "..."
+    try:
+        FileResponse._parse_range_header(asked, size)
+    except MalformedRangeHeader as exc:
+        rule, why = "range_invalid", exc.content
+    except RangeNotSatisfiable:
+        rule, why = "range_not_satisfiable", "a range starts at or after the end of the file"
+    else:
+        return None
+    return JSONResponse(
+        status_code=416,
+        content={"detail": {"rule": rule, "msg": f"Range {shown!r}: {why} (the file is {size} "
+                                                 f"bytes: bytes=0-{max(size - 1, 0)} at most)"}},
+        headers={"Content-Range": f"bytes */{size}"},
+    )
+
+
 class SPAStaticFiles(StaticFiles):
     """StaticFiles with an ``index.html`` fallback for client-side routes."""
+
+    def file_response(
+        self,
+        full_path: str | os.PathLike[str],
+        stat_result: os.stat_result,
+        scope: Scope,
+        status_code: int = 200,
+    ) -> Response:
+        response = _UIFile(full_path, status_code=status_code, stat_result=stat_result)
+        if self.is_not_modified(response.headers, Headers(scope=scope)):
+            return NotModifiedResponse(response.headers)
+        return response
 
     async def get_response(self, path: str, scope: Scope) -> Response:
         first = path.split("/", 1)[0]

@@ -198,6 +198,7 @@ def running_platform(
     """Start gateway + N workers; stop everything on exit (also on errors)."""
     import uvicorn
 
+    from backend.api.http_limits import BoundedHttpToolsProtocol
     from backend.settings import load_settings
     from workers.daemon.links import Deployment, write_deployment
 
@@ -216,6 +217,7 @@ def running_platform(
             port=port,
             log_level="warning",
             lifespan="on",
+            http=BoundedHttpToolsProtocol,  # a request head of any size was buffered whole
             # json: uvicorn's loggers go through the root handler (one JSON object per line)
             **({"log_config": None} if settings.log_format == "json" else {}),
         )

@@ -18,12 +18,13 @@ from collections.abc import Iterator
 from typing import Annotated, Any, Literal
 
 from fastapi import APIRouter, Path, Query, Request, status
-from fastapi.responses import JSONResponse, StreamingResponse
+from fastapi.responses import JSONResponse, Response, StreamingResponse
 from sqlalchemy import func, or_, select
 
 from backend.api.bundles import BundleRefused, check_model_bundle
 from backend.api.cards import read_card
 from backend.api.client_key import client_key
+from backend.api.conditional import none_match, not_modified
 from backend.api.deps import ChainDep, CurrentUser, IndexerDep, SessionDep, SettingsDep, StoreDep
 from backend.api.errors import RuleError, rule_responses
 from backend.api.head import HEAD_ONLY
@@ -83,6 +84,7 @@ TaskId = Annotated[int, Path(ge=1, le=MAX_ID), ID_DIGITS]
 BundleFile = Literal["model.safetensors", "model.json"]
 HALF = 500_000
 MAX_REQUESTS_SHOWN = 20
+NOT_MODIFIED_DOC = "If-None-Match names the file's ETag (its CID): not sent again"
 
 _LIST_COLUMNS = (
     m.ModelRow.id,
@@ -311,32 +313,42 @@ def list_models(
     return cached_page(request, session, build)  # type: ignore[return-value]
 
 
-def allocation_public(session: SessionDep, alloc: m.AllocationRow) -> AllocationDetailPublic:
-    rows = session.execute(
-        select(m.AllocatedModel, m.ModelRow.cid)
-        .join(m.ModelRow, m.ModelRow.id == m.AllocatedModel.model_id, isouter=True)
-        .where(m.AllocatedModel.alloc_id == alloc.id)
-        .order_by(m.AllocatedModel.qos.desc(), m.AllocatedModel.model_id)
-    ).all()
-    return AllocationDetailPublic(
-        alloc_id=alloc.id,
-        requester=alloc.requester,
-        domain=alloc.domain,
-        metric="model" if alloc.metric == int(Metric.MODEL) else "sharing",
-        num_models=alloc.num_models,
-        price_wei=alloc.price_wei,
-        block_number=alloc.block_number,
-        models=[
-            AllocationModelPublic(
-                id=am.model_id,
-                cid=cid or "",
-                qos=from_fixed(am.qos),
-                owner=am.owner,
-                review=am.review,
+def allocations_public(
+    session: SessionDep, allocs: list[m.AllocationRow]
+) -> list[AllocationDetailPublic]:
+    """``allocs`` with their models (id, CID, QoS, owner, review), read in one query whatever
+    their number: a page of 500 allocations is 500 allocations, not 500 queries."""
+    by_alloc: dict[int, list[AllocationModelPublic]] = {a.id: [] for a in allocs}
+    if by_alloc:
+        rows = session.execute(
+            select(m.AllocatedModel, m.ModelRow.cid)
+            .join(m.ModelRow, m.ModelRow.id == m.AllocatedModel.model_id, isouter=True)
+            .where(m.AllocatedModel.alloc_id.in_(list(by_alloc)))
+            .order_by(m.AllocatedModel.qos.desc(), m.AllocatedModel.model_id)
+        ).all()
+        for am, cid in rows:
+            by_alloc[am.alloc_id].append(
+                AllocationModelPublic(
+                    id=am.model_id,
+                    cid=cid or "",
+                    qos=from_fixed(am.qos),
+                    owner=am.owner,
+                    review=am.review,
+                )
             )
-            for am, cid in rows
-        ],
-    )
+    return [
+        AllocationDetailPublic(
+            alloc_id=alloc.id,
+            requester=alloc.requester,
+            domain=alloc.domain,
+            metric="model" if alloc.metric == int(Metric.MODEL) else "sharing",
+            num_models=alloc.num_models,
+            price_wei=alloc.price_wei,
+            block_number=alloc.block_number,
+            models=by_alloc[alloc.id],
+        )
+        for alloc in allocs
+    ]
 
 
 @router.get("/requests", response_model=AllocationsPublic)
@@ -346,13 +358,14 @@ def list_allocations(
     limit: Annotated[int, Query(ge=1, le=500)] = 100,
     offset: Annotated[int, Query(ge=0, le=1_000_000)] = 0,
 ) -> AllocationsPublic:
-    """Model allocations (MMC.allocateModel), newest first; ``requester`` filters."""
+    """Model allocations (MMC.allocateModel), newest first; ``requester`` filters. Three
+    queries whatever ``limit``: the count, the page, the page's models."""
     stmt = select(m.AllocationRow)
     if requester is not None:
         stmt = stmt.where(m.AllocationRow.requester == requester)
     count = session.scalar(select(func.count()).select_from(stmt.subquery())) or 0
     page = session.scalars(stmt.order_by(m.AllocationRow.id.desc()).limit(limit).offset(offset))
-    return AllocationsPublic(data=[allocation_public(session, a) for a in page], count=count)
+    return AllocationsPublic(data=allocations_public(session, list(page)), count=count)
 
 
 @router.get(
@@ -365,7 +378,8 @@ def get_allocation(alloc_id: AllocId, session: SessionDep) -> AllocationDetailPu
         raise RuleError(
             404, "allocation_not_found", f"no allocation {alloc_id} (or not indexed yet)"
         )
-    return allocation_public(session, alloc)
+    [public] = allocations_public(session, [alloc])
+    return public
 
 
 def _model(session: SessionDep, model_id: int) -> m.ModelRow:
@@ -498,27 +512,30 @@ def _requests(session: SessionDep, model_id: int) -> list[ModelRequestPublic]:
     "/{model_id}/download",
     responses={
         200: {"content": {"application/octet-stream": {}}},
+        304: {"description": NOT_MODIFIED_DOC},
         **rule_responses(404, 413, 429, 502, 503),
     },
     response_class=StreamingResponse,
 )
 def download_model(
     model_id: ModelId,
+    request: Request,
     session: SessionDep,
     store: StoreDep,
     settings: SettingsDep,
     file: BundleFile = "model.safetensors",
-) -> StreamingResponse:
+) -> Response:
     """The bytes of one bundle file, each block verified against the CID before it is sent,
     bounded by the manifest's size and the gateway's ``max_upload_bytes``."""
     row = _model(session, model_id)
-    return _stream_bundle_file(store, settings, row.cid, file, f"model {model_id}")
+    return _stream_bundle_file(request, store, settings, row.cid, file, f"model {model_id}")
 
 
 @router.get(
     "/outcomes/{task_id}/{worker}/download",
     responses={
         200: {"content": {"application/octet-stream": {}}},
+        304: {"description": NOT_MODIFIED_DOC},
         **rule_responses(401, 403, 404, 413, 429, 502, 503),
     },
     response_class=StreamingResponse,
@@ -526,12 +543,13 @@ def download_model(
 def download_outcome(
     task_id: TaskId,
     worker: Address,
+    request: Request,
     user: CurrentUser,
     session: SessionDep,
     store: StoreDep,
     settings: SettingsDep,
     file: BundleFile = "model.safetensors",
-) -> StreamingResponse:
+) -> Response:
     """A task's outcome (the bundle a worker submitted), streamed to the task's requester or
     that worker, whether or not it was shared; verified as ``/models/{id}/download``. This
     route is theirs; the content is not secret unless sealed: an outcome CID is on chain and
@@ -555,7 +573,7 @@ def download_outcome(
             404, "outcome_not_found", f"{worker} submitted no outcome for task {task_id}"
         )
     return _stream_bundle_file(
-        store, settings, outcome.cid, file, f"task {task_id}'s outcome by {worker}"
+        request, store, settings, outcome.cid, file, f"task {task_id}'s outcome by {worker}"
     )
 
 
@@ -631,11 +649,12 @@ class _Download(StreamingResponse):
 
 
 def _stream_bundle_file(
-    store: StoreDep, settings: SettingsDep, cid: str, file: str, what: str
-) -> StreamingResponse:
+    request: Request, store: StoreDep, settings: SettingsDep, cid: str, file: str, what: str
+) -> Response:
     """Stream ``file`` of bundle ``cid``; 404/413/502 naming the rule before any byte, 429
     ``downloads_per_client`` / 503 ``downloads_busy`` past the download bounds
-    (:class:`_Download`)."""
+    (:class:`_Download`); 304 with no body (and no download slot) when ``If-None-Match``
+    names the file's ETag, its CID, and the store holds it."""
     try:
         file_cid, size = bundle_entry(store, cid, file)
         sealed = file in sealed_envelopes(store, cid)
@@ -658,6 +677,14 @@ def _stream_bundle_file(
             "content_too_large",
             f"{file} is {size} bytes, the bound is {settings.max_upload_bytes}",
         )
+    headers = {
+        "Content-Length": str(size),
+        "Content-Disposition": f'attachment; filename="{file}"',
+        "ETag": f'"{file_cid}"',
+        "X-Content-CID": file_cid,
+    }
+    if none_match(request, headers["ETag"]) and store.has(file_cid):
+        return not_modified(headers)
     chunks = store.iter_get(file_cid, max_size=max(size, 1))
     try:
         first = next(chunks, b"")  # fail before the status line is sent when possible
@@ -683,12 +710,7 @@ def _stream_bundle_file(
         settings=settings,
         what=f"{what}'s {file}",
         media_type=media,
-        headers={
-            "Content-Length": str(size),
-            "Content-Disposition": f'attachment; filename="{file}"',
-            "ETag": f'"{file_cid}"',
-            "X-Content-CID": file_cid,
-        },
+        headers=headers,
     )
 
 
