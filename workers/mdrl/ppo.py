@@ -18,6 +18,17 @@ MAX_HORIZON = 1 << 22
 in an allocation error naming no field."""
 MAX_NUM_ENVS = 1 << 14
 """Largest number of environments stepped together (the presets use at most 128)."""
+MAX_UPDATE_EPOCHS = 10_000
+"""Most passes over a rollout per update (Table 3.2: 50; the task spec allows 100): an update
+cannot be stopped by --minutes, so a config's 10^12 trained one update forever."""
+MAX_LEARNING_RATE = 1e30
+"""Largest learning rate: Adam's step (lr / bias correction) must stay a float32; 1e39 (or
+1e300) crashed the first optimizer step with a traceback instead of naming the field. Rates
+far below it but too large (1e10) are not refused: the run stops with "training diverged",
+which names learning_rate."""
+MAX_CLIP_COEF = 10.0
+"""Largest PPO clip epsilon (any epsilon >= 1 already leaves the ratio's lower side open): the
+clamp's bounds must stay float32; 1e300 crashed the first update with a traceback."""
 
 
 @dataclass
@@ -62,12 +73,18 @@ class PPOConfig:
     def __post_init__(self) -> None:
         _check_types(self)
         checks = {
-            "learning_rate": (self.learning_rate > 0, "> 0"),
-            "clip_coef": (self.clip_coef > 0, "> 0"),
+            "learning_rate": (0 < self.learning_rate <= MAX_LEARNING_RATE,
+                              f"in (0, {MAX_LEARNING_RATE:g}]"),
+            "clip_coef": (0 < self.clip_coef <= MAX_CLIP_COEF, f"in (0, {MAX_CLIP_COEF:g}]"),
+            # a negative c1 maximises the value error, a negative c2 rewards certainty: both
+            # trained silently (the task spec already refuses them)
+            "ent_coef": (self.ent_coef >= 0, ">= 0"),
+            "vf_coef": (self.vf_coef >= 0, ">= 0"),
             "gamma": (0.0 <= self.gamma <= 1.0, "in [0, 1]"),
             "gae_lambda": (0.0 <= self.gae_lambda <= 1.0, "in [0, 1]"),
             "horizon": (1 <= self.horizon <= MAX_HORIZON, f"in 1..{MAX_HORIZON}"),
-            "update_epochs": (self.update_epochs >= 1, ">= 1"),
+            "update_epochs": (1 <= self.update_epochs <= MAX_UPDATE_EPOCHS,
+                              f"in 1..{MAX_UPDATE_EPOCHS}"),
             "num_minibatches": (self.num_minibatches >= 1, ">= 1"),
             "num_envs": (1 <= self.num_envs <= MAX_NUM_ENVS, f"in 1..{MAX_NUM_ENVS}"),
             "max_grad_norm": (self.max_grad_norm > 0, "> 0"),

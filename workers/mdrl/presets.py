@@ -245,6 +245,18 @@ def preset_from_dict(doc: dict[str, Any], name: str = "custom") -> Preset:
                   run=run, experts=experts)
 
 
+def _no_duplicate_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    """A JSON object whose keys are all distinct: json keeps the last of a repeated key
+    without a word, so ``{"preset": "odmtl-2a-10x10", ..., "preset": "cmtl-2a-10x10"}``
+    trained the second preset."""
+    doc: dict[str, Any] = {}
+    for key, value in pairs:
+        if key in doc:
+            raise ValueError(f"key {key!r} given twice in one object")
+        doc[key] = value
+    return doc
+
+
 def load_config(path: str | Path) -> Preset:
     """Read a JSON (.json) or TOML (.toml) config file into a Preset."""
     path = Path(path)
@@ -258,7 +270,8 @@ def load_config(path: str | Path) -> Preset:
     except UnicodeDecodeError:
         raise ValueError(f"{path}: not valid {kind} (not UTF-8 text)") from None
     try:  # the parser's own message names neither the file nor the format
-        doc = json.loads(text) if kind == "JSON" else tomllib.loads(text)
+        doc = (json.loads(text, object_pairs_hook=_no_duplicate_keys) if kind == "JSON"
+               else tomllib.loads(text))  # TOML refuses a repeated key itself
     except json.JSONDecodeError as exc:
         raise ValueError(f"{path}: not valid JSON (line {exc.lineno}, column {exc.colno}: "
                          f"{exc.msg})") from None
@@ -266,6 +279,8 @@ def load_config(path: str | Path) -> Preset:
         raise ValueError(f"{path}: not valid TOML ({exc})") from None
     except RecursionError:
         raise ValueError(f"config {path}: {kind} nested too deeply") from None
+    except ValueError as exc:  # a repeated key (_no_duplicate_keys)
+        raise ValueError(f"{path}: not a usable {kind} config ({exc})") from None
     return preset_from_dict(doc, name=path.stem)
 
 

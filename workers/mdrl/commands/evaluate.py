@@ -137,6 +137,34 @@ def _field(spec: EnvSpec, key: str) -> Any:
     return (spec.rows, spec.cols) if key == "grid" else getattr(spec, key)
 
 
+def _show(spec: EnvSpec, key: str) -> str:
+    if key == "grid":
+        return f"{spec.rows}x{spec.cols} (cells of {min(spec.cell_size_m):.3g} m)"
+    if key == "walls":
+        return f"{spec.walls[0]}-{spec.walls[1]}"
+    return str(_field(spec, key))
+
+
+def setting_changes(policy: Any, spec: EnvSpec) -> list[str]:
+    """How ``spec`` differs from the environment a loaded model was trained on, one
+    ``--flag trained -> now`` a difference (empty for a baseline or the card's own
+    environment); a wall-blind model among walls is said to be blind. ``drlaas eval`` prints
+    them: a model run on another grid, team, walls or intensity scored without a word."""
+    card_spec = getattr(policy, "env_spec", None)
+    card = getattr(policy, "card", None)
+    if card_spec is None or not isinstance(card, dict):
+        return []
+    trained = card.get("env")
+    trained = EnvSpec.from_dict(trained) if isinstance(trained, dict) else card_spec
+    changes = [f"{flag} {_show(trained, key)} -> {_show(spec, key)}"
+               for key, flag in _FLAGS.items() if _field(spec, key) != _field(trained, key)]
+    observer = getattr(policy, "observer", None)
+    if (spec.walls != trained.walls and spec.walls[1] > 0 and observer is not None
+            and not getattr(observer, "walls", True)):
+        changes.append("the model has no wall inputs: it moves blind to the walls")
+    return changes
+
+
 def resolve_policy(
     name: str, agents=None, grid=None, walls=None, intensity=None, moves=None, seed: int = 0,
     readings: str | None = None, as_expert: bool = False,
@@ -268,6 +296,14 @@ def eval_command(
     """Evaluate a model directory or a baseline on seeded episodes, next to the oracle."""
     pol, spec, label = resolve_policy(policy, agents, grid, walls, intensity, moves, seed, readings,
                                       as_expert)
+    changes = [] if as_expert else setting_changes(pol, spec)
+    if changes:  # stderr, before the episodes run: stdout stays the report (--json: one object)
+        training = pol.card.get("training")
+        mixed = isinstance(training, dict) and bool(training.get("generalist"))
+        than = ("the set-up its card names (a generalist: its card lists the set-ups it "
+                "trained on)" if mixed else "it was trained on")
+        typer.echo(f"note: {label} is evaluated on another environment than {than}: "
+                   f"{'; '.join(changes)}", err=True)
     try:
         report = evaluate(pol, spec, episodes, seed=seed, batch=batch, name=label)
     except LayoutError as exc:  # walls the spec allows but no layout can hold the team with
@@ -285,6 +321,8 @@ def eval_command(
             "result": {k: v for k, v in report.to_dict().items() if k != "env"},
             "oracle": {k: v for k, v in oracle.to_dict().items() if k != "env"},
             "ratios": ratios.to_dict(),
+            **({"trained_env": pol.card["env"], "differs_from_training": changes}
+               if changes else {}),
             **({"suggested_review": suggested} if as_expert else {}),
         }
         typer.echo(json.dumps(out))

@@ -71,6 +71,9 @@ def _check_out(out: Path, *, same_run: Path | None = None) -> None:
     if out.exists():
         if not out.is_dir():
             raise typer.BadParameter(f"{out} is a file, not a directory", param_hint="--out")
+        if (out / "model.json").is_file():  # the run would write beside the model's files
+            raise typer.BadParameter(f"{out} is a model directory (model.json): give a new "
+                                     "directory for the run", param_hint="--out")
         held = [name for name in RUN_FILES if (out / name).exists()]
         same = same_run is not None and out.resolve() == same_run.resolve()
         if held and not same:
