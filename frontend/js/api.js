@@ -51,23 +51,45 @@ export function query(params) {
   return text ? `?${text}` : "";
 }
 
-/** fetch JSON from /api; throws ApiError on a non-2xx answer. rawBody: JSON text sent as is. */
-export async function api(path, { method = "GET", body, rawBody, signal, auth = true } = {}) {
+/** How long a request may take, answer body included. A gateway that accepted the connection
+ *  and never answered left a page "loading" for ever, and a polling page stopped polling (each
+ *  poll waits for the one before): now it is an error the page shows, with a retry. */
+export const TIMEOUT_MS = 30000;
+
+/** fetch JSON from /api; throws ApiError on a non-2xx answer, on no answer and on no answer
+ *  within timeoutMs (status 0; reads only by default: a write given up on may still land on
+ *  chain, and a retry would pay twice). rawBody: JSON text sent as is. An abort of `signal`
+ *  (the user navigated away) is thrown as the AbortError it is. */
+export async function api(path, { method = "GET", body, rawBody, signal, auth = true, timeoutMs } = {}) {
+  if (timeoutMs === undefined) timeoutMs = method === "GET" ? TIMEOUT_MS : 0;
   const headers = { Accept: "application/json" };
   const payload = rawBody !== undefined ? rawBody : (body === undefined ? undefined : JSON.stringify(body));
   if (payload !== undefined) headers["Content-Type"] = "application/json";
   const token = getToken();
   if (auth && token) headers.Authorization = `Bearer ${token}`;
+  const own = new AbortController();
+  let timedOut = false;
+  const onAbort = () => own.abort();
+  if (signal) {
+    if (signal.aborted) own.abort();
+    else signal.addEventListener("abort", onAbort, { once: true });
+  }
+  const timer = timeoutMs > 0 ? setTimeout(() => { timedOut = true; own.abort(); }, timeoutMs) : null;
   let res;
+  let text;
   try {
-    res = await fetch(API + path, {
-      method, headers, signal, body: payload,
-    });
+    res = await fetch(API + path, { method, headers, signal: own.signal, body: payload });
+    text = await res.text();
   } catch (err) {
+    if (timedOut) {
+      throw new ApiError(0, null, `the gateway did not answer within ${Math.round(timeoutMs / 1000)} s (${method} ${API}${path})`);
+    }
     if (err.name === "AbortError") throw err;
     throw new ApiError(0, null, `the gateway did not answer (${method} ${API}${path})`);
+  } finally {
+    clearTimeout(timer);
+    if (signal) signal.removeEventListener("abort", onAbort);
   }
-  const text = await res.text();
   let data = null;
   if (text) {
     try { data = JSON.parse(text); } catch { data = { detail: text.slice(0, 300) }; }

@@ -3,7 +3,7 @@
 // while the tab is hidden).
 
 import { api, ApiError, getToken, setToken } from "./api.js";
-import { clear, h, shortAddr } from "./dom.js";
+import { clear, errorView, h, shortAddr } from "./dom.js";
 import * as models from "./pages/models.js";
 import * as model from "./pages/model.js";
 import * as tasks from "./pages/tasks.js";
@@ -13,9 +13,9 @@ import * as submit from "./pages/submit.js";
 
 const ROUTES = [
   [/^\/(models)?\/?$/, models, "models"],
-  [/^\/models\/([^/]+)\/?$/, model, "models"],
+  [/^\/models\/(\d+)\/?$/, model, "models"], // ids are whole numbers: /models/abc is no page
   [/^\/tasks\/?$/, tasks, "tasks"],
-  [/^\/tasks\/([^/]+)\/?$/, task, "tasks"],
+  [/^\/tasks\/(\d+)\/?$/, task, "tasks"],
   [/^\/workers\/?$/, workers, "workers"],
   [/^\/submit\/?$/, submit, "submit"],
 ];
@@ -33,7 +33,10 @@ function stopCurrent() {
 function makeContext() {
   const ctx = { controller: new AbortController(), timers: new Set(), paused: new Set(), stopped: false };
   ctx.signal = ctx.controller.signal;
-  /** Run fn now and then every ms after it settles (no overlapping requests), until navigation.
+  /** Draw the page again (a Retry button), unless the user has navigated away meanwhile. */
+  ctx.retry = () => { if (current === ctx) route(); };
+  /** Run fn now and then every ms after it settles (no overlapping requests), until navigation;
+   * ms may be a function, asked after each run (a page slows down once its data is final).
    * While the browser tab is hidden nothing is fetched: the poll waits and runs again as soon
    * as the tab is shown (a page left open in a background tab costs the gateway nothing). */
   ctx.every = (ms, fn) => {
@@ -42,7 +45,7 @@ function makeContext() {
       if (document.hidden) { ctx.paused.add(tick); return; }
       try { await fn(); } catch (err) { if (err.name !== "AbortError") console.error(err); }
       if (!ctx.stopped) {
-        const t = setTimeout(() => { ctx.timers.delete(t); tick(); }, ms);
+        const t = setTimeout(() => { ctx.timers.delete(t); tick(); }, typeof ms === "function" ? ms() : ms);
         ctx.timers.add(t);
       }
     };
@@ -81,11 +84,17 @@ async function route() {
   const [m, mod] = match;
   const ctx = makeContext();
   current = ctx;
+  // Until the page's first answer: a page waiting on a slow gateway was blank (up to the
+  // 30 s a read may take, api.js), as if the UI were broken.
+  const loading = h("p", { class: "muted loading", role: "status", id: "page-loading" }, "Loading…");
+  main.appendChild(loading);
   try {
     await mod.render(main, m.slice(1).map((x) => (x === undefined ? x : decodeURIComponent(x))), ctx);
   } catch (err) {
     if (err.name === "AbortError" || ctx.stopped) return;
-    main.appendChild(h("div", { class: "error-box", role: "alert" }, err.message || String(err)));
+    main.appendChild(errorView(err, ctx.retry, match[2] === "tasks" ? { back: "/tasks", backLabel: "Browse tasks" } : {}));
+  } finally {
+    loading.remove();
   }
 }
 

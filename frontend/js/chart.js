@@ -38,9 +38,37 @@ export function fmtTick(v) {
   return `${+v.toFixed(3)}`;
 }
 
+/** Smallest and largest of many numbers (Math.min(...xs) throws a RangeError past ~10^5). */
+function extent(values) {
+  let lo = Infinity, hi = -Infinity;
+  for (const v of values) { if (v < lo) lo = v; if (v > hi) hi = v; }
+  return [lo, hi];
+}
+
+/** At most MAX_DRAWN points of a line sorted by x, for a plot ~400 px wide: per slice of the
+ * points, its first, lowest, highest and last (in x order), so that no spike disappears. A
+ * card or a worker may hold 10^6 points; a polyline of all of them froze the page. */
+export const MAX_DRAWN = 2000;
+export function thin(points, max = MAX_DRAWN) {
+  if (points.length <= max) return points;
+  const slices = Math.floor(max / 4);
+  const out = [];
+  for (let k = 0; k < slices; k++) {
+    const a = Math.floor((k * points.length) / slices), b = Math.floor(((k + 1) * points.length) / slices);
+    let lo = a, hi = a;
+    for (let i = a + 1; i < b; i++) {
+      if (points[i][1] < points[lo][1]) lo = i;
+      if (points[i][1] > points[hi][1]) hi = i;
+    }
+    for (const i of [...new Set([a, lo, hi, b - 1])].sort((x, y) => x - y)) out.push(points[i]);
+  }
+  return out;
+}
+
 /**
  * series: [{label, points: [[x, y], ...], color?}]; yDomain: [lo, hi] to fix the y axis
- * (e.g. [0, 1] for a success rate). Non-finite points are dropped.
+ * (e.g. [0, 1] for a success rate). Non-finite points are dropped; a line of more than
+ * MAX_DRAWN points is drawn thinned (its data-count stays the number of points).
  */
 export function lineChart({ title, series, xLabel = "environment steps", yLabel = "", yDomain }) {
   const clean = series
@@ -57,11 +85,11 @@ export function lineChart({ title, series, xLabel = "environment steps", yLabel 
     figure.appendChild(h("p", { class: "muted empty-chart" }, "No points yet."));
     return figure;
   }
-  const xs = clean.flatMap((se) => se.points.map((p) => p[0]));
-  const ys = clean.flatMap((se) => se.points.map((p) => p[1]));
-  let [x0, x1] = [Math.min(...xs), Math.max(...xs)];
-  let [y0, y1] = yDomain || [Math.min(...ys), Math.max(...ys)];
-  if (yDomain) { y0 = Math.min(y0, ...ys); y1 = Math.max(y1, ...ys); }
+  const [xMin, xMax] = extent(clean.flatMap((se) => se.points.map((p) => p[0])));
+  const [yMin, yMax] = extent(clean.flatMap((se) => se.points.map((p) => p[1])));
+  let [x0, x1] = [xMin, xMax];
+  let [y0, y1] = yDomain || [yMin, yMax];
+  if (yDomain) { y0 = Math.min(y0, yMin); y1 = Math.max(y1, yMax); }
   if (x1 - x0 < minSpan(x1)) { const pad = Math.max(1, Math.abs(x1) * 1e-6); x0 -= pad; x1 += pad; }
   if (y1 - y0 < minSpan(y1)) { const pad = Math.max(0.5, Math.abs(y1) * 1e-6); y0 -= pad; y1 += pad; }
   const pw = W - M.left - M.right, ph = H - M.top - M.bottom;
@@ -85,7 +113,7 @@ export function lineChart({ title, series, xLabel = "environment steps", yLabel 
       transform: `rotate(-90 12 ${M.top + ph / 2})` }, yLabel));
   }
   for (const se of clean) {
-    const pts = se.points.map(([x, y]) => `${sx(x).toFixed(1)},${sy(y).toFixed(1)}`).join(" ");
+    const pts = thin(se.points).map(([x, y]) => `${sx(x).toFixed(1)},${sy(y).toFixed(1)}`).join(" ");
     svg.appendChild(s("polyline", { class: "series", points: pts, stroke: se.color, fill: "none",
       "data-series": se.label, "data-count": se.points.length }));
     if (se.points.length === 1) {

@@ -1,6 +1,13 @@
 // Small DOM and formatting helpers. Data from the API is only ever inserted as text (never
 // innerHTML): model descriptions and task specs are user content.
 
+/** map[key] if map has that key of its own, else fallback: a name from the data ("constructor",
+ *  "toString") must not find Object's members (a baseline named "constructor" was labelled
+ *  "function Object() { [native code] }"). */
+export function own(map, key, fallback) {
+  return Object.hasOwn(map, String(key)) ? map[key] : fallback;
+}
+
 /** h("a", {href: "/x", class: "c", onclick: fn}, "text", child, [more]) -> Element */
 export function h(tag, attrs = {}, ...children) {
   const el = document.createElementNS(
@@ -142,7 +149,7 @@ export function envSummary(env) {
   }
   if (env.moves !== undefined) parts.push(`${env.moves} moves`);
   if (env.intensity && typeof env.intensity === "object" && Array.isArray(env.intensity.values)) {
-    const sep = { fixed: "", choice: ",", uniform: ":" }[env.intensity.kind] ?? ",";
+    const sep = own({ fixed: "", choice: ",", uniform: ":" }, env.intensity.kind, ",");
     parts.push(`I=${env.intensity.values.map((v) => Number(v).toExponential(0).replace("e+", "e")).join(sep)}`);
   }
   return parts.join(" · ") || JSON.stringify(env);
@@ -163,4 +170,16 @@ export function rawJson(title, value) {
 
 export function errorBox(err) {
   return h("div", { class: "error-box", role: "alert" }, err && err.message ? err.message : String(err));
+}
+
+/** What a page shows when its data could not be read: a 404 is a "Not found" view (heading,
+ *  the gateway's message, a way back); any other failure (5xx, no answer, a timeout) says so
+ *  with a Retry button calling retry(). A bare message on an empty page read as a broken UI. */
+export function errorView(err, retry, { back = "/models", backLabel = "Browse models" } = {}) {
+  if (err && err.status === 404) {
+    return h("section", { class: "not-found" }, h("h1", {}, "Not found"), errorBox(err),
+      h("p", {}, link(back, backLabel)));
+  }
+  return h("section", { class: "load-failed" }, errorBox(err),
+    retry ? h("button", { type: "button", class: "small retry", onclick: retry }, "Retry") : null);
 }

@@ -7,7 +7,7 @@
 import { api, API_BASE } from "../api.js";
 import { curvePanels } from "../chart.js";
 import {
-  copyButton, defList, envSummary, formatTime, h, link, num, rawJson, shortAddr, shortCid,
+  copyButton, defList, envSummary, formatTime, h, link, num, own, rawJson, shortAddr, shortCid,
 } from "../dom.js";
 
 const READING_MODELS = {
@@ -54,9 +54,9 @@ function heldoutTable(held) {
       h("thead", {}, h("tr", {}, ["Policy", "Success", "Time (steps, 95% CI)", "Cost (moves, 95% CI)",
         "Time / oracle"].map((c) => h("th", {}, c)))),
       held.readings.map((f) => h("tbody", { "data-reading-model": f.reading_model },
-        h("tr", { class: "group" }, h("th", { colspan: 5 }, READING_MODELS[f.reading_model] || f.reading_model)),
+        h("tr", { class: "group" }, h("th", { colspan: 5 }, own(READING_MODELS, f.reading_model, f.reading_model))),
         figuresRow(f.reading_model, "model", h("strong", {}, "this model"), f),
-        (f.baselines || []).map((b) => figuresRow(f.reading_model, b.name, BASELINE_LABELS[b.name] || b.name, b)),
+        (f.baselines || []).map((b) => figuresRow(f.reading_model, b.name, own(BASELINE_LABELS, b.name, b.name), b)),
         f.oracle_time === null || f.oracle_time === undefined ? null
           : figuresRow(f.reading_model, "oracle", "oracle (knows the target)", { success: null, time: f.oracle_time }, f.oracle_time)))),
     h("p", { class: "muted" }, `Greedy policy on ${num(held.episodes)} held-out episodes`

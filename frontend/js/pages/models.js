@@ -2,7 +2,7 @@
 // The filters live in the page URL (/models?agents=3), so a filtered view can be shared.
 
 import { api, asList, query } from "../api.js";
-import { clear, envSummary, errorBox, h, link, num, shortAddr, shortCid } from "../dom.js";
+import { clear, envSummary, errorView, h, link, num, shortAddr, shortCid } from "../dom.js";
 import { PAGE_SIZE, offsetFromUrl, pager } from "../pager.js";
 
 const FILTERS = [
@@ -46,7 +46,7 @@ export async function render(main, _params, ctx) {
       countEl.textContent = `${count} model${count === 1 ? "" : "s"}`;
     } catch (err) {
       if (err.name === "AbortError" || mine !== seq) return;
-      clear(results).appendChild(errorBox(err));
+      clear(results).appendChild(errorView(err, () => schedule(0)));
       countEl.textContent = "";
     } finally {
       if (mine === seq) results.removeAttribute("aria-busy");

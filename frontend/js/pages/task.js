@@ -10,10 +10,16 @@
 import { api } from "../api.js";
 import { curvePanels } from "../chart.js";
 import {
-  copyButton, defList, envSummary, errorBox, formatTime, formatWei, h, link, num, rawJson, shortAddr, shortCid,
+  copyButton, defList, envSummary, errorBox, errorView, formatTime, formatWei, h, link, num, own, rawJson, shortAddr, shortCid,
   statusPill,
 } from "../dom.js";
 import { POLL_MS, specCid } from "./tasks.js";
+
+/** A cancelled or closed task changes little (an outcome's model appears when its worker
+ *  shares it): its page asks every 30 s, not every 2 s for as long as it stays open. */
+export const FINAL_STATUSES = new Set(["cancelled", "closed"]);
+export const FINAL_POLL_MS = 30000;
+const isFinal = (t) => Boolean(t) && FINAL_STATUSES.has(String(t.status).toLowerCase());
 
 const SAME = (a, b) => a.length === b.length && a.every((x, i) => Object.is(x, b[i]));
 
@@ -59,7 +65,7 @@ const SPEC_STATE_NOTES = {
 const ARG_LABELS = { qos: "match score", numWorkers: "workers", description: "spec", minCpuCores: "min CPU cores",
   minRamGb: "min RAM (GB)", weiPerHour: "min reward per hour" };
 /** "minReputation" -> "min reputation". */
-const argLabel = (k) => ARG_LABELS[k] ?? k.replace(/([a-z0-9])([A-Z])/g, "$1 $2").toLowerCase();
+const argLabel = (k) => own(ARG_LABELS, k) ?? k.replace(/([a-z0-9])([A-Z])/g, "$1 $2").toLowerCase();
 
 function eventDetails(e) {
   const args = e.args || e.data || {};
@@ -131,13 +137,19 @@ export async function render(main, [id], ctx) {
       t = await api(`/tasks/${encodeURIComponent(id)}`, { signal: ctx.signal });
     } catch (err) {
       if (err.name === "AbortError") throw err;
-      if (!task) { main.replaceChildren(errorBox(err)); ctx.stopped = true; return; }
+      if (!task) {
+        main.replaceChildren(errorView(err, ctx.retry, { back: "/tasks", backLabel: "Browse tasks" }));
+        ctx.stopped = true;
+        return;
+      }
       updated.textContent = `update failed: ${err.message}`;
       return;
     }
     task = t;
     const outcomes = Array.isArray(t.outcomes) ? t.outcomes : [];
-    updated.textContent = `live · updated ${new Date().toLocaleTimeString("en-GB")}`;
+    updated.textContent = isFinal(t)
+      ? `${String(t.status).toLowerCase()} · updated ${new Date().toLocaleTimeString("en-GB")}, checked every ${FINAL_POLL_MS / 1000} s`
+      : `live · updated ${new Date().toLocaleTimeString("en-GB")}`;
     const spec = t.spec || {};
     const me = document.body.dataset.address || "";
     const isRequester = me && t.requester && me.toLowerCase() === String(t.requester).toLowerCase();
@@ -158,7 +170,7 @@ export async function render(main, [id], ctx) {
       defList([
         ["Requester", shortAddr(t.requester)],
         ["Spec CID", [h("code", { class: "mono", id: "task-spec-cid" }, cid || "—"),
-          SPEC_STATE_NOTES[t.spec_state] ? h("span", { class: "muted", id: "task-spec-state" }, ` (${SPEC_STATE_NOTES[t.spec_state]})`) : null]],
+          own(SPEC_STATE_NOTES, t.spec_state) ? h("span", { class: "muted", id: "task-spec-state" }, ` (${SPEC_STATE_NOTES[t.spec_state]})`) : null]],
         ["Domain", t.domain ?? spec.domain],
         ["Environment", envSummary(spec.env || t.env)],
         ["Observation", spec.observation ? `${String(spec.observation.kind || "").toUpperCase()}${spec.observation.window ? `, window ${spec.observation.window}` : ""}` : undefined],
@@ -266,5 +278,5 @@ export async function render(main, [id], ctx) {
       : h("p", { class: "muted" }, "No outcome submitted yet."));
   }
 
-  await ctx.every(POLL_MS, refresh);
+  await ctx.every(() => (isFinal(task) ? FINAL_POLL_MS : POLL_MS), refresh);
 }

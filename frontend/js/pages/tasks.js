@@ -42,7 +42,8 @@ function row(t) {
     h("td", { class: "num" }, offered !== undefined ? `${offered} / ${t.num_workers ?? "—"}` : (t.num_workers ?? "—")),
     h("td", { class: "num reward", title: t.reward_wei ? `${t.reward_wei} wei` : undefined },
       t.reward_eth ? `${t.reward_eth} ETH` : formatWei(t.reward_wei ?? t.payment_wei)),
-    h("td", {}, formatTime(t.deadline ?? t.created_at)));
+    // UTC, marked, as on the task page: a local time without its zone read as another deadline
+    h("td", { class: "deadline" }, formatTime(t.deadline ?? t.created_at, { utc: true })));
 }
 
 export async function render(main, _params, ctx) {

@@ -3,11 +3,14 @@
 // the task pages (app.js ctx.every), rows replaced in place only when their data changed.
 
 import { api, asList, query } from "../api.js";
-import { clear, errorBox, h, num, shortAddr, statusPill } from "../dom.js";
+import { clear, errorBox, h, num, own, shortAddr, statusPill } from "../dom.js";
 import { PAGE_SIZE, offsetFromUrl, pager } from "../pager.js";
 import { POLL_MS } from "./tasks.js";
 
 const GPU = { 0: "none" };
+/** A worker's domains are bits of a 48-bit mask on the UMC (backend.chain.platform.MAX_DOMAIN). */
+export const MAX_DOMAIN = 47;
+const domainOk = (v) => v === "" || (/^\d{1,2}$/.test(v) && Number(v) <= MAX_DOMAIN);
 
 export function rankWorkers(workers) {
   const key = (v) => (Number.isFinite(Number(v)) ? Number(v) : -Infinity);
@@ -19,7 +22,7 @@ function capabilities(w) {
   const parts = [];
   if (c.cpu_cores !== undefined) parts.push(`${c.cpu_cores} CPU`);
   if (c.ram_gb !== undefined) parts.push(`${c.ram_gb} GB RAM`);
-  if (c.gpu_series !== undefined && c.gpu_series !== null) parts.push(`GPU ${GPU[c.gpu_series] ?? c.gpu_series}`);
+  if (c.gpu_series !== undefined && c.gpu_series !== null) parts.push(`GPU ${own(GPU, c.gpu_series, c.gpu_series)}`);
   const domains = c.domains ?? w.domains;
   return h("span", {}, parts.join(" · ") || "—",
     Array.isArray(domains) && domains.length ? h("div", { class: "muted" }, `domains ${domains.join(", ")}`) : null);
@@ -42,13 +45,23 @@ export async function render(main, _params, ctx) {
   const pages = h("div", { id: "workers-pages" });
   const countEl = h("span", { class: "muted" });
   const updated = h("span", { class: "muted", id: "workers-updated" });
-  const domain = h("input", { name: "domain", type: "text", size: 6, placeholder: "any", value: p.get("domain") || "" });
+  const domainError = h("small", { class: "field-error", id: "workers-domain-error", role: "alert" });
+  const domain = h("input", { name: "domain", type: "text", inputmode: "numeric", size: 6, placeholder: "any",
+    value: p.get("domain") || "", "aria-describedby": "workers-domain-error" });
+  // A domain that is not one (a typo, an old link's "abc") was sent as is: the gateway's 422 was
+  // asked for again on every 2 s poll. It is now said next to the field and not applied.
+  const checkDomain = () => {
+    const ok = domainOk(domain.value.trim());
+    domainError.textContent = ok ? "" : `a domain is a whole number 0-${MAX_DOMAIN}; not applied`;
+    if (ok) domain.removeAttribute("aria-invalid"); else domain.setAttribute("aria-invalid", "true");
+    return ok;
+  };
   const status = h("select", { name: "status", value: p.get("status") || "" },
     ["", "active", "idle"].map((s) => h("option", { value: s }, s || "any status")));
 
   // The filters applied (a half-typed domain is not), the page shown and the table's rows live
   // across polls: a poll replaces only the rows whose data changed (scroll, focus and page stay).
-  let filters = { domain: domain.value.trim(), status: status.value };
+  let filters = { domain: checkDomain() ? domain.value.trim() : "", status: status.value };
   let offset = offsetFromUrl();
   let tbody = null;
   let pagerKey = null;
@@ -104,7 +117,7 @@ export async function render(main, _params, ctx) {
   }
 
   const refilter = () => {
-    filters = { domain: domain.value.trim(), status: status.value };
+    filters = { domain: checkDomain() ? domain.value.trim() : filters.domain, status: status.value };
     offset = 0;
     load();
   };
@@ -116,7 +129,7 @@ export async function render(main, _params, ctx) {
     h("p", { class: "muted" }, "Reputation and rating come from the chain (the requesters' reviews of submitted "
       + "results); new tasks are offered first to the best-matching workers."),
     h("form", { class: "filters", onsubmit: (e) => { e.preventDefault(); refilter(); } },
-      h("label", {}, h("span", {}, "Domain"), domain), h("label", {}, h("span", {}, "Status"), status)),
+      h("label", {}, h("span", {}, "Domain"), domain), h("label", {}, h("span", {}, "Status"), status), domainError),
     results, pages));
   await ctx.every(POLL_MS, load); // live, like the task pages; stops when the user navigates away
 }
