@@ -7,8 +7,11 @@ from typing import Any
 
 from alembic import command
 from alembic.config import Config
-from sqlalchemy import Engine, create_engine, event, make_url
+from sqlalchemy import Engine, ExceptionContext, create_engine, event, make_url, text
+from sqlalchemy.exc import DBAPIError, OperationalError
 from sqlalchemy.orm import Session, sessionmaker
+
+from backend.errors import Unavailable
 
 MIGRATIONS_DIR = Path(__file__).with_name("migrations")
 #: Tables owned by other libraries in the same database (Celery's result backend on
@@ -59,7 +62,40 @@ def make_engine(url: str, **kwargs: Any) -> Engine:
 
         return engine
     kwargs.setdefault("pool_pre_ping", True)
-    return create_engine(url, **kwargs)
+    engine = create_engine(url, **kwargs)
+    event.listen(engine, "handle_error", _unreachable_is_unavailable)
+    return engine
+
+
+DB_RETRY_AFTER_S = 5
+"""Retry-After of a request that found the database unreachable."""
+
+
+class DatabaseUnavailable(Unavailable, OperationalError):
+    """The database server cannot be reached (refused, reset, terminated): an
+    ``OperationalError`` (what every ``except SQLAlchemyError`` expects) that is also the domain
+    error ``Unavailable``, which the gateway answers 503 with Retry-After (it answered 500
+    ``internal_error`` while PostgreSQL was down or restarting)."""
+
+    def __init__(self, error: DBAPIError) -> None:
+        Exception.__init__(self, str(error.orig))
+        self.rule, self.msg, self.retry_after = (
+            "database_unavailable", "the database is unreachable; retry later", DB_RETRY_AFTER_S)
+        self.statement, self.params, self.orig = error.statement, error.params, error.orig
+        self.hide_parameters, self.ismulti = True, error.ismulti
+        self.connection_invalidated, self.detail = error.connection_invalidated, []
+        self.code = error.code
+
+
+def _unreachable_is_unavailable(context: ExceptionContext) -> None:
+    """``handle_error`` of server databases: a lost or refused connection raises
+    :class:`DatabaseUnavailable` (the connection is invalidated all the same; a pool pre-ping is
+    left alone, it reconnects)."""
+    error = context.sqlalchemy_exception
+    if context.is_pre_ping or not isinstance(error, OperationalError):
+        return
+    if context.is_disconnect or context.connection is None:  # lost, or could not connect
+        raise DatabaseUnavailable(error)
 
 
 def make_sessionmaker(engine: Engine) -> sessionmaker[Session]:
@@ -77,10 +113,20 @@ def alembic_config(url: str | None = None) -> Config:
     return cfg
 
 
+MIGRATION_LOCK = 0x44524C4141530001
+"""PostgreSQL advisory lock key (``DRLAAS`` + 1) that :func:`upgrade` holds for its transaction."""
+
+
 def upgrade(engine: Engine, revision: str = "head") -> None:
-    """Migrate the database behind ``engine`` to ``revision`` in one transaction."""
+    """Migrate the database behind ``engine`` to ``revision`` in one transaction. On PostgreSQL
+    the transaction first takes an advisory lock, so two gateways starting at once on one
+    database migrate one after the other (the second finds it at ``revision``): both used to
+    run the same CREATE TABLEs and the second failed to start on a duplicate key."""
     cfg = alembic_config()
     with engine.begin() as connection:
+        if connection.dialect.name == "postgresql":
+            connection.execute(text("SELECT pg_advisory_xact_lock(:key)"),
+                               {"key": MIGRATION_LOCK})
         cfg.attributes["connection"] = connection
         command.upgrade(cfg, revision)
 

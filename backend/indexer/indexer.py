@@ -6,7 +6,8 @@ Guarantees:
   ``block_number`` is the last block fully processed and ``log_index`` the last event applied
   in it (-1 if none), so a restart rescans nothing processed and misses nothing after it;
 * idempotent on (block, log index): an event already in ``chain_events`` is skipped, so
-  re-processing a range (a lost cursor, two pollers) changes nothing;
+  re-processing a range (a lost cursor, two pollers) changes nothing; a poller that loses the
+  race for a range (the other committed it first) goes on from the winner's cursor;
 * a batch of blocks is one database transaction (events, entity rows and cursor together);
 * ``confirmations`` blocks are left unprocessed at the head (real nodes may reorganise);
 * ``on_offer(task_id, worker)`` is called for every ``TaskOffered`` before the batch commits:
@@ -30,7 +31,11 @@ Guarantees:
 * a chain that went back under the cursor (a reorg deeper than ``confirmations``, an embedded
   chain file that lost its last blocks in a power cut) is noticed by the hashes of the indexed
   blocks (``index_blocks``): the index is rebuilt, and the offers of the blocks that are still
-  the chain's are not handed to ``on_offer`` again.
+  the chain's are not handed to ``on_offer`` again;
+* a range is written only if the node answered it from one branch: the hash of its last block
+  is read before and after ``eth_getLogs`` and each log's ``blockHash`` must be its block's
+  (:class:`ChainMoved`; a reorg between the logs and the hashes left the lost branch's events
+  indexed under the new branch's hashes, unnoticed for good).
 """
 
 from __future__ import annotations
@@ -101,6 +106,12 @@ UNSTORABLE = (DataError, IntegrityError, ValueError, TypeError, KeyError, Arithm
 """What an event's own data can make a handler raise, directly or as the ``orig`` of a
 SQLAlchemy error (deterministic: retrying never helps); anything else (the database or the store
 unreachable, a lock timeout) rolls the batch back."""
+
+
+class ChainMoved(RuntimeError):
+    """The node switched branches while a range was read (its logs and its block hashes are of
+    different branches): nothing of the range is written, the next poll reads it again (and
+    ``check_continuity`` rebuilds what the switch took back under the cursor)."""
 
 
 def _noop(task_id: int, worker: str) -> None:
@@ -273,7 +284,20 @@ class Indexer:
             head = self.head()
             while start < head:
                 to = min(head, start + self.batch_blocks)
-                applied += self._batch(start + 1, to)
+                try:
+                    applied += self._batch(start + 1, to)
+                except ChainMoved as exc:  # nothing of the range was written: the next poll
+                    log.warning("indexer: the chain reorganised while blocks %d-%d were read "
+                                "(%s); reading them again", start + 1, to, exc)
+                    break
+                except IntegrityError:  # another indexer (gateway) committed the range first
+                    done, _ = self.cursor()
+                    if done < to:
+                        raise
+                    log.info("indexer: blocks %d-%d were indexed by another indexer meanwhile",
+                             start + 1, to)
+                    start = done
+                    continue
                 start = to
             self.fill_specs()
             return applied
@@ -370,6 +394,7 @@ class Indexer:
         (read in the same lock: a log and the block it is checked against agree)."""
         chain = self.service.chain
         with self.service.lock:
+            tip = self._block_hash(to_block)  # the branch the logs must come from
             raw = chain.w3.eth.get_logs(
                 {"address": list(self._names), "fromBlock": from_block, "toBlock": to_block}  # type: ignore[typeddict-item]
             )
@@ -385,8 +410,13 @@ class Indexer:
                 if b not in times:
                     block = chain.w3.eth.get_block(b)
                     times[b], hashes[b] = int(block["timestamp"]), "0x" + bytes(block["hash"]).hex()
+                log_block = lg.get("blockHash")
+                if log_block is not None and "0x" + bytes(log_block).hex() != hashes[b]:
+                    raise ChainMoved(f"a log of block {b} is of another branch than the block")
                 out.append((dict(lg) | {"_time": times[b]}, decoded[0]))
-            hashes[to_block] = "0x" + bytes(chain.w3.eth.get_block(to_block)["hash"]).hex()
+            if tip is None or self._block_hash(to_block) != tip:
+                raise ChainMoved(f"block {to_block} changed while its range was read")
+            hashes[to_block] = tip
         return out, hashes
 
     def _batch(self, from_block: int, to_block: int) -> int:
