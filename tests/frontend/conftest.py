@@ -85,8 +85,11 @@ def browser() -> Iterator[Any]:
     reason = chromium_missing()
     if reason:
         pytest.skip(reason)
-    from playwright.sync_api import sync_playwright
+    from playwright.sync_api import expect, sync_playwright
 
+    # a page waiting on the real gateway's chain writes took over Playwright's 5 s default on
+    # a loaded machine (CI beside a benchmark): a wait bound, never a timing assert
+    expect.set_options(timeout=20_000)
     with sync_playwright() as pw:
         b = pw.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS, headless=True)
         yield b

@@ -114,10 +114,11 @@ def test_a_worker_reads_a_description_not_utf8_as_the_index_does(service: ChainS
 def test_a_huge_description_written_straight_to_the_chain_is_cut_in_the_index(
     service: ChainService, any_sessions: sessionmaker[Session]
 ) -> None:
-    """The contracts take a description of any length (only gas bounds it): one of 50,000
+    """The contracts took a description of any length (only gas bounded it): one of 50,000
     characters was kept whole in ``chain_events.args``, so every timeline page of that task
-    carried it. The index keeps ``EVENT_TEXT_LIMIT`` characters and says how many it cut; the
-    task row keeps its own column's width."""
+    carried it. The chain now caps it at ``MAX_DESCRIPTION_BYTES``, which still holds more
+    characters than the index keeps: the index keeps ``EVENT_TEXT_LIMIT`` characters and says
+    how many it cut; the task row keeps its own column's width."""
     from backend.indexer.indexer import EVENT_TEXT_LIMIT
 
     p, keys = service.platform, service.demo_keys
@@ -125,7 +126,11 @@ def test_a_huge_description_written_straight_to_the_chain_is_cut_in_the_index(
     req = keys.address("user1")
     with service.lock:
         p.umc.add_requester(req)
-    huge = ("\u00e9" * 20_000 + "x" * 30_000).encode()  # 70,000 bytes, 50,000 characters
+    cap = p.tmc.call("MAX_DESCRIPTION_BYTES")
+    accents = 600  # 2 bytes each in UTF-8
+    huge = ("\u00e9" * accents + "x" * (cap - 2 * accents)).encode()  # the cap, in bytes
+    characters = cap - accents
+    assert len(huge) == cap and characters > EVENT_TEXT_LIMIT + accents
     send(service, req, p.tmc.address, add_task_calldata(huge), value=10**12)
     Indexer(service, any_sessions).poll()
 
@@ -134,8 +139,8 @@ def test_a_huge_description_written_straight_to_the_chain_is_cut_in_the_index(
                               .where(m.ChainEvent.name == "TaskAdded")).one()
         row = s.scalars(select(m.TaskRow)).one()
     kept = args["description"]
-    assert kept.startswith("\u00e9" * EVENT_TEXT_LIMIT + "\u2026")
-    assert kept.endswith(f"[{50_000 - EVENT_TEXT_LIMIT} more characters on chain]")
+    assert kept.startswith("\u00e9" * accents + "x" * (EVENT_TEXT_LIMIT - accents) + "\u2026")
+    assert kept.endswith(f"[{characters - EVENT_TEXT_LIMIT} more characters on chain]")
     assert len(kept) < EVENT_TEXT_LIMIT + 64
     assert row.description == "\u00e9" * 512
     assert args["taskId"] == row.id  # the event's other args are as they were

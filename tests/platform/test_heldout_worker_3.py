@@ -129,14 +129,16 @@ def test_a_resumed_run_of_many_tiny_updates_trims_its_metrics_in_bounded_memory(
     assert len(rows) == 1 + MANY_UPDATES // 2 and rows[-1][0] == str(MANY_UPDATES // 2)
 
 
-def test_a_task_described_by_100_kb_of_text_is_declined_with_a_short_reason(
+def test_a_task_described_by_4_kb_of_text_is_declined_with_a_short_reason(
     env, tmp_path: Path
 ) -> None:
     """The spec CID is the task's on-chain description, any text a requester's own addTask
     writes: the decline's reason quoted it whole (100 KB into the reason state.json, the log
-    and the Celery result keep, for every offer of it). It names it cut short, with its length."""
+    and the Celery result keep, for every offer of it; the chain now takes at most
+    MAX_DESCRIPTION_BYTES). It names it cut short, with its length."""
     p, actors, store = env
-    description = "Qm" + "x" * 100_000
+    cap = p.tmc.call("MAX_DESCRIPTION_BYTES")
+    description = "Qm" + "x" * (cap - 2)
     task_id, _ = p.tmc.add_task(actors.requester, domain=0, num_workers=1, reward=10**15,
                                 duration=3600, description=description)
     offered, _ = p.tmc.allocate(actors.requester, task_id)
@@ -145,6 +147,6 @@ def test_a_task_described_by_100_kb_of_text_is_declined_with_a_short_reason(
     assert out["status"] == "declined", out
     assert out["reason"].startswith("spec: task spec 'Qmxxx") and len(out["reason"]) < 1000, \
         out["reason"][:300]
-    assert "(100002 characters)" in out["reason"] and "invalid CID" in out["reason"]
+    assert f"({cap} characters)" in out["reason"] and "invalid CID" in out["reason"]
     assert h._state(task_id)["reason"] == out["reason"]
     assert p.tmc.offer(task_id, offered[0])["state"] == OfferState.DECLINED
