@@ -125,7 +125,16 @@ class EmbeddedStore(ContentStore):
         return self._blocks / key[-3:-1] / key
 
     # -- writing -----------------------------------------------------------------------------------
-    def _atomic_write(self, path: Path, data: bytes) -> None:
+    def _atomic_write(self, path: Path, data: bytes, what: str) -> None:
+        """Write ``path`` whole or not at all; a disk full or failing is
+        :class:`StoreUnavailable` naming ``what`` (retried by its callers: a raw OSError of a
+        pin failed a worker's job and threw its trained model away)."""
+        try:
+            self._write_and_rename(path, data)
+        except OSError as e:
+            raise StoreUnavailable(str(self.root), f"cannot write {what}: {e}", 5.0) from e
+
+    def _write_and_rename(self, path: Path, data: bytes) -> None:
         new_dir = not path.parent.is_dir()
         for attempt in range(1, WRITE_ATTEMPTS + 1):
             path.parent.mkdir(parents=True, exist_ok=True)
@@ -169,25 +178,14 @@ class EmbeddedStore(ContentStore):
                 return  # already stored and intact
             except CIDMismatch:
                 pass  # corrupted copy on disk: overwrite it with the good bytes
-        try:
-            self._atomic_write(path, block)
-        except OSError as e:
-            raise StoreUnavailable(str(self.root), f"cannot write block {cid}: {e}", 5.0) from e
+        self._atomic_write(path, block, f"block {cid}")
 
     def _add_stream(self, source: bytes | BinaryIO, *, pin: bool) -> str:
         root, _ = build_dag(iter_chunks(source), self._put_block, max_size=self.max_size)
         key = str(root)
         if pin:
-            self._write_pin(key)
+            self._atomic_write(self._pins / key, b"", f"the pin of {key}")
         return key
-
-    def _write_pin(self, key: str) -> None:
-        """Write the pin file of ``key``; a disk full or failing is :class:`StoreUnavailable`,
-        as for blocks (a raw OSError here failed a worker's job instead of retrying it)."""
-        try:
-            self._atomic_write(self._pins / key, b"")
-        except OSError as e:
-            raise StoreUnavailable(str(self.root), f"cannot pin {key}: {e}", 5.0) from e
 
     # -- reading -----------------------------------------------------------------------------------
     def _read_block(self, cid: CID, max_bytes: int) -> bytes:
@@ -212,7 +210,7 @@ class EmbeddedStore(ContentStore):
         key = cid_key(cid)
         for _ in self.iter_get(key):
             pass
-        self._write_pin(key)
+        self._atomic_write(self._pins / key, b"", f"the pin of {key}")
 
     def unpin(self, cid: str | CID) -> None:
         key = cid_key(cid)

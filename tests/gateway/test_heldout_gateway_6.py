@@ -7,14 +7,11 @@ from __future__ import annotations
 import contextlib
 import re
 import socket
-import threading
-import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
-import uvicorn
 from fastapi import FastAPI
 from fastapi.testclient import TestClient
 from sqlalchemy import event
@@ -25,7 +22,7 @@ from backend.db import models as m
 from backend.settings import Settings
 from backend.store.bundle import add_bundle, bundle_entry
 
-from .conftest import P
+from .conftest import P, serving
 from .test_models import card_of, weights_of
 
 ENV = {"rows": 10, "cols": 10, "agents": 2, "walls": [0, 1]}
@@ -278,22 +275,10 @@ def test_a_405_allows_every_method_of_the_path(
 
 
 @contextlib.contextmanager
-def _served(app: FastAPI, http: Any) -> Iterator[int]:
-    """``app`` under uvicorn with the HTTP protocol ``http`` on a free loopback port."""
-    sock = socket.socket()
-    sock.bind(("127.0.0.1", 0))
-    server = uvicorn.Server(uvicorn.Config(app, http=http, log_level="warning"))
-    thread = threading.Thread(target=server.run, kwargs={"sockets": [sock]}, daemon=True)
-    thread.start()
-    deadline = time.monotonic() + 20
-    while not server.started:
-        assert time.monotonic() < deadline, "gateway did not start"
-        time.sleep(0.05)
-    try:
-        yield sock.getsockname()[1]
-    finally:
-        server.should_exit = True
-        thread.join(10)
+def _served(app: FastAPI) -> Iterator[int]:
+    """``app`` under uvicorn with the bounded head protocol, as ``drlaas up`` serves it."""
+    with serving(app, http=BoundedHttpToolsProtocol) as url:
+        yield int(url.rsplit(":", 1)[1])
 
 
 def _exchange(port: int, request: bytes) -> bytes:
@@ -320,7 +305,7 @@ def _exchange(port: int, request: bytes) -> bytes:
 def test_a_request_head_past_the_bound_is_refused_431(bare_app: FastAPI, head: bytes) -> None:
     """httptools kept a head of any size until it ended (200 MB from one anonymous connection
     grew the gateway by 200 MB) and then answered 200."""
-    with _served(bare_app, BoundedHttpToolsProtocol) as port:
+    with _served(bare_app) as port:
         answer = _exchange(port, head + b"Connection: close\r\n\r\n")
     status, _, rest = answer.partition(b"\r\n")
     assert status == b"HTTP/1.1 431 Request Header Fields Too Large", answer[:200]
@@ -332,7 +317,7 @@ def test_bounded_heads_leave_bodies_and_kept_alive_requests_alone(bare_app: Fast
     post = (b"POST /api/auth/nonce HTTP/1.1\r\nHost: a\r\nContent-Type: application/json\r\n"
             b"Content-Length: " + str(len(big)).encode() + b"\r\n\r\n" + big)  # fmt: skip
     near = b"GET /api/health HTTP/1.1\r\nHost: a\r\nX: " + b"a" * (MAX_HEAD_BYTES - 200)
-    with _served(bare_app, BoundedHttpToolsProtocol) as port:
+    with _served(bare_app) as port:
         # a body of ten bounds in one write, then two more requests on the connection
         answer = _exchange(port, post + post + near + b"\r\nConnection: close\r\n\r\n")
     statuses = re.findall(rb"HTTP/1\.1 (\d{3}) ", answer)

@@ -86,7 +86,7 @@ def test_a_full_store_disk_at_upload_is_retried_not_a_failed_job(
     task_id, offered, _ = post_task(p, store, actors.requester)
     worker = offered[0]
     h = handler_for(p, worker, store, tmp_path)
-    real_write = EmbeddedStore._atomic_write
+    real_write = EmbeddedStore._write_and_rename
 
     def pins_on_full_disk(self: EmbeddedStore, path: Path, data: bytes) -> None:
         if path.parent.name == "pins" and self is store:
@@ -94,12 +94,12 @@ def test_a_full_store_disk_at_upload_is_retried_not_a_failed_job(
         real_write(self, path, data)
 
     spec_pins = store.pins()
-    monkeypatch.setattr(EmbeddedStore, "_atomic_write", pins_on_full_disk)
+    monkeypatch.setattr(EmbeddedStore, "_write_and_rename", pins_on_full_disk)
     with pytest.raises(Transient, match="No space left"):
         h.handle(task_id, worker)
     assert h._state(task_id)["phase"] == "trained"
     assert p.tmc.offer(task_id, worker)["state"] == OfferState.ACCEPTED
-    monkeypatch.setattr(EmbeddedStore, "_atomic_write", real_write)  # space freed
+    monkeypatch.setattr(EmbeddedStore, "_write_and_rename", real_write)  # space freed
     out = h.handle(task_id, worker)
     assert out["status"] == "submitted", out
     assert out["cid"] in set(store.pins()) - set(spec_pins)
@@ -117,9 +117,9 @@ def test_a_full_disk_on_a_pin_is_a_store_outage(tmp_path: Path,
         return real_mkstemp(*args, **kw)
 
     monkeypatch.setattr(embedded_module.tempfile, "mkstemp", full)
-    with pytest.raises(StoreUnavailable, match="cannot pin .*No space left"):
+    with pytest.raises(StoreUnavailable, match="cannot write the pin of .*No space left"):
         store.add(b"pinned on a full disk")
-    with pytest.raises(StoreUnavailable, match=f"cannot pin {cid}"):
+    with pytest.raises(StoreUnavailable, match=f"cannot write the pin of {cid}"):
         store.pin(cid)
 
 

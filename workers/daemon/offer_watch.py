@@ -41,7 +41,6 @@ from __future__ import annotations
 
 import json
 import logging
-import math
 import os
 import threading
 import time
@@ -88,19 +87,10 @@ WATCH_DIR = "offer_watch"
 def poll_interval_from_env(environ: Mapping[str, str] | None = None) -> float:
     """``DRLAAS_WORKER_OFFER_POLL_S`` in seconds (DEFAULT_POLL_S when unset; 0: no watcher);
     ValueError naming the variable for anything but a finite number >= 0."""
-    text = (os.environ if environ is None else environ).get(ENV_POLL, "").strip()
-    if not text:
-        return DEFAULT_POLL_S
-    try:
-        value = float(text)
-    except ValueError:
-        value = -1.0
-    if not math.isfinite(value) or value < 0:
-        raise ValueError(
-            f"{ENV_POLL} must be a number of seconds >= 0 (0 disables the chain offer watcher), "
-            f"got {text!r}"
-        )
-    return value
+    from workers.daemon.tasks import env_seconds  # the daemon's other variables' rule
+
+    return env_seconds(os.environ if environ is None else environ, ENV_POLL, DEFAULT_POLL_S,
+                       note=" (0 disables the chain offer watcher)")
 
 
 # -- which offers this process is handling now (Celery's solo pool: its main thread) -------

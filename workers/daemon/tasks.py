@@ -151,7 +151,7 @@ def worker_env(environ: Mapping[str, str] | None = None) -> WorkerEnv:
         max_jobs=_env_int(env, "DRLAAS_WORKER_MAX_JOBS", 1, least=1, unit="jobs"),
         checkpoint_every=_env_int(env, "DRLAAS_WORKER_CHECKPOINT_EVERY",
                                   jobs.CHECKPOINT_EVERY, least=1, unit="updates"),
-        checkpoint_interval_s=_env_seconds(env, "DRLAAS_WORKER_CHECKPOINT_INTERVAL_S",
+        checkpoint_interval_s=env_seconds(env, "DRLAAS_WORKER_CHECKPOINT_INTERVAL_S",
                                            jobs.CHECKPOINT_INTERVAL_S),
         cache_bytes=_env_int(env, "DRLAAS_WORKER_MODEL_CACHE_BYTES", DEFAULT_CACHE_BYTES,
                              least=0, unit="bytes"),
@@ -216,9 +216,10 @@ def _env_int(env: Mapping[str, str], name: str, default: int, *, least: int, uni
     return value
 
 
-def _env_seconds(env: Mapping[str, str], name: str, default: float) -> float:
-    """A finite number of seconds >= 0 from the environment; WorkerEnvError naming the
-    variable and its value otherwise (float() takes 'nan' and 'inf')."""
+def env_seconds(env: Mapping[str, str], name: str, default: float, *, note: str = "") -> float:
+    """A finite number of seconds >= 0 from the environment (``default`` when unset or blank);
+    WorkerEnvError naming the variable and its value otherwise (float() takes 'nan' and
+    'inf'); ``note`` says more in the message (what 0 means)."""
     text = env.get(name, "").strip()
     if not text:
         return default
@@ -227,7 +228,7 @@ def _env_seconds(env: Mapping[str, str], name: str, default: float) -> float:
     except ValueError:
         value = -1.0
     if not math.isfinite(value) or value < 0:
-        raise WorkerEnvError(f"{name} must be a number of seconds >= 0, got {text!r}")
+        raise WorkerEnvError(f"{name} must be a number of seconds >= 0{note}, got {text!r}")
     return value
 
 
